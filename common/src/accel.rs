@@ -1,0 +1,234 @@
+//! The acceleration structure: a binary BVH built by obvhs, flattened into our own node array
+//! with the triangles stored in leaf order, so a leaf's triangles are contiguous in memory.
+
+use crate::geometry::{Bounds, Ray};
+use crate::scene::Scene;
+use glam::Vec3;
+use obvhs::bvh2::builder::build_bvh2_from_tris;
+use obvhs::triangle::Triangle;
+use obvhs::BvhBuildParams;
+use std::time::Duration;
+
+/// One BVH node. Inner nodes have `count == 0` and children at `first` and `first + 1`;
+/// leaves hold triangles `first .. first + count` of [`Accel::triangles`].
+#[derive(Clone, Copy, Debug)]
+pub struct BvhNode {
+    pub min: Vec3,
+    pub max: Vec3,
+    pub first: u32,
+    pub count: u32,
+}
+
+/// A triangle's corners, stored in leaf order.
+#[derive(Clone, Copy, Debug)]
+pub struct LeafTriangle {
+    pub a: Vec3,
+    pub b: Vec3,
+    pub c: Vec3,
+}
+
+/// The closest hit found by [`Accel::closest_hit`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    /// Index into [`Accel::triangles`] (leaf order).
+    pub slot: u32,
+}
+
+pub struct Accel {
+    pub nodes: Vec<BvhNode>,
+    pub triangles: Vec<LeafTriangle>,
+    /// Scene triangle index of each leaf slot.
+    pub scene_index: Vec<u32>,
+    max_depth: usize,
+}
+
+impl Accel {
+    /// Builds the BVH over all triangles of `scene`. The build is deterministic: the same scene
+    /// gives the same tree on every node, which keeps tiles bit-identical wherever rendered.
+    pub fn build(scene: &Scene) -> Accel {
+        let tris: Vec<Triangle> = scene
+            .triangles
+            .iter()
+            .map(|t| Triangle {
+                v0: scene.positions[t[0] as usize].into(),
+                v1: scene.positions[t[1] as usize].into(),
+                v2: scene.positions[t[2] as usize].into(),
+            })
+            .collect();
+        let bvh = build_bvh2_from_tris(
+            &tris,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
+        let nodes = bvh
+            .nodes
+            .iter()
+            .map(|n| BvhNode {
+                min: n.aabb().min.into(),
+                max: n.aabb().max.into(),
+                first: n.first_index,
+                count: n.prim_count,
+            })
+            .collect();
+        let triangles = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| {
+                let t = &tris[i as usize];
+                LeafTriangle {
+                    a: t.v0.into(),
+                    b: t.v1.into(),
+                    c: t.v2.into(),
+                }
+            })
+            .collect();
+        Accel {
+            nodes,
+            triangles,
+            scene_index: bvh.primitive_indices,
+            max_depth: bvh.max_depth.max(64),
+        }
+    }
+
+    pub fn bounds(&self) -> Bounds {
+        self.nodes.first().map_or(Bounds::EMPTY, |n| Bounds {
+            min: n.min,
+            max: n.max,
+        })
+    }
+
+    /// A traversal stack deep enough for this tree; reuse it across rays.
+    pub fn new_stack(&self) -> Vec<u32> {
+        Vec::with_capacity(self.max_depth * 2)
+    }
+
+    /// The nearest triangle hit in `(t_min, t_max)`. Ties keep the first triangle found, and
+    /// traversal order is fixed by the tree, so the answer is deterministic.
+    pub fn closest_hit(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut t_far = t_max;
+        self.traverse(ray, stack, &mut t_far, |slot, t_far| {
+            let tri = &self.triangles[slot as usize];
+            if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, *t_far) {
+                *t_far = t;
+                best = Some(Hit { t, slot });
+            }
+            false
+        });
+        best
+    }
+
+    /// Whether anything blocks the ray in `(t_min, t_max)`; stops at the first blocker.
+    pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> bool {
+        let mut t_far = t_max;
+        let mut blocked = false;
+        self.traverse(ray, stack, &mut t_far, |slot, t_far| {
+            let tri = &self.triangles[slot as usize];
+            blocked = ray
+                .hit_triangle(tri.a, tri.b, tri.c, t_min, *t_far)
+                .is_some();
+            blocked
+        });
+        blocked
+    }
+
+    /// Visits the leaf triangles whose boxes the ray enters before `t_far`, nearer child first.
+    /// `visit` may shrink `t_far` and returns `true` to stop.
+    #[inline(always)]
+    fn traverse(
+        &self,
+        ray: &Ray,
+        stack: &mut Vec<u32>,
+        t_far: &mut f32,
+        mut visit: impl FnMut(u32, &mut f32) -> bool,
+    ) {
+        stack.clear();
+        let Some(root) = self.nodes.first() else {
+            return;
+        };
+        if ray.box_entry(root.min, root.max, *t_far).is_infinite() {
+            return;
+        }
+        stack.push(0);
+        while let Some(index) = stack.pop() {
+            let node = &self.nodes[index as usize];
+            if node.count > 0 {
+                for slot in node.first..node.first + node.count {
+                    if visit(slot, t_far) {
+                        return;
+                    }
+                }
+                continue;
+            }
+            let (l, r) = (node.first, node.first + 1);
+            let (ln, rn) = (&self.nodes[l as usize], &self.nodes[r as usize]);
+            let tl = ray.box_entry(ln.min, ln.max, *t_far);
+            let tr = ray.box_entry(rn.min, rn.max, *t_far);
+            // Push the farther child first so the nearer one is popped next.
+            match (tl.is_finite(), tr.is_finite()) {
+                (true, true) if tl <= tr => stack.extend([r, l]),
+                (true, true) => stack.extend([l, r]),
+                (true, false) => stack.push(l),
+                (false, true) => stack.push(r),
+                (false, false) => {}
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::knot_scene;
+
+    #[test]
+    fn bvh_closest_hit_matches_brute_force() {
+        let scene = knot_scene(64, 12);
+        let accel = Accel::build(&scene);
+        let mut stack = accel.new_stack();
+        let center = scene.bounds().center();
+        for i in 0..400 {
+            let a = i as f32 * 0.37;
+            let origin =
+                center + Vec3::new(a.cos() * 9.0, 1.5 + (a * 0.7).sin() * 2.0, a.sin() * 9.0);
+            let ray = Ray::new(
+                origin,
+                center - origin + Vec3::new((a * 3.1).sin(), 0.0, 0.0),
+            );
+            let got = accel
+                .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
+                .map(|h| h.t);
+            let brute = accel
+                .triangles
+                .iter()
+                .filter_map(|t| ray.hit_triangle(t.a, t.b, t.c, 0.0, f32::INFINITY))
+                .min_by(f32::total_cmp);
+            assert_eq!(got, brute, "ray {i}");
+            assert_eq!(
+                accel.occluded(&ray, 0.0, f32::INFINITY, &mut stack),
+                brute.is_some()
+            );
+        }
+    }
+
+    #[test]
+    fn build_is_deterministic() {
+        let scene = knot_scene(200, 24);
+        let (a, b) = (Accel::build(&scene), Accel::build(&scene));
+        assert_eq!(a.scene_index, b.scene_index);
+        assert_eq!(a.nodes.len(), b.nodes.len());
+        for (x, y) in a.nodes.iter().zip(&b.nodes) {
+            assert_eq!(
+                (x.min, x.max, x.first, x.count),
+                (y.min, y.max, y.first, y.count)
+            );
+        }
+    }
+}
