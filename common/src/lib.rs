@@ -5,7 +5,12 @@
 //! sockets. The node crates wrap them in thin tokio + quinn driver loops.
 
 pub mod accel;
+pub mod assemble;
+pub mod balance;
 pub mod geometry;
+pub mod protocol;
 pub mod render;
 pub mod scene;
+pub mod sim;
 pub mod wall;
+pub mod worker;

@@ -1,0 +1,211 @@
+use super::*;
+use crate::protocol::{TileRange, ToNode};
+use crate::render::Camera;
+use crate::sim::SimWall;
+use crate::wall::WallLayout;
+use glam::Vec3;
+
+fn coordinator(tiles: u32, displays: u32, frames: u64) -> Coordinator {
+    let camera = CameraMode::Fixed(Camera {
+        eye: Vec3::Z,
+        target: Vec3::ZERO,
+        up: Vec3::Y,
+        fov_y_deg: 45.0,
+    });
+    Coordinator::new(
+        tiles,
+        displays,
+        camera,
+        RenderParams::interactive(),
+        Some(frames),
+        BalanceConfig::default(),
+    )
+}
+
+fn drain(c: &mut Coordinator) -> Vec<Output> {
+    std::iter::from_fn(|| c.poll_output()).collect()
+}
+
+fn assigned_to(outputs: &[Output], node: RenderNodeId) -> Vec<TileRange> {
+    outputs
+        .iter()
+        .filter_map(|o| match o {
+            Output::ToRender(n, ToNode::Assign { tiles, .. }) if *n == node => Some(tiles.clone()),
+            _ => None,
+        })
+        .flatten()
+        .collect()
+}
+
+#[test]
+fn whole_frames_present_on_every_display_with_the_right_pixels() {
+    let mut sim = SimWall::new(7, WallLayout::grid(3, 2, 200, 120).with_tile_size(32), 4);
+    assert_eq!(sim.run_frames(5), 5);
+    for d in 0..6 {
+        assert_eq!(
+            sim.presented(DisplayId(d)),
+            (0..5).map(FrameId).collect::<Vec<_>>()
+        );
+    }
+    assert!(sim.corrupt_frames().is_empty());
+}
+
+#[test]
+fn a_render_node_that_disappears_mid_frame_does_not_stop_the_wall() {
+    let mut sim = SimWall::new(11, WallLayout::grid(2, 2, 256, 128).with_tile_size(32), 3);
+    sim.kill_at(RenderNodeId(1), FrameId(2));
+    assert_eq!(sim.run_frames(6), 6);
+    assert_eq!(sim.live_render_nodes(), 2);
+    for d in 0..4 {
+        assert_eq!(
+            sim.presented(DisplayId(d)),
+            (0..6).map(FrameId).collect::<Vec<_>>()
+        );
+    }
+    assert!(sim.corrupt_frames().is_empty());
+}
+
+#[test]
+fn many_virtual_nodes_and_deaths() {
+    let mut sim = SimWall::new(3, WallLayout::grid(8, 4, 256, 144).with_tile_size(32), 64);
+    for k in [5, 17, 40] {
+        sim.kill_at(RenderNodeId(k), FrameId(k as u64 % 4));
+    }
+    assert_eq!(sim.run_frames(8), 8);
+    assert_eq!(sim.live_render_nodes(), 61);
+    assert!(sim.corrupt_frames().is_empty());
+    for d in 0..32 {
+        assert_eq!(sim.presented(DisplayId(d)).len(), 8);
+    }
+}
+
+#[test]
+fn first_assignment_is_a_static_contiguous_share_then_batches_shrink() {
+    let mut c = coordinator(100, 1, 1);
+    let now = Instant::now();
+    for n in 0..2 {
+        c.handle_render_joined(RenderNodeId(n), now);
+    }
+    c.start(now);
+    let out = drain(&mut c);
+    assert_eq!(
+        assigned_to(&out, RenderNodeId(0)),
+        vec![TileRange { start: 0, end: 25 }]
+    );
+    assert_eq!(
+        assigned_to(&out, RenderNodeId(1)),
+        vec![TileRange { start: 50, end: 75 }]
+    );
+    let mut sizes = Vec::new();
+    loop {
+        c.handle_tiles_done(RenderNodeId(0), FrameId(0), &[], true, now)
+            .unwrap();
+        let got: usize = assigned_to(&drain(&mut c), RenderNodeId(0))
+            .iter()
+            .map(|r| r.len())
+            .sum();
+        if got == 0 {
+            break;
+        }
+        sizes.push(got);
+    }
+    assert_eq!(sizes.iter().sum::<usize>(), 50);
+    assert!(sizes.windows(2).all(|w| w[0] >= w[1]), "{sizes:?}");
+    assert!(sizes[0] > *sizes.last().unwrap());
+}
+
+#[test]
+fn state_changes_wait_for_the_barrier() {
+    let mut c = coordinator(4, 1, 3);
+    let now = Instant::now();
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.start(now);
+    let first = drain(&mut c);
+    let moved = Camera {
+        eye: Vec3::new(5.0, 0.0, 0.0),
+        target: Vec3::ZERO,
+        up: Vec3::Y,
+        fov_y_deg: 30.0,
+    };
+    c.queue_change(StateChange::Camera(CameraMode::Fixed(moved)));
+    // Nothing is re-broadcast for the frame in flight.
+    assert!(drain(&mut c).is_empty());
+    let starts = |outs: &[Output]| -> Vec<FrameStart> {
+        outs.iter()
+            .filter_map(|o| match o {
+                Output::ToDisplays(ToNode::FrameStart(s)) => Some(*s),
+                _ => None,
+            })
+            .collect()
+    };
+    assert_ne!(starts(&first)[0].camera, moved);
+    let mut outs = first;
+    for _ in 0..10 {
+        let mine = assigned_to(&outs, RenderNodeId(0));
+        c.handle_tiles_done(RenderNodeId(0), FrameId(0), &mine, true, now)
+            .unwrap();
+        outs = drain(&mut c);
+        if let Some(next) = starts(&outs).first() {
+            assert_eq!(next.frame, FrameId(1));
+            assert_eq!(next.camera, moved);
+            return;
+        }
+    }
+    panic!("frame 1 never started");
+}
+
+#[test]
+fn hostile_reports_are_errors_not_panics() {
+    let mut c = coordinator(10, 2, 2);
+    let now = Instant::now();
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.handle_render_joined(RenderNodeId(1), now);
+    c.start(now);
+    let _ = drain(&mut c);
+    // Node 0 owns tiles 0..3 statically; tile 7 belongs to node 1.
+    assert!(matches!(
+        c.handle_tiles_done(
+            RenderNodeId(0),
+            FrameId(0),
+            &[TileRange { start: 7, end: 8 }],
+            false,
+            now
+        ),
+        Err(BalanceError::NotAssigned { .. })
+    ));
+    assert!(c
+        .handle_tiles_done(
+            RenderNodeId(0),
+            FrameId(0),
+            &[TileRange {
+                start: 9,
+                end: 4_000_000
+            }],
+            false,
+            now
+        )
+        .is_err());
+    assert!(c
+        .handle_tiles_done(RenderNodeId(9), FrameId(0), &[], false, now)
+        .is_err());
+    assert!(c
+        .handle_tiles_done(RenderNodeId(0), FrameId(5), &[], false, now)
+        .is_err());
+    assert!(c
+        .handle_frame_complete(DisplayId(2), FrameId(0), now)
+        .is_err());
+    assert!(c
+        .handle_frame_complete(DisplayId(0), FrameId(9), now)
+        .is_err());
+}
+
+#[test]
+fn losing_every_render_node_is_reported_as_a_stall() {
+    let mut c = coordinator(10, 1, 2);
+    let now = Instant::now();
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.start(now);
+    let _ = drain(&mut c);
+    c.handle_render_left(RenderNodeId(0), now);
+    assert!(drain(&mut c).contains(&Output::Stalled));
+}

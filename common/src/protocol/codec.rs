@@ -1,0 +1,216 @@
+//! Control-message framing: a 4-byte little-endian length, then a postcard body.
+//!
+//! This is the only place that knows the codec, so replacing postcard touches one file.
+
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+/// Largest control message body accepted. A session with a few thousand displays fits easily;
+/// anything bigger is a bug or an attack.
+pub const MAX_CONTROL_BODY: usize = 1 << 20;
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum CodecError {
+    #[error("control message of {len} bytes exceeds the {limit}-byte limit")]
+    TooLarge { len: usize, limit: usize },
+    #[error("empty control message")]
+    Empty,
+    #[error("malformed control message: {0}")]
+    Malformed(String),
+    #[error("control message has {0} trailing bytes")]
+    Trailing(usize),
+}
+
+/// Encodes `msg` as one frame (length prefix included).
+///
+/// # Panics
+/// If the message itself is over [`MAX_CONTROL_BODY`]: senders build messages from validated
+/// state, so this is a bug to fix, not an input to handle.
+pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
+    let mut frame = vec![0u8; 4];
+    let frame = postcard::to_extend(msg, std::mem::take(&mut frame))
+        .expect("postcard encoding into a Vec cannot fail");
+    let len = frame.len() - 4;
+    assert!(len <= MAX_CONTROL_BODY, "control message of {len} bytes");
+    let mut frame = frame;
+    frame[..4].copy_from_slice(&(len as u32).to_le_bytes());
+    frame
+}
+
+/// Reads the body length from a frame's prefix, refusing absurd sizes before any allocation.
+pub fn body_len(prefix: [u8; 4]) -> Result<usize, CodecError> {
+    let len = u32::from_le_bytes(prefix) as usize;
+    if len == 0 {
+        return Err(CodecError::Empty);
+    }
+    if len > MAX_CONTROL_BODY {
+        return Err(CodecError::TooLarge {
+            len,
+            limit: MAX_CONTROL_BODY,
+        });
+    }
+    Ok(len)
+}
+
+/// Decodes a frame body; every byte must be used.
+pub fn decode<T: DeserializeOwned>(body: &[u8]) -> Result<T, CodecError> {
+    if body.len() > MAX_CONTROL_BODY {
+        return Err(CodecError::TooLarge {
+            len: body.len(),
+            limit: MAX_CONTROL_BODY,
+        });
+    }
+    let (msg, rest) =
+        postcard::take_from_bytes(body).map_err(|e| CodecError::Malformed(e.to_string()))?;
+    if !rest.is_empty() {
+        return Err(CodecError::Trailing(rest.len()));
+    }
+    Ok(msg)
+}
+
+/// Decodes one whole frame (prefix and body) from a buffer, for tests and in-memory transports.
+pub fn decode_frame<T: DeserializeOwned>(frame: &[u8]) -> Result<T, CodecError> {
+    let prefix: [u8; 4] = frame
+        .get(..4)
+        .and_then(|p| p.try_into().ok())
+        .ok_or_else(|| CodecError::Malformed("frame shorter than its length prefix".into()))?;
+    let len = body_len(prefix)?;
+    let body = &frame[4..];
+    if body.len() != len {
+        return Err(CodecError::Malformed(format!(
+            "frame says {len} bytes but carries {}",
+            body.len()
+        )));
+    }
+    decode(body)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::*;
+    use crate::render::{Camera, RenderParams};
+    use crate::wall::{DisplayId, WallLayout};
+    use glam::Vec3;
+    use proptest::prelude::*;
+
+    fn samples() -> Vec<FromNode> {
+        vec![
+            FromNode::Hello(Hello {
+                version: PROTOCOL_VERSION,
+                role: Role::Display {
+                    display: DisplayId(3),
+                    pixel_addr: "127.0.0.1:4000".parse().unwrap(),
+                },
+                host: "wall-3".into(),
+            }),
+            FromNode::TilesDone {
+                frame: FrameId(9),
+                tiles: vec![TileRange { start: 4, end: 90 }],
+                want_more: true,
+            },
+            FromNode::Stats(NodeStats::Render(RenderStats {
+                tiles: 5,
+                rays: 1 << 40,
+                busy_s: 1.5,
+                elapsed_s: 2.0,
+            })),
+        ]
+    }
+
+    fn to_node_samples() -> Vec<ToNode> {
+        vec![
+            ToNode::Welcome {
+                node: RenderNodeId(2),
+                session: Session {
+                    wall: WallLayout::grid(2, 2, 480, 270).with_bezel(16),
+                    scene: crate::scene::SceneSpec::default(),
+                    scene_hash: [7; 32],
+                    displays: vec![DisplayEndpoint {
+                        display: DisplayId(0),
+                        addr: "[::1]:9".parse().unwrap(),
+                    }],
+                    save_frame: Some(FrameId(3)),
+                },
+            },
+            ToNode::FrameStart(FrameStart {
+                frame: FrameId(1),
+                camera: Camera {
+                    eye: Vec3::ONE,
+                    target: Vec3::ZERO,
+                    up: Vec3::Y,
+                    fov_y_deg: 40.0,
+                },
+                params: RenderParams::interactive(),
+            }),
+            ToNode::Present {
+                frame: FrameId(u64::MAX),
+            },
+        ]
+    }
+
+    #[test]
+    fn messages_round_trip() {
+        for msg in samples() {
+            assert_eq!(decode_frame::<FromNode>(&encode(&msg)).unwrap(), msg);
+        }
+        for msg in to_node_samples() {
+            assert_eq!(decode_frame::<ToNode>(&encode(&msg)).unwrap(), msg);
+        }
+    }
+
+    #[test]
+    fn truncated_frames_are_errors() {
+        for msg in to_node_samples() {
+            let frame = encode(&msg);
+            for cut in 0..frame.len() {
+                assert!(
+                    decode_frame::<ToNode>(&frame[..cut]).is_err(),
+                    "cut at {cut}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn oversized_frames_are_refused_before_reading_the_body() {
+        let prefix = ((MAX_CONTROL_BODY + 1) as u32).to_le_bytes();
+        assert!(matches!(body_len(prefix), Err(CodecError::TooLarge { .. })));
+        assert_eq!(
+            body_len(u32::MAX.to_le_bytes()),
+            Err(CodecError::TooLarge {
+                len: u32::MAX as usize,
+                limit: MAX_CONTROL_BODY
+            })
+        );
+        assert_eq!(body_len([0; 4]), Err(CodecError::Empty));
+    }
+
+    #[test]
+    fn trailing_bytes_are_refused() {
+        let mut frame = encode(&ToNode::Shutdown);
+        frame.push(0);
+        let len = (frame.len() - 4) as u32;
+        frame[..4].copy_from_slice(&len.to_le_bytes());
+        assert!(matches!(
+            decode_frame::<ToNode>(&frame),
+            Err(CodecError::Trailing(1))
+        ));
+    }
+
+    proptest! {
+        #[test]
+        fn random_bodies_never_panic(body in proptest::collection::vec(any::<u8>(), 0..512)) {
+            let _ = decode::<ToNode>(&body);
+            let _ = decode::<FromNode>(&body);
+        }
+
+        #[test]
+        fn corrupted_messages_never_panic(index in 0usize..64, byte in any::<u8>(), which in 0usize..3) {
+            let mut frame = encode(&to_node_samples()[which]);
+            let i = 4 + index % (frame.len() - 4);
+            frame[i] = byte;
+            let _ = decode_frame::<ToNode>(&frame);
+        }
+    }
+}
