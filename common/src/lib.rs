@@ -8,6 +8,8 @@ pub mod accel;
 pub mod assemble;
 pub mod balance;
 pub mod geometry;
+pub mod image_io;
+pub mod net;
 pub mod protocol;
 pub mod render;
 pub mod scene;

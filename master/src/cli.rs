@@ -1,0 +1,119 @@
+//! Command-line arguments shared by the master's subcommands, and their checks.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use glam::Vec3;
+use std::path::PathBuf;
+use tessera_common::render::{Camera, CameraMode};
+use tessera_common::scene::{Scene, SceneSpec};
+use tessera_common::wall::{parse_size, WallLayout, DEFAULT_TILE_SIZE};
+
+/// The wall: either `--wall-file` or the `--wall/--screen/--bezel` shorthand.
+#[derive(Args, Debug, Clone)]
+pub struct WallArgs {
+    /// Screens as COLUMNSxROWS, e.g. 2x2.
+    #[arg(long, default_value = "2x2", conflicts_with = "wall_file")]
+    pub wall: String,
+    /// Pixels of one screen as WIDTHxHEIGHT.
+    #[arg(long, default_value = "480x270", conflicts_with = "wall_file")]
+    pub screen: String,
+    /// Pixels hidden between neighbouring screens (mullion).
+    #[arg(long, default_value_t = 0, conflicts_with = "wall_file")]
+    pub bezel: u32,
+    /// Tile edge in pixels; tiles are the unit of load balancing.
+    #[arg(long, default_value_t = DEFAULT_TILE_SIZE, conflicts_with = "wall_file")]
+    pub tile: u32,
+    /// A TOML wall file (columns, rows, screen_width, screen_height, bezel, tile_size).
+    #[arg(long)]
+    pub wall_file: Option<PathBuf>,
+}
+
+impl WallArgs {
+    pub fn layout(&self) -> Result<WallLayout> {
+        if let Some(path) = &self.wall_file {
+            return Ok(WallLayout::from_file(path)?);
+        }
+        let (columns, rows) = parse_size(&self.wall).context("--wall")?;
+        let (w, h) = parse_size(&self.screen).context("--screen")?;
+        let layout = WallLayout::grid(columns, rows, w, h)
+            .with_bezel(self.bezel)
+            .with_tile_size(self.tile);
+        layout.validate()?;
+        Ok(layout)
+    }
+}
+
+/// The scene and the camera.
+#[derive(Args, Debug, Clone)]
+pub struct SceneArgs {
+    /// `builtin` (a procedural knot over a floor) or an OBJ/PLY mesh path.
+    #[arg(long, default_value = "builtin")]
+    pub scene: String,
+    /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.
+    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
+    pub eye: Option<Vec3>,
+    /// Point the camera looks at, X,Y,Z.
+    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
+    pub target: Option<Vec3>,
+    /// Up direction X,Y,Z.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
+    pub up: Vec3,
+    /// Vertical field of view of the whole wall, in degrees.
+    #[arg(long, default_value_t = 45.0)]
+    pub fov: f32,
+}
+
+fn parse_vec3(text: &str) -> Result<Vec3, String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("`{text}` is not X,Y,Z"));
+    }
+    let mut v = [0f32; 3];
+    for (slot, part) in v.iter_mut().zip(parts) {
+        *slot = part
+            .trim()
+            .parse()
+            .map_err(|_| format!("`{part}` in `{text}` is not a number"))?;
+        if !slot.is_finite() {
+            return Err(format!("`{part}` in `{text}` is not finite"));
+        }
+    }
+    Ok(Vec3::from_array(v))
+}
+
+impl SceneArgs {
+    pub fn spec(&self) -> SceneSpec {
+        SceneSpec::from_arg(&self.scene)
+    }
+
+    /// The camera mode for a loaded scene: fixed if the flags say so, else the default orbit.
+    pub fn camera_mode(&self, scene: &Scene) -> Result<CameraMode> {
+        match (self.eye, self.target) {
+            (Some(eye), Some(target)) => {
+                let camera = Camera {
+                    eye,
+                    target,
+                    up: self.up,
+                    fov_y_deg: self.fov,
+                };
+                camera.validate().context("camera flags")?;
+                Ok(CameraMode::Fixed(camera))
+            }
+            (None, None) => Ok(CameraMode::orbit_of(&scene.bounds())),
+            _ => bail!("--eye and --target go together"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vectors_parse_and_garbage_is_explained() {
+        assert_eq!(parse_vec3("1,-2,3.5").unwrap(), Vec3::new(1.0, -2.0, 3.5));
+        assert!(parse_vec3("1,2").unwrap_err().contains("X,Y,Z"));
+        assert!(parse_vec3("1,b,3").unwrap_err().contains("`b`"));
+        assert!(parse_vec3("1,inf,3").is_err());
+    }
+}

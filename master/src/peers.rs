@@ -1,0 +1,117 @@
+//! One task per connecting node: TLS handshake, version check, then a reader that forwards the
+//! node's messages to the driver loop and a writer that sends what the loop queues for it, so a
+//! slow node never blocks the loop.
+
+use std::time::Duration;
+use tessera_common::net::framed::{read_msg, write_msg};
+use tessera_common::protocol::{FromNode, Hello, ToNode, PROTOCOL_VERSION};
+use tokio::sync::mpsc;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct PeerId(pub u64);
+
+pub enum Event {
+    Joined {
+        peer: PeerId,
+        hello: Hello,
+        conn: quinn::Connection,
+        tx: mpsc::UnboundedSender<ToNode>,
+    },
+    Msg(PeerId, FromNode),
+    Closed(PeerId, String),
+}
+
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::UnboundedSender<Event>) {
+    let remote = incoming.remote_address();
+    let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
+        Ok(Ok(conn)) => conn,
+        Ok(Err(e)) => {
+            tracing::warn!("refused a connection from {remote}: {e} (is its certificate from this cluster's CA?)");
+            return;
+        }
+        Err(_) => {
+            tracing::warn!("refused a connection from {remote}: TLS handshake timed out");
+            return;
+        }
+    };
+    let opened = tokio::time::timeout(HANDSHAKE_TIMEOUT, async {
+        let (send, mut recv) = conn.accept_bi().await?;
+        let hello = read_msg::<FromNode>(&mut recv).await?;
+        anyhow::Ok((send, recv, hello))
+    })
+    .await;
+    let (mut send, mut recv, hello) = match opened {
+        Ok(Ok((s, r, Some(FromNode::Hello(hello))))) => (s, r, hello),
+        Ok(Ok((_, _, other))) => {
+            tracing::warn!("closing {remote}: expected a hello, got {other:?}");
+            conn.close(1u32.into(), b"expected hello");
+            return;
+        }
+        Ok(Err(e)) => {
+            tracing::warn!("closing {remote}: {e:#}");
+            conn.close(1u32.into(), b"bad handshake");
+            return;
+        }
+        Err(_) => {
+            tracing::warn!("closing {remote}: no hello within {HANDSHAKE_TIMEOUT:?}");
+            conn.close(1u32.into(), b"handshake timeout");
+            return;
+        }
+    };
+    if hello.version != PROTOCOL_VERSION {
+        let reason = format!(
+            "protocol version {} is not the master's {PROTOCOL_VERSION}; run the same Tessera version everywhere",
+            hello.version
+        );
+        tracing::warn!("refused {} at {remote}: {reason}", hello.host);
+        let _ = write_msg(&mut send, &ToNode::Refused { reason }).await;
+        let _ = send.finish();
+        let _ = tokio::time::timeout(Duration::from_secs(1), send.stopped()).await;
+        conn.close(1u32.into(), b"version mismatch");
+        return;
+    }
+    let (tx, mut rx) = mpsc::unbounded_channel::<ToNode>();
+    tokio::spawn(async move {
+        while let Some(msg) = rx.recv().await {
+            let refused = matches!(msg, ToNode::Refused { .. });
+            if write_msg(&mut send, &msg).await.is_err() || refused {
+                break;
+            }
+        }
+        let _ = send.finish();
+    });
+    if events
+        .send(Event::Joined {
+            peer,
+            hello,
+            conn: conn.clone(),
+            tx,
+        })
+        .is_err()
+    {
+        return;
+    }
+    let reason = loop {
+        match read_msg::<FromNode>(&mut recv).await {
+            Ok(Some(msg)) => {
+                if events.send(Event::Msg(peer, msg)).is_err() {
+                    return;
+                }
+            }
+            Ok(None) => break "closed its control stream".to_string(),
+            Err(e) => {
+                break match conn.close_reason() {
+                    Some(reason) => reason.to_string(),
+                    None => {
+                        // A malformed or oversized message: this peer is not to be trusted.
+                        conn.close(2u32.into(), b"malformed message");
+                        format!("{e:#}")
+                    }
+                }
+            }
+        }
+    };
+    let _ = events.send(Event::Closed(peer, reason));
+}

@@ -1,0 +1,125 @@
+//! `report.json`: what a run measured.
+
+use serde::Serialize;
+use tessera_common::protocol::{DisplayStats, RenderStats};
+use tessera_common::wall::WallLayout;
+
+#[derive(Serialize, Debug)]
+pub struct Report {
+    pub frames: u64,
+    pub wall: WallReport,
+    pub displays: Vec<DisplayReport>,
+    pub render_nodes: Vec<RenderNodeReport>,
+    /// Frames presented per second, from the first frame start to the last present.
+    pub fps: f64,
+    /// Time between consecutive presents (the first frame: from its start to its present).
+    pub frame_ms: Percentiles,
+    /// From a frame's start (camera applied) to its present on all displays.
+    pub start_to_present_ms: Percentiles,
+    pub elapsed_s: f64,
+    pub render_nodes_lost: u32,
+}
+
+#[derive(Serialize, Debug)]
+pub struct WallReport {
+    pub width: u32,
+    pub height: u32,
+    pub columns: u32,
+    pub rows: u32,
+    pub bezel: u32,
+    pub tile_size: u32,
+    pub displays: Vec<DisplayRect>,
+}
+
+#[derive(Serialize, Debug)]
+pub struct DisplayRect {
+    pub id: u32,
+    pub x: u32,
+    pub y: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl WallReport {
+    pub fn of(layout: &WallLayout) -> Self {
+        WallReport {
+            width: layout.width(),
+            height: layout.height(),
+            columns: layout.columns,
+            rows: layout.rows,
+            bezel: layout.bezel,
+            tile_size: layout.tile_size,
+            displays: layout
+                .screens()
+                .map(|s| DisplayRect {
+                    id: s.id.0,
+                    x: s.x,
+                    y: s.y,
+                    width: s.width,
+                    height: s.height,
+                })
+                .collect(),
+        }
+    }
+}
+
+#[derive(Serialize, Debug)]
+pub struct DisplayReport {
+    pub id: u32,
+    pub host: String,
+    #[serde(flatten)]
+    pub stats: DisplayStats,
+    /// Wire bytes over the pixel bytes this display owns for the frames it presented.
+    pub wire_bytes_per_pixel_byte: f64,
+}
+
+#[derive(Serialize, Debug)]
+pub struct RenderNodeReport {
+    pub id: u32,
+    pub host: String,
+    pub cores: u32,
+    #[serde(flatten)]
+    pub stats: RenderStats,
+    pub rays_per_s: f64,
+}
+
+#[derive(Serialize, Debug, Default, Clone, Copy)]
+pub struct Percentiles {
+    pub p50: f64,
+    pub p95: f64,
+    pub max: f64,
+}
+
+impl Percentiles {
+    /// Percentiles of durations in milliseconds, kept at microsecond resolution.
+    pub fn of_ms(samples: &[f64]) -> Self {
+        let mut hist = hdrhistogram::Histogram::<u64>::new(3).expect("3 significant digits is valid");
+        for &ms in samples {
+            hist.saturating_record((ms * 1000.0).round().max(0.0) as u64);
+        }
+        if hist.is_empty() {
+            return Percentiles::default();
+        }
+        let ms = |us: u64| us as f64 / 1000.0;
+        Percentiles {
+            p50: ms(hist.value_at_quantile(0.5)),
+            p95: ms(hist.value_at_quantile(0.95)),
+            max: ms(hist.max()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_of_known_samples() {
+        let samples: Vec<f64> = (1..=100).map(f64::from).collect();
+        let p = Percentiles::of_ms(&samples);
+        assert!((p.p50 - 50.0).abs() < 0.1, "{p:?}");
+        assert!((p.p95 - 95.0).abs() < 0.1, "{p:?}");
+        assert!((p.max - 100.0).abs() < 0.1, "{p:?}");
+        assert_eq!(Percentiles::of_ms(&[]).max, 0.0);
+    }
+}
