@@ -8,6 +8,7 @@ pub mod accel;
 pub mod assemble;
 pub mod balance;
 pub mod geometry;
+pub mod logging;
 pub mod image_io;
 pub mod net;
 pub mod protocol;

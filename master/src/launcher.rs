@@ -73,6 +73,10 @@ pub async fn watch(children: &mut Vec<NodeProcess>, started: Arc<AtomicBool>, lo
         }
         if let Some((i, status)) = dead {
             let c = children.remove(i);
+            if status.success() {
+                // Nodes exit 0 only after the master's shutdown; the run is ending.
+                continue;
+            }
             let what = format!("{} exited with {}", c.name, describe(status));
             if c.essential || !started.load(Ordering::SeqCst) {
                 return anyhow::anyhow!("{what}; stopping the wall (see its log lines above)");

@@ -132,13 +132,7 @@ struct IssueCertArgs {
 }
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_target(false)
-        .with_writer(std::io::stderr)
-        .init();
+    tessera_common::logging::init();
     match run(Cli::parse()) {
         Ok(code) => code,
         Err(e) => {

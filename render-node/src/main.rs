@@ -1,1 +1,238 @@
-fn main() {}
+//! `tessera-render-node`: joins a master, ray-traces the tiles it is given on every core, and
+//! sends each finished tile straight to the display that owns it.
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tessera_common::net::cluster::NodeIdentity;
+use tessera_common::net::framed::{read_msg, write_msg};
+use tessera_common::net::quic;
+use tessera_common::protocol::pixels::encode_batch;
+use tessera_common::protocol::{FrameId, FromNode, Hello, NodeStats, RenderStats, Role, Session, ToNode, PROTOCOL_VERSION};
+use tessera_common::render::{render_tiles, FrameView, PreparedScene, RayCounts};
+use tessera_common::scene::Scene;
+use tessera_common::wall::{DisplayId, TileGrid, TileId};
+use tessera_common::worker::RenderWorker;
+use tokio::sync::mpsc;
+
+/// Tessera render node: renders the tiles a master assigns and sends them to the displays.
+#[derive(Parser)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    /// The master's address, HOST:PORT.
+    #[arg(long)]
+    master: String,
+    /// This node's certificate directory (node.pem, node.key, ca.pem) from `tessera-master issue-cert`.
+    #[arg(long)]
+    cert_dir: PathBuf,
+    /// Rendering threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+fn main() -> ExitCode {
+    tessera_common::logging::init();
+    let cli = Cli::parse();
+    let result = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(anyhow::Error::from)
+        .and_then(|rt| rt.block_on(run(cli)));
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("tessera-render-node: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Resolves HOST:PORT (names allowed).
+pub async fn resolve(addr: &str) -> Result<SocketAddr> {
+    tokio::net::lookup_host(addr)
+        .await
+        .with_context(|| format!("cannot resolve master address {addr}"))?
+        .next()
+        .with_context(|| format!("master address {addr} resolves to nothing"))
+}
+
+enum Done {
+    Rendered { frame: FrameId, tiles: Vec<TileId>, pixels: Vec<Vec<u8>>, rays: RayCounts, took: Duration },
+    Delivered { frame: FrameId, tiles: Vec<TileId> },
+    DeliveryFailed(String),
+}
+
+async fn run(cli: Cli) -> Result<()> {
+    let threads = cli.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let pool = Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?);
+    let identity = NodeIdentity::load(&cli.cert_dir)?;
+    let master_addr = resolve(&cli.master).await?;
+    let bind: SocketAddr = if master_addr.is_ipv6() { "[::]:0" } else { "0.0.0.0:0" }.parse()?;
+    let endpoint = quic::endpoint(bind, &identity, false)?;
+    let conn = quic::connect(&endpoint, master_addr, "the master")
+        .await
+        .context("is tessera-master running there? see --help")?;
+    let (mut send, mut recv) = conn.open_bi().await?;
+    let host = hostname();
+    write_msg(&mut send, &FromNode::Hello(Hello { version: PROTOCOL_VERSION, role: Role::Render { cores: threads as u32 }, host })).await?;
+    let (node, session) = match read_msg::<ToNode>(&mut recv).await? {
+        Some(ToNode::Welcome { node, session }) => (node, session),
+        Some(ToNode::Refused { reason }) => bail!("the master refused this node: {reason}"),
+        Some(other) => bail!("expected a welcome from the master, got {other:?}"),
+        None => bail!("the master closed the connection during the handshake"),
+    };
+    tracing::info!("render node {}: joined, loading the scene", node.0);
+    let prepared = match prepare(&session, pool.clone()).await {
+        Ok(p) => p,
+        Err(e) => {
+            let _ = write_msg(&mut send, &FromNode::Failed { message: format!("{e:#}") }).await;
+            let _ = send.finish();
+            let _ = tokio::time::timeout(Duration::from_secs(2), send.stopped()).await;
+            return Err(e);
+        }
+    };
+    let mut displays = BTreeMap::new();
+    for d in &session.displays {
+        let c = quic::connect(&endpoint, d.addr, &format!("display {}", d.display.0)).await?;
+        displays.insert(d.display, c);
+    }
+    write_msg(&mut send, &FromNode::Ready).await?;
+    tracing::info!("render node {}: ready ({} triangles, {threads} threads)", node.0, prepared.accel.triangles.len());
+
+    let grid = Arc::new(TileGrid::new(session.wall));
+    let prepared = Arc::new(prepared);
+    let mut worker = RenderWorker::new(threads * 2);
+    let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Done>();
+    let mut rendering = false;
+    let mut stats = RenderStats::default();
+    let first_frame = Instant::now();
+    loop {
+        if !rendering {
+            if let Some((start, tiles)) = worker.next_batch(threads.max(2)) {
+                rendering = true;
+                let (prepared, grid, pool, done_tx) = (prepared.clone(), grid.clone(), pool.clone(), done_tx.clone());
+                tokio::task::spawn_blocking(move || {
+                    let t0 = Instant::now();
+                    let view = FrameView::new(&start.camera, start.params, grid.layout().width(), grid.layout().height());
+                    let geometry: Vec<_> = tiles.iter().map(|t| *grid.tile(*t).expect("assigned tiles are validated")).collect();
+                    let (pixels, rays) = pool.install(|| render_tiles(&prepared, &view, &geometry));
+                    let _ = done_tx.send(Done::Rendered { frame: start.frame, tiles, pixels, rays, took: t0.elapsed() });
+                });
+            }
+            if let Some(request) = worker.poll_request() {
+                write_msg(&mut send, &request).await?;
+            }
+        }
+        tokio::select! {
+            msg = read_msg::<ToNode>(&mut recv) => {
+                match msg {
+                    Ok(Some(ToNode::Shutdown)) => {
+                        stats.elapsed_s = first_frame.elapsed().as_secs_f64();
+                        write_msg(&mut send, &FromNode::Stats(NodeStats::Render(stats.clone()))).await?;
+                        let _ = send.finish();
+                        // The master closes the connection once it has everyone's stats.
+                        let _ = tokio::time::timeout(Duration::from_secs(10), conn.closed()).await;
+                        tracing::info!("render node {}: done, {} tiles, {} rays", node.0, stats.tiles, stats.rays);
+                        return Ok(());
+                    }
+                    Ok(Some(msg)) => {
+                        check_assignment(&msg, &grid)?;
+                        worker.handle_message(&msg).map_err(anyhow::Error::msg)?;
+                    }
+                    Ok(None) => bail!("the master ended the session without a shutdown"),
+                    Err(e) => bail!("lost the master: {e:#}"),
+                }
+            }
+            Some(done) = done_rx.recv() => match done {
+                Done::Rendered { frame, tiles, pixels, rays, took } => {
+                    rendering = false;
+                    stats.tiles += tiles.len() as u64;
+                    stats.rays += rays.total();
+                    stats.busy_s += took.as_secs_f64();
+                    send_pixels(&displays, &grid, frame, tiles, pixels, done_tx.clone());
+                }
+                Done::Delivered { frame, tiles } => {
+                    let report = worker.handle_delivered(frame, &tiles);
+                    write_msg(&mut send, &report).await?;
+                }
+                Done::DeliveryFailed(e) => bail!("cannot deliver pixels: {e}"),
+            },
+        }
+    }
+}
+
+/// Refuses assignments of tiles the wall does not have before they reach the worker.
+fn check_assignment(msg: &ToNode, grid: &TileGrid) -> Result<()> {
+    if let ToNode::Assign { tiles, .. } = msg {
+        for r in tiles {
+            if r.start > r.end || r.end as usize > grid.len() {
+                bail!("the master assigned tiles {}..{}, but the wall has {}", r.start, r.end, grid.len());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// One stream per (frame, batch, display); the report goes back once every display has the
+/// pixels, so tiles lost with a display connection are never counted as done.
+fn send_pixels(
+    displays: &BTreeMap<DisplayId, quinn::Connection>,
+    grid: &TileGrid,
+    frame: FrameId,
+    tiles: Vec<TileId>,
+    pixels: Vec<Vec<u8>>,
+    done: mpsc::UnboundedSender<Done>,
+) {
+    let mut by_display: BTreeMap<DisplayId, Vec<usize>> = BTreeMap::new();
+    for (i, t) in tiles.iter().enumerate() {
+        by_display.entry(grid.tile(*t).expect("validated").display).or_default().push(i);
+    }
+    let mut sends = Vec::new();
+    for (display, indices) in by_display {
+        let Some(conn) = displays.get(&display).cloned() else {
+            let _ = done.send(Done::DeliveryFailed(format!("no connection to display {}", display.0)));
+            return;
+        };
+        let bytes = encode_batch(frame, indices.iter().map(|&i| (tiles[i], pixels[i].as_slice())));
+        sends.push(async move {
+            let mut stream = conn.open_uni().await?;
+            stream.write_all(&bytes).await?;
+            stream.finish()?;
+            stream.stopped().await?;
+            anyhow::Ok(())
+        });
+    }
+    tokio::spawn(async move {
+        for s in sends {
+            if let Err(e) = s.await {
+                let _ = done.send(Done::DeliveryFailed(format!("{e:#}")));
+                return;
+            }
+        }
+        let _ = done.send(Done::Delivered { frame, tiles });
+    });
+}
+
+async fn prepare(session: &Session, pool: Arc<rayon::ThreadPool>) -> Result<PreparedScene> {
+    session.wall.validate()?;
+    let spec = session.scene.clone();
+    let expected = session.scene_hash;
+    tokio::task::spawn_blocking(move || {
+        let scene = Scene::load(&spec)?;
+        if scene.content_hash() != expected {
+            bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
+        }
+        Ok(pool.install(|| PreparedScene::new(&scene)))
+    })
+    .await?
+}
+
+fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").map_or_else(|_| "unknown".into(), |h| h.trim().to_string())
+}
