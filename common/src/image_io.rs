@@ -43,8 +43,14 @@ impl RgbImage {
     }
 
     pub fn save_png(&self, path: &Path) -> Result<()> {
-        image::save_buffer(path, &self.rgb, self.width, self.height, image::ColorType::Rgb8)
-            .with_context(|| format!("cannot write {}", path.display()))
+        image::save_buffer(
+            path,
+            &self.rgb,
+            self.width,
+            self.height,
+            image::ColorType::Rgb8,
+        )
+        .with_context(|| format!("cannot write {}", path.display()))
     }
 
     pub fn load_png(path: &Path) -> Result<RgbImage> {

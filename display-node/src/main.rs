@@ -18,7 +18,9 @@ use tessera_common::image_io::RgbImage;
 use tessera_common::net::cluster::NodeIdentity;
 use tessera_common::net::framed::{read_msg, write_msg};
 use tessera_common::net::quic;
-use tessera_common::protocol::{DisplayStats, FromNode, Hello, NodeStats, Role, ToNode, PROTOCOL_VERSION};
+use tessera_common::protocol::{
+    DisplayStats, FromNode, Hello, NodeStats, Role, ToNode, PROTOCOL_VERSION,
+};
 use tessera_common::wall::{DisplayId, TileGrid};
 use tokio::sync::mpsc;
 use window::{window_presenter, WindowCommand, WindowFrame, WindowSender};
@@ -56,7 +58,11 @@ struct Cli {
 fn main() -> ExitCode {
     tessera_common::logging::init();
     let cli = Cli::parse();
-    let result = if cli.window { run_with_window(cli) } else { runtime().and_then(|rt| rt.block_on(run(cli, None))) };
+    let result = if cli.window {
+        run_with_window(cli)
+    } else {
+        runtime().and_then(|rt| rt.block_on(run(cli, None)))
+    };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -67,7 +73,10 @@ fn main() -> ExitCode {
 }
 
 fn runtime() -> Result<tokio::runtime::Runtime> {
-    Ok(tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?)
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?)
 }
 
 /// winit wants the main thread, so the network side runs on a thread of its own.
@@ -82,16 +91,37 @@ fn run_with_window(cli: Cli) -> Result<()> {
         rt.block_on(run(cli, Some((size_tx, sender_rx))))
     });
     let Ok((width, height)) = size_rx.recv() else {
-        return net.join().map_err(|_| anyhow::anyhow!("network thread panicked"))?;
+        return net
+            .join()
+            .map_err(|_| anyhow::anyhow!("network thread panicked"))?;
     };
-    let (sender, runner) = window_presenter(format!("Tessera display {display}"), width, height, Box::new(|_| {}))?;
+    let (sender, runner) = window_presenter(
+        format!("Tessera display {display}"),
+        width,
+        height,
+        Box::new(|_| {}),
+    )?;
     let _ = sender_tx.send(sender);
     let shown = runner.run();
-    let net = net.join().map_err(|_| anyhow::anyhow!("network thread panicked"))?;
+    if !net.is_finished() && !WALL_OVER.load(Ordering::SeqCst) {
+        // The window went away while the wall is still running (closed by the user, or the
+        // display server died): this screen leaves the wall, and the master says so.
+        shown?;
+        bail!("the window of display {display} was closed while the wall was running");
+    }
+    let net = net
+        .join()
+        .map_err(|_| anyhow::anyhow!("network thread panicked"))?;
     net.and(shown)
 }
 
-type WindowHandshake = (std::sync::mpsc::Sender<(u32, u32)>, std::sync::mpsc::Receiver<WindowSender>);
+/// Set when the run is over and the network side itself closes the window.
+static WALL_OVER: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+type WindowHandshake = (
+    std::sync::mpsc::Sender<(u32, u32)>,
+    std::sync::mpsc::Receiver<WindowSender>,
+);
 
 async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let me = DisplayId(cli.display);
@@ -107,8 +137,20 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         .await
         .context("is tessera-master running there? see --help")?;
     let (mut send, mut recv) = conn.open_bi().await?;
-    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map_or_else(|_| "unknown".into(), |h| h.trim().to_string());
-    write_msg(&mut send, &FromNode::Hello(Hello { version: PROTOCOL_VERSION, role: Role::Display { display: me, pixel_addr }, host })).await?;
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map_or_else(|_| "unknown".into(), |h| h.trim().to_string());
+    write_msg(
+        &mut send,
+        &FromNode::Hello(Hello {
+            version: PROTOCOL_VERSION,
+            role: Role::Display {
+                display: me,
+                pixel_addr,
+            },
+            host,
+        }),
+    )
+    .await?;
     let session = match read_msg::<ToNode>(&mut recv).await? {
         Some(ToNode::Welcome { session, .. }) => session,
         Some(ToNode::Refused { reason }) => bail!("the master refused display {}: {reason}", me.0),
@@ -122,8 +164,12 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         .with_context(|| format!("the wall has no display {}", me.0))?;
     let window = match window {
         Some((size_tx, sender_rx)) => {
-            size_tx.send((screen.width, screen.height)).context("window thread is gone")?;
-            let sender = tokio::task::spawn_blocking(move || sender_rx.recv()).await?.context("cannot open the window")?;
+            size_tx
+                .send((screen.width, screen.height))
+                .context("window thread is gone")?;
+            let sender = tokio::task::spawn_blocking(move || sender_rx.recv())
+                .await?
+                .context("cannot open the window")?;
             Some(sender)
         }
         None => None,
@@ -132,9 +178,21 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let mut assembler = FrameAssembler::new(&grid, screen);
     let intake = Arc::new(Intake::default());
     let (tiles_tx, mut tiles) = mpsc::channel(1024);
-    tokio::spawn(accept_render_nodes(endpoint.clone(), grid.clone(), me, intake.clone(), tiles_tx));
+    tokio::spawn(accept_render_nodes(
+        endpoint.clone(),
+        grid.clone(),
+        me,
+        intake.clone(),
+        tiles_tx,
+    ));
     write_msg(&mut send, &FromNode::Ready).await?;
-    tracing::info!("display {}: ready, {}x{} pixels at {}", me.0, screen.width, screen.height, pixel_addr);
+    tracing::info!(
+        "display {}: ready, {}x{} pixels at {}",
+        me.0,
+        screen.width,
+        screen.height,
+        pixel_addr
+    );
 
     let mut presented = 0u64;
     loop {
@@ -169,6 +227,7 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     let _ = tokio::time::timeout(Duration::from_secs(10), conn.closed()).await;
                     if let Some(w) = &window {
                         tokio::time::sleep(Duration::from_secs_f64(cli.linger.max(0.0))).await;
+                        WALL_OVER.store(true, Ordering::SeqCst);
                         w.send(WindowCommand::Close);
                     }
                     endpoint.close(0u32.into(), b"done");

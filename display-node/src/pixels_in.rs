@@ -4,7 +4,9 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use tessera_common::protocol::pixels::{StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN};
+use tessera_common::protocol::pixels::{
+    StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
+};
 use tessera_common::protocol::FrameId;
 use tessera_common::wall::{DisplayId, TileGrid, TileId};
 use tokio::sync::mpsc;
@@ -51,12 +53,20 @@ pub async fn accept_render_nodes(
                     return;
                 }
             };
-            intake.connections.lock().expect("intake lock").push(conn.clone());
+            intake
+                .connections
+                .lock()
+                .expect("intake lock")
+                .push(conn.clone());
             while let Ok(stream) = conn.accept_uni().await {
-                let (grid, intake, tiles, conn) = (grid.clone(), intake.clone(), tiles.clone(), conn.clone());
+                let (grid, intake, tiles, conn) =
+                    (grid.clone(), intake.clone(), tiles.clone(), conn.clone());
                 tokio::spawn(async move {
                     if let Err(e) = read_stream(stream, &grid, me, &intake, &tiles, &conn).await {
-                        tracing::error!("display {}: closing the connection from {remote}: {e:#}", me.0);
+                        tracing::error!(
+                            "display {}: closing the connection from {remote}: {e:#}",
+                            me.0
+                        );
                         conn.close(3u32.into(), b"bad pixel stream");
                     }
                 });
@@ -76,7 +86,9 @@ async fn read_stream(
     let mut header = [0u8; STREAM_HEADER_LEN];
     stream.read_exact(&mut header).await?;
     let header = StreamHeader::decode(&header, grid.display_tiles(me).len() as u32)?;
-    intake.stream_bytes.fetch_add(STREAM_HEADER_LEN as u64, Ordering::Relaxed);
+    intake
+        .stream_bytes
+        .fetch_add(STREAM_HEADER_LEN as u64, Ordering::Relaxed);
     for _ in 0..header.tile_count {
         let mut th = [0u8; TILE_HEADER_LEN];
         stream.read_exact(&mut th).await?;
@@ -84,16 +96,31 @@ async fn read_stream(
         let tile = grid
             .tile(th.tile)
             .filter(|t| t.display == me)
-            .ok_or_else(|| anyhow::anyhow!("tile {} does not belong to display {}", th.tile.0, me.0))?;
+            .ok_or_else(|| {
+                anyhow::anyhow!("tile {} does not belong to display {}", th.tile.0, me.0)
+            })?;
         let expected = tile.pixel_count() * header.format.bytes_per_pixel();
         if th.byte_len as usize != expected {
-            anyhow::bail!("tile {} carries {} bytes, expected {expected}", th.tile.0, th.byte_len);
+            anyhow::bail!(
+                "tile {} carries {} bytes, expected {expected}",
+                th.tile.0,
+                th.byte_len
+            );
         }
         let mut rgb = vec![0u8; expected];
         stream.read_exact(&mut rgb).await?;
-        intake.stream_bytes.fetch_add((TILE_HEADER_LEN + expected) as u64, Ordering::Relaxed);
-        intake.pixel_bytes.fetch_add(expected as u64, Ordering::Relaxed);
-        let incoming = IncomingTile { frame: header.frame, tile: th.tile, rgb, conn: conn.clone() };
+        intake
+            .stream_bytes
+            .fetch_add((TILE_HEADER_LEN + expected) as u64, Ordering::Relaxed);
+        intake
+            .pixel_bytes
+            .fetch_add(expected as u64, Ordering::Relaxed);
+        let incoming = IncomingTile {
+            frame: header.frame,
+            tile: th.tile,
+            rgb,
+            conn: conn.clone(),
+        };
         if tiles.send(incoming).await.is_err() {
             return Ok(());
         }
@@ -101,7 +128,10 @@ async fn read_stream(
     // Anything after the announced tiles is a protocol violation.
     let mut extra = [0u8; 1];
     if stream.read(&mut extra).await?.is_some_and(|n| n > 0) {
-        anyhow::bail!("pixel stream carries bytes after its {} tiles", header.tile_count);
+        anyhow::bail!(
+            "pixel stream carries bytes after its {} tiles",
+            header.tile_count
+        );
     }
     Ok(())
 }

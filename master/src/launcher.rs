@@ -36,9 +36,16 @@ pub fn sibling_binary(name: &str) -> Result<PathBuf> {
     )
 }
 
-pub fn spawn(name: String, essential: bool, program: &Path, args: &[String]) -> Result<NodeProcess> {
+pub fn spawn(
+    name: String,
+    essential: bool,
+    program: &Path,
+    args: &[String],
+) -> Result<NodeProcess> {
     let mut cmd = Command::new(program);
-    cmd.args(args).kill_on_drop(true).stdin(std::process::Stdio::null());
+    cmd.args(args)
+        .kill_on_drop(true)
+        .stdin(std::process::Stdio::null());
     #[cfg(target_os = "linux")]
     unsafe {
         // If the master dies without cleaning up, the kernel kills the children: no orphans.
@@ -62,7 +69,11 @@ pub fn spawn(name: String, essential: bool, program: &Path, args: &[String]) -> 
 
 /// Watches children while the run goes on. Returns when an essential child dies, or when any
 /// child dies before the first frame (a node that cannot start is a configuration error).
-pub async fn watch(children: &mut Vec<NodeProcess>, started: Arc<AtomicBool>, lost: &mut Vec<String>) -> anyhow::Error {
+pub async fn watch(
+    children: &mut Vec<NodeProcess>,
+    started: Arc<AtomicBool>,
+    lost: &mut Vec<String>,
+) -> anyhow::Error {
     loop {
         let mut dead = None;
         for (i, c) in children.iter_mut().enumerate() {

@@ -161,7 +161,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
 }
 
 fn runtime() -> Result<tokio::runtime::Runtime> {
-    Ok(tokio::runtime::Builder::new_multi_thread().enable_all().build()?)
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
 }
 
 fn params(no_shadows: bool) -> RenderParams {
@@ -176,11 +178,16 @@ fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<
     let spec = run.scene.spec();
     let scene = Scene::load(&spec)?;
     if let Some(dir) = &run.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create --out {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create --out {}", dir.display()))?;
     }
     if let Some(k) = run.save_frame {
         if run.frames != 0 && k >= run.frames {
-            bail!("--save-frame {k} is not one of the {} frames (0..{})", run.frames, run.frames);
+            bail!(
+                "--save-frame {k} is not one of the {} frames (0..{})",
+                run.frames,
+                run.frames
+            );
         }
     }
     Ok(RunConfig {
@@ -202,7 +209,8 @@ fn stop_on_ctrl_c() -> (tokio::sync::watch::Receiver<bool>, Arc<AtomicBool>) {
     let interrupted = Arc::new(AtomicBool::new(false));
     let flag = interrupted.clone();
     tokio::spawn(async move {
-        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        let mut term =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
         tokio::select! {
             _ = tokio::signal::ctrl_c() => {}
             _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
@@ -220,7 +228,9 @@ async fn local(args: LocalArgs) -> Result<ExitCode> {
     let cfg = prepare_run(&args.run, args.render_nodes, true)?;
     let display_bin = sibling_binary("tessera-display-node")?;
     let render_bin = sibling_binary("tessera-render-node")?;
-    let certs = tempfile::Builder::new().prefix("tessera-local-").tempdir()?;
+    let certs = tempfile::Builder::new()
+        .prefix("tessera-local-")
+        .tempdir()?;
     let ca = ClusterCa::open_or_create(&certs.path().join("ca"))?;
     let cert_dir = |name: &str| -> Result<PathBuf> {
         let dir = certs.path().join(name);
@@ -237,10 +247,14 @@ async fn local(args: LocalArgs) -> Result<ExitCode> {
     for d in 0..cfg.wall.display_count() {
         let name = format!("display-{d}");
         let mut a = vec![
-            "--master".into(), master_addr.clone(),
-            "--display".into(), d.to_string(),
-            "--cert-dir".into(), cert_dir(&name)?.display().to_string(),
-            "--listen".into(), "127.0.0.1:0".into(),
+            "--master".into(),
+            master_addr.clone(),
+            "--display".into(),
+            d.to_string(),
+            "--cert-dir".into(),
+            cert_dir(&name)?.display().to_string(),
+            "--listen".into(),
+            "127.0.0.1:0".into(),
         ];
         if let Some(out) = &args.run.out {
             a.extend(["--out".into(), out.display().to_string()]);
@@ -254,9 +268,12 @@ async fn local(args: LocalArgs) -> Result<ExitCode> {
     for r in 0..args.render_nodes {
         let name = format!("render-{r}");
         let a = vec![
-            "--master".into(), master_addr.clone(),
-            "--cert-dir".into(), cert_dir(&name)?.display().to_string(),
-            "--threads".into(), threads.to_string(),
+            "--master".into(),
+            master_addr.clone(),
+            "--cert-dir".into(),
+            cert_dir(&name)?.display().to_string(),
+            "--threads".into(),
+            threads.to_string(),
         ];
         children.push(spawn(format!("render node {r}"), false, &render_bin, &a)?);
     }
@@ -273,8 +290,17 @@ async fn local(args: LocalArgs) -> Result<ExitCode> {
             err = watch(&mut children, started.clone(), &mut lost) => Err(err),
         }
     };
-    let failures = reap(&mut children, Duration::from_secs(5)).await;
-    finish_run(outcome, &args.run, &wall, interrupted.load(std::sync::atomic::Ordering::SeqCst), lost, failures)
+    // Windows stay up for --linger after the run; only then is a display late to exit.
+    let grace = Duration::from_secs(5) + Duration::from_secs_f64(args.linger.max(0.0));
+    let failures = reap(&mut children, grace).await;
+    finish_run(
+        outcome,
+        &args.run,
+        &wall,
+        interrupted.load(std::sync::atomic::Ordering::SeqCst),
+        lost,
+        failures,
+    )
 }
 
 /// Writes the report and wall image and turns the run's outcome into an exit code.
@@ -294,7 +320,11 @@ fn finish_run(
     for d in &report.displays {
         eprintln!(
             "display {}: {} pixel bytes, {} wire bytes ({:.4} per pixel byte), {} frames presented",
-            d.id, d.stats.pixel_bytes_received, d.stats.wire_bytes_received, d.wire_bytes_per_pixel_byte, d.stats.frames_presented
+            d.id,
+            d.stats.pixel_bytes_received,
+            d.stats.wire_bytes_received,
+            d.wire_bytes_per_pixel_byte,
+            d.stats.frames_presented
         );
     }
     if let Some(dir) = &run.out {
@@ -312,7 +342,10 @@ fn finish_run(
     }
     let problems: Vec<String> = lost.into_iter().chain(failures).collect();
     if !problems.is_empty() {
-        bail!("the run completed, but nodes failed: {}", problems.join("; "));
+        bail!(
+            "the run completed, but nodes failed: {}",
+            problems.join("; ")
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -348,7 +381,14 @@ async fn serve(args: ServeArgs) -> Result<ExitCode> {
     let (stop, interrupted) = stop_on_ctrl_c();
     let wall = cfg.wall;
     let outcome = run_wall(endpoint, cfg, Arc::new(AtomicBool::new(false)), stop).await;
-    finish_run(outcome, &args.run, &wall, interrupted.load(std::sync::atomic::Ordering::SeqCst), Vec::new(), Vec::new())
+    finish_run(
+        outcome,
+        &args.run,
+        &wall,
+        interrupted.load(std::sync::atomic::Ordering::SeqCst),
+        Vec::new(),
+        Vec::new(),
+    )
 }
 
 fn render_reference(args: RenderArgs) -> Result<()> {
@@ -358,9 +398,15 @@ fn render_reference(args: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
     let prepared = PreparedScene::new(&scene);
     let built = t0.elapsed();
-    let view = FrameView::new(&camera, params(args.no_shadows), wall.width(), wall.height());
+    let view = FrameView::new(
+        &camera,
+        params(args.no_shadows),
+        wall.width(),
+        wall.height(),
+    );
     let image = render_wall(&prepared, &view, &TileGrid::new(wall));
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create --out {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create --out {}", args.out.display()))?;
     let path = args.out.join("wall.png");
     image.save_png(&path)?;
     eprintln!(

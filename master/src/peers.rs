@@ -23,7 +23,11 @@ pub enum Event {
 
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
-pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::UnboundedSender<Event>) {
+pub async fn accept_peer(
+    incoming: quinn::Incoming,
+    peer: PeerId,
+    events: mpsc::UnboundedSender<Event>,
+) {
     let remote = incoming.remote_address();
     let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
         Ok(Ok(conn)) => conn,
@@ -109,7 +113,7 @@ pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::
                         conn.close(2u32.into(), b"malformed message");
                         format!("{e:#}")
                     }
-                }
+                };
             }
         }
     };

@@ -118,7 +118,8 @@ pub async fn run_wall(
     );
     let join_deadline = tokio::time::Instant::now() + wall.cfg.join_timeout;
     let result = loop {
-        let deadline_passed = wall.started.is_none() && tokio::time::Instant::now() >= join_deadline;
+        let deadline_passed =
+            wall.started.is_none() && tokio::time::Instant::now() >= join_deadline;
         if deadline_passed {
             break Err(anyhow::anyhow!(
                 "timed out after {:?} waiting for nodes: {} — start the missing nodes or raise --join-timeout",
@@ -192,8 +193,10 @@ fn progress_bar(frames: Option<u64>) -> indicatif::ProgressBar {
         None => indicatif::ProgressBar::no_length(),
     };
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} frame {pos}/{len} {per_sec} {elapsed_precise}")
-            .expect("valid template"),
+        indicatif::ProgressStyle::with_template(
+            "{spinner} frame {pos}/{len} {per_sec} {elapsed_precise}",
+        )
+        .expect("valid template"),
     );
     bar
 }
@@ -279,13 +282,27 @@ impl Wall {
     fn handle(&mut self, event: Event) -> Result<()> {
         let now = Instant::now();
         match event {
-            Event::Joined { peer, hello, conn, tx } => {
+            Event::Joined {
+                peer,
+                hello,
+                conn,
+                tx,
+            } => {
                 let remote = conn.remote_address();
                 match hello.role {
-                    Role::Display { display, pixel_addr } => {
-                        if display.0 >= self.cfg.wall.display_count() || self.displays.contains_key(&display) {
+                    Role::Display {
+                        display,
+                        pixel_addr,
+                    } => {
+                        if display.0 >= self.cfg.wall.display_count()
+                            || self.displays.contains_key(&display)
+                        {
                             let reason = if display.0 >= self.cfg.wall.display_count() {
-                                format!("display {} does not exist on a {}-display wall", display.0, self.cfg.wall.display_count())
+                                format!(
+                                    "display {} does not exist on a {}-display wall",
+                                    display.0,
+                                    self.cfg.wall.display_count()
+                                )
                             } else {
                                 format!("display {} has already joined", display.0)
                             };
@@ -299,16 +316,37 @@ impl Wall {
                             pixel_addr
                         };
                         let id = display.0;
-                        tracing::info!("display {id} joined from {} ({remote}), pixels at {addr}", hello.host);
+                        tracing::info!(
+                            "display {id} joined from {} ({remote}), pixels at {addr}",
+                            hello.host
+                        );
                         self.displays.insert(display, peer);
                         self.display_endpoints.insert(display, addr);
-                        self.peers.insert(peer, Peer { role: PeerRole::Display(display), host: hello.host, tx, conn, ready: false, stats: None });
-                        self.send(peer, ToNode::Welcome { node: RenderNodeId(u32::MAX), session: self.session() });
+                        self.peers.insert(
+                            peer,
+                            Peer {
+                                role: PeerRole::Display(display),
+                                host: hello.host,
+                                tx,
+                                conn,
+                                ready: false,
+                                stats: None,
+                            },
+                        );
+                        self.send(
+                            peer,
+                            ToNode::Welcome {
+                                node: RenderNodeId(u32::MAX),
+                                session: self.session(),
+                            },
+                        );
                         if self.all_displays_known() {
                             let waiting: Vec<PeerId> = self
                                 .peers
                                 .iter()
-                                .filter(|(_, p)| matches!(p.role, PeerRole::Render { .. }) && !p.ready)
+                                .filter(|(_, p)| {
+                                    matches!(p.role, PeerRole::Render { .. }) && !p.ready
+                                })
                                 .map(|(id, _)| *id)
                                 .collect();
                             for p in waiting {
@@ -319,8 +357,22 @@ impl Wall {
                     Role::Render { cores } => {
                         let node = RenderNodeId(self.next_render_id);
                         self.next_render_id += 1;
-                        tracing::info!("render node {} joined from {} ({remote}), {cores} cores", node.0, hello.host);
-                        self.peers.insert(peer, Peer { role: PeerRole::Render { node, cores }, host: hello.host, tx, conn, ready: false, stats: None });
+                        tracing::info!(
+                            "render node {} joined from {} ({remote}), {cores} cores",
+                            node.0,
+                            hello.host
+                        );
+                        self.peers.insert(
+                            peer,
+                            Peer {
+                                role: PeerRole::Render { node, cores },
+                                host: hello.host,
+                                tx,
+                                conn,
+                                ready: false,
+                                stats: None,
+                            },
+                        );
                         if self.all_displays_known() {
                             self.welcome_render(peer);
                         }
@@ -344,7 +396,9 @@ impl Wall {
 
     fn describe(&self, peer: PeerId) -> String {
         match self.peers.get(&peer).map(|p| (&p.role, &p.host)) {
-            Some((PeerRole::Render { node, .. }, host)) => format!("render node {} ({host})", node.0),
+            Some((PeerRole::Render { node, .. }, host)) => {
+                format!("render node {} ({host})", node.0)
+            }
             Some((PeerRole::Display(d), host)) => format!("display {} ({host})", d.0),
             None => format!("peer {}", peer.0),
         }
@@ -352,7 +406,9 @@ impl Wall {
 
     fn drop_peer(&mut self, peer: PeerId, now: Instant, reason: &str) -> Result<()> {
         let who = self.describe(peer);
-        let Some(p) = self.peers.remove(&peer) else { return Ok(()) };
+        let Some(p) = self.peers.remove(&peer) else {
+            return Ok(());
+        };
         if self.finished {
             return Ok(());
         }
@@ -360,12 +416,16 @@ impl Wall {
             PeerRole::Display(d) => {
                 self.displays.remove(&d);
                 self.display_endpoints.remove(&d);
-                bail!("{who} disconnected ({reason}); a wall cannot go on without one of its screens");
+                bail!(
+                    "{who} disconnected ({reason}); a wall cannot go on without one of its screens"
+                );
             }
             PeerRole::Render { node, .. } => {
                 if p.ready && self.started.is_some() {
                     self.lost_render_nodes += 1;
-                    tracing::error!("{who} disconnected ({reason}); its tiles go to the other render nodes");
+                    tracing::error!(
+                        "{who} disconnected ({reason}); its tiles go to the other render nodes"
+                    );
                 } else {
                     tracing::warn!("{who} left before the first frame ({reason})");
                 }
@@ -378,7 +438,9 @@ impl Wall {
     }
 
     fn handle_msg(&mut self, peer: PeerId, msg: FromNode, now: Instant) -> Result<()> {
-        let Some(p) = self.peers.get_mut(&peer) else { return Ok(()) };
+        let Some(p) = self.peers.get_mut(&peer) else {
+            return Ok(());
+        };
         match (&p.role, msg) {
             (_, FromNode::Stats(stats)) => p.stats = Some(stats),
             (_, FromNode::Failed { message }) => {
@@ -396,9 +458,17 @@ impl Wall {
                 }
             }
             (PeerRole::Display(_), FromNode::Ready) => p.ready = true,
-            (PeerRole::Render { node, .. }, FromNode::TilesDone { frame, tiles, want_more }) => {
+            (
+                PeerRole::Render { node, .. },
+                FromNode::TilesDone {
+                    frame,
+                    tiles,
+                    want_more,
+                },
+            ) => {
                 let node = *node;
-                self.coordinator.handle_tiles_done(node, frame, &tiles, want_more, now)?;
+                self.coordinator
+                    .handle_tiles_done(node, frame, &tiles, want_more, now)?;
             }
             (PeerRole::Display(d), FromNode::FrameComplete { frame }) => {
                 let d = *d;
@@ -434,7 +504,9 @@ impl Wall {
                 }
                 Output::FrameRendered(_) => {}
                 Output::Finished => self.finished = true,
-                Output::Stalled => bail!("every render node is gone; the frames in flight cannot complete"),
+                Output::Stalled => {
+                    bail!("every render node is gone; the frames in flight cannot complete")
+                }
             }
         }
         Ok(())
@@ -495,7 +567,11 @@ impl Wall {
                         id: d.0,
                         host: p.host.clone(),
                         stats: s.clone(),
-                        wire_bytes_per_pixel_byte: if owned > 0.0 { s.wire_bytes_received as f64 / owned } else { 0.0 },
+                        wire_bytes_per_pixel_byte: if owned > 0.0 {
+                            s.wire_bytes_received as f64 / owned
+                        } else {
+                            0.0
+                        },
                     })
                 }
                 _ => None,
@@ -506,13 +582,19 @@ impl Wall {
             .peers
             .values()
             .filter_map(|p| match (&p.role, &p.stats) {
-                (PeerRole::Render { node, cores }, Some(NodeStats::Render(s))) => Some(RenderNodeReport {
-                    id: node.0,
-                    host: p.host.clone(),
-                    cores: *cores,
-                    stats: s.clone(),
-                    rays_per_s: if s.busy_s > 0.0 { s.rays as f64 / s.busy_s } else { 0.0 },
-                }),
+                (PeerRole::Render { node, cores }, Some(NodeStats::Render(s))) => {
+                    Some(RenderNodeReport {
+                        id: node.0,
+                        host: p.host.clone(),
+                        cores: *cores,
+                        stats: s.clone(),
+                        rays_per_s: if s.busy_s > 0.0 {
+                            s.rays as f64 / s.busy_s
+                        } else {
+                            0.0
+                        },
+                    })
+                }
                 _ => None,
             })
             .collect();
@@ -523,7 +605,11 @@ impl Wall {
             wall: WallReport::of(&self.cfg.wall),
             displays,
             render_nodes,
-            fps: if elapsed > 0.0 { frames as f64 / elapsed } else { 0.0 },
+            fps: if elapsed > 0.0 {
+                frames as f64 / elapsed
+            } else {
+                0.0
+            },
             frame_ms: Percentiles::of_ms(&frame_ms),
             start_to_present_ms: Percentiles::of_ms(&start_to_present),
             elapsed_s: elapsed,
@@ -533,6 +619,10 @@ impl Wall {
 }
 
 /// Binds the master's endpoint.
-pub fn bind(addr: SocketAddr, identity: &tessera_common::net::cluster::NodeIdentity) -> Result<quinn::Endpoint> {
-    tessera_common::net::quic::endpoint(addr, identity, true).context("cannot start the master's QUIC endpoint")
+pub fn bind(
+    addr: SocketAddr,
+    identity: &tessera_common::net::cluster::NodeIdentity,
+) -> Result<quinn::Endpoint> {
+    tessera_common::net::quic::endpoint(addr, identity, true)
+        .context("cannot start the master's QUIC endpoint")
 }

@@ -13,7 +13,9 @@ use tessera_common::net::cluster::NodeIdentity;
 use tessera_common::net::framed::{read_msg, write_msg};
 use tessera_common::net::quic;
 use tessera_common::protocol::pixels::encode_batch;
-use tessera_common::protocol::{FrameId, FromNode, Hello, NodeStats, RenderStats, Role, Session, ToNode, PROTOCOL_VERSION};
+use tessera_common::protocol::{
+    FrameId, FromNode, Hello, NodeStats, RenderStats, Role, Session, ToNode, PROTOCOL_VERSION,
+};
 use tessera_common::render::{render_tiles, FrameView, PreparedScene, RayCounts};
 use tessera_common::scene::Scene;
 use tessera_common::wall::{DisplayId, TileGrid, TileId};
@@ -63,24 +65,54 @@ pub async fn resolve(addr: &str) -> Result<SocketAddr> {
 }
 
 enum Done {
-    Rendered { frame: FrameId, tiles: Vec<TileId>, pixels: Vec<Vec<u8>>, rays: RayCounts, took: Duration },
-    Delivered { frame: FrameId, tiles: Vec<TileId> },
+    Rendered {
+        frame: FrameId,
+        tiles: Vec<TileId>,
+        pixels: Vec<Vec<u8>>,
+        rays: RayCounts,
+        took: Duration,
+    },
+    Delivered {
+        frame: FrameId,
+        tiles: Vec<TileId>,
+    },
     DeliveryFailed(String),
 }
 
 async fn run(cli: Cli) -> Result<()> {
-    let threads = cli.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let pool = Arc::new(rayon::ThreadPoolBuilder::new().num_threads(threads).build()?);
+    let threads = cli
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()?,
+    );
     let identity = NodeIdentity::load(&cli.cert_dir)?;
     let master_addr = resolve(&cli.master).await?;
-    let bind: SocketAddr = if master_addr.is_ipv6() { "[::]:0" } else { "0.0.0.0:0" }.parse()?;
+    let bind: SocketAddr = if master_addr.is_ipv6() {
+        "[::]:0"
+    } else {
+        "0.0.0.0:0"
+    }
+    .parse()?;
     let endpoint = quic::endpoint(bind, &identity, false)?;
     let conn = quic::connect(&endpoint, master_addr, "the master")
         .await
         .context("is tessera-master running there? see --help")?;
     let (mut send, mut recv) = conn.open_bi().await?;
     let host = hostname();
-    write_msg(&mut send, &FromNode::Hello(Hello { version: PROTOCOL_VERSION, role: Role::Render { cores: threads as u32 }, host })).await?;
+    write_msg(
+        &mut send,
+        &FromNode::Hello(Hello {
+            version: PROTOCOL_VERSION,
+            role: Role::Render {
+                cores: threads as u32,
+            },
+            host,
+        }),
+    )
+    .await?;
     let (node, session) = match read_msg::<ToNode>(&mut recv).await? {
         Some(ToNode::Welcome { node, session }) => (node, session),
         Some(ToNode::Refused { reason }) => bail!("the master refused this node: {reason}"),
@@ -91,7 +123,13 @@ async fn run(cli: Cli) -> Result<()> {
     let prepared = match prepare(&session, pool.clone()).await {
         Ok(p) => p,
         Err(e) => {
-            let _ = write_msg(&mut send, &FromNode::Failed { message: format!("{e:#}") }).await;
+            let _ = write_msg(
+                &mut send,
+                &FromNode::Failed {
+                    message: format!("{e:#}"),
+                },
+            )
+            .await;
             let _ = send.finish();
             let _ = tokio::time::timeout(Duration::from_secs(2), send.stopped()).await;
             return Err(e);
@@ -103,7 +141,11 @@ async fn run(cli: Cli) -> Result<()> {
         displays.insert(d.display, c);
     }
     write_msg(&mut send, &FromNode::Ready).await?;
-    tracing::info!("render node {}: ready ({} triangles, {threads} threads)", node.0, prepared.accel.triangles.len());
+    tracing::info!(
+        "render node {}: ready ({} triangles, {threads} threads)",
+        node.0,
+        prepared.accel.triangles.len()
+    );
 
     let grid = Arc::new(TileGrid::new(session.wall));
     let prepared = Arc::new(prepared);
@@ -116,13 +158,32 @@ async fn run(cli: Cli) -> Result<()> {
         if !rendering {
             if let Some((start, tiles)) = worker.next_batch(threads.max(2)) {
                 rendering = true;
-                let (prepared, grid, pool, done_tx) = (prepared.clone(), grid.clone(), pool.clone(), done_tx.clone());
+                let (prepared, grid, pool, done_tx) = (
+                    prepared.clone(),
+                    grid.clone(),
+                    pool.clone(),
+                    done_tx.clone(),
+                );
                 tokio::task::spawn_blocking(move || {
                     let t0 = Instant::now();
-                    let view = FrameView::new(&start.camera, start.params, grid.layout().width(), grid.layout().height());
-                    let geometry: Vec<_> = tiles.iter().map(|t| *grid.tile(*t).expect("assigned tiles are validated")).collect();
+                    let view = FrameView::new(
+                        &start.camera,
+                        start.params,
+                        grid.layout().width(),
+                        grid.layout().height(),
+                    );
+                    let geometry: Vec<_> = tiles
+                        .iter()
+                        .map(|t| *grid.tile(*t).expect("assigned tiles are validated"))
+                        .collect();
                     let (pixels, rays) = pool.install(|| render_tiles(&prepared, &view, &geometry));
-                    let _ = done_tx.send(Done::Rendered { frame: start.frame, tiles, pixels, rays, took: t0.elapsed() });
+                    let _ = done_tx.send(Done::Rendered {
+                        frame: start.frame,
+                        tiles,
+                        pixels,
+                        rays,
+                        took: t0.elapsed(),
+                    });
                 });
             }
             if let Some(request) = worker.poll_request() {
@@ -172,7 +233,12 @@ fn check_assignment(msg: &ToNode, grid: &TileGrid) -> Result<()> {
     if let ToNode::Assign { tiles, .. } = msg {
         for r in tiles {
             if r.start > r.end || r.end as usize > grid.len() {
-                bail!("the master assigned tiles {}..{}, but the wall has {}", r.start, r.end, grid.len());
+                bail!(
+                    "the master assigned tiles {}..{}, but the wall has {}",
+                    r.start,
+                    r.end,
+                    grid.len()
+                );
             }
         }
     }
@@ -191,15 +257,24 @@ fn send_pixels(
 ) {
     let mut by_display: BTreeMap<DisplayId, Vec<usize>> = BTreeMap::new();
     for (i, t) in tiles.iter().enumerate() {
-        by_display.entry(grid.tile(*t).expect("validated").display).or_default().push(i);
+        by_display
+            .entry(grid.tile(*t).expect("validated").display)
+            .or_default()
+            .push(i);
     }
     let mut sends = Vec::new();
     for (display, indices) in by_display {
         let Some(conn) = displays.get(&display).cloned() else {
-            let _ = done.send(Done::DeliveryFailed(format!("no connection to display {}", display.0)));
+            let _ = done.send(Done::DeliveryFailed(format!(
+                "no connection to display {}",
+                display.0
+            )));
             return;
         };
-        let bytes = encode_batch(frame, indices.iter().map(|&i| (tiles[i], pixels[i].as_slice())));
+        let bytes = encode_batch(
+            frame,
+            indices.iter().map(|&i| (tiles[i], pixels[i].as_slice())),
+        );
         sends.push(async move {
             let mut stream = conn.open_uni().await?;
             stream.write_all(&bytes).await?;
@@ -234,5 +309,6 @@ async fn prepare(session: &Session, pool: Arc<rayon::ThreadPool>) -> Result<Prep
 }
 
 fn hostname() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname").map_or_else(|_| "unknown".into(), |h| h.trim().to_string())
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map_or_else(|_| "unknown".into(), |h| h.trim().to_string())
 }

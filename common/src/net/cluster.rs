@@ -7,8 +7,8 @@
 
 use anyhow::{bail, Context, Result};
 use rcgen::{
-    BasicConstraints, CertificateParams, DistinguishedName, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer,
-    KeyPair, KeyUsagePurpose,
+    BasicConstraints, CertificateParams, DistinguishedName, DnType, ExtendedKeyUsagePurpose, IsCa,
+    Issuer, KeyPair, KeyUsagePurpose,
 };
 use rustls_pki_types::pem::PemObject;
 use rustls_pki_types::{CertificateDer, PrivateKeyDer};
@@ -67,16 +67,20 @@ impl ClusterCa {
             );
         }
         if !cert_path.exists() {
-            std::fs::create_dir_all(dir).with_context(|| format!("cannot create cluster directory {}", dir.display()))?;
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create cluster directory {}", dir.display()))?;
             let key = KeyPair::generate()?;
             let cert = ca_params()?.self_signed(&key)?;
             std::fs::write(&cert_path, cert.pem())?;
             write_private(&key_path, &key.serialize_pem())?;
             tracing::info!("created a new cluster CA in {}", dir.display());
         }
-        let key_pem = std::fs::read_to_string(&key_path).with_context(|| format!("cannot read {}", key_path.display()))?;
-        let key = KeyPair::from_pem(&key_pem).with_context(|| format!("{} is not a private key", key_path.display()))?;
-        let cert_pem = std::fs::read_to_string(&cert_path).with_context(|| format!("cannot read {}", cert_path.display()))?;
+        let key_pem = std::fs::read_to_string(&key_path)
+            .with_context(|| format!("cannot read {}", key_path.display()))?;
+        let key = KeyPair::from_pem(&key_pem)
+            .with_context(|| format!("{} is not a private key", key_path.display()))?;
+        let cert_pem = std::fs::read_to_string(&cert_path)
+            .with_context(|| format!("cannot read {}", cert_path.display()))?;
         Ok(ClusterCa {
             dir: dir.to_path_buf(),
             key,
@@ -95,7 +99,10 @@ impl ClusterCa {
         let mut dn = DistinguishedName::new();
         dn.push(DnType::CommonName, name);
         params.distinguished_name = dn;
-        params.extended_key_usages = vec![ExtendedKeyUsagePurpose::ServerAuth, ExtendedKeyUsagePurpose::ClientAuth];
+        params.extended_key_usages = vec![
+            ExtendedKeyUsagePurpose::ServerAuth,
+            ExtendedKeyUsagePurpose::ClientAuth,
+        ];
         params.key_usages = vec![KeyUsagePurpose::DigitalSignature];
         let key = KeyPair::generate()?;
         let cert = params.signed_by(&key, &issuer)?;
@@ -117,6 +124,13 @@ pub struct NodeIdentity {
 
 impl NodeIdentity {
     pub fn load(dir: &Path) -> Result<NodeIdentity> {
+        if !dir.is_dir() {
+            bail!(
+                "certificate directory {} does not exist (create it with `tessera-master issue-cert --name NODE --out {}`)",
+                dir.display(),
+                dir.display()
+            );
+        }
         let read_cert = |name: &str| {
             let path = dir.join(name);
             CertificateDer::from_pem_file(&path).with_context(|| {

@@ -6,7 +6,9 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 
 pub async fn write_msg<T: Serialize>(send: &mut quinn::SendStream, msg: &T) -> Result<()> {
-    send.write_all(&codec::encode(msg)).await.context("control stream closed")?;
+    send.write_all(&codec::encode(msg))
+        .await
+        .context("control stream closed")?;
     Ok(())
 }
 
@@ -20,6 +22,8 @@ pub async fn read_msg<T: DeserializeOwned>(recv: &mut quinn::RecvStream) -> Resu
     }
     let len = codec::body_len(prefix)?;
     let mut body = vec![0u8; len];
-    recv.read_exact(&mut body).await.context("control message cut short")?;
+    recv.read_exact(&mut body)
+        .await
+        .context("control message cut short")?;
     Ok(Some(codec::decode(&body)?))
 }

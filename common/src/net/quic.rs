@@ -16,7 +16,9 @@ fn provider() -> Arc<rustls::crypto::CryptoProvider> {
 
 fn roots(id: &NodeIdentity) -> Result<Arc<RootCertStore>> {
     let mut roots = RootCertStore::empty();
-    roots.add(id.ca.clone()).context("cluster CA certificate is not usable")?;
+    roots
+        .add(id.ca.clone())
+        .context("cluster CA certificate is not usable")?;
     Ok(Arc::new(roots))
 }
 
@@ -62,7 +64,11 @@ pub fn client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
 
 /// An endpoint bound to `bind` that accepts cluster peers (if `accept`) and connects to them.
 pub fn endpoint(bind: SocketAddr, id: &NodeIdentity, accept: bool) -> Result<quinn::Endpoint> {
-    let server = if accept { Some(server_config(id)?) } else { None };
+    let server = if accept {
+        Some(server_config(id)?)
+    } else {
+        None
+    };
     let mut endpoint = match server {
         Some(server) => quinn::Endpoint::server(server, bind),
         None => quinn::Endpoint::client(bind),
@@ -73,7 +79,11 @@ pub fn endpoint(bind: SocketAddr, id: &NodeIdentity, accept: bool) -> Result<qui
 }
 
 /// Connects to a cluster peer, with a bounded wait.
-pub async fn connect(endpoint: &quinn::Endpoint, addr: SocketAddr, what: &str) -> Result<quinn::Connection> {
+pub async fn connect(
+    endpoint: &quinn::Endpoint,
+    addr: SocketAddr,
+    what: &str,
+) -> Result<quinn::Connection> {
     let connecting = endpoint
         .connect(addr, CLUSTER_SERVER_NAME)
         .with_context(|| format!("cannot connect to {what} at {addr}"))?;

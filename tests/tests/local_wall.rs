@@ -1,0 +1,255 @@
+//! The local wall against the single-process reference, and what each display received.
+
+use std::time::Duration;
+use tessera_tests::*;
+
+const WALL: [&str; 6] = ["--wall", "2x2", "--screen", "240x136", "--bezel", "12"];
+
+#[test]
+fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("wall");
+    let reference = dir.path().join("reference");
+    let out_s = out.to_str().unwrap();
+    let frames = 5u64;
+    let mut args = vec!["local"];
+    args.extend(WALL);
+    args.extend([
+        "--render-nodes",
+        "2",
+        "--frames",
+        "5",
+        "--save-frame",
+        "3",
+        "--out",
+        out_s,
+    ]);
+    run("tessera-master", &args, Duration::from_secs(120)).assert_success("local wall");
+
+    let mut args = vec!["render"];
+    args.extend(WALL);
+    args.extend(["--frame", "3", "--out", reference.to_str().unwrap()]);
+    run("tessera-master", &args, Duration::from_secs(120)).assert_success("reference render");
+
+    let (w, h, wall) = load_rgb(&out.join("wall.png"));
+    let (rw, rh, expected) = load_rgb(&reference.join("wall.png"));
+    assert_eq!((w, h), (rw, rh));
+    assert_eq!((w, h), (2 * 240 + 12, 2 * 136 + 12));
+    let differing = wall.iter().zip(&expected).filter(|(a, b)| a != b).count();
+    assert_eq!(
+        differing, 0,
+        "the wall differs from the reference in {differing} bytes"
+    );
+    // The picture is not trivially black: the comparison means something.
+    assert!(expected.iter().filter(|&&b| b > 40).count() > expected.len() / 2);
+
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["frames"], frames);
+    assert!(report["fps"].as_f64().unwrap() > 0.0);
+    let displays = report["displays"].as_array().unwrap();
+    assert_eq!(displays.len(), 4);
+    for d in displays {
+        let owned = 240 * 136;
+        assert_eq!(d["pixels_owned"], owned);
+        // Exactly its own pixels, once per frame: nothing of other screens, nothing twice.
+        assert_eq!(
+            d["pixel_bytes_received"],
+            owned * 3 * frames,
+            "display {}",
+            d["id"]
+        );
+        assert_eq!(d["duplicate_tiles"], 0);
+        assert_eq!(d["frames_presented"], frames);
+        let wire = d["wire_bytes_received"].as_u64().unwrap();
+        assert!(
+            wire >= owned * 3 * frames,
+            "wire bytes {wire} below pixel bytes"
+        );
+    }
+    let rendered: u64 = report["render_nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["tiles"].as_u64().unwrap())
+        .sum();
+    let tiles_per_frame = 4 * 4 * 3; // 240x136 screens in 64-pixel tiles: 4 columns, 3 rows
+    assert_eq!(rendered, tiles_per_frame * frames);
+    for (i, display) in report["wall"]["displays"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+    {
+        let (dw, dh, pixels) = load_rgb(&out.join(format!("display-{i}.png")));
+        assert_eq!((dw, dh), (240, 136));
+        let (x, y) = (
+            display["x"].as_u64().unwrap() as usize,
+            display["y"].as_u64().unwrap() as usize,
+        );
+        for row in 0..136usize {
+            let a = &pixels[row * 240 * 3..(row + 1) * 240 * 3];
+            let at = ((y + row) * w as usize + x) * 3;
+            assert_eq!(a, &expected[at..at + 240 * 3], "display {i} row {row}");
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_fail_with_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad_obj = dir.path().join("broken.obj");
+    std::fs::write(&bad_obj, "v 0 0 0\nv 1 0 0\nv 0 1 nan\nf 1 2 3\n").unwrap();
+    let o = run(
+        "tessera-master",
+        &[
+            "render",
+            "--scene",
+            bad_obj.to_str().unwrap(),
+            "--out",
+            dir.path().to_str().unwrap(),
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(!o.status.success());
+    assert!(
+        o.stderr.contains("broken.obj") && o.stderr.contains("vertex 2"),
+        "{}",
+        o.stderr
+    );
+
+    let o = run(
+        "tessera-master",
+        &["local", "--scene", "/nonexistent/mesh.ply", "--frames", "1"],
+        Duration::from_secs(60),
+    );
+    assert!(!o.status.success());
+    assert!(o.stderr.contains("/nonexistent/mesh.ply"), "{}", o.stderr);
+
+    let wall_file = dir.path().join("wall.toml");
+    std::fs::write(
+        &wall_file,
+        "columns = 2\nrows = 0\nscreen_width = 10\nscreen_height = 10\n",
+    )
+    .unwrap();
+    let o = run(
+        "tessera-master",
+        &[
+            "render",
+            "--wall-file",
+            wall_file.to_str().unwrap(),
+            "--out",
+            dir.path().to_str().unwrap(),
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(!o.status.success());
+    assert!(
+        o.stderr.contains("rows") && o.stderr.contains("wall.toml"),
+        "{}",
+        o.stderr
+    );
+
+    let o = run(
+        "tessera-master",
+        &[
+            "render",
+            "--wall",
+            "2by2",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(!o.status.success());
+    assert!(o.stderr.contains("2by2"), "{}", o.stderr);
+
+    let o = run(
+        "tessera-master",
+        &[
+            "render",
+            "--eye",
+            "1,1,1",
+            "--target",
+            "1,1,1",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(!o.status.success());
+    assert!(o.stderr.contains("eye and target"), "{}", o.stderr);
+}
+
+#[test]
+fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("interrupted-run");
+    let out_s = out.to_str().unwrap().to_string();
+    let master = Proc::start(
+        "tessera-master",
+        &[
+            "local", "--wall", "2x1", "--screen", "160x90", "--frames", "100000", "--out", &out_s,
+        ],
+    );
+    // Displays get --out, so their command lines name the directory.
+    assert!(
+        wait_for(Duration::from_secs(60), || processes_mentioning(&out_s)
+            .len()
+            >= 3),
+        "nodes never started"
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    master.signal(libc::SIGINT);
+    let o = master.wait(Duration::from_secs(60));
+    assert_eq!(o.status.code(), Some(130), "stderr:\n{}", o.stderr);
+    assert!(o.stderr.contains("interrupted"), "{}", o.stderr);
+    assert!(
+        wait_for(Duration::from_secs(5), || processes_mentioning(&out_s)
+            .is_empty()),
+        "orphans: {:?}",
+        processes_mentioning(&out_s)
+    );
+    let report = read_json(&out.join("report.json"));
+    assert!(report["frames"].as_u64().unwrap() >= 1);
+}
+
+#[test]
+fn a_dead_display_stops_the_wall_with_an_error_and_no_orphans() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("display-dies");
+    let out_s = out.to_str().unwrap().to_string();
+    let master = Proc::start(
+        "tessera-master",
+        &[
+            "local", "--wall", "2x1", "--screen", "160x90", "--frames", "100000", "--out", &out_s,
+        ],
+    );
+    assert!(wait_for(Duration::from_secs(60), || processes_mentioning(
+        "--display 1 "
+    )
+    .iter()
+    .any(|p| {
+        std::fs::read(format!("/proc/{p}/cmdline"))
+            .is_ok_and(|c| String::from_utf8_lossy(&c).contains(&out_s))
+    })));
+    std::thread::sleep(Duration::from_millis(1000));
+    let victim = processes_mentioning(&out_s)
+        .into_iter()
+        .find(|p| {
+            std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
+                String::from_utf8_lossy(&c)
+                    .replace('\0', " ")
+                    .contains("--display 1 ")
+            })
+        })
+        .expect("display 1 is running");
+    unsafe { libc::kill(victim as i32, libc::SIGKILL) };
+    let o = master.wait(Duration::from_secs(60));
+    assert!(!o.status.success());
+    assert!(o.stderr.contains("display"), "{}", o.stderr);
+    assert!(
+        wait_for(Duration::from_secs(5), || processes_mentioning(&out_s)
+            .is_empty()),
+        "orphans left"
+    );
+}

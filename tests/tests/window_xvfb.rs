@@ -1,0 +1,128 @@
+//! A display node with --window under Xvfb presents into a real window, and a screenshot of that
+//! window equals the display's saved image of the same frame.
+//!
+//! Needs Xvfb, xwininfo and ImageMagick's `import` (`deploy/xvfb-screenshot.sh install`, which
+//! `.ci/run` calls). Where they are missing the test says so and passes only outside CI; in CI
+//! (CI=true) a missing tool is a failure.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+use tessera_tests::*;
+
+fn have(tool: &str) -> bool {
+    Command::new("sh")
+        .args(["-c", &format!("command -v {tool}")])
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn screenshot_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/xvfb-screenshot.sh")
+}
+
+struct Xvfb(std::process::Child);
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn window_shows_exactly_the_saved_frame() {
+    let missing: Vec<&str> = ["Xvfb", "xwininfo", "import"]
+        .into_iter()
+        .filter(|t| !have(t))
+        .collect();
+    if !missing.is_empty() {
+        let msg =
+            format!("skipping: {missing:?} not installed (run deploy/xvfb-screenshot.sh install)");
+        assert!(std::env::var("CI").is_err(), "{msg}");
+        eprintln!("{msg}");
+        return;
+    }
+    let number = 100 + std::process::id() % 400;
+    let display = format!(":{number}");
+    let _xvfb = Xvfb(
+        Command::new("Xvfb")
+            .args([
+                display.as_str(),
+                "-screen",
+                "0",
+                "800x600x24",
+                "-nolisten",
+                "tcp",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start Xvfb"),
+    );
+    assert!(
+        wait_for(Duration::from_secs(10), || Path::new(&format!(
+            "/tmp/.X11-unix/X{number}"
+        ))
+        .exists()),
+        "Xvfb did not start"
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("windowed");
+    let master = Proc::start_with_env(
+        "tessera-master",
+        &[
+            "local",
+            "--wall",
+            "1x1",
+            "--screen",
+            "320x180",
+            "--frames",
+            "3",
+            "--save-frame",
+            "2",
+            "--window",
+            "--linger",
+            "8",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &[("DISPLAY", display.as_str())],
+    );
+    let saved = out.join("display-0.png");
+    assert!(
+        wait_for(Duration::from_secs(60), || saved.exists()),
+        "display never saved frame 2"
+    );
+    let (w, h, expected) = load_rgb(&saved);
+    assert_eq!((w, h), (320, 180));
+    let shot = dir.path().join("shot.png");
+    // The window gets frame 2 right after it is saved; give it a moment, bounded.
+    let mut last_diff = usize::MAX;
+    let matched = wait_for(Duration::from_secs(6), || {
+        let grabbed = Command::new("bash")
+            .arg(screenshot_script())
+            .args(["grab", "Tessera display 0", shot.to_str().unwrap()])
+            .env("DISPLAY", &display)
+            .status()
+            .is_ok_and(|s| s.success());
+        if !grabbed {
+            return false;
+        }
+        let (sw, sh, pixels) = load_rgb(&shot);
+        last_diff = if (sw, sh) == (w, h) {
+            pixels.iter().zip(&expected).filter(|(a, b)| a != b).count()
+        } else {
+            usize::MAX
+        };
+        last_diff == 0
+    });
+    assert!(
+        matched,
+        "screenshot differs from display-0.png in {last_diff} bytes"
+    );
+    let o = master.wait(Duration::from_secs(60));
+    o.assert_success("windowed local wall");
+}
