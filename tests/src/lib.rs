@@ -57,10 +57,38 @@ impl Proc {
         self.child.as_ref().expect("running").id()
     }
 
+    /// Whether the process has already exited (it stays reapable for `wait`/`fail`).
+    pub fn has_exited(&self) -> bool {
+        let pid = self.pid() as i32;
+        let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
+        // WNOWAIT leaves the child to be reaped by `wait` later.
+        let r = unsafe {
+            libc::waitid(
+                libc::P_PID,
+                pid as libc::id_t,
+                &mut info,
+                libc::WEXITED | libc::WNOHANG | libc::WNOWAIT,
+            )
+        };
+        r == 0 && unsafe { info.si_pid() } == pid
+    }
+
     pub fn signal(&self, sig: i32) {
         unsafe {
             libc::kill(self.pid() as i32, sig);
         }
+    }
+
+    /// Kills the process and panics with `why` and everything it printed.
+    pub fn fail(mut self, why: &str) -> ! {
+        let mut child = self.child.take().expect("running");
+        let _ = child.kill();
+        let _ = child.wait();
+        let mut stderr = String::new();
+        if let Some(mut e) = child.stderr.take() {
+            let _ = e.read_to_string(&mut stderr);
+        }
+        panic!("{why}\n{} stderr:\n{stderr}", self.name);
     }
 
     /// Waits up to `limit`; on time-out kills the process and panics with its output.

@@ -58,7 +58,7 @@ impl CameraMode {
             CameraMode::Fixed(camera) => camera,
             CameraMode::Orbit { center, radius } => {
                 let angle = 0.6 + (frame % 360) as f32 * std::f32::consts::PI / 180.0;
-                let offset = Vec3::new(angle.sin(), 0.42, angle.cos()) * (radius * 1.55);
+                let offset = Vec3::new(angle.sin(), 0.5, angle.cos()) * (radius * 1.2);
                 Camera {
                     eye: center + offset,
                     target: center - Vec3::Y * (radius * 0.08),
