@@ -7,6 +7,7 @@
 pub mod accel;
 pub mod assemble;
 pub mod balance;
+pub mod cli;
 pub mod geometry;
 pub mod image_io;
 pub mod logging;

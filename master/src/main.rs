@@ -1,7 +1,6 @@
 //! `tessera-master`: balances the wall's work, runs the frame barrier, and can launch a whole
 //! local wall or render the single-process reference image.
 
-mod cli;
 mod launcher;
 mod peers;
 mod report;
@@ -9,7 +8,7 @@ mod server;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use cli::{SceneArgs, WallArgs};
+use tessera_common::cli::{SceneArgs, WallArgs};
 use launcher::{reap, sibling_binary, spawn, watch};
 use server::{bind, run_wall, RunConfig};
 use std::net::SocketAddr;
@@ -169,13 +168,14 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
 fn params(no_shadows: bool) -> RenderParams {
     RenderParams {
         shadows: !no_shadows,
+        ..RenderParams::interactive()
     }
 }
 
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
 fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
     let wall = run.wall.layout()?;
-    let spec = run.scene.spec();
+    let spec = run.scene.spec()?;
     let scene = Scene::load(&spec)?;
     if let Some(dir) = &run.out {
         std::fs::create_dir_all(dir)
@@ -393,13 +393,12 @@ async fn serve(args: ServeArgs) -> Result<ExitCode> {
 
 fn render_reference(args: RenderArgs) -> Result<()> {
     let wall = args.wall.layout()?;
-    let scene = Scene::load(&args.scene.spec())?;
+    let scene = Scene::load(&args.scene.spec()?)?;
     let camera = args.scene.camera_mode(&scene)?.camera_for_frame(args.frame);
     let t0 = Instant::now();
     let prepared = PreparedScene::new(&scene);
     let built = t0.elapsed();
-    let view = FrameView::new(
-        &camera,
+    let view = FrameView::new(args.frame, &camera,
         params(args.no_shadows),
         wall.width(),
         wall.height(),

@@ -166,8 +166,7 @@ async fn run(cli: Cli) -> Result<()> {
                 );
                 tokio::task::spawn_blocking(move || {
                     let t0 = Instant::now();
-                    let view = FrameView::new(
-                        &start.camera,
+                    let view = FrameView::new(start.frame.0, &start.camera,
                         start.params,
                         grid.layout().width(),
                         grid.layout().height(),

@@ -4,16 +4,22 @@
 //! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
 //! on whichever node renders it and the single-process reference equals the wall.
 
+pub mod bench;
 mod camera;
+pub mod packet;
+pub mod sampling;
 
 pub use camera::{Camera, CameraError, CameraMode, PixelRays};
 
-use crate::accel::Accel;
+use crate::accel::{Accel, Hit};
 use crate::geometry::{triangle_normal, Ray};
+use crate::scene::Light;
 use crate::scene::Scene;
 use crate::wall::Tile;
 use glam::Vec3;
+use packet::{PacketHit, RayPacket};
 use rayon::prelude::*;
+use sampling::{cosine_direction, SampleStream};
 use serde::{Deserialize, Serialize};
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
@@ -22,15 +28,35 @@ pub const PACKET: u32 = 8;
 /// Per-frame quality knobs, changed only at the frame barrier.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderParams {
-    /// Trace shadow rays towards the light.
+    /// Trace shadow rays towards the lights.
     pub shadows: bool,
+    /// Ambient-occlusion rays per hit (0: none traced).
+    pub ao_samples: u32,
+    /// Reach of ambient-occlusion rays, as a fraction of the scene's bounding-box diagonal.
+    pub ao_range: f32,
 }
 
 impl RenderParams {
-    /// What the interactive wall renders by default.
+    /// What the interactive wall renders by default: shadows, no ambient occlusion.
     pub const fn interactive() -> Self {
-        RenderParams { shadows: true }
+        RenderParams {
+            shadows: true,
+            ao_samples: 0,
+            ao_range: 0.1,
+        }
     }
+
+    /// A still worth waiting for: shadows and 16 ambient-occlusion rays per hit.
+    pub const fn final_frame() -> Self {
+        RenderParams {
+            shadows: true,
+            ao_samples: 16,
+            ao_range: 0.1,
+        }
+    }
+
+    /// Every preset, for tests that must hold for all of them.
+    pub const PRESETS: [RenderParams; 2] = [Self::interactive(), Self::final_frame()];
 }
 
 impl Default for RenderParams {
@@ -39,40 +65,59 @@ impl Default for RenderParams {
     }
 }
 
-/// A scene ready to trace: materials and light from the scene, plus its BVH.
+/// A scene ready to trace: materials and lights from the scene, plus its BVH.
 pub struct PreparedScene {
     pub accel: Accel,
     /// Material albedo of each leaf slot of `accel`.
     slot_albedo: Vec<Vec3>,
-    light_dir: Vec3,
+    lights: Vec<Light>,
+    /// Length of the scene's bounding-box diagonal: the scale of offsets and AO reach.
+    diagonal: f32,
 }
 
 impl PreparedScene {
     pub fn new(scene: &Scene) -> Self {
-        let accel = Accel::build(scene);
+        Self::from_accel(scene, Accel::build(scene))
+    }
+
+    /// Uses an already built (e.g. cached) BVH of `scene`.
+    pub fn from_accel(scene: &Scene, accel: Accel) -> Self {
         let slot_albedo = accel
             .scene_index
             .iter()
             .map(|&i| scene.materials[scene.triangle_material[i as usize] as usize].albedo)
             .collect();
         PreparedScene {
+            diagonal: accel.bounds().diagonal().length(),
             accel,
             slot_albedo,
-            light_dir: scene.light_dir,
+            lights: scene.lights.clone(),
         }
+    }
+
+    pub fn lights(&self) -> &[Light] {
+        &self.lights
     }
 }
 
 /// What one frame is rendered with.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameView {
+    pub frame: u64,
     pub rays: PixelRays,
     pub params: RenderParams,
 }
 
 impl FrameView {
-    pub fn new(camera: &Camera, params: RenderParams, wall_width: u32, wall_height: u32) -> Self {
+    pub fn new(
+        frame: u64,
+        camera: &Camera,
+        params: RenderParams,
+        wall_width: u32,
+        wall_height: u32,
+    ) -> Self {
         FrameView {
+            frame,
             rays: camera.rays_for(wall_width, wall_height),
             params,
         }
@@ -84,17 +129,19 @@ impl FrameView {
 pub struct RayCounts {
     pub primary: u64,
     pub shadow: u64,
+    pub ambient: u64,
 }
 
 impl RayCounts {
     pub fn total(&self) -> u64 {
-        self.primary + self.shadow
+        self.primary + self.shadow + self.ambient
     }
 
     fn add(self, other: RayCounts) -> RayCounts {
         RayCounts {
             primary: self.primary + other.primary,
             shadow: self.shadow + other.shadow,
+            ambient: self.ambient + other.ambient,
         }
     }
 }
@@ -151,70 +198,157 @@ fn trace_packet(
     stack: &mut Vec<u32>,
 ) -> ([u8; (PACKET * PACKET * 3) as usize], RayCounts) {
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
-    let mut counts = RayCounts::default();
-    for row in 0..PACKET.min(tile.height - py) {
-        for col in 0..PACKET.min(tile.width - px) {
-            let (x, y) = (tile.x + px + col, tile.y + py + row);
-            let (color, c) = shade_pixel(scene, view, x, y, stack);
-            counts = counts.add(c);
-            let o = ((row * PACKET + col) * 3) as usize;
-            out[o..o + 3].copy_from_slice(&encode_srgb_ish(color));
-        }
+    let (x0, y0) = (tile.x + px, tile.y + py);
+    let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
+    let mut packet = RayPacket::primary(&view.rays, x0, y0, w, h);
+    let mut hits = [PacketHit::MISS; 64];
+    scene.accel.closest_hits(&mut packet, &mut hits, stack);
+    let mut counts = RayCounts {
+        primary: packet.len() as u64,
+        ..RayCounts::default()
+    };
+    for i in 0..packet.len() {
+        let (col, row) = (i as u32 % w, i as u32 / w);
+        let dir = packet.direction(i);
+        let color = match hits[i].slot() {
+            None => background(dir),
+            Some(slot) => {
+                let hit = Hit { t: hits[i].t, slot };
+                shade(
+                    scene,
+                    view,
+                    (x0 + col, y0 + row),
+                    view.rays.eye,
+                    dir,
+                    hit,
+                    stack,
+                    &mut counts,
+                )
+            }
+        };
+        let o = ((row * PACKET + col) * 3) as usize;
+        out[o..o + 3].copy_from_slice(&encode_srgb_ish(color));
     }
     (out, counts)
 }
 
-fn shade_pixel(
-    scene: &PreparedScene,
-    view: &FrameView,
-    x: u32,
-    y: u32,
-    stack: &mut Vec<u32>,
-) -> (Vec3, RayCounts) {
-    let dir = view.rays.direction(x, y);
-    let ray = Ray::new(view.rays.eye, dir);
-    let mut counts = RayCounts {
-        primary: 1,
-        shadow: 0,
-    };
-    let Some(hit) = scene.accel.closest_hit(&ray, 0.0, f32::INFINITY, stack) else {
-        return (background(dir), counts);
-    };
+/// Surface point and the normal facing the viewer for a hit.
+pub fn surface(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: Hit) -> (Vec3, Vec3) {
     let tri = &scene.accel.triangles[hit.slot as usize];
     let mut normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
     if normal.dot(dir) > 0.0 {
         normal = -normal;
     }
-    let albedo = scene.slot_albedo[hit.slot as usize];
-    let headlight = (-normal.dot(dir)).max(0.0);
-    let mut sun = normal.dot(scene.light_dir).max(0.0);
-    if sun > 0.0 && view.params.shadows {
-        let point = ray.at(hit.t);
-        // Offset along the normal in proportion to the coordinates' magnitude: a fixed epsilon
-        // is either acne far from the origin or a visible gap near it.
-        let scale = point.abs().max_element().max(1.0);
-        let origin = point + normal * (scale * 2e-5);
-        counts.shadow += 1;
-        if scene.accel.occluded(
-            &Ray::new(origin, scene.light_dir),
-            0.0,
-            f32::INFINITY,
-            stack,
-        ) {
-            sun = 0.0;
-        }
-    }
-    (albedo * (0.1 + 0.35 * headlight + 0.65 * sun), counts)
+    (origin + dir * hit.t, normal)
 }
 
-fn background(dir: Vec3) -> Vec3 {
+/// Where secondary rays start: the hit point pushed off the surface along the normal, by a few
+/// hundred ULPs of each coordinate (Wächter and Binder, Ray Tracing Gems ch. 6). An ULP offset
+/// grows with the coordinates, so it neither causes acne far from the origin nor leaves a gap
+/// near it; close to the origin, where ULPs vanish, a step proportional to the scene's size
+/// takes over so that scenes at 1e-6 scale work too.
+pub fn offset_origin(point: Vec3, normal: Vec3, scene_diagonal: f32) -> Vec3 {
+    const INT_SCALE: f32 = 256.0;
+    let near_origin = scene_diagonal * (1.0 / 32.0);
+    let float_step = scene_diagonal * (1.0 / 65536.0);
+    let mut out = [0f32; 3];
+    for axis in 0..3 {
+        let p = point[axis];
+        let n = normal[axis];
+        out[axis] = if p.abs() < near_origin {
+            p + float_step * n
+        } else {
+            let ulps = (INT_SCALE * n) as i32;
+            let ulps = if p < 0.0 { -ulps } else { ulps };
+            f32::from_bits((p.to_bits() as i32).wrapping_add(ulps) as u32)
+        };
+    }
+    Vec3::from_array(out)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn shade(
+    scene: &PreparedScene,
+    view: &FrameView,
+    pixel: (u32, u32),
+    origin: Vec3,
+    dir: Vec3,
+    hit: Hit,
+    stack: &mut Vec<u32>,
+    counts: &mut RayCounts,
+) -> Vec3 {
+    let (point, normal) = surface(scene, origin, dir, hit);
+    let albedo = scene.slot_albedo[hit.slot as usize];
+    let headlight = (-normal.dot(dir)).max(0.0);
+    let start = offset_origin(point, normal, scene.diagonal);
+    let mut direct = 0.0;
+    for light in &scene.lights {
+        let (towards, reach, intensity) = match *light {
+            Light::Directional { towards, intensity } => (towards, f32::INFINITY, intensity),
+            Light::Point {
+                position,
+                intensity,
+            } => {
+                let d = position - point;
+                let dist2 = d.length_squared();
+                (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2.max(1e-30))
+            }
+        };
+        let cos = normal.dot(towards);
+        if cos <= 0.0 || !cos.is_finite() {
+            continue;
+        }
+        if view.params.shadows {
+            counts.shadow += 1;
+            if scene
+                .accel
+                .occluded(&Ray::new(start, towards), 0.0, reach, stack)
+            {
+                continue;
+            }
+        }
+        direct += cos * intensity;
+    }
+    let ambient = if view.params.ao_samples > 0 {
+        let n = view.params.ao_samples;
+        counts.ambient += n as u64;
+        0.3 * ambient_visibility(scene, view, pixel, start, normal, stack)
+    } else {
+        0.1
+    };
+    albedo * (ambient + 0.35 * headlight + direct)
+}
+
+/// Fraction of `ao_samples` cosine-weighted rays from `start` that escape within the AO range.
+pub fn ambient_visibility(
+    scene: &PreparedScene,
+    view: &FrameView,
+    pixel: (u32, u32),
+    start: Vec3,
+    normal: Vec3,
+    stack: &mut Vec<u32>,
+) -> f32 {
+    let n = view.params.ao_samples;
+    let reach = scene.diagonal * view.params.ao_range;
+    let mut open = 0;
+    for sample in 0..n {
+        let mut stream = SampleStream::new(view.frame, pixel.0, pixel.1, sample);
+        let d = cosine_direction(normal, &mut stream);
+        if !scene.accel.occluded(&Ray::new(start, d), 0.0, reach, stack) {
+            open += 1;
+        }
+    }
+    open as f32 / n as f32
+}
+
+pub fn background(dir: Vec3) -> Vec3 {
     let t = 0.5 + 0.5 * dir.y;
     Vec3::new(0.05, 0.06, 0.09).lerp(Vec3::new(0.32, 0.42, 0.62), t)
 }
 
 /// Linear to 8-bit with a gamma of 2 (a square root is exact in IEEE arithmetic, so it is the
 /// same on every CPU, unlike `powf`). Non-finite values come out black, never as garbage.
-fn encode_srgb_ish(color: Vec3) -> [u8; 3] {
+pub fn encode_srgb_ish(color: Vec3) -> [u8; 3] {
     color.to_array().map(|c| {
         if c.is_finite() {
             (c.clamp(0.0, 1.0).sqrt() * 255.0 + 0.5) as u8
@@ -237,6 +371,7 @@ mod tests {
         let grid = TileGrid::new(wall);
         let camera = CameraMode::orbit_of(&knot_scene(128, 16).bounds()).camera_for_frame(3);
         let view = FrameView::new(
+            3,
             &camera,
             RenderParams::interactive(),
             wall.width(),
@@ -265,13 +400,23 @@ mod tests {
         let wall = WallLayout::grid(1, 1, 40, 30);
         let grid = TileGrid::new(wall);
         let camera = CameraMode::orbit_of(&knot_scene(64, 8).bounds()).camera_for_frame(0);
-        let view = FrameView::new(&camera, RenderParams { shadows: false }, 40, 30);
+        let view = FrameView::new(
+            0,
+            &camera,
+            RenderParams {
+                shadows: false,
+                ..RenderParams::interactive()
+            },
+            40,
+            30,
+        );
         let (_, counts) = render_tiles(&scene, &view, grid.tiles());
         assert_eq!(
             counts,
             RayCounts {
                 primary: 1200,
-                shadow: 0
+                shadow: 0,
+                ambient: 0
             }
         );
     }

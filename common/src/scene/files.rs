@@ -1,10 +1,13 @@
-//! Mesh files: OBJ (via `tobj`) and PLY, ascii or binary (via `ply-rs-bw`).
+//! Mesh files: OBJ (via `tobj`), PLY ascii or binary (via `ply-rs-bw`), and glTF/GLB (in
+//! [`super::gltf`]). Every error names the file and, where the format has them, the line or the
+//! element at fault: a render node that cannot load a scene must say exactly why.
 
 use super::{Mesh, SceneError};
 use glam::Vec3;
+use std::io::BufRead;
 use std::path::Path;
 
-/// Reads the triangles of an OBJ or PLY file; polygons are fan-triangulated.
+/// Reads the triangles of an OBJ, PLY, glTF or GLB file; polygons are fan-triangulated.
 ///
 /// # Errors
 /// A [`SceneError`] naming the file and what is wrong with it.
@@ -16,13 +19,14 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh, SceneError> {
     match ext.as_deref() {
         Some("obj") => load_obj(path),
         Some("ply") => load_ply(path),
+        Some("gltf" | "glb") => super::gltf::load_gltf(path),
         _ => Err(SceneError::UnknownFormat {
             path: path.display().to_string(),
         }),
     }
 }
 
-fn file_error(path: &Path, message: impl ToString) -> SceneError {
+pub(super) fn file_error(path: &Path, message: impl ToString) -> SceneError {
     SceneError::File {
         path: path.display().to_string(),
         message: message.to_string(),
@@ -40,106 +44,334 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
     let mut reader = std::io::BufReader::new(file);
     // Materials only affect colour, which the first renderer takes from the scene, so a missing
     // .mtl must not make a mesh unloadable.
-    let (models, _) = tobj::load_obj_buf(&mut reader, &options, |_| {
+    let loaded = tobj::load_obj_buf(&mut reader, &options, |_| {
         Ok((Vec::new(), Default::default()))
-    })
-    .map_err(|e| file_error(path, format!("not a valid OBJ file: {e}")))?;
+    });
+    let models = match loaded {
+        Ok((models, _)) => models,
+        Err(e) => {
+            let why = obj_culprit(path).unwrap_or_else(|| format!("not a valid OBJ file: {e}"));
+            return Err(file_error(path, why));
+        }
+    };
     let mut mesh = Mesh::default();
     for model in models {
         let m = model.mesh;
         let base = mesh.positions.len() as u32;
-        if m.positions.len() % 3 != 0 {
-            return Err(file_error(
-                path,
-                "vertex list is not a multiple of 3 floats",
-            ));
-        }
         mesh.positions.extend(
             m.positions
                 .chunks_exact(3)
                 .map(|p| Vec3::new(p[0], p[1], p[2])),
         );
-        let count = m.positions.len() as u32 / 3;
-        for (face, tri) in m.indices.chunks_exact(3).enumerate() {
-            if let Some(&bad) = tri.iter().find(|&&i| i >= count) {
-                return Err(file_error(
-                    path,
-                    format!(
-                        "object `{}` face {face} uses vertex {} of {count}",
-                        model.name,
-                        bad + 1
-                    ),
-                ));
+        mesh.triangles.extend(
+            m.indices
+                .chunks_exact(3)
+                .map(|t| [base + t[0], base + t[1], base + t[2]]),
+        );
+    }
+    if mesh.positions.iter().any(|p| !p.is_finite()) {
+        let why = obj_culprit(path).unwrap_or_else(|| "has a non-finite vertex".into());
+        return Err(file_error(path, why));
+    }
+    Ok(mesh)
+}
+
+/// Finds the first line of an OBJ file that `tobj` would reject, or that yields a non-finite
+/// vertex. `tobj` reports no line numbers, so this second pass runs only once a load has failed:
+/// good files pay nothing for it.
+fn obj_culprit(path: &Path) -> Option<String> {
+    let reader = std::io::BufReader::new(std::fs::File::open(path).ok()?);
+    let mut vertices = 0usize;
+    // OBJ allows forward references, so indices past the end are only known to be bad at the
+    // end; the line of the largest one is blamed.
+    let mut largest: Option<(usize, usize)> = None;
+    for (n, line) in reader.split(b'\n').enumerate() {
+        let number = n + 1;
+        let line = line.ok()?;
+        let Ok(text) = std::str::from_utf8(&line) else {
+            return Some(format!("line {number}: not valid UTF-8"));
+        };
+        let mut words = text.split_whitespace();
+        let bad = match words.next() {
+            Some("v") => {
+                vertices += 1;
+                obj_vertex(words).map_err(|e| format!("vertex {vertices} {e}"))
             }
-            mesh.triangles
-                .push([base + tri[0], base + tri[1], base + tri[2]]);
+            Some(key @ ("vt" | "vn")) => {
+                let want = if key == "vt" { 2 } else { 3 };
+                let ok = words
+                    .take(want)
+                    .filter(|w| w.parse::<f32>().is_ok())
+                    .count()
+                    == want;
+                ok.then_some(())
+                    .ok_or_else(|| format!("`{key}` needs {want} numbers"))
+            }
+            Some("f" | "l") => words.try_for_each(|word| {
+                let index = obj_face_index(word, vertices)?;
+                if index > largest.map_or(0, |(_, i)| i) {
+                    largest = Some((number, index));
+                }
+                Ok(())
+            }),
+            _ => Ok(()),
+        };
+        if let Err(why) = bad {
+            return Some(format!("line {number}: {why}"));
+        }
+    }
+    match largest {
+        Some((number, index)) if index > vertices => Some(format!(
+            "line {number}: face uses vertex {index}, but the file has only {vertices} vertices"
+        )),
+        _ => None,
+    }
+}
+
+/// Checks the words after `v` as `tobj` reads them: x y z, then an optional weight w that
+/// divides them, or an r g b colour.
+fn obj_vertex<'a>(words: impl Iterator<Item = &'a str>) -> Result<(), String> {
+    let words: Vec<&str> = words.collect();
+    if !matches!(words.len(), 3 | 4 | 6) {
+        return Err(format!(
+            "has {} values (expected x y z [w] or x y z r g b)",
+            words.len()
+        ));
+    }
+    let mut xyz = [0f32; 3];
+    for (c, word) in xyz.iter_mut().zip(&words) {
+        *c = word
+            .parse()
+            .map_err(|_| format!("coordinate `{word}` is not a number"))?;
+        if !c.is_finite() {
+            return Err(format!("coordinate `{word}` is not finite"));
+        }
+    }
+    if let [_, _, _, w] = words[..] {
+        let weight: f32 = w
+            .parse()
+            .map_err(|_| format!("weight `{w}` is not a number"))?;
+        if weight == 0.0 || !xyz.iter().all(|c| (c / weight).is_finite()) {
+            return Err(format!("weight `{w}` gives a non-finite position"));
+        }
+    }
+    Ok(())
+}
+
+/// The 1-based vertex a face word (`v`, `v/vt`, `v//vn`, `v/vt/vn`) refers to, resolving
+/// negative (relative) indices against the vertices read so far.
+fn obj_face_index(word: &str, vertices: usize) -> Result<usize, String> {
+    let first = word.split('/').next().unwrap_or_default();
+    let index: i64 = first
+        .parse()
+        .map_err(|_| format!("face vertex `{word}` is not an index"))?;
+    match index {
+        0 => Err("face uses vertex index 0 (OBJ indices start at 1)".into()),
+        i if i > 0 => Ok(i as usize),
+        i => {
+            let back = i.unsigned_abs() as usize;
+            if back > vertices {
+                Err(format!(
+                    "face uses relative vertex {i}, but only {vertices} vertices precede it"
+                ))
+            } else {
+                Ok(vertices - back + 1)
+            }
+        }
+    }
+}
+
+/// One PLY element row, keeping only what a mesh needs: the crate's default element is a map
+/// per row, hundreds of bytes for each vertex of what may be a multi-million-vertex scan.
+#[derive(Default)]
+struct PlyRow {
+    xyz: [Option<f32>; 3],
+    indices: Option<Vec<i64>>,
+}
+
+impl ply_rs_bw::ply::PropertyAccess for PlyRow {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(
+        &mut self,
+        name: &str,
+        property: ply_rs_bw::ply::Property,
+    ) -> ply_rs_bw::ply::PropertyAccessResult {
+        use ply_rs_bw::ply::{Property as P, PropertyAccessResult as R};
+        let axis = match name {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            "vertex_indices" | "vertex_index" => {
+                fn wide<T: Into<i64>>(list: Vec<T>) -> Vec<i64> {
+                    list.into_iter().map(Into::into).collect()
+                }
+                self.indices = Some(match property {
+                    P::ListChar(l) => wide(l),
+                    P::ListUChar(l) => wide(l),
+                    P::ListShort(l) => wide(l),
+                    P::ListUShort(l) => wide(l),
+                    P::ListInt(l) => wide(l),
+                    P::ListUInt(l) => wide(l),
+                    _ => return R::UnsupportedType,
+                });
+                return R::Set;
+            }
+            _ => return R::Ignored,
+        };
+        match property.to_f32_lossy() {
+            Some(value) => {
+                self.xyz[axis] = Some(value);
+                R::Set
+            }
+            None => R::UnsupportedType,
+        }
+    }
+}
+
+fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
+    use ply_rs_bw::parser::{Parser, Reader};
+    use ply_rs_bw::ply::Encoding;
+
+    let err = |message: String| file_error(path, message);
+    let file = std::fs::File::open(path).map_err(|e| file_error(path, e))?;
+    let mut reader = Reader::new(std::io::BufReader::new(file));
+    let parser = Parser::<PlyRow>::new();
+    let header = parser.read_header(&mut reader).map_err(|e| {
+        err(format!(
+            "not a valid PLY file: {}",
+            one_line(&e.to_string())
+        ))
+    })?;
+    let ascii = header.encoding == Encoding::Ascii;
+    // Where an element row is: its index, and for ascii files its line too.
+    let row = |name: &str, index: usize, first_line: usize| {
+        if ascii {
+            format!("{name} {index} (line {})", first_line + index)
+        } else {
+            format!("{name} {index}")
+        }
+    };
+    let (mut vertices, mut faces) = (None, None);
+    for (name, def) in &header.elements {
+        // The crate counts one "line" per element row in binary files too, so this gives the
+        // row index whatever the encoding.
+        let first_line = reader.line().max(1);
+        let rows = parser
+            .read_payload_for_element(&mut reader, def, &header)
+            .map_err(|e| {
+                let text = e.to_string();
+                match e.line() {
+                    Some(line) if line >= first_line => {
+                        let prefix = format!("Line {line}: ");
+                        let text = text.strip_prefix(&prefix).unwrap_or(&text);
+                        let at = row(name, line - first_line, first_line);
+                        err(format!("{at}: {}", one_line(text)))
+                    }
+                    _ => err(format!("element `{name}`: {}", one_line(&text))),
+                }
+            })?;
+        match name.as_str() {
+            "vertex" => vertices = Some((rows, first_line)),
+            "face" => faces = Some((rows, first_line)),
+            _ => {}
+        }
+    }
+    let (vertices, vertex_line) = vertices.ok_or_else(|| err("has no `vertex` element".into()))?;
+    let mut mesh = Mesh::default();
+    for (index, vertex) in vertices.iter().enumerate() {
+        let at = || row("vertex", index, vertex_line);
+        let [Some(x), Some(y), Some(z)] = vertex.xyz else {
+            return Err(err(format!("{} lacks one of x, y, z", at())));
+        };
+        let p = Vec3::new(x, y, z);
+        if !p.is_finite() {
+            return Err(err(format!("{} has a non-finite coordinate {p}", at())));
+        }
+        mesh.positions.push(p);
+    }
+    let count = mesh.positions.len();
+    if u32::try_from(count).is_err() {
+        return Err(err(format!(
+            "{count} vertices is more than 32-bit indices reach"
+        )));
+    }
+    let (faces, face_line) = faces.ok_or_else(|| err("has no `face` element".into()))?;
+    for (index, face) in faces.iter().enumerate() {
+        let at = || row("face", index, face_line);
+        let list = face
+            .indices
+            .as_deref()
+            .ok_or_else(|| err(format!("{} has no `vertex_indices` list", at())))?;
+        if list.len() < 3 {
+            return Err(err(format!(
+                "{} has {} vertices, fewer than 3",
+                at(),
+                list.len()
+            )));
+        }
+        if let Some(&bad) = list.iter().find(|&&v| v < 0 || v as usize >= count) {
+            return Err(err(format!(
+                "{} uses vertex {bad}, but there are only {count} vertices",
+                at()
+            )));
+        }
+        // In range of a u32-indexed vertex list, checked just above.
+        let v = |k: usize| list[k] as u32;
+        for k in 1..list.len() - 1 {
+            mesh.triangles.push([v(0), v(k), v(k + 1)]);
         }
     }
     Ok(mesh)
 }
 
-fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
-    use ply_rs_bw::parser::Parser;
-    use ply_rs_bw::ply::{DefaultElement, Property};
-
-    let file = std::fs::File::open(path).map_err(|e| file_error(path, e))?;
-    let mut reader = std::io::BufReader::new(file);
-    let ply = Parser::<DefaultElement>::new()
-        .read_ply(&mut reader)
-        .map_err(|e| file_error(path, format!("not a valid PLY file: {e}")))?;
-    let vertices = ply
-        .payload
-        .get("vertex")
-        .ok_or_else(|| file_error(path, "has no `vertex` element"))?;
-    let mut mesh = Mesh::default();
-    for (index, vertex) in vertices.iter().enumerate() {
-        let coord = |name: &str| {
-            vertex
-                .get(name)
-                .and_then(Property::to_f32_lossy)
-                .ok_or_else(|| file_error(path, format!("vertex {index} has no scalar `{name}`")))
-        };
-        mesh.positions
-            .push(Vec3::new(coord("x")?, coord("y")?, coord("z")?));
-    }
-    let faces = ply
-        .payload
-        .get("face")
-        .ok_or_else(|| file_error(path, "has no `face` element"))?;
-    for (index, face) in faces.iter().enumerate() {
-        let list = face
-            .get("vertex_indices")
-            .or_else(|| face.get("vertex_index"))
-            .and_then(Property::to_u32_list)
-            .ok_or_else(|| {
-                file_error(path, format!("face {index} has no `vertex_indices` list"))
-            })?;
-        if list.len() < 3 {
-            return Err(file_error(
-                path,
-                format!("face {index} has {} vertices, fewer than 3", list.len()),
-            ));
-        }
-        for k in 1..list.len() - 1 {
-            mesh.triangles.push([list[0], list[k], list[k + 1]]);
+/// The crate's messages nest, `what\n\tString: '<text>'\n\tError: <cause>`, sometimes twice
+/// over; a scene error is one line: what, the text at fault, and the innermost cause.
+fn one_line(text: &str) -> String {
+    let mut parts = text.split("\n\t");
+    let mut out = parts.next().unwrap_or_default().trim().to_string();
+    let (mut quoted, mut cause) = (None, None);
+    for part in parts {
+        if let Some(text) = part.strip_prefix("String: ") {
+            quoted.get_or_insert(text.trim().trim_matches('\'').trim());
+        } else if let Some(text) = part.strip_prefix("Error: ") {
+            cause = Some(text.trim());
         }
     }
-    Ok(mesh)
+    if let Some(quoted) = quoted {
+        out = format!("{} `{quoted}`", out.trim_end_matches('.'));
+    }
+    if let Some(cause) = cause {
+        out = format!("{}: {cause}", out.trim_end_matches('.'));
+    }
+    out.replace(['\n', '\r', '\t'], " ")
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::io::Write;
 
-    fn write(dir: &Path, name: &str, text: &[u8]) -> std::path::PathBuf {
+    fn write(dir: &Path, name: &str, bytes: &[u8]) -> std::path::PathBuf {
         let path = dir.join(name);
-        std::fs::File::create(&path)
-            .unwrap()
-            .write_all(text)
-            .unwrap();
+        std::fs::write(&path, bytes).unwrap();
         path
     }
+
+    /// Loads `bytes` as file `name` and returns the error text, which must name the file.
+    fn error_of(name: &str, bytes: &[u8]) -> String {
+        let dir = tempfile::tempdir().unwrap();
+        let err = load_mesh_file(&write(dir.path(), name, bytes))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(name), "{err}");
+        err
+    }
+
+    const PLY_HEAD: &str = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n\
+property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+end_header\n";
 
     #[test]
     fn obj_quad_is_triangulated() {
@@ -155,19 +387,72 @@ mod tests {
     }
 
     #[test]
+    fn obj_errors_name_the_line() {
+        let head = "# c\nv 0 0 0\nv 1 0 0\n";
+        for (tail, want) in [
+            (
+                "v 1 zz 0\nf 1 2 3\n",
+                "line 4: vertex 3 coordinate `zz` is not a number",
+            ),
+            (
+                "v 1 nan 0\nf 1 2 3\n",
+                "line 4: vertex 3 coordinate `nan` is not finite",
+            ),
+            (
+                "v 1 1 inf\nf 1 2 3\n",
+                "line 4: vertex 3 coordinate `inf` is not finite",
+            ),
+            (
+                "v 1 1e39 0\nf 1 2 3\n",
+                "line 4: vertex 3 coordinate `1e39` is not finite",
+            ),
+            ("v 1 1\nf 1 2 3\n", "line 4: vertex 3 has 2 values"),
+            (
+                "v 0 1 0\nf 1 2 9\n",
+                "line 5: face uses vertex 9, but the file has only 3",
+            ),
+            ("v 0 1 0\nf 1 2 0\n", "line 5: face uses vertex index 0"),
+            (
+                "v 0 1 0\nf 1 2 -4\n",
+                "line 5: face uses relative vertex -4",
+            ),
+            (
+                "v 0 1 0\nf 1 2 x\n",
+                "line 5: face vertex `x` is not an index",
+            ),
+            (
+                "vn 0 q 1\nv 0 1 0\nf 1 2 3\n",
+                "line 4: `vn` needs 3 numbers",
+            ),
+            (
+                "v 1 1 1 0\nf 1 2 3\n",
+                "line 4: vertex 3 weight `0` gives a non-finite",
+            ),
+        ] {
+            let err = error_of("bad.obj", format!("{head}{tail}").as_bytes());
+            assert!(err.contains(want), "{tail:?}: {err}");
+        }
+        // Relative and forward indices are valid OBJ.
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(
+            dir.path(),
+            "ok.obj",
+            b"f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
+        );
+        assert_eq!(load_mesh_file(&path).unwrap().triangles.len(), 2);
+    }
+
+    #[test]
     fn ascii_and_binary_ply_give_the_same_mesh() {
         let dir = tempfile::tempdir().unwrap();
         let ascii = write(
             dir.path(),
             "a.ply",
-            b"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
-property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\
-0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
+            format!("{PLY_HEAD}0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n").as_bytes(),
         );
-        let mut binary = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\n\
-property float x\nproperty float y\nproperty float z\nelement face 1\n\
-property list uchar int vertex_indices\nend_header\n"
-            .to_vec();
+        let mut binary = PLY_HEAD
+            .replace("ascii", "binary_little_endian")
+            .into_bytes();
         for p in [[0f32, 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]] {
             for c in p {
                 binary.extend(c.to_le_bytes());
@@ -186,13 +471,58 @@ property list uchar int vertex_indices\nend_header\n"
     }
 
     #[test]
+    fn ply_errors_name_the_element() {
+        // Header lines 1-9, so vertex 0 is line 10 and face 0 line 14.
+        for (body, want) in [
+            (
+                "0 0 0\n1 0 0\n1 zz 0\n0 1 0\n4 0 1 2 3\n",
+                "vertex 2 (line 12): ",
+            ),
+            (
+                "0 0 0\n1 0 0\n1 nan 0\n0 1 0\n4 0 1 2 3\n",
+                "vertex 2 (line 12): Couldn't read element line `1 nan 0`: error at 1:3",
+            ),
+            (
+                "0 0 0\n1 0 0\n1 1 0\n0 1e39 0\n4 0 1 2 3\n",
+                "vertex 3 (line 13) has a non-finite",
+            ),
+            (
+                "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 7\n",
+                "face 0 (line 14) uses vertex 7, but",
+            ),
+            (
+                "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 -1 2\n",
+                "face 0 (line 14) uses vertex -1",
+            ),
+            (
+                "0 0 0\n1 0 0\n1 1 0\n0 1 0\n2 0 1\n",
+                "face 0 (line 14) has 2 vertices",
+            ),
+            ("0 0 0\n1 0 0\n", "vertex 2 (line 12): "),
+        ] {
+            let err = error_of("bad.ply", format!("{PLY_HEAD}{body}").as_bytes());
+            assert!(err.contains(want) && !err.contains('\n'), "{body:?}: {err}");
+        }
+        // A binary file has no lines: its rows are named by index alone.
+        let mut binary = PLY_HEAD
+            .replace("ascii", "binary_little_endian")
+            .into_bytes();
+        for c in [0f32, 0., 0., 1., 0., 0., 1., f32::NAN, 0., 0., 1., 0.] {
+            binary.extend(c.to_le_bytes());
+        }
+        binary.extend([3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0]);
+        let err = error_of("nan.ply", &binary);
+        assert!(err.contains("vertex 2 has a non-finite"), "{err}");
+        let err = error_of("short.ply", &binary[..binary.len() - 30]);
+        assert!(err.contains("vertex 2: "), "{err}");
+    }
+
+    #[test]
     fn bad_files_name_the_file() {
-        let dir = tempfile::tempdir().unwrap();
-        let garbage = write(dir.path(), "g.ply", b"this is not a ply\n");
-        let err = load_mesh_file(&garbage).unwrap_err().to_string();
-        assert!(err.contains("g.ply"), "{err}");
-        let missing = dir.path().join("missing.obj");
-        let err = load_mesh_file(&missing).unwrap_err().to_string();
+        let err = error_of("g.ply", b"this is not a ply\n");
+        assert!(err.contains("not a valid PLY"), "{err}");
+        let missing = Path::new("/nonexistent/missing.obj");
+        let err = load_mesh_file(missing).unwrap_err().to_string();
         assert!(err.contains("missing.obj"), "{err}");
         let err = load_mesh_file(Path::new("x.stl")).unwrap_err().to_string();
         assert!(err.contains("x.stl") && err.contains("extension"), "{err}");

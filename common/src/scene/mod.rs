@@ -7,6 +7,8 @@
 //! on any node.
 
 mod files;
+pub mod gltf;
+pub mod particles;
 mod procedural;
 
 use crate::geometry::Bounds;
@@ -38,12 +40,26 @@ impl Default for SceneSpec {
 }
 
 impl SceneSpec {
-    /// `builtin` (or `knot`) names the default scene; anything else is a path.
-    pub fn from_arg(text: &str) -> Self {
-        match text {
+    /// `builtin` (or `knot`) names the default scene, `knot:SEGMENTS:SIDES` a knot of
+    /// 2 × SEGMENTS × SIDES triangles (for benchmarks of any size); anything else is a path.
+    pub fn from_arg(text: &str) -> Result<Self, SceneError> {
+        if let Some(rest) = text.strip_prefix("knot:") {
+            let bad = || SceneError::File {
+                path: text.to_string(),
+                message: "expected knot:SEGMENTS:SIDES with two numbers from 3 to 65536".into(),
+            };
+            let (a, b) = rest.split_once(':').ok_or_else(bad)?;
+            let segments: u32 = a.parse().map_err(|_| bad())?;
+            let sides: u32 = b.parse().map_err(|_| bad())?;
+            if !(3..=65536).contains(&segments) || !(3..=65536).contains(&sides) {
+                return Err(bad());
+            }
+            return Ok(SceneSpec::Knot { segments, sides });
+        }
+        Ok(match text {
             "builtin" | "knot" | "default" => SceneSpec::default(),
             path => SceneSpec::File(PathBuf::from(path)),
-        }
+        })
     }
 }
 
@@ -61,8 +77,17 @@ pub struct Scene {
     /// Material index of each triangle.
     pub triangle_material: Vec<u16>,
     pub materials: Vec<Material>,
-    /// Direction towards the (directional) light; normalized.
-    pub light_dir: Vec3,
+    /// Lights; a scene without lights traces no shadow rays.
+    pub lights: Vec<Light>,
+}
+
+/// A light source. Intensities are linear multipliers of the diffuse term.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Light {
+    /// Infinitely far: `towards` is the unit direction from the surface to the light.
+    Directional { towards: Vec3, intensity: f32 },
+    /// A point light; falls off with the square of the distance.
+    Point { position: Vec3, intensity: f32 },
 }
 
 /// Why a scene could not be loaded; every variant names the file and what is wrong.
@@ -150,6 +175,19 @@ impl Scene {
         Ok(())
     }
 
+    /// Writes the scene's triangles as OBJ, so other renderers can load exactly the same mesh.
+    pub fn export_obj(&self, out: &Path) -> std::io::Result<()> {
+        use std::io::Write;
+        let mut w = std::io::BufWriter::new(std::fs::File::create(out)?);
+        for p in &self.positions {
+            writeln!(w, "v {} {} {}", p.x, p.y, p.z)?;
+        }
+        for t in &self.triangles {
+            writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
+        }
+        w.flush()
+    }
+
     pub fn bounds(&self) -> Bounds {
         let mut bounds = Bounds::EMPTY;
         for tri in &self.triangles {
@@ -169,7 +207,18 @@ impl Scene {
         for m in &self.materials {
             hasher.update(bytemuck::bytes_of(&m.albedo));
         }
-        hasher.update(bytemuck::bytes_of(&self.light_dir));
+        for light in &self.lights {
+            let (tag, v, i) = match *light {
+                Light::Directional { towards, intensity } => (0u8, towards, intensity),
+                Light::Point {
+                    position,
+                    intensity,
+                } => (1u8, position, intensity),
+            };
+            hasher.update(&[tag]);
+            hasher.update(bytemuck::bytes_of(&v));
+            hasher.update(&i.to_le_bytes());
+        }
         *hasher.finalize().as_bytes()
     }
 }
@@ -198,12 +247,16 @@ fn from_mesh(mesh: Mesh, _path: &Path) -> Scene {
         materials: vec![Material {
             albedo: Vec3::new(0.8, 0.78, 0.74),
         }],
-        light_dir: default_light_dir(),
+        lights: vec![default_light()],
     }
 }
 
-pub(crate) fn default_light_dir() -> Vec3 {
-    Vec3::new(-0.45, 0.8, 0.4).normalize()
+/// A sun from the upper front left.
+pub(crate) fn default_light() -> Light {
+    Light::Directional {
+        towards: Vec3::new(-0.45, 0.8, 0.4).normalize(),
+        intensity: 0.65,
+    }
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 //! It is generated, not shipped, so a fresh clone has something worth looking at on a wall, and
 //! its triangle count is a parameter so benchmarks can scale it up to millions.
 
-use super::{default_light_dir, Material, Scene};
+use super::{default_light, Material, Scene};
 use glam::Vec3;
 use std::f32::consts::TAU;
 
@@ -79,7 +79,7 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
                 albedo: Vec3::new(0.32, 0.36, 0.42),
             },
         ],
-        light_dir: default_light_dir(),
+        lights: vec![default_light()],
     }
 }
 

@@ -1,12 +1,12 @@
-//! Command-line arguments shared by the master's subcommands, and their checks.
+//! Command-line arguments shared by the binaries (wall, scene, camera), and their checks.
 
+use crate::render::{Camera, CameraMode};
+use crate::scene::{Scene, SceneSpec};
+use crate::wall::{parse_size, WallLayout, DEFAULT_TILE_SIZE};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use glam::Vec3;
 use std::path::PathBuf;
-use tessera_common::render::{Camera, CameraMode};
-use tessera_common::scene::{Scene, SceneSpec};
-use tessera_common::wall::{parse_size, WallLayout, DEFAULT_TILE_SIZE};
 
 /// The wall: either `--wall-file` or the `--wall/--screen/--bezel` shorthand.
 #[derive(Args, Debug, Clone)]
@@ -46,7 +46,8 @@ impl WallArgs {
 /// The scene and the camera.
 #[derive(Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// `builtin` (a procedural knot over a floor) or an OBJ/PLY mesh path.
+    /// `builtin` (a procedural knot over a floor), `knot:SEGMENTS:SIDES`, or a mesh path
+    /// (OBJ, PLY, glTF/GLB).
     #[arg(long, default_value = "builtin")]
     pub scene: String,
     /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.
@@ -63,7 +64,7 @@ pub struct SceneArgs {
     pub fov: f32,
 }
 
-fn parse_vec3(text: &str) -> Result<Vec3, String> {
+pub fn parse_vec3(text: &str) -> Result<Vec3, String> {
     let parts: Vec<&str> = text.split(',').collect();
     if parts.len() != 3 {
         return Err(format!("`{text}` is not X,Y,Z"));
@@ -82,8 +83,8 @@ fn parse_vec3(text: &str) -> Result<Vec3, String> {
 }
 
 impl SceneArgs {
-    pub fn spec(&self) -> SceneSpec {
-        SceneSpec::from_arg(&self.scene)
+    pub fn spec(&self) -> Result<SceneSpec> {
+        Ok(SceneSpec::from_arg(&self.scene)?)
     }
 
     /// The camera mode for a loaded scene: fixed if the flags say so, else the default orbit.

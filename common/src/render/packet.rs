@@ -1,0 +1,175 @@
+//! 64-ray packets in structure-of-arrays layout, as in Manta.
+//!
+//! Properties the whole packet shares are flags (a common origin, normalized directions), so
+//! traversal can take the fast path they allow. Derived values (inverse directions) are
+//! computed once, on first use, and flagged. Shading splits a packet into sub-packets of
+//! consecutive rays with the same material: ranges of the packet, not copies.
+
+use super::PixelRays;
+use glam::Vec3;
+use std::ops::Range;
+
+pub const PACKET_RAYS: usize = 64;
+
+/// All rays start at [`RayPacket::origin`].
+pub const COMMON_ORIGIN: u32 = 1;
+/// All directions have unit length.
+pub const NORMALIZED: u32 = 1 << 1;
+/// `inv` holds the inverse directions.
+pub const HAVE_INVERSE: u32 = 1 << 2;
+
+pub struct RayPacket {
+    len: usize,
+    flags: u32,
+    /// The shared origin when `COMMON_ORIGIN` is set.
+    pub origin: Vec3,
+    /// Per-ray origins (each equal to `origin` when `COMMON_ORIGIN` is set).
+    pub org: [[f32; PACKET_RAYS]; 3],
+    pub dir: [[f32; PACKET_RAYS]; 3],
+    inv: [[f32; PACKET_RAYS]; 3],
+}
+
+impl RayPacket {
+    /// Primary rays of the `w × h ≤ 8 × 8` pixel block at `(x0, y0)`, row-major.
+    pub fn primary(rays: &PixelRays, x0: u32, y0: u32, w: u32, h: u32) -> Self {
+        let mut p = RayPacket {
+            len: (w * h) as usize,
+            flags: COMMON_ORIGIN | NORMALIZED,
+            origin: rays.eye,
+            org: [
+                [rays.eye.x; PACKET_RAYS],
+                [rays.eye.y; PACKET_RAYS],
+                [rays.eye.z; PACKET_RAYS],
+            ],
+            dir: [[0.0; PACKET_RAYS]; 3],
+            inv: [[0.0; PACKET_RAYS]; 3],
+        };
+        for i in 0..p.len {
+            let d = rays.direction(x0 + i as u32 % w, y0 + i as u32 / w);
+            for axis in 0..3 {
+                p.dir[axis][i] = d[axis];
+            }
+        }
+        p
+    }
+
+    /// Rays with their own origins (shadow and ambient-occlusion packets).
+    pub fn from_rays(rays: impl IntoIterator<Item = (Vec3, Vec3)>) -> Self {
+        let mut p = RayPacket {
+            len: 0,
+            flags: 0,
+            origin: Vec3::ZERO,
+            org: [[0.0; PACKET_RAYS]; 3],
+            dir: [[0.0; PACKET_RAYS]; 3],
+            inv: [[0.0; PACKET_RAYS]; 3],
+        };
+        for (o, d) in rays.into_iter().take(PACKET_RAYS) {
+            for axis in 0..3 {
+                p.org[axis][p.len] = o[axis];
+                p.dir[axis][p.len] = d[axis];
+            }
+            p.len += 1;
+        }
+        p
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag != 0
+    }
+
+    pub fn direction(&self, i: usize) -> Vec3 {
+        Vec3::new(self.dir[0][i], self.dir[1][i], self.dir[2][i])
+    }
+
+    pub fn ray_origin(&self, i: usize) -> Vec3 {
+        Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i])
+    }
+
+    /// Inverse directions, computed on first use.
+    pub fn inverse_directions(&mut self) -> &[[f32; PACKET_RAYS]; 3] {
+        if !self.has(HAVE_INVERSE) {
+            for axis in 0..3 {
+                for i in 0..PACKET_RAYS {
+                    self.inv[axis][i] = 1.0 / self.dir[axis][i];
+                }
+            }
+            self.flags |= HAVE_INVERSE;
+        }
+        &self.inv
+    }
+}
+
+/// The closest hit of one ray of a packet.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PacketHit {
+    pub t: f32,
+    slot: u32,
+}
+
+impl PacketHit {
+    pub const MISS: PacketHit = PacketHit {
+        t: f32::INFINITY,
+        slot: u32::MAX,
+    };
+
+    pub fn new(t: f32, slot: u32) -> Self {
+        PacketHit { t, slot }
+    }
+
+    /// Leaf slot of the triangle hit, if any.
+    pub fn slot(&self) -> Option<u32> {
+        (self.slot != u32::MAX).then_some(self.slot)
+    }
+}
+
+/// Splits `keys` into maximal runs of equal consecutive keys: the sub-packets of rays that share
+/// a material, as ranges into the packet.
+pub fn runs_by<K: PartialEq + Copy>(keys: &[K]) -> Vec<(K, Range<usize>)> {
+    let mut runs: Vec<(K, Range<usize>)> = Vec::new();
+    for (i, &k) in keys.iter().enumerate() {
+        match runs.last_mut() {
+            Some((key, range)) if *key == k => range.end = i + 1,
+            _ => runs.push((k, i..i + 1)),
+        }
+    }
+    runs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::Camera;
+
+    #[test]
+    fn primary_packets_share_origin_and_compute_inverses_once() {
+        let camera = Camera {
+            eye: Vec3::new(1.0, 2.0, 3.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_deg: 60.0,
+        };
+        let rays = camera.rays_for(64, 48);
+        let mut p = RayPacket::primary(&rays, 8, 16, 8, 5);
+        assert_eq!(p.len(), 40);
+        assert!(p.has(COMMON_ORIGIN) && p.has(NORMALIZED) && !p.has(HAVE_INVERSE));
+        assert_eq!(p.direction(9), rays.direction(9, 17));
+        let inv_x = p.inverse_directions()[0][9];
+        assert!(p.has(HAVE_INVERSE));
+        assert_eq!(inv_x, 1.0 / rays.direction(9, 17).x);
+    }
+
+    #[test]
+    fn runs_split_by_material_without_gaps() {
+        let runs = runs_by(&[2u16, 2, 5, 5, 5, 2, 7]);
+        assert_eq!(runs, vec![(2, 0..2), (5, 2..5), (2, 5..6), (7, 6..7)]);
+        assert!(runs_by::<u16>(&[]).is_empty());
+    }
+}

@@ -1,0 +1,562 @@
+//! glTF 2.0 meshes: `.gltf` (buffers in external files or data URIs) and binary `.glb`.
+//!
+//! The `gltf` crate parses and validates the document; accessor data is read here instead of
+//! through its reader, whose offset arithmetic is unchecked and panics on corrupt counts or
+//! component types. A bad file must be an error naming the element, never a crashed node.
+
+use super::files::file_error;
+use super::{Mesh, SceneError, MAX_TRIANGLES};
+use glam::{Mat4, Vec3};
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::Mode;
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Reads the triangles of every mesh instanced by the default scene (every scene if there is
+/// none, every root node if there are no scenes), in world space.
+///
+/// Triangle strips and fans are converted; points and lines are skipped with a warning.
+/// Materials, skins and morph targets are ignored: a mesh is traced in its bind pose.
+///
+/// # Errors
+/// A [`SceneError`] naming the file and the element (mesh, primitive, node, buffer) at fault.
+pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
+    let err = |message: String| file_error(path, message);
+    let bytes = std::fs::read(path).map_err(|e| file_error(path, e))?;
+    check_glb_header(&bytes).map_err(err)?;
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not a valid glTF file: {e}")))?;
+    drop(bytes);
+    let base = path.parent().unwrap_or(Path::new("."));
+    let buffers = load_buffers(&document, base, blob).map_err(err)?;
+
+    let mut mesh = Mesh::default();
+    let mut decoded: HashMap<usize, Mesh> = HashMap::new();
+    for (node, world) in instances(&document).map_err(err)? {
+        let Some(source) = node.mesh() else { continue };
+        if !decoded.contains_key(&source.index()) {
+            let local = decode_mesh(&source, &buffers, path).map_err(err)?;
+            decoded.insert(source.index(), local);
+        }
+        let local = &decoded[&source.index()];
+        let base = mesh.positions.len();
+        if u32::try_from(base + local.positions.len()).is_err() {
+            return Err(err("more vertices than 32-bit indices reach".into()));
+        }
+        for (i, &p) in local.positions.iter().enumerate() {
+            let p = world.transform_point3(p);
+            if !p.is_finite() {
+                return Err(err(format!(
+                    "node {}: its transform makes vertex {i} of mesh {} non-finite",
+                    node.index(),
+                    source.index()
+                )));
+            }
+            mesh.positions.push(p);
+        }
+        // A mirroring transform turns the winding over; glTF asks for it to be restored so that
+        // front faces stay front faces.
+        let mirrored = world.determinant() < 0.0;
+        let base = base as u32;
+        mesh.triangles
+            .extend(local.triangles.iter().map(|&[a, b, c]| {
+                let [a, b, c] = [a + base, b + base, c + base];
+                if mirrored {
+                    [a, c, b]
+                } else {
+                    [a, b, c]
+                }
+            }));
+        if mesh.triangles.len() > MAX_TRIANGLES {
+            return Err(SceneError::TooLarge {
+                origin: path.display().to_string(),
+                count: mesh.triangles.len(),
+                limit: MAX_TRIANGLES,
+            });
+        }
+    }
+    Ok(mesh)
+}
+
+/// The crate computes `length - 12` from the GLB header unchecked: a corrupt length would panic
+/// (debug) or wrap (release) inside it.
+fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let Some(length) = bytes.get(8..12) else {
+        return Err(format!("GLB header truncated: {} bytes", bytes.len()));
+    };
+    let length = u32::from_le_bytes(length.try_into().unwrap_or_default());
+    if length < 12 {
+        return Err(format!(
+            "GLB header gives a total length of {length} bytes, under 12"
+        ));
+    }
+    Ok(())
+}
+
+/// Every buffer's bytes: from the GLB binary chunk, a data URI, or a file beside the glTF.
+fn load_buffers(
+    document: &gltf::Document,
+    base: &Path,
+    mut blob: Option<Vec<u8>>,
+) -> Result<Vec<Vec<u8>>, String> {
+    use gltf::buffer::Source;
+    let mut buffers = Vec::new();
+    for buffer in document.buffers() {
+        let i = buffer.index();
+        let (data, origin) = match buffer.source() {
+            // Relative paths are resolved here: the crate unwraps their percent-decoding.
+            Source::Uri(uri) if !uri.contains(':') => {
+                let name = percent_decode(uri)
+                    .ok_or_else(|| format!("buffer {i}: uri `{uri}` is badly percent-encoded"))?;
+                let file = base.join(name);
+                let data = std::fs::read(&file)
+                    .map_err(|e| format!("buffer {i}: cannot read {}: {e}", file.display()))?;
+                (data, file.display().to_string())
+            }
+            source => {
+                let origin = match source {
+                    Source::Uri(uri) if uri.starts_with("data:") => "data URI".to_string(),
+                    Source::Uri(uri) => uri.to_string(),
+                    Source::Bin => "GLB binary chunk".to_string(),
+                };
+                let data = gltf::buffer::Data::from_source_and_blob(source, Some(base), &mut blob)
+                    .map_err(|e| format!("buffer {i} ({origin}): {e}"))?;
+                (data.0, origin)
+            }
+        };
+        if data.len() < buffer.length() {
+            return Err(format!(
+                "buffer {i} ({origin}) holds {} bytes, but the glTF says {}",
+                data.len(),
+                buffer.length()
+            ));
+        }
+        buffers.push(data);
+    }
+    Ok(buffers)
+}
+
+/// `%XX` escapes decoded, or `None` if one is malformed or the result is not UTF-8.
+fn percent_decode(uri: &str) -> Option<String> {
+    let mut out = Vec::with_capacity(uri.len());
+    let mut rest = uri.as_bytes();
+    while let Some((&byte, tail)) = rest.split_first() {
+        if byte == b'%' {
+            let hex = tail
+                .get(..2)
+                .filter(|h| h.iter().all(u8::is_ascii_hexdigit))?;
+            out.push(u8::from_str_radix(std::str::from_utf8(hex).ok()?, 16).ok()?);
+            rest = &tail[2..];
+        } else {
+            out.push(byte);
+            rest = tail;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// The nodes to draw with their world transforms, in document order so that every node loads
+/// the scene into identical bytes.
+fn instances(document: &gltf::Document) -> Result<Vec<(gltf::Node<'_>, Mat4)>, String> {
+    let roots: Vec<gltf::Node> = match document.default_scene() {
+        Some(scene) => scene.nodes().collect(),
+        None if document.scenes().len() > 0 => document.scenes().flat_map(|s| s.nodes()).collect(),
+        None => {
+            let mut is_child = vec![false; document.nodes().len()];
+            for child in document.nodes().flat_map(|n| n.children()) {
+                is_child[child.index()] = true;
+            }
+            document.nodes().filter(|n| !is_child[n.index()]).collect()
+        }
+    };
+    // Scenes may share root nodes; each is drawn once.
+    let mut is_root = vec![false; document.nodes().len()];
+    let mut stack: Vec<(gltf::Node, Mat4)> = roots
+        .into_iter()
+        .filter(|n| !std::mem::replace(&mut is_root[n.index()], true))
+        .map(|n| (n, Mat4::IDENTITY))
+        .collect();
+    stack.reverse();
+    // glTF node hierarchies are disjoint trees; a node met twice means a cycle, which would
+    // never end, or a shared child, which can multiply geometry exponentially.
+    let mut seen = vec![false; document.nodes().len()];
+    let mut out = Vec::new();
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(format!(
+                "node {} is reached twice: the node hierarchy is not a tree",
+                node.index()
+            ));
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let children: Vec<_> = node.children().collect();
+        stack.extend(children.into_iter().rev().map(|c| (c, world)));
+        out.push((node, world));
+    }
+    Ok(out)
+}
+
+/// One mesh's triangle primitives merged, in the mesh's own space.
+fn decode_mesh(mesh: &gltf::Mesh, buffers: &[Vec<u8>], path: &Path) -> Result<Mesh, String> {
+    let mut out = Mesh::default();
+    for primitive in mesh.primitives() {
+        let at = format!("mesh {} primitive {}", mesh.index(), primitive.index());
+        let mode = primitive.mode();
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
+            tracing::warn!(
+                file = %path.display(),
+                "skipping {mode:?} primitive {} of mesh {} `{}`: only triangles are traced",
+                primitive.index(),
+                mesh.index(),
+                mesh.name().unwrap_or_default()
+            );
+            continue;
+        }
+        let accessor = primitive
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| format!("{at}: has no POSITION attribute"))?;
+        let positions = read_positions(&accessor, buffers)
+            .map_err(|e| format!("{at}: POSITION accessor {}: {e}", accessor.index()))?;
+        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+            return Err(format!("{at}: vertex {i} has a non-finite position {p}"));
+        }
+        let indices = match primitive.indices() {
+            Some(accessor) => read_indices(&accessor, buffers)
+                .map_err(|e| format!("{at}: index accessor {}: {e}", accessor.index()))?,
+            None => (0..positions.len() as u32).collect(),
+        };
+        let count = positions.len();
+        if let Some(bad) = indices.iter().find(|&&i| i as usize >= count) {
+            return Err(format!("{at}: index {bad} out of range ({count} vertices)"));
+        }
+        let base = out.positions.len();
+        if u32::try_from(base + count).is_err() {
+            return Err(format!("{at}: more vertices than 32-bit indices reach"));
+        }
+        let base = base as u32;
+        let at_base = |t: [u32; 3]| t.map(|i| i + base);
+        match mode {
+            Mode::Triangles if indices.len() % 3 != 0 => {
+                let n = indices.len();
+                return Err(format!(
+                    "{at}: {n} indices is not a whole number of triangles"
+                ));
+            }
+            Mode::Triangles => out
+                .triangles
+                .extend(indices.chunks_exact(3).map(|t| at_base([t[0], t[1], t[2]]))),
+            // Every other strip triangle is reversed so that all keep the first one's winding.
+            Mode::TriangleStrip => {
+                out.triangles
+                    .extend(indices.windows(3).enumerate().map(|(k, t)| match k % 2 {
+                        0 => at_base([t[0], t[1], t[2]]),
+                        _ => at_base([t[0], t[2], t[1]]),
+                    }))
+            }
+            _ => out.triangles.extend(
+                indices
+                    .windows(2)
+                    .skip(1)
+                    .map(|t| at_base([indices[0], t[0], t[1]])),
+            ),
+        }
+        out.positions.extend(positions);
+    }
+    Ok(out)
+}
+
+fn read_positions(accessor: &gltf::Accessor, buffers: &[Vec<u8>]) -> Result<Vec<Vec3>, String> {
+    let kind = (
+        accessor.dimensions(),
+        accessor.data_type(),
+        accessor.normalized(),
+    );
+    if kind != (Dimensions::Vec3, DataType::F32, false) {
+        return Err(format!("is {kind:?}; positions must be VEC3 of FLOAT"));
+    }
+    let f = |b: &[u8], k: usize| f32::from_le_bytes([b[k], b[k + 1], b[k + 2], b[k + 3]]);
+    Ok(elements(accessor, buffers)?
+        .map(|b| Vec3::new(f(b, 0), f(b, 4), f(b, 8)))
+        .collect())
+}
+
+fn read_indices(accessor: &gltf::Accessor, buffers: &[Vec<u8>]) -> Result<Vec<u32>, String> {
+    let kind = accessor.data_type();
+    let decode: fn(&[u8]) -> u32 = match (accessor.dimensions(), kind) {
+        (Dimensions::Scalar, DataType::U8) => |b| b[0].into(),
+        (Dimensions::Scalar, DataType::U16) => |b| u16::from_le_bytes([b[0], b[1]]).into(),
+        (Dimensions::Scalar, DataType::U32) => |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        (dims, _) => return Err(format!("is {dims:?} of {kind:?}; indices must be unsigned")),
+    };
+    Ok(elements(accessor, buffers)?.map(decode).collect())
+}
+
+/// The bytes of each element of an accessor, after checking that all of them lie inside its
+/// buffer view and the view inside its buffer.
+fn elements<'b>(
+    accessor: &gltf::Accessor,
+    buffers: &'b [Vec<u8>],
+) -> Result<impl Iterator<Item = &'b [u8]>, String> {
+    if accessor.sparse().is_some() {
+        return Err("sparse accessors are not supported".into());
+    }
+    let view = accessor.view().ok_or("has no buffer view")?;
+    let (size, count, offset) = (accessor.size(), accessor.count(), accessor.offset());
+    let stride = view.stride().unwrap_or(size);
+    if stride < size {
+        return Err(format!(
+            "byte stride {stride} is less than its element size {size}"
+        ));
+    }
+    let buffer = &buffers[view.buffer().index()];
+    let bytes = view
+        .offset()
+        .checked_add(view.length())
+        .and_then(|end| buffer.get(view.offset()..end))
+        .ok_or_else(|| {
+            format!(
+                "buffer view {} ({} bytes at {}) runs past the end of buffer {} ({} bytes)",
+                view.index(),
+                view.length(),
+                view.offset(),
+                view.buffer().index(),
+                buffer.len()
+            )
+        })?;
+    let needed = match count {
+        0 => Some(offset),
+        n => (n - 1)
+            .checked_mul(stride)
+            .and_then(|s| s.checked_add(offset)?.checked_add(size)),
+    };
+    if needed.is_none_or(|n| n > bytes.len()) {
+        return Err(format!(
+            "{count} elements of {size} bytes, stride {stride}, from byte {offset} do not fit \
+             in buffer view {} ({} bytes)",
+            view.index(),
+            bytes.len()
+        ));
+    }
+    Ok(bytes[offset..]
+        .chunks(stride)
+        .take(count)
+        .map(move |e| &e[..size]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mesh 0 has two primitives, indexed and not; scene 1 (the default) draws it through node
+    /// 0 (translation) and its child node 1 (scale); scene 0 draws it untransformed via node 2.
+    const DOC: &str = r#"{"asset":{"version":"2.0"},"scene":1,
+      "scenes":[{"nodes":[2]},{"nodes":[0]}],
+      "nodes":[{"translation":[10,0,0],"children":[1]},{"scale":[2,2,2],"mesh":0},{"mesh":0}],
+      "meshes":[{"name":"pair","primitives":[
+        {"attributes":{"POSITION":0},"indices":1,"mode":MODE},{"attributes":{"POSITION":2}}]}],
+      "buffers":[BUFFER],
+      "bufferViews":[{"buffer":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":6},
+        {"buffer":0,"byteOffset":44,"byteLength":36}],
+      "accessors":[
+        {"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},
+        {"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"},
+        {"bufferView":2,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,1],"max":[1,1,1]}]}"#;
+
+    /// The 80-byte buffer of [`DOC`]: a triangle at z = 0, its indices, a triangle at z = 1.
+    fn bin(indices: [u16; 3]) -> Vec<u8> {
+        let mut out = Vec::new();
+        let tri = |z: f32| [0f32, 0., z, 1., 0., z, 0., 1., z];
+        tri(0.).iter().for_each(|c| out.extend(c.to_le_bytes()));
+        indices.iter().for_each(|i| out.extend(i.to_le_bytes()));
+        out.extend([0, 0]);
+        tri(1.).iter().for_each(|c| out.extend(c.to_le_bytes()));
+        out
+    }
+
+    fn doc(buffer: &str, mode: u32) -> String {
+        DOC.replace("BUFFER", buffer)
+            .replace("MODE", &mode.to_string())
+    }
+
+    fn base64(bytes: &[u8]) -> String {
+        const ABC: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::new();
+        for chunk in bytes.chunks(3) {
+            let n =
+                chunk.iter().fold(0u32, |n, &b| n << 8 | u32::from(b)) << (8 * (3 - chunk.len()));
+            for k in 0..4 {
+                let sextet = (n >> (18 - 6 * k)) & 63;
+                out.push(if k <= chunk.len() {
+                    ABC[sextet as usize] as char
+                } else {
+                    '='
+                });
+            }
+        }
+        out
+    }
+
+    fn data_uri_doc(indices: [u16; 3], mode: u32) -> String {
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64(&bin(indices))
+        );
+        doc(&format!(r#"{{"byteLength":80,"uri":"{uri}"}}"#), mode)
+    }
+
+    fn glb(json: &str, bin: &[u8]) -> Vec<u8> {
+        let mut json = json.as_bytes().to_vec();
+        json.resize(json.len().next_multiple_of(4), b' ');
+        let mut out = b"glTF".to_vec();
+        out.extend(2u32.to_le_bytes());
+        out.extend(((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+        out.extend((json.len() as u32).to_le_bytes());
+        out.extend(b"JSON");
+        out.extend(json);
+        out.extend((bin.len() as u32).to_le_bytes());
+        out.extend(b"BIN\0");
+        out.extend(bin);
+        out
+    }
+
+    fn load(name: &str, bytes: &[u8]) -> Result<Mesh, String> {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("m.bin"), bin([0, 1, 2])).unwrap();
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        super::super::load_mesh_file(&path).map_err(|e| {
+            let e = e.to_string();
+            assert!(e.contains(name), "{e}");
+            e
+        })
+    }
+
+    #[test]
+    fn default_scene_is_loaded_in_world_space() {
+        let mesh = load("m.gltf", data_uri_doc([0, 1, 2], 4).as_bytes()).unwrap();
+        let v = |x, y, z| Vec3::new(x, y, z);
+        assert_eq!(
+            mesh.positions,
+            [
+                v(10., 0., 0.),
+                v(12., 0., 0.),
+                v(10., 2., 0.),
+                v(10., 0., 2.),
+                v(12., 0., 2.),
+                v(10., 2., 2.)
+            ]
+        );
+        assert_eq!(mesh.triangles, [[0, 1, 2], [3, 4, 5]]);
+    }
+
+    #[test]
+    fn external_bin_and_glb_give_the_same_mesh() {
+        let reference = load("m.gltf", data_uri_doc([0, 1, 2], 4).as_bytes()).unwrap();
+        let external = doc(r#"{"byteLength":80,"uri":"m%2Ebin"}"#, 4);
+        let external = load("e.gltf", external.as_bytes()).unwrap();
+        let binary = load(
+            "b.glb",
+            &glb(&doc(r#"{"byteLength":80}"#, 4), &bin([0, 1, 2])),
+        );
+        for mesh in [external, binary.unwrap()] {
+            assert_eq!(mesh.positions, reference.positions);
+            assert_eq!(mesh.triangles, reference.triangles);
+        }
+    }
+
+    #[test]
+    fn without_a_default_scene_every_scene_is_loaded() {
+        let json = data_uri_doc([0, 1, 2], 4).replace(r#""scene":1,"#, "");
+        let mesh = load("all.gltf", json.as_bytes()).unwrap();
+        assert_eq!(mesh.triangles.len(), 4);
+        assert_eq!(
+            mesh.positions[0],
+            Vec3::ZERO,
+            "scene 0 (node 2) comes first"
+        );
+    }
+
+    #[test]
+    fn lines_are_skipped_and_strips_converted() {
+        let mesh = load("l.gltf", data_uri_doc([0, 1, 2], 1).as_bytes()).unwrap();
+        assert_eq!(
+            mesh.triangles,
+            [[0, 1, 2]],
+            "only the second primitive is left"
+        );
+        let mesh = load("s.gltf", data_uri_doc([2, 1, 0], 5).as_bytes()).unwrap();
+        assert_eq!(mesh.triangles, [[2, 1, 0], [3, 4, 5]]);
+    }
+
+    #[test]
+    fn mirroring_node_keeps_the_winding() {
+        let json = data_uri_doc([0, 1, 2], 4).replace("[2,2,2]", "[-2,2,2]");
+        let mesh = load("mirror.gltf", json.as_bytes()).unwrap();
+        assert_eq!(mesh.positions[1], Vec3::new(8., 0., 0.));
+        assert_eq!(mesh.triangles, [[0, 2, 1], [3, 5, 4]]);
+    }
+
+    #[test]
+    fn bad_files_name_the_element() {
+        let cases = [
+            (
+                data_uri_doc([0, 1, 99], 4),
+                "mesh 0 primitive 0: index 99 out of range (3 vertices)",
+            ),
+            (
+                doc(r#"{"byteLength":80,"uri":"gone.bin"}"#, 4),
+                "buffer 0: cannot read",
+            ),
+            (
+                doc(r#"{"byteLength":80,"uri":"%zz"}"#, 4),
+                "buffer 0: uri `%zz`",
+            ),
+            (
+                doc(r#"{"byteLength":90,"uri":"m.bin"}"#, 4),
+                "holds 80 bytes, but the glTF says 90",
+            ),
+            (
+                data_uri_doc([0, 1, 2], 4).replace(
+                    r#""count":3,"type":"SCALAR""#,
+                    r#""count":4,"type":"SCALAR""#,
+                ),
+                "mesh 0 primitive 0: index accessor 1: 4 elements of 2 bytes",
+            ),
+            (
+                data_uri_doc([0, 1, 2], 4)
+                    .replace(r#""componentType":5123"#, r#""componentType":5122"#),
+                "index accessor 1: is Scalar of I16",
+            ),
+            (
+                data_uri_doc([0, 1, 2], 4)
+                    .replace(r#""scale":[2,2,2],"mesh":0"#, r#""mesh":0,"children":[0]"#),
+                "node 0 is reached twice",
+            ),
+            (
+                data_uri_doc([0, 1, 2], 4).replace("\"2.0\"", "2"),
+                "not a valid glTF file",
+            ),
+        ];
+        for (json, want) in cases {
+            let err = load("bad.gltf", json.as_bytes()).unwrap_err();
+            assert!(err.contains(want), "{want}: {err}");
+        }
+        let mut nan = bin([0, 1, 2]);
+        nan[4..8].copy_from_slice(&f32::NAN.to_le_bytes());
+        let err = load("nan.glb", &glb(&doc(r#"{"byteLength":80}"#, 4), &nan)).unwrap_err();
+        assert!(
+            err.contains("mesh 0 primitive 0: vertex 0 has a non-finite"),
+            "{err}"
+        );
+        let mut corrupt = glb(&doc(r#"{"byteLength":80}"#, 4), &bin([0, 1, 2]));
+        corrupt[8..12].copy_from_slice(&3u32.to_le_bytes());
+        let err = load("corrupt.glb", &corrupt).unwrap_err();
+        assert!(err.contains("total length of 3 bytes"), "{err}");
+    }
+}

@@ -1,0 +1,415 @@
+//! Particle files: spheres, each with one scalar attribute (for colour mapping), as CSV or the
+//! binary `.tpart` format. Both are specified in `docs/particles.md`; keep the two in step.
+
+use super::files::file_error;
+use super::SceneError;
+use glam::Vec3;
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
+use std::path::Path;
+
+/// One sphere and its scalar attribute.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Particle {
+    pub center: Vec3,
+    pub radius: f32,
+    pub attribute: f32,
+}
+
+/// Record fields in `.tpart` order, which is also the order of [`Particle::from_fields`].
+const FIELDS: [&str; 5] = ["x", "y", "z", "radius", "attribute"];
+const MAGIC: &[u8; 4] = b"TPRT";
+const VERSION: u32 = 1;
+const HEADER_BYTES: u64 = 16;
+const RECORD_BYTES: u64 = 20;
+
+impl Particle {
+    fn from_fields([x, y, z, radius, attribute]: [f32; 5]) -> Self {
+        Particle {
+            center: Vec3::new(x, y, z),
+            radius,
+            attribute,
+        }
+    }
+
+    fn fields(&self) -> [f32; 5] {
+        let Vec3 { x, y, z } = self.center;
+        [x, y, z, self.radius, self.attribute]
+    }
+}
+
+/// Why field `field` (an index into [`FIELDS`]) holding `value` is unusable, if it is.
+fn check_field(field: usize, value: f32) -> Result<(), String> {
+    if !value.is_finite() {
+        Err(format!("{} {value} is not finite", FIELDS[field]))
+    } else if field == 3 && value <= 0.0 {
+        Err(format!("radius {value} is not positive"))
+    } else {
+        Ok(())
+    }
+}
+
+/// Reads a `.csv` or `.tpart` particle file. The result may be empty.
+///
+/// # Errors
+/// A [`SceneError`] naming the file and the line and column (CSV) or record (`.tpart`) at fault.
+pub fn load_particles(path: &Path) -> Result<Vec<Particle>, SceneError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let file = || std::fs::File::open(path).map_err(|e| file_error(path, e));
+    let loaded = match ext.as_deref() {
+        Some("csv") => read_csv(BufReader::new(file()?)),
+        Some("tpart") => {
+            let file = file()?;
+            let size = file.metadata().map(|m| m.len()).ok();
+            read_tpart(BufReader::new(file), size)
+        }
+        _ => Err("unsupported particle file extension (expected .csv or .tpart)".into()),
+    };
+    loaded.map_err(|message| file_error(path, message))
+}
+
+/// Writes particles as `.tpart`, as they are: no validation, so tests can write bad files.
+pub fn write_tpart(path: &Path, particles: &[Particle]) -> std::io::Result<()> {
+    let mut out = BufWriter::new(std::fs::File::create(path)?);
+    out.write_all(MAGIC)?;
+    out.write_all(&VERSION.to_le_bytes())?;
+    out.write_all(&(particles.len() as u64).to_le_bytes())?;
+    for particle in particles {
+        for value in particle.fields() {
+            out.write_all(&value.to_le_bytes())?;
+        }
+    }
+    out.into_inner().map_err(|e| e.into_error())?.sync_all()
+}
+
+fn read_csv(reader: impl BufRead) -> Result<Vec<Particle>, String> {
+    // Column of each of FIELDS, and the header's width, once the header is read.
+    let mut header: Option<([usize; 5], usize)> = None;
+    let mut particles = Vec::new();
+    // Lines are split as bytes so that a non-UTF-8 line still gets its number.
+    for (n, line) in reader.split(b'\n').enumerate() {
+        let number = n + 1;
+        let line = line.map_err(|e| format!("line {number}: {e}"))?;
+        let text = std::str::from_utf8(&line).map_err(|_| format!("line {number}: not UTF-8"))?;
+        // Spreadsheets write a byte-order mark and CRLF line ends.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text).trim();
+        if text.is_empty() || text.starts_with('#') {
+            continue;
+        }
+        let cells = text.split(',').map(str::trim);
+        let Some((columns, width)) = header else {
+            header = Some(read_header(cells.collect(), number)?);
+            continue;
+        };
+        let mut fields = [0f32; 5];
+        let mut found = 0;
+        for (column, cell) in cells.enumerate() {
+            found += 1;
+            let Some(field) = columns.iter().position(|&c| c == column) else {
+                continue;
+            };
+            let at = || format!("line {number}, column {} ({})", column + 1, FIELDS[field]);
+            let value: f32 = cell
+                .parse()
+                .map_err(|_| format!("{}: `{cell}` is not a number", at()))?;
+            check_field(field, value).map_err(|why| format!("{}: {why}", at()))?;
+            fields[field] = value;
+        }
+        if found != width {
+            return Err(format!(
+                "line {number}: {found} columns, but the header has {width}"
+            ));
+        }
+        particles.push(Particle::from_fields(fields));
+    }
+    if header.is_none() {
+        return Err(format!(
+            "no header line: expected columns {}",
+            FIELDS.join(",")
+        ));
+    }
+    Ok(particles)
+}
+
+/// Finds each of [`FIELDS`] among the header's column names, ignoring case.
+fn read_header(names: Vec<&str>, number: usize) -> Result<([usize; 5], usize), String> {
+    let mut columns = [0; 5];
+    for (field, column) in FIELDS.iter().zip(&mut columns) {
+        let mut matches = names
+            .iter()
+            .enumerate()
+            .filter(|(_, name)| name.eq_ignore_ascii_case(field))
+            .map(|(c, _)| c);
+        *column = matches.next().ok_or_else(|| {
+            format!(
+                "line {number}: header has no `{field}` column (has: {}); \
+                 the first line must name the columns",
+                names.join(",")
+            )
+        })?;
+        if let Some(again) = matches.next() {
+            return Err(format!(
+                "line {number}: header names `{field}` twice (columns {} and {})",
+                *column + 1,
+                again + 1
+            ));
+        }
+    }
+    Ok((columns, names.len()))
+}
+
+/// Reads `.tpart` data; `size` is the file's length when known, to check the record count
+/// before trusting it with an allocation.
+fn read_tpart(mut reader: impl Read, size: Option<u64>) -> Result<Vec<Particle>, String> {
+    let mut header = [0u8; HEADER_BYTES as usize];
+    read_full(&mut reader, &mut header).map_err(|got| {
+        format!("truncated header: {got} bytes, a .tpart header is {HEADER_BYTES}")
+    })?;
+    if &header[..4] != MAGIC {
+        return Err(format!(
+            "bad magic \"{}\" (expected \"TPRT\"): not a .tpart file",
+            header[..4].escape_ascii()
+        ));
+    }
+    let version = u32::from_le_bytes([header[4], header[5], header[6], header[7]]);
+    if version != VERSION {
+        return Err(format!(
+            ".tpart version {version} is not supported (only {VERSION})"
+        ));
+    }
+    let mut count = [0u8; 8];
+    count.copy_from_slice(&header[8..]);
+    let count = u64::from_le_bytes(count);
+    if let Some(size) = size {
+        let body = size.saturating_sub(HEADER_BYTES);
+        let (present, stray) = (body / RECORD_BYTES, body % RECORD_BYTES);
+        // Twice the data there is cannot be a short copy: the header itself is corrupt.
+        if count
+            .checked_mul(RECORD_BYTES)
+            .is_none_or(|bytes| bytes / 2 > body)
+        {
+            return Err(format!(
+                "record count {count} is absurd for a file of {size} bytes \
+                 (room for {present} records): corrupt header?"
+            ));
+        }
+        if count > present {
+            return Err(format!(
+                "truncated: expected {count} records, found {present} (and {stray} bytes more)"
+            ));
+        }
+        if count < present || stray != 0 {
+            return Err(format!(
+                "{} bytes after the {count} records the header announces",
+                body - count * RECORD_BYTES
+            ));
+        }
+    }
+    let count = usize::try_from(count).map_err(|_| format!("{count} records is too many"))?;
+    // Without a known size (a pipe), capacity grows with what actually arrives.
+    let mut particles = Vec::with_capacity(if size.is_some() { count } else { 0 });
+    let mut record = [0u8; RECORD_BYTES as usize];
+    for index in 0..count {
+        read_full(&mut reader, &mut record)
+            .map_err(|_| format!("truncated: expected {count} records, found {index}"))?;
+        let mut fields = [0f32; 5];
+        for (field, (value, bytes)) in fields.iter_mut().zip(record.chunks_exact(4)).enumerate() {
+            *value = f32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
+            check_field(field, *value).map_err(|why| format!("record {index}: {why}"))?;
+        }
+        particles.push(Particle::from_fields(fields));
+    }
+    Ok(particles)
+}
+
+/// Fills `buf`, or says how many bytes there were before the end (or a read error).
+fn read_full(reader: &mut impl Read, buf: &mut [u8]) -> Result<(), usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match reader.read(&mut buf[got..]) {
+            Ok(0) => return Err(got),
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(_) => return Err(got),
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn particle(x: f32, radius: f32, attribute: f32) -> Particle {
+        Particle {
+            center: Vec3::new(x, -x, 2.0 * x),
+            radius,
+            attribute,
+        }
+    }
+
+    /// Writes `bytes` as `name`, loads it, and returns the error, which must name the file.
+    fn error_of(name: &str, bytes: &[u8]) -> String {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        let err = load_particles(&path).unwrap_err().to_string();
+        assert!(err.contains(name), "{err}");
+        err
+    }
+
+    fn tpart_bytes(particles: &[Particle]) -> Vec<u8> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.tpart");
+        write_tpart(&path, particles).unwrap();
+        std::fs::read(path).unwrap()
+    }
+
+    #[test]
+    fn csv_columns_in_any_order_and_case() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.csv");
+        let text = "\u{feff}# exported\r\nid, Radius,X,y,Z,temp,ATTRIBUTE\r\n\
+                    7,0.5,1,-1,2,hot,3\r\n\r\n8, 1e-3 ,0,0,0,,-4.5\r\n";
+        std::fs::write(&path, text).unwrap();
+        let loaded = load_particles(&path).unwrap();
+        assert_eq!(loaded, [particle(1.0, 0.5, 3.0), particle(0.0, 1e-3, -4.5)]);
+        std::fs::write(&path, "x,y,z,radius,attribute\n").unwrap();
+        assert_eq!(load_particles(&path).unwrap(), []);
+    }
+
+    #[test]
+    fn tpart_round_trips() {
+        let particles: Vec<_> = (0..1000)
+            .map(|i| particle(i as f32 * 0.25, 1.0 + i as f32, -(i as f32)))
+            .collect();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.TPART");
+        write_tpart(&path, &particles).unwrap();
+        assert_eq!(std::fs::metadata(&path).unwrap().len(), 16 + 20 * 1000);
+        assert_eq!(load_particles(&path).unwrap(), particles);
+        write_tpart(&path, &[]).unwrap();
+        assert_eq!(load_particles(&path).unwrap(), []);
+    }
+
+    #[test]
+    fn csv_errors_name_line_and_column() {
+        let head = "x,y,z,radius,attribute\n1,2,3,1,0\n";
+        for (tail, want) in [
+            (
+                "1,2,oops,1,0\n",
+                "line 3, column 3 (z): `oops` is not a number",
+            ),
+            (
+                "1,2,3,1,NaN\n",
+                "line 3, column 5 (attribute): attribute NaN is not finite",
+            ),
+            ("1,inf,3,1,0\n", "line 3, column 2 (y): y inf is not finite"),
+            (
+                "1,2,3,1e39,0\n",
+                "line 3, column 4 (radius): radius inf is not finite",
+            ),
+            (
+                "1,2,3,0,0\n",
+                "line 3, column 4 (radius): radius 0 is not positive",
+            ),
+            (
+                "\n1,2,3,-1,0\n",
+                "line 4, column 4 (radius): radius -1 is not positive",
+            ),
+            ("1,2,3,1\n", "line 3: 4 columns, but the header has 5"),
+            ("1,2,3,1,0,\n", "line 3: 6 columns, but the header has 5"),
+        ] {
+            let err = error_of("bad.csv", format!("{head}{tail}").as_bytes());
+            assert!(err.contains(want), "{tail:?}: {err}");
+        }
+        for (text, want) in [
+            (
+                "x,y,z,attribute\n",
+                "line 1: header has no `radius` column (has: x,y,z,attribute)",
+            ),
+            ("1,2,3,4,5\n", "line 1: header has no `x` column"),
+            (
+                "x,y,z,radius,X,attribute\n",
+                "line 1: header names `x` twice (columns 1 and 5)",
+            ),
+            ("# nothing\n\n", "no header line"),
+        ] {
+            let err = error_of("head.csv", text.as_bytes());
+            assert!(err.contains(want), "{text:?}: {err}");
+        }
+        let err = error_of("latin1.csv", b"x,y,z,radius,attribute\n# caf\xe9\n");
+        assert!(err.contains("line 2: not UTF-8"), "{err}");
+    }
+
+    #[test]
+    fn tpart_errors_name_the_record() {
+        let good = tpart_bytes(&[particle(1.0, 1.0, 0.0); 3]);
+        let mut bad_magic = good.clone();
+        bad_magic[..4].copy_from_slice(b"PLY\n");
+        let mut version = good.clone();
+        version[4] = 2;
+        let mut absurd = good.clone();
+        absurd[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
+        let mut trailing = good.clone();
+        trailing.extend([0; 5]);
+        for (bytes, want) in [
+            (&good[..10], "truncated header: 10 bytes"),
+            (&bad_magic[..], "bad magic \"PLY\\n\""),
+            (&version[..], "version 2 is not supported"),
+            (
+                &absurd[..],
+                "record count 18446744073709551615 is absurd for a file of 76 bytes",
+            ),
+            (
+                &good[..good.len() - 3],
+                "truncated: expected 3 records, found 2 (and 17 bytes more)",
+            ),
+            (&trailing[..], "5 bytes after the 3 records"),
+        ] {
+            let err = error_of("bad.tpart", bytes);
+            assert!(err.contains(want), "{want}: {err}");
+        }
+        for (p, want) in [
+            (
+                particle(f32::NAN, 1.0, 0.0),
+                "record 2: x NaN is not finite",
+            ),
+            (
+                particle(1.0, 1.0, f32::NEG_INFINITY),
+                "record 2: attribute -inf is not finite",
+            ),
+            (
+                particle(1.0, -0.5, 0.0),
+                "record 2: radius -0.5 is not positive",
+            ),
+            (
+                particle(1.0, 0.0, 0.0),
+                "record 2: radius 0 is not positive",
+            ),
+        ] {
+            let bytes = tpart_bytes(&[particle(0.0, 1.0, 0.0), particle(1.0, 2.0, 0.0), p]);
+            let err = error_of("bad.tpart", &bytes);
+            assert!(err.contains(want), "{want}: {err}");
+        }
+    }
+
+    #[test]
+    fn tpart_from_a_stream_of_unknown_size_is_checked_as_it_is_read() {
+        let good = tpart_bytes(&[particle(1.0, 1.0, 0.0); 3]);
+        assert_eq!(read_tpart(&good[..], None).unwrap().len(), 3);
+        let err = read_tpart(&good[..good.len() - 1], None).unwrap_err();
+        assert!(
+            err.contains("truncated: expected 3 records, found 2"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn unknown_extension_is_an_error() {
+        let err = error_of("p.xyz", b"");
+        assert!(err.contains(".csv or .tpart"), "{err}");
+    }
+}
