@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 use tessera_common::image_io::{compose_wall, render_wall, RgbImage};
 use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
 use tessera_common::protocol::FrameId;
+use tessera_common::render::aov::{primary_aovs, write_pfm};
 use tessera_common::render::{FrameView, PreparedScene, RenderParams};
 use tessera_common::scene::Scene;
 use tessera_common::wall::{TileGrid, WallLayout};
@@ -115,6 +116,16 @@ struct RenderArgs {
     out: PathBuf,
     #[arg(long)]
     no_shadows: bool,
+    /// Also write an output value per pixel: `depth` → DIR/depth.pfm (distance along the ray,
+    /// +inf for none), `prim` → DIR/prim.pfm (triangle index, -1 for none). Repeatable.
+    #[arg(long, value_enum)]
+    aov: Vec<Aov>,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq, Debug)]
+enum Aov {
+    Depth,
+    Prim,
 }
 
 #[derive(clap::Args)]
@@ -408,6 +419,18 @@ fn render_reference(args: RenderArgs) -> Result<()> {
         .with_context(|| format!("cannot create --out {}", args.out.display()))?;
     let path = args.out.join("wall.png");
     image.save_png(&path)?;
+    if !args.aov.is_empty() {
+        let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall));
+        for aov in &args.aov {
+            let (name, values) = match aov {
+                Aov::Depth => ("depth.pfm", &aovs.depth),
+                Aov::Prim => ("prim.pfm", &aovs.prim),
+            };
+            let p = args.out.join(name);
+            write_pfm(&p, aovs.width, aovs.height, values).with_context(|| format!("cannot write {}", p.display()))?;
+            eprintln!("wrote {}", p.display());
+        }
+    }
     eprintln!(
         "rendered frame {} of a {}x{} wall ({} triangles): BVH {:.2} s, render {:.2} s; wrote {}",
         args.frame,

@@ -1,6 +1,8 @@
 //! `tessera-render-node`: joins a master, ray-traces the tiles it is given on every core, and
 //! sends each finished tile straight to the display that owns it.
 
+mod bench;
+
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use std::collections::BTreeMap;
@@ -23,29 +25,47 @@ use tessera_common::worker::RenderWorker;
 use tokio::sync::mpsc;
 
 /// Tessera render node: renders the tiles a master assigns and sends them to the displays.
+///
+/// Without a subcommand it joins a master (`--master HOST:PORT --cert-dir DIR`).
 #[derive(Parser)]
-#[command(version, about, long_about = None)]
+#[command(version, about, long_about = None, args_conflicts_with_subcommands = true)]
 struct Cli {
+    #[command(subcommand)]
+    command: Option<Tool>,
     /// The master's address, HOST:PORT.
     #[arg(long)]
-    master: String,
+    master: Option<String>,
     /// This node's certificate directory (node.pem, node.key, ca.pem) from `tessera-master issue-cert`.
     #[arg(long)]
-    cert_dir: PathBuf,
+    cert_dir: Option<PathBuf>,
     /// Rendering threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
 }
 
+#[derive(clap::Subcommand)]
+enum Tool {
+    /// Measure Mrays/s of primary, shadow and ambient-occlusion rays on one image.
+    Bench(bench::BenchArgs),
+    /// Write a scene's triangles as OBJ (to feed the same mesh to another renderer).
+    ExportObj {
+        /// `builtin`, `knot:SEGMENTS:SIDES` or a mesh path.
+        #[arg(long)]
+        scene: String,
+        /// The OBJ file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
 fn main() -> ExitCode {
     tessera_common::logging::init();
     let cli = Cli::parse();
-    let result = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .map_err(anyhow::Error::from)
-        .and_then(|rt| rt.block_on(run(cli)));
+    let result = match cli.command {
+        Some(Tool::Bench(args)) => bench::run(args),
+        Some(Tool::ExportObj { scene, out }) => export_obj(&scene, &out),
+        None => join(cli),
+    };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -53,6 +73,25 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn export_obj(scene: &str, out: &std::path::Path) -> Result<()> {
+    let scene = Scene::load(&tessera_common::scene::SceneSpec::from_arg(scene)?)?;
+    scene.export_obj(out).with_context(|| format!("cannot write {}", out.display()))?;
+    eprintln!("wrote {} ({} triangles)", out.display(), scene.triangles.len());
+    Ok(())
+}
+
+fn join(cli: Cli) -> Result<()> {
+    let (Some(master), Some(cert_dir)) = (cli.master, cli.cert_dir) else {
+        bail!("to join a wall give --master HOST:PORT and --cert-dir DIR (see --help)");
+    };
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(anyhow::Error::from)
+        .and_then(|rt| rt.block_on(run(master, cert_dir, cli.threads)))
 }
 
 /// Resolves HOST:PORT (names allowed).
@@ -79,17 +118,15 @@ enum Done {
     DeliveryFailed(String),
 }
 
-async fn run(cli: Cli) -> Result<()> {
-    let threads = cli
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+async fn run(master: String, cert_dir: PathBuf, threads: Option<usize>) -> Result<()> {
+    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()?,
     );
-    let identity = NodeIdentity::load(&cli.cert_dir)?;
-    let master_addr = resolve(&cli.master).await?;
+    let identity = NodeIdentity::load(&cert_dir)?;
+    let master_addr = resolve(&master).await?;
     let bind: SocketAddr = if master_addr.is_ipv6() {
         "[::]:0"
     } else {

@@ -4,6 +4,7 @@
 //! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
 //! on whichever node renders it and the single-process reference equals the wall.
 
+pub mod aov;
 pub mod bench;
 mod camera;
 pub mod packet;

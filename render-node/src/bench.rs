@@ -1,0 +1,82 @@
+//! `tessera-render-node bench`: rays per second of each kind on one image, and thread scaling.
+//!
+//! Prints machine-readable lines (`TESSERA_PRIMARY_MRAYPS 12.3`) that
+//! `deploy/bench/embree-compare.sh` puts beside Embree's figure for the same mesh and camera.
+
+use anyhow::{Context, Result};
+use std::time::Instant;
+use tessera_common::cli::SceneArgs;
+use tessera_common::render::bench::{time_passes, PassTimes};
+use tessera_common::render::{FrameView, PreparedScene, RenderParams};
+use tessera_common::scene::Scene;
+use tessera_common::wall::parse_size;
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, default_value = "1920x1080")]
+    size: String,
+    /// Threads to render with (default: all cores). With more than one, the 1-thread figure
+    /// is measured too and the scaling printed.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Frames to time; the best frame of each pass is reported (after one warm-up frame).
+    #[arg(long, default_value_t = 10)]
+    frames: u32,
+    /// Ambient-occlusion rays per hit.
+    #[arg(long, default_value_t = 4)]
+    ao: u32,
+}
+
+pub fn run(args: BenchArgs) -> Result<()> {
+    let (width, height) = parse_size(&args.size).context("--size")?;
+    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let spec = args.scene.spec()?;
+    let t0 = Instant::now();
+    let scene = Scene::load(&spec)?;
+    let loaded = t0.elapsed();
+    let camera = args.scene.camera_mode(&scene)?.camera_for_frame(0);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let t1 = Instant::now();
+    let prepared = pool.install(|| PreparedScene::new(&scene));
+    eprintln!(
+        "{} triangles: loaded in {:.2} s, BVH built in {:.2} s ({} nodes); {width}x{height}, {threads} threads",
+        scene.triangles.len(),
+        loaded.as_secs_f64(),
+        t1.elapsed().as_secs_f64(),
+        prepared.accel.nodes.len()
+    );
+    let params = RenderParams {
+        ao_samples: args.ao,
+        ..RenderParams::interactive()
+    };
+    let view = FrameView::new(0, &camera, params, width, height);
+    let measure = |pool: &rayon::ThreadPool| -> PassTimes {
+        let mut best = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
+        for _ in 0..args.frames {
+            let t = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
+            for (b, n) in [(&mut best.primary, t.primary), (&mut best.shadow, t.shadow), (&mut best.ambient, t.ambient)] {
+                if n.seconds < b.seconds {
+                    *b = n;
+                }
+            }
+        }
+        best
+    };
+    let times = measure(&pool);
+    println!("TESSERA_PRIMARY_MRAYPS {:.3}", times.primary.mrays_per_s());
+    println!("TESSERA_SHADOW_MRAYPS {:.3}", times.shadow.mrays_per_s());
+    println!("TESSERA_AO_MRAYPS {:.3}", times.ambient.mrays_per_s());
+    if threads > 1 {
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+        let single = measure(&one);
+        println!("TESSERA_PRIMARY_MRAYPS_1T {:.3}", single.primary.mrays_per_s());
+        println!(
+            "TESSERA_SCALING_PRIMARY {:.3} ({threads} threads / 1 thread)",
+            times.primary.mrays_per_s() / single.primary.mrays_per_s()
+        );
+    }
+    Ok(())
+}
