@@ -12,7 +12,8 @@ use std::time::Duration;
 
 /// One BVH node. Inner nodes have `count == 0` and children at `first` and `first + 1`;
 /// leaves hold triangles `first .. first + count` of [`Accel::triangles`].
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct BvhNode {
     pub min: Vec3,
     pub max: Vec3,
@@ -21,7 +22,8 @@ pub struct BvhNode {
 }
 
 /// A triangle's corners, stored in leaf order.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct LeafTriangle {
     pub a: Vec3,
     pub b: Vec3,
@@ -57,11 +59,7 @@ impl Accel {
                 v2: scene.positions[t[2] as usize].into(),
             })
             .collect();
-        let bvh = build_bvh2_from_tris(
-            &tris,
-            BvhBuildParams::medium_build(),
-            &mut Duration::default(),
-        );
+        let bvh = build_bvh2_from_tris(&tris, Self::preset(tris.len()), &mut Duration::default());
         let nodes = bvh
             .nodes
             .iter()
@@ -90,6 +88,43 @@ impl Accel {
             scene_index: bvh.primitive_indices,
             max_depth: bvh.max_depth.max(64),
         }
+    }
+
+    /// The obvhs preset for a scene of `triangles`: the best tree that still builds in about a
+    /// second on a wall node; bigger scenes trade tree quality for build time.
+    pub fn preset(triangles: usize) -> BvhBuildParams {
+        match triangles {
+            0..1_000_000 => BvhBuildParams::medium_build(),
+            1_000_000..8_000_000 => BvhBuildParams::fast_build(),
+            _ => BvhBuildParams::very_fast_build(),
+        }
+    }
+
+    pub fn preset_name(triangles: usize) -> &'static str {
+        match triangles {
+            0..1_000_000 => "medium",
+            1_000_000..8_000_000 => "fast",
+            _ => "very_fast",
+        }
+    }
+
+    /// Reassembles a BVH from its arrays (see `accel_cache`).
+    pub fn from_parts(
+        nodes: Vec<BvhNode>,
+        triangles: Vec<LeafTriangle>,
+        scene_index: Vec<u32>,
+        max_depth: usize,
+    ) -> Self {
+        Accel {
+            nodes,
+            triangles,
+            scene_index,
+            max_depth: max_depth.clamp(64, 1 << 16),
+        }
+    }
+
+    pub fn max_depth(&self) -> usize {
+        self.max_depth
     }
 
     pub fn bounds(&self) -> Bounds {

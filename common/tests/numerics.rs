@@ -10,8 +10,24 @@ use tessera_common::scene::{knot_scene, Material, Scene};
 
 /// A closed sphere mesh with shared vertices: an octahedron subdivided `levels` times.
 fn sphere(center: Vec3, radius: f32, levels: u32) -> Scene {
-    let mut positions: Vec<DVec3> = vec![DVec3::X, -DVec3::X, DVec3::Y, -DVec3::Y, DVec3::Z, -DVec3::Z];
-    let mut tris: Vec<[u32; 3]> = vec![[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]];
+    let mut positions: Vec<DVec3> = vec![
+        DVec3::X,
+        -DVec3::X,
+        DVec3::Y,
+        -DVec3::Y,
+        DVec3::Z,
+        -DVec3::Z,
+    ];
+    let mut tris: Vec<[u32; 3]> = vec![
+        [0, 2, 4],
+        [2, 1, 4],
+        [1, 3, 4],
+        [3, 0, 4],
+        [2, 0, 5],
+        [1, 2, 5],
+        [3, 1, 5],
+        [0, 3, 5],
+    ];
     for _ in 0..levels {
         let mut mid = std::collections::HashMap::new();
         let mut next = Vec::new();
@@ -22,14 +38,21 @@ fn sphere(center: Vec3, radius: f32, levels: u32) -> Scene {
             })
         };
         for [a, b, c] in tris {
-            let (ab, bc, ca) = (midpoint(a, b, &mut positions), midpoint(b, c, &mut positions), midpoint(c, a, &mut positions));
+            let (ab, bc, ca) = (
+                midpoint(a, b, &mut positions),
+                midpoint(b, c, &mut positions),
+                midpoint(c, a, &mut positions),
+            );
             next.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
         }
         tris = next;
     }
     let count = tris.len();
     Scene {
-        positions: positions.iter().map(|p| center + (p.as_vec3() * radius)).collect(),
+        positions: positions
+            .iter()
+            .map(|p| center + (p.as_vec3() * radius))
+            .collect(),
         triangles: tris,
         triangle_material: vec![0; count],
         materials: vec![Material { albedo: Vec3::ONE }],
@@ -44,7 +67,13 @@ fn direction(theta: f32, z: f32) -> Vec3 {
 
 /// Rays from outside aimed at a closed convex mesh always hit it, and a ray leaving the hit
 /// point along the outward normal is never blocked: no holes, no acne.
-fn closed_and_acne_free(center: Vec3, radius: f32, theta: f32, z: f32, aim: (f32, f32)) -> Result<(), TestCaseError> {
+fn closed_and_acne_free(
+    center: Vec3,
+    radius: f32,
+    theta: f32,
+    z: f32,
+    aim: (f32, f32),
+) -> Result<(), TestCaseError> {
     let scene = sphere(center, radius, 3);
     let accel = Accel::build(&scene);
     let mut stack = accel.new_stack();
@@ -63,7 +92,10 @@ fn closed_and_acne_free(center: Vec3, radius: f32, theta: f32, z: f32, aim: (f32
     let p = ray.at(hit.t);
     let diagonal = radius * 2.0 * 3f32.sqrt();
     let start = offset_origin(p, n, diagonal);
-    prop_assert!(!accel.occluded(&Ray::new(start, n), 0.0, f32::INFINITY, &mut stack), "self-shadowing (acne)");
+    prop_assert!(
+        !accel.occluded(&Ray::new(start, n), 0.0, f32::INFINITY, &mut stack),
+        "self-shadowing (acne)"
+    );
     Ok(())
 }
 
@@ -71,17 +103,17 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
 
     #[test]
-    fn closed_mesh_near_origin(theta in 0.0f32..6.28, z in -0.99f32..0.99, ax in -1.0f32..1.0, ay in -1.0f32..1.0) {
+    fn closed_mesh_near_origin(theta in 0.0f32..std::f32::consts::TAU, z in -0.99f32..0.99, ax in -1.0f32..1.0, ay in -1.0f32..1.0) {
         closed_and_acne_free(Vec3::ZERO, 1.0, theta, z, (ax, ay))?;
     }
 
     #[test]
-    fn closed_mesh_at_an_offset_of_a_million(theta in 0.0f32..6.28, z in -0.99f32..0.99, ax in -1.0f32..1.0, ay in -1.0f32..1.0) {
+    fn closed_mesh_at_an_offset_of_a_million(theta in 0.0f32..std::f32::consts::TAU, z in -0.99f32..0.99, ax in -1.0f32..1.0, ay in -1.0f32..1.0) {
         closed_and_acne_free(Vec3::new(1e6, -1e6, 1e6), 50.0, theta, z, (ax, ay))?;
     }
 
     #[test]
-    fn closed_mesh_at_a_millionth_scale(theta in 0.0f32..6.28, z in -0.99f32..0.99, ax in -1.0f32..1.0, ay in -1.0f32..1.0) {
+    fn closed_mesh_at_a_millionth_scale(theta in 0.0f32..std::f32::consts::TAU, z in -0.99f32..0.99, ax in -1.0f32..1.0, ay in -1.0f32..1.0) {
         closed_and_acne_free(Vec3::new(3e-6, 1e-6, -2e-6), 1e-6, theta, z, (ax, ay))?;
     }
 
@@ -123,14 +155,31 @@ fn hit_distances_agree_with_float64() {
     for i in 0..2000 {
         let a = i as f32 * 0.618;
         let from = center + Vec3::new(a.cos() * 7.0, 2.0 + (a * 0.37).sin() * 2.0, a.sin() * 7.0);
-        let to = center + Vec3::new((a * 1.7).sin() * 2.0, (a * 2.3).cos() * 0.8, (a * 0.9).cos() * 2.0);
+        let to = center
+            + Vec3::new(
+                (a * 1.7).sin() * 2.0,
+                (a * 2.3).cos() * 0.8,
+                (a * 0.9).cos() * 2.0,
+            );
         let ray = Ray::new(from, (to - from).normalize());
-        let Some(hit) = accel.closest_hit(&ray, 0.0, f32::INFINITY, &mut stack) else { continue };
+        let Some(hit) = accel.closest_hit(&ray, 0.0, f32::INFINITY, &mut stack) else {
+            continue;
+        };
         let t = accel.triangles[hit.slot as usize];
-        let reference = reference_t(ray.origin.as_dvec3(), ray.dir.as_dvec3(), t.a.as_dvec3(), t.b.as_dvec3(), t.c.as_dvec3())
-            .expect("the float64 test hits the same triangle");
+        let reference = reference_t(
+            ray.origin.as_dvec3(),
+            ray.dir.as_dvec3(),
+            t.a.as_dvec3(),
+            t.b.as_dvec3(),
+            t.c.as_dvec3(),
+        )
+        .expect("the float64 test hits the same triangle");
         let rel = ((hit.t as f64 - reference) / reference).abs();
-        assert!(rel < 1e-5, "ray {i}: f32 {} vs f64 {reference} (relative {rel:e})", hit.t);
+        assert!(
+            rel < 1e-5,
+            "ray {i}: f32 {} vs f64 {reference} (relative {rel:e})",
+            hit.t
+        );
         checked += 1;
     }
     assert!(checked > 1000, "only {checked} rays hit");

@@ -197,6 +197,8 @@ tessera_run() {  # tessera_run TAG THREADS -> sets T_PRIMARY T_SHADOW T_AO
     T_PRIMARY=$(figure TESSERA_PRIMARY_MRAYPS "$log")
     T_SHADOW=$(awk '$1 == "TESSERA_SHADOW_MRAYPS" { v = $2 } END { print v }' "$log")
     T_AO=$(awk '$1 == "TESSERA_AO_MRAYPS" { v = $2 } END { print v }' "$log")
+    # With more than one thread, bench also times the same work on one thread.
+    T_1T=$(awk '$1 == "TESSERA_PRIMARY_MRAYPS_1T" { v = $2 } END { print v }' "$log")
 }
 
 ROWS=()
@@ -243,11 +245,14 @@ for MESH in "${MESHES[@]}"; do
     if [[ $SCALING -eq 1 ]]; then
         declare -A T_BY=() E_BY=()
         T_BY[$THREADS]=$T_MAIN E_BY[$THREADS]=$E_MAIN
+        [[ -n $T_1T ]] && T_BY[1]=$T_1T
         for n in 1 2; do
-            [[ -n ${T_BY[$n]:-} ]] && continue
-            tessera_run "${n}t" "$n"
-            T_BY[$n]=$T_PRIMARY
-            E_BY[$n]=$(embree_run "${n}t" "$n")
+            if [[ -z ${T_BY[$n]:-} ]]; then
+                tessera_run "${n}t" "$n"
+                T_BY[$n]=$T_PRIMARY
+                [[ -n $T_1T ]] && T_BY[1]=$T_1T
+            fi
+            [[ -n ${E_BY[$n]:-} ]] || E_BY[$n]=$(embree_run "${n}t" "$n")
         done
         SCALE_ROWS+=("$(printf '%-22s %12s %12s %9s %12s %12s %9s' "$LABEL" "${T_BY[1]}" "${T_BY[2]}" \
             "$(ratio "${T_BY[2]}" "${T_BY[1]}")" "${E_BY[1]}" "${E_BY[2]}" \

@@ -8,7 +8,6 @@ mod server;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use tessera_common::cli::{SceneArgs, WallArgs};
 use launcher::{reap, sibling_binary, spawn, watch};
 use server::{bind, run_wall, RunConfig};
 use std::net::SocketAddr;
@@ -17,6 +16,7 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use tessera_common::cli::{SceneArgs, WallArgs};
 use tessera_common::image_io::{compose_wall, render_wall, RgbImage};
 use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
 use tessera_common::protocol::FrameId;
@@ -409,7 +409,9 @@ fn render_reference(args: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
     let prepared = PreparedScene::new(&scene);
     let built = t0.elapsed();
-    let view = FrameView::new(args.frame, &camera,
+    let view = FrameView::new(
+        args.frame,
+        &camera,
         params(args.no_shadows),
         wall.width(),
         wall.height(),
@@ -427,7 +429,8 @@ fn render_reference(args: RenderArgs) -> Result<()> {
                 Aov::Prim => ("prim.pfm", &aovs.prim),
             };
             let p = args.out.join(name);
-            write_pfm(&p, aovs.width, aovs.height, values).with_context(|| format!("cannot write {}", p.display()))?;
+            write_pfm(&p, aovs.width, aovs.height, values)
+                .with_context(|| format!("cannot write {}", p.display()))?;
             eprintln!("wrote {}", p.display());
         }
     }

@@ -5,6 +5,7 @@
 
 use anyhow::{Context, Result};
 use std::time::Instant;
+use tessera_common::accel_cache::load_or_build;
 use tessera_common::cli::SceneArgs;
 use tessera_common::render::bench::{time_passes, PassTimes};
 use tessera_common::render::{FrameView, PreparedScene, RenderParams};
@@ -28,21 +29,33 @@ pub struct BenchArgs {
     /// Ambient-occlusion rays per hit.
     #[arg(long, default_value_t = 4)]
     ao: u32,
+    /// Directory of cached BVHs (default: ~/.cache/tessera/bvh).
+    #[arg(long)]
+    bvh_cache: Option<std::path::PathBuf>,
+    /// Always build the BVH; neither read nor write the cache.
+    #[arg(long)]
+    no_bvh_cache: bool,
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size).context("--size")?;
-    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let spec = args.scene.spec()?;
     let t0 = Instant::now();
     let scene = Scene::load(&spec)?;
     let loaded = t0.elapsed();
     let camera = args.scene.camera_mode(&scene)?.camera_for_frame(0);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
     let t1 = Instant::now();
-    let prepared = pool.install(|| PreparedScene::new(&scene));
+    let cache = crate::cache_dir(args.bvh_cache, args.no_bvh_cache);
+    let (accel, source) = pool.install(|| load_or_build(&scene, cache.as_deref()));
+    let prepared = PreparedScene::from_accel(&scene, accel);
     eprintln!(
-        "{} triangles: loaded in {:.2} s, BVH built in {:.2} s ({} nodes); {width}x{height}, {threads} threads",
+        "{} triangles: loaded in {:.2} s, BVH {source:?} in {:.2} s ({} nodes); {width}x{height}, {threads} threads",
         scene.triangles.len(),
         loaded.as_secs_f64(),
         t1.elapsed().as_secs_f64(),
@@ -57,7 +70,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
         let mut best = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
         for _ in 0..args.frames {
             let t = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
-            for (b, n) in [(&mut best.primary, t.primary), (&mut best.shadow, t.shadow), (&mut best.ambient, t.ambient)] {
+            for (b, n) in [
+                (&mut best.primary, t.primary),
+                (&mut best.shadow, t.shadow),
+                (&mut best.ambient, t.ambient),
+            ] {
                 if n.seconds < b.seconds {
                     *b = n;
                 }
@@ -72,7 +89,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if threads > 1 {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
         let single = measure(&one);
-        println!("TESSERA_PRIMARY_MRAYPS_1T {:.3}", single.primary.mrays_per_s());
+        println!(
+            "TESSERA_PRIMARY_MRAYPS_1T {:.3}",
+            single.primary.mrays_per_s()
+        );
         println!(
             "TESSERA_SCALING_PRIMARY {:.3} ({threads} threads / 1 thread)",
             times.primary.mrays_per_s() / single.primary.mrays_per_s()

@@ -41,6 +41,21 @@ struct Cli {
     /// Rendering threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Directory of cached BVHs, keyed by scene content (default: ~/.cache/tessera/bvh).
+    #[arg(long)]
+    bvh_cache: Option<PathBuf>,
+    /// Always build the BVH; neither read nor write the cache.
+    #[arg(long)]
+    no_bvh_cache: bool,
+}
+
+/// The BVH cache directory the flags ask for.
+pub fn cache_dir(dir: Option<PathBuf>, disabled: bool) -> Option<PathBuf> {
+    if disabled {
+        None
+    } else {
+        dir.or_else(tessera_common::accel_cache::default_cache_dir)
+    }
 }
 
 #[derive(clap::Subcommand)]
@@ -77,8 +92,14 @@ fn main() -> ExitCode {
 
 fn export_obj(scene: &str, out: &std::path::Path) -> Result<()> {
     let scene = Scene::load(&tessera_common::scene::SceneSpec::from_arg(scene)?)?;
-    scene.export_obj(out).with_context(|| format!("cannot write {}", out.display()))?;
-    eprintln!("wrote {} ({} triangles)", out.display(), scene.triangles.len());
+    scene
+        .export_obj(out)
+        .with_context(|| format!("cannot write {}", out.display()))?;
+    eprintln!(
+        "wrote {} ({} triangles)",
+        out.display(),
+        scene.triangles.len()
+    );
     Ok(())
 }
 
@@ -91,7 +112,14 @@ fn join(cli: Cli) -> Result<()> {
         .enable_all()
         .build()
         .map_err(anyhow::Error::from)
-        .and_then(|rt| rt.block_on(run(master, cert_dir, cli.threads)))
+        .and_then(|rt| {
+            rt.block_on(run(
+                master,
+                cert_dir,
+                cli.threads,
+                cache_dir(cli.bvh_cache, cli.no_bvh_cache),
+            ))
+        })
 }
 
 /// Resolves HOST:PORT (names allowed).
@@ -118,8 +146,14 @@ enum Done {
     DeliveryFailed(String),
 }
 
-async fn run(master: String, cert_dir: PathBuf, threads: Option<usize>) -> Result<()> {
-    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+async fn run(
+    master: String,
+    cert_dir: PathBuf,
+    threads: Option<usize>,
+    bvh_cache: Option<PathBuf>,
+) -> Result<()> {
+    let threads =
+        threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -157,7 +191,7 @@ async fn run(master: String, cert_dir: PathBuf, threads: Option<usize>) -> Resul
         None => bail!("the master closed the connection during the handshake"),
     };
     tracing::info!("render node {}: joined, loading the scene", node.0);
-    let prepared = match prepare(&session, pool.clone()).await {
+    let prepared = match prepare(&session, pool.clone(), bvh_cache).await {
         Ok(p) => p,
         Err(e) => {
             let _ = write_msg(
@@ -203,7 +237,9 @@ async fn run(master: String, cert_dir: PathBuf, threads: Option<usize>) -> Resul
                 );
                 tokio::task::spawn_blocking(move || {
                     let t0 = Instant::now();
-                    let view = FrameView::new(start.frame.0, &start.camera,
+                    let view = FrameView::new(
+                        start.frame.0,
+                        &start.camera,
                         start.params,
                         grid.layout().width(),
                         grid.layout().height(),
@@ -330,7 +366,11 @@ fn send_pixels(
     });
 }
 
-async fn prepare(session: &Session, pool: Arc<rayon::ThreadPool>) -> Result<PreparedScene> {
+async fn prepare(
+    session: &Session,
+    pool: Arc<rayon::ThreadPool>,
+    bvh_cache: Option<PathBuf>,
+) -> Result<PreparedScene> {
     session.wall.validate()?;
     let spec = session.scene.clone();
     let expected = session.scene_hash;
@@ -339,7 +379,10 @@ async fn prepare(session: &Session, pool: Arc<rayon::ThreadPool>) -> Result<Prep
         if scene.content_hash() != expected {
             bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
         }
-        Ok(pool.install(|| PreparedScene::new(&scene)))
+        let t0 = Instant::now();
+        let (accel, source) = pool.install(|| tessera_common::accel_cache::load_or_build(&scene, bvh_cache.as_deref()));
+        tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
+        Ok(PreparedScene::from_accel(&scene, accel))
     })
     .await?
 }

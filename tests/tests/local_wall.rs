@@ -112,7 +112,7 @@ fn bad_inputs_fail_with_clear_errors() {
     );
     assert!(!o.status.success());
     assert!(
-        o.stderr.contains("broken.obj") && o.stderr.contains("vertex 2"),
+        o.stderr.contains("broken.obj") && o.stderr.contains("line 3"),
         "{}",
         o.stderr
     );

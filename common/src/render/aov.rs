@@ -26,7 +26,12 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
         .flat_map(|t| {
             (0..t.height.div_ceil(PACKET)).flat_map(move |py| {
                 (0..t.width.div_ceil(PACKET)).map(move |px| {
-                    (t.x + px * PACKET, t.y + py * PACKET, PACKET.min(t.width - px * PACKET), PACKET.min(t.height - py * PACKET))
+                    (
+                        t.x + px * PACKET,
+                        t.y + py * PACKET,
+                        PACKET.min(t.width - px * PACKET),
+                        PACKET.min(t.height - py * PACKET),
+                    )
                 })
             })
         })
@@ -63,7 +68,12 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
 
 /// Writes one float channel as a little-endian grey PFM (rows stored bottom to top, as PFM
 /// requires).
-pub fn write_pfm(path: &std::path::Path, width: u32, height: u32, values: &[f32]) -> std::io::Result<()> {
+pub fn write_pfm(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    values: &[f32],
+) -> std::io::Result<()> {
     use std::io::Write;
     let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
     write!(out, "Pf\n{width} {height}\n-1.0\n")?;
@@ -87,7 +97,12 @@ mod tests {
     fn depth_and_prim_of_a_known_quad() {
         // A quad at z = 0 facing a camera at z = 5: the centre pixel is at distance 5.
         let scene = Scene {
-            positions: vec![Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(-1.0, 1.0, 0.0)],
+            positions: vec![
+                Vec3::new(-1.0, -1.0, 0.0),
+                Vec3::new(1.0, -1.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(-1.0, 1.0, 0.0),
+            ],
             triangles: vec![[0, 1, 2], [0, 2, 3]],
             triangle_material: vec![0, 0],
             materials: vec![Material { albedo: Vec3::ONE }],
@@ -95,17 +110,26 @@ mod tests {
         };
         let prepared = PreparedScene::new(&scene);
         let wall = WallLayout::grid(1, 1, 33, 33).with_tile_size(16);
-        let camera = Camera { eye: Vec3::new(0.0, 0.0, 5.0), target: Vec3::ZERO, up: Vec3::Y, fov_y_deg: 60.0 };
+        let camera = Camera {
+            eye: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_deg: 60.0,
+        };
         let view = FrameView::new(0, &camera, RenderParams::interactive(), 33, 33);
         let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall));
         let centre = (16 * 33 + 16) as usize;
-        assert!((aovs.depth[centre] - 5.0).abs() < 1e-5, "{}", aovs.depth[centre]);
+        assert!(
+            (aovs.depth[centre] - 5.0).abs() < 1e-5,
+            "{}",
+            aovs.depth[centre]
+        );
         assert!(aovs.prim[centre] == 0.0 || aovs.prim[centre] == 1.0);
         // The corner pixel looks past the quad.
         assert_eq!(aovs.depth[0], f32::INFINITY);
         assert_eq!(aovs.prim[0], -1.0);
         // Distance along a normalized ray: an off-centre pixel on the quad is farther than 5.
-        let off = (16 * 33 + 22) as usize;
+        let off = (16 * 33 + 19) as usize;
         assert!(aovs.depth[off] > 5.0 && aovs.depth[off].is_finite());
     }
 }

@@ -421,4 +421,39 @@ mod tests {
             }
         );
     }
+
+    #[test]
+    fn a_scene_without_lights_traces_no_shadow_rays_and_ao_only_when_asked() {
+        let mut scene = knot_scene(64, 8);
+        scene.lights.clear();
+        let prepared = PreparedScene::new(&scene);
+        let wall = WallLayout::grid(1, 1, 40, 30);
+        let grid = TileGrid::new(wall);
+        let camera = CameraMode::orbit_of(&scene.bounds()).camera_for_frame(0);
+        for params in RenderParams::PRESETS {
+            let view = FrameView::new(0, &camera, params, 40, 30);
+            let (_, counts) = render_tiles(&prepared, &view, grid.tiles());
+            assert_eq!(counts.shadow, 0, "{params:?}");
+            assert_eq!(counts.ambient > 0, params.ao_samples > 0, "{params:?}");
+        }
+    }
+
+    #[test]
+    fn every_preset_is_deterministic_and_finite() {
+        let scene = knot_scene(96, 12);
+        let prepared = PreparedScene::new(&scene);
+        let wall = WallLayout::grid(1, 1, 48, 32).with_tile_size(16);
+        let grid = TileGrid::new(wall);
+        let camera = CameraMode::orbit_of(&scene.bounds()).camera_for_frame(7);
+        for params in RenderParams::PRESETS {
+            let view = FrameView::new(7, &camera, params, 48, 32);
+            let (a, _) = render_tiles(&prepared, &view, grid.tiles());
+            let one = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap();
+            let (b, _) = one.install(|| render_tiles(&prepared, &view, grid.tiles()));
+            assert_eq!(a, b, "{params:?}");
+        }
+    }
 }

@@ -107,6 +107,7 @@ fn obj_culprit(path: &Path) -> Option<String> {
                 ok.then_some(())
                     .ok_or_else(|| format!("`{key}` needs {want} numbers"))
             }
+            Some("f" | "l") if words.clone().next().is_none() => Err("face has no vertices".into()),
             Some("f" | "l") => words.try_for_each(|word| {
                 let index = obj_face_index(word, vertices)?;
                 if index > largest.map_or(0, |(_, i)| i) {
@@ -114,6 +115,7 @@ fn obj_culprit(path: &Path) -> Option<String> {
                 }
                 Ok(())
             }),
+            Some("usemtl") if words.next().is_none() => Err("`usemtl` names no material".into()),
             _ => Ok(()),
         };
         if let Err(why) = bad {
@@ -245,6 +247,22 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
             one_line(&e.to_string())
         ))
     })?;
+    // A missing property is a header fault: say so once rather than for every row.
+    for element in ["vertex", "face"] {
+        let Some(def) = header.elements.get(element) else {
+            return Err(err(format!("has no `{element}` element")));
+        };
+        let missing = |p: &str| !def.properties.contains_key(p);
+        let absent = match element {
+            "vertex" => ["x", "y", "z"].into_iter().find(|p| missing(p)),
+            _ => (missing("vertex_indices") && missing("vertex_index")).then_some("vertex_indices"),
+        };
+        if let Some(p) = absent {
+            return Err(err(format!(
+                "the `{element}` element has no `{p}` property"
+            )));
+        }
+    }
     let ascii = header.encoding == Encoding::Ascii;
     // Where an element row is: its index, and for ascii files its line too.
     let row = |name: &str, index: usize, first_line: usize| {
@@ -343,7 +361,8 @@ fn one_line(text: &str) -> String {
     if let Some(quoted) = quoted {
         out = format!("{} `{quoted}`", out.trim_end_matches('.'));
     }
-    if let Some(cause) = cause {
+    // Header faults carry the grammar's debug dump as the cause; the line says more.
+    if let Some(cause) = cause.filter(|c| !c.starts_with("ParseError {")) {
         out = format!("{}: {cause}", out.trim_end_matches('.'));
     }
     out.replace(['\n', '\r', '\t'], " ")
@@ -353,118 +372,82 @@ fn one_line(text: &str) -> String {
 mod tests {
     use super::*;
 
-    fn write(dir: &Path, name: &str, bytes: &[u8]) -> std::path::PathBuf {
-        let path = dir.join(name);
+    /// Loads `bytes` as file `name`; the result, or the error text, which must name the file.
+    fn load(name: &str, bytes: &[u8]) -> Result<Mesh, String> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(name);
         std::fs::write(&path, bytes).unwrap();
-        path
+        load_mesh_file(&path).map_err(|e| {
+            let e = e.to_string();
+            assert!(e.contains(name) && !e.contains('\n'), "{e}");
+            e
+        })
     }
 
-    /// Loads `bytes` as file `name` and returns the error text, which must name the file.
-    fn error_of(name: &str, bytes: &[u8]) -> String {
-        let dir = tempfile::tempdir().unwrap();
-        let err = load_mesh_file(&write(dir.path(), name, bytes))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains(name), "{err}");
-        err
+    fn assert_fails(name: &str, bytes: &[u8], want: &str) {
+        let err = load(name, bytes).unwrap_err();
+        assert!(err.contains(want), "{want}: {err}");
     }
 
     const PLY_HEAD: &str = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n\
 property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n\
 end_header\n";
 
+    fn binary_ply(coords: [f32; 12], face: &[u8]) -> Vec<u8> {
+        let mut bytes = PLY_HEAD
+            .replace("ascii", "binary_little_endian")
+            .into_bytes();
+        coords.iter().for_each(|c| bytes.extend(c.to_le_bytes()));
+        bytes.extend(face);
+        bytes
+    }
+
     #[test]
-    fn obj_quad_is_triangulated() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = write(
-            dir.path(),
-            "q.obj",
-            b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
-        );
-        let mesh = load_mesh_file(&path).unwrap();
+    fn obj_quad_is_triangulated_and_relative_and_forward_indices_work() {
+        let mesh = load("q.obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n").unwrap();
         assert_eq!(mesh.positions.len(), 4);
+        assert_eq!(mesh.triangles.len(), 2);
+        let mesh = load("r.obj", b"f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n").unwrap();
         assert_eq!(mesh.triangles.len(), 2);
     }
 
     #[test]
     fn obj_errors_name_the_line() {
-        let head = "# c\nv 0 0 0\nv 1 0 0\n";
-        for (tail, want) in [
-            (
-                "v 1 zz 0\nf 1 2 3\n",
-                "line 4: vertex 3 coordinate `zz` is not a number",
-            ),
-            (
-                "v 1 nan 0\nf 1 2 3\n",
-                "line 4: vertex 3 coordinate `nan` is not finite",
-            ),
-            (
-                "v 1 1 inf\nf 1 2 3\n",
-                "line 4: vertex 3 coordinate `inf` is not finite",
-            ),
-            (
-                "v 1 1e39 0\nf 1 2 3\n",
-                "line 4: vertex 3 coordinate `1e39` is not finite",
-            ),
+        #[rustfmt::skip]
+        let cases = [
+            ("v 1 zz 0\nf 1 2 3\n", "line 4: vertex 3 coordinate `zz` is not a number"),
+            ("v 1 nan 0\nf 1 2 3\n", "line 4: vertex 3 coordinate `nan` is not finite"),
+            ("v 1 1 inf\nf 1 2 3\n", "line 4: vertex 3 coordinate `inf` is not finite"),
+            ("v 1 1e39 0\nf 1 2 3\n", "line 4: vertex 3 coordinate `1e39` is not finite"),
             ("v 1 1\nf 1 2 3\n", "line 4: vertex 3 has 2 values"),
-            (
-                "v 0 1 0\nf 1 2 9\n",
-                "line 5: face uses vertex 9, but the file has only 3",
-            ),
+            ("v 1 1 1 0\nf 1 2 3\n", "line 4: vertex 3 weight `0` gives a non-finite"),
+            ("v 0 1 0\nf 1 2 9\n", "line 5: face uses vertex 9, but the file has only 3"),
             ("v 0 1 0\nf 1 2 0\n", "line 5: face uses vertex index 0"),
-            (
-                "v 0 1 0\nf 1 2 -4\n",
-                "line 5: face uses relative vertex -4",
-            ),
-            (
-                "v 0 1 0\nf 1 2 x\n",
-                "line 5: face vertex `x` is not an index",
-            ),
-            (
-                "vn 0 q 1\nv 0 1 0\nf 1 2 3\n",
-                "line 4: `vn` needs 3 numbers",
-            ),
-            (
-                "v 1 1 1 0\nf 1 2 3\n",
-                "line 4: vertex 3 weight `0` gives a non-finite",
-            ),
-        ] {
-            let err = error_of("bad.obj", format!("{head}{tail}").as_bytes());
-            assert!(err.contains(want), "{tail:?}: {err}");
+            ("v 0 1 0\nf 1 2 -4\n", "line 5: face uses relative vertex -4"),
+            ("v 0 1 0\nf 1 2 x\n", "line 5: face vertex `x` is not an index"),
+            ("vn 0 q 1\nv 0 1 0\nf 1 2 3\n", "line 4: `vn` needs 3 numbers"),
+            ("v 0 1 0\nf\nf 1 2 3\n", "line 5: face has no vertices"),
+            ("v 0 1 0\nusemtl \nf 1 2 3\n", "line 5: `usemtl` names no material"),
+        ];
+        for (tail, want) in cases {
+            assert_fails(
+                "bad.obj",
+                format!("# c\nv 0 0 0\nv 1 0 0\n{tail}").as_bytes(),
+                want,
+            );
         }
-        // Relative and forward indices are valid OBJ.
-        let dir = tempfile::tempdir().unwrap();
-        let path = write(
-            dir.path(),
-            "ok.obj",
-            b"f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
-        );
-        assert_eq!(load_mesh_file(&path).unwrap().triangles.len(), 2);
     }
 
     #[test]
     fn ascii_and_binary_ply_give_the_same_mesh() {
-        let dir = tempfile::tempdir().unwrap();
-        let ascii = write(
-            dir.path(),
-            "a.ply",
-            format!("{PLY_HEAD}0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n").as_bytes(),
+        let ascii = format!("{PLY_HEAD}0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n");
+        let a = load("a.ply", ascii.as_bytes()).unwrap();
+        let square = [0., 0., 0., 1., 0., 0., 1., 1., 0., 0., 1., 0.];
+        let b = load(
+            "b.ply",
+            &binary_ply(square, &[4, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0]),
         );
-        let mut binary = PLY_HEAD
-            .replace("ascii", "binary_little_endian")
-            .into_bytes();
-        for p in [[0f32, 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]] {
-            for c in p {
-                binary.extend(c.to_le_bytes());
-            }
-        }
-        binary.push(4);
-        for i in [0i32, 1, 2, 3] {
-            binary.extend(i.to_le_bytes());
-        }
-        let binary = write(dir.path(), "b.ply", &binary);
-        let a = load_mesh_file(&ascii).unwrap();
-        let b = load_mesh_file(&binary).unwrap();
+        let b = b.unwrap();
         assert_eq!(a.positions, b.positions);
         assert_eq!(a.triangles, b.triangles);
         assert_eq!(a.triangles, vec![[0, 1, 2], [0, 2, 3]]);
@@ -473,56 +456,54 @@ end_header\n";
     #[test]
     fn ply_errors_name_the_element() {
         // Header lines 1-9, so vertex 0 is line 10 and face 0 line 14.
-        for (body, want) in [
-            (
-                "0 0 0\n1 0 0\n1 zz 0\n0 1 0\n4 0 1 2 3\n",
-                "vertex 2 (line 12): ",
-            ),
-            (
-                "0 0 0\n1 0 0\n1 nan 0\n0 1 0\n4 0 1 2 3\n",
-                "vertex 2 (line 12): Couldn't read element line `1 nan 0`: error at 1:3",
-            ),
-            (
-                "0 0 0\n1 0 0\n1 1 0\n0 1e39 0\n4 0 1 2 3\n",
-                "vertex 3 (line 13) has a non-finite",
-            ),
-            (
-                "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 7\n",
-                "face 0 (line 14) uses vertex 7, but",
-            ),
-            (
-                "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 -1 2\n",
-                "face 0 (line 14) uses vertex -1",
-            ),
-            (
-                "0 0 0\n1 0 0\n1 1 0\n0 1 0\n2 0 1\n",
-                "face 0 (line 14) has 2 vertices",
-            ),
-            ("0 0 0\n1 0 0\n", "vertex 2 (line 12): "),
-        ] {
-            let err = error_of("bad.ply", format!("{PLY_HEAD}{body}").as_bytes());
-            assert!(err.contains(want) && !err.contains('\n'), "{body:?}: {err}");
+        #[rustfmt::skip]
+        let cases = [
+            ("1 zz 0\n0 1 0\n4 0 1 2 3\n", "vertex 2 (line 12): Couldn't read element line `1 zz 0`"),
+            ("1 nan 0\n0 1 0\n4 0 1 2 3\n", "vertex 2 (line 12): Couldn't read element line"),
+            ("1 1 0\n0 1e39 0\n4 0 1 2 3\n", "vertex 3 (line 13) has a non-finite coordinate"),
+            ("1 1 0\n0 1 0\n4 0 1 2 7\n", "face 0 (line 14) uses vertex 7, but there are only 4"),
+            ("1 1 0\n0 1 0\n4 0 1 -1 2\n", "face 0 (line 14) uses vertex -1"),
+            ("1 1 0\n0 1 0\n2 0 1\n", "face 0 (line 14) has 2 vertices, fewer than 3"),
+            ("", "vertex 2 (line 12): Unexpected end of file"),
+        ];
+        for (tail, want) in cases {
+            assert_fails(
+                "bad.ply",
+                format!("{PLY_HEAD}0 0 0\n1 0 0\n{tail}").as_bytes(),
+                want,
+            );
         }
         // A binary file has no lines: its rows are named by index alone.
-        let mut binary = PLY_HEAD
-            .replace("ascii", "binary_little_endian")
-            .into_bytes();
-        for c in [0f32, 0., 0., 1., 0., 0., 1., f32::NAN, 0., 0., 1., 0.] {
-            binary.extend(c.to_le_bytes());
-        }
-        binary.extend([3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0]);
-        let err = error_of("nan.ply", &binary);
-        assert!(err.contains("vertex 2 has a non-finite"), "{err}");
-        let err = error_of("short.ply", &binary[..binary.len() - 30]);
-        assert!(err.contains("vertex 2: "), "{err}");
+        let nan = binary_ply(
+            [0., 0., 0., 1., 0., 0., 1., f32::NAN, 0., 0., 1., 0.],
+            &[3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0],
+        );
+        assert_fails("nan.ply", &nan, "vertex 2 has a non-finite");
+        assert_fails(
+            "short.ply",
+            &nan[..nan.len() - 30],
+            "vertex 2: Unexpected end of file",
+        );
     }
 
     #[test]
     fn bad_files_name_the_file() {
-        let err = error_of("g.ply", b"this is not a ply\n");
-        assert!(err.contains("not a valid PLY"), "{err}");
-        let missing = Path::new("/nonexistent/missing.obj");
-        let err = load_mesh_file(missing).unwrap_err().to_string();
+        assert_fails(
+            "g.ply",
+            b"this is not a ply\n",
+            "not a valid PLY file: Line 1: Expected magic",
+        );
+        let no_z = PLY_HEAD.replace("property float z\n", "");
+        assert_fails(
+            "noz.ply",
+            no_z.as_bytes(),
+            "the `vertex` element has no `z` property",
+        );
+        let no_face = PLY_HEAD.replace("element face 1", "element edge 1");
+        assert_fails("noface.ply", no_face.as_bytes(), "has no `face` element");
+        let err = load_mesh_file(Path::new("/nonexistent/missing.obj"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("missing.obj"), "{err}");
         let err = load_mesh_file(Path::new("x.stl")).unwrap_err().to_string();
         assert!(err.contains("x.stl") && err.contains("extension"), "{err}");

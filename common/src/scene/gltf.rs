@@ -9,7 +9,7 @@ use super::{Mesh, SceneError, MAX_TRIANGLES};
 use glam::{Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::Mode;
-use std::collections::HashMap;
+use std::collections::hash_map::{Entry, HashMap};
 use std::path::Path;
 
 /// Reads the triangles of every mesh instanced by the default scene (every scene if there is
@@ -34,11 +34,10 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
     let mut decoded: HashMap<usize, Mesh> = HashMap::new();
     for (node, world) in instances(&document).map_err(err)? {
         let Some(source) = node.mesh() else { continue };
-        if !decoded.contains_key(&source.index()) {
-            let local = decode_mesh(&source, &buffers, path).map_err(err)?;
-            decoded.insert(source.index(), local);
-        }
-        let local = &decoded[&source.index()];
+        let local = match decoded.entry(source.index()) {
+            Entry::Occupied(known) => known.into_mut(),
+            Entry::Vacant(new) => new.insert(decode_mesh(&source, &buffers, path).map_err(err)?),
+        };
         let base = mesh.positions.len();
         if u32::try_from(base + local.positions.len()).is_err() {
             return Err(err("more vertices than 32-bit indices reach".into()));
@@ -437,126 +436,86 @@ mod tests {
         })
     }
 
+    /// [`DOC`] with its data in a data URI and one edit.
+    fn edited(from: &str, to: &str) -> Vec<u8> {
+        data_uri_doc([0, 1, 2], 4).replace(from, to).into_bytes()
+    }
+
+    const WORLD: [[f32; 3]; 6] = [
+        [10., 0., 0.],
+        [12., 0., 0.],
+        [10., 2., 0.],
+        [10., 0., 2.],
+        [12., 0., 2.],
+        [10., 2., 2.],
+    ];
+
     #[test]
     fn default_scene_is_loaded_in_world_space() {
-        let mesh = load("m.gltf", data_uri_doc([0, 1, 2], 4).as_bytes()).unwrap();
-        let v = |x, y, z| Vec3::new(x, y, z);
-        assert_eq!(
-            mesh.positions,
-            [
-                v(10., 0., 0.),
-                v(12., 0., 0.),
-                v(10., 2., 0.),
-                v(10., 0., 2.),
-                v(12., 0., 2.),
-                v(10., 2., 2.)
-            ]
-        );
+        let mesh = load("m.gltf", &edited("", "")).unwrap();
+        assert_eq!(mesh.positions, WORLD.map(Vec3::from_array));
         assert_eq!(mesh.triangles, [[0, 1, 2], [3, 4, 5]]);
     }
 
     #[test]
     fn external_bin_and_glb_give_the_same_mesh() {
-        let reference = load("m.gltf", data_uri_doc([0, 1, 2], 4).as_bytes()).unwrap();
         let external = doc(r#"{"byteLength":80,"uri":"m%2Ebin"}"#, 4);
-        let external = load("e.gltf", external.as_bytes()).unwrap();
-        let binary = load(
-            "b.glb",
-            &glb(&doc(r#"{"byteLength":80}"#, 4), &bin([0, 1, 2])),
-        );
-        for mesh in [external, binary.unwrap()] {
-            assert_eq!(mesh.positions, reference.positions);
-            assert_eq!(mesh.triangles, reference.triangles);
+        let binary = glb(&doc(r#"{"byteLength":80}"#, 4), &bin([0, 1, 2]));
+        for mesh in [load("e.gltf", external.as_bytes()), load("b.glb", &binary)] {
+            let mesh = mesh.unwrap();
+            assert_eq!(mesh.positions, WORLD.map(Vec3::from_array));
+            assert_eq!(mesh.triangles, [[0, 1, 2], [3, 4, 5]]);
         }
     }
 
     #[test]
     fn without_a_default_scene_every_scene_is_loaded() {
-        let json = data_uri_doc([0, 1, 2], 4).replace(r#""scene":1,"#, "");
-        let mesh = load("all.gltf", json.as_bytes()).unwrap();
+        let mesh = load("all.gltf", &edited(r#""scene":1,"#, "")).unwrap();
         assert_eq!(mesh.triangles.len(), 4);
-        assert_eq!(
-            mesh.positions[0],
-            Vec3::ZERO,
-            "scene 0 (node 2) comes first"
-        );
+        assert_eq!(mesh.positions[0], Vec3::ZERO, "scene 0 (node 2) first");
     }
 
     #[test]
     fn lines_are_skipped_and_strips_converted() {
         let mesh = load("l.gltf", data_uri_doc([0, 1, 2], 1).as_bytes()).unwrap();
-        assert_eq!(
-            mesh.triangles,
-            [[0, 1, 2]],
-            "only the second primitive is left"
-        );
+        assert_eq!(mesh.triangles, [[0, 1, 2]], "only primitive 1 is left");
         let mesh = load("s.gltf", data_uri_doc([2, 1, 0], 5).as_bytes()).unwrap();
         assert_eq!(mesh.triangles, [[2, 1, 0], [3, 4, 5]]);
     }
 
     #[test]
     fn mirroring_node_keeps_the_winding() {
-        let json = data_uri_doc([0, 1, 2], 4).replace("[2,2,2]", "[-2,2,2]");
-        let mesh = load("mirror.gltf", json.as_bytes()).unwrap();
+        let mesh = load("mirror.gltf", &edited("[2,2,2]", "[-2,2,2]")).unwrap();
         assert_eq!(mesh.positions[1], Vec3::new(8., 0., 0.));
         assert_eq!(mesh.triangles, [[0, 2, 1], [3, 5, 4]]);
     }
 
     #[test]
     fn bad_files_name_the_element() {
-        let cases = [
-            (
-                data_uri_doc([0, 1, 99], 4),
-                "mesh 0 primitive 0: index 99 out of range (3 vertices)",
-            ),
-            (
-                doc(r#"{"byteLength":80,"uri":"gone.bin"}"#, 4),
-                "buffer 0: cannot read",
-            ),
-            (
-                doc(r#"{"byteLength":80,"uri":"%zz"}"#, 4),
-                "buffer 0: uri `%zz`",
-            ),
-            (
-                doc(r#"{"byteLength":90,"uri":"m.bin"}"#, 4),
-                "holds 80 bytes, but the glTF says 90",
-            ),
-            (
-                data_uri_doc([0, 1, 2], 4).replace(
-                    r#""count":3,"type":"SCALAR""#,
-                    r#""count":4,"type":"SCALAR""#,
-                ),
-                "mesh 0 primitive 0: index accessor 1: 4 elements of 2 bytes",
-            ),
-            (
-                data_uri_doc([0, 1, 2], 4)
-                    .replace(r#""componentType":5123"#, r#""componentType":5122"#),
-                "index accessor 1: is Scalar of I16",
-            ),
-            (
-                data_uri_doc([0, 1, 2], 4)
-                    .replace(r#""scale":[2,2,2],"mesh":0"#, r#""mesh":0,"children":[0]"#),
-                "node 0 is reached twice",
-            ),
-            (
-                data_uri_doc([0, 1, 2], 4).replace("\"2.0\"", "2"),
-                "not a valid glTF file",
-            ),
-        ];
-        for (json, want) in cases {
-            let err = load("bad.gltf", json.as_bytes()).unwrap_err();
-            assert!(err.contains(want), "{want}: {err}");
-        }
+        let buffer = |json: &str| doc(json, 4).into_bytes();
         let mut nan = bin([0, 1, 2]);
         nan[4..8].copy_from_slice(&f32::NAN.to_le_bytes());
-        let err = load("nan.glb", &glb(&doc(r#"{"byteLength":80}"#, 4), &nan)).unwrap_err();
-        assert!(
-            err.contains("mesh 0 primitive 0: vertex 0 has a non-finite"),
-            "{err}"
-        );
         let mut corrupt = glb(&doc(r#"{"byteLength":80}"#, 4), &bin([0, 1, 2]));
         corrupt[8..12].copy_from_slice(&3u32.to_le_bytes());
-        let err = load("corrupt.glb", &corrupt).unwrap_err();
-        assert!(err.contains("total length of 3 bytes"), "{err}");
+        #[rustfmt::skip]
+        let cases = [
+            ("i.gltf", data_uri_doc([0, 1, 99], 4).into_bytes(),
+                "mesh 0 primitive 0: index 99 out of range (3 vertices)"),
+            ("b.gltf", buffer(r#"{"byteLength":80,"uri":"gone.bin"}"#), "buffer 0: cannot read"),
+            ("u.gltf", buffer(r#"{"byteLength":80,"uri":"%zz"}"#), "buffer 0: uri `%zz`"),
+            ("l.gltf", buffer(r#"{"byteLength":90,"uri":"m.bin"}"#), "80 bytes, but the glTF says 90"),
+            ("c.gltf", edited(r#"3,"type":"SCALAR""#, r#"4,"type":"SCALAR""#),
+                "mesh 0 primitive 0: index accessor 1: 4 elements of 2 bytes"),
+            ("t.gltf", edited("5123", "5122"), "primitive 0: index accessor 1: is Scalar of I16"),
+            ("n.gltf", edited(r#""scale":[2,2,2],"#, r#""children":[0],"#), "node 0 is reached twice"),
+            ("v.gltf", edited("\"2.0\"", "2"), "not a valid glTF file"),
+            ("nan.glb", glb(&doc(r#"{"byteLength":80}"#, 4), &nan),
+                "mesh 0 primitive 0: vertex 0 has a non-finite"),
+            ("corrupt.glb", corrupt, "total length of 3 bytes"),
+        ];
+        for (name, bytes, want) in cases {
+            let err = load(name, &bytes).unwrap_err();
+            assert!(err.contains(want), "{want}: {err}");
+        }
     }
 }

@@ -24,7 +24,7 @@ pub use procedural::knot_scene;
 pub enum SceneSpec {
     /// The default procedural scene: a bumpy torus-knot tube over a ground plane.
     Knot { segments: u32, sides: u32 },
-    /// A mesh file (OBJ or PLY) at this path on the node that loads it.
+    /// A mesh file (OBJ, PLY, glTF or GLB) at this path on the node that loads it.
     File(PathBuf),
 }
 
@@ -95,7 +95,7 @@ pub enum Light {
 pub enum SceneError {
     #[error("scene file {path}: {message}")]
     File { path: String, message: String },
-    #[error("scene file {path}: unsupported extension (expected .obj or .ply)")]
+    #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf or .glb)")]
     UnknownFormat { path: String },
     #[error("scene {origin}: vertex {index} has a non-finite coordinate {value:?}")]
     NonFinite {

@@ -81,7 +81,7 @@ pub fn write_tpart(path: &Path, particles: &[Particle]) -> std::io::Result<()> {
             out.write_all(&value.to_le_bytes())?;
         }
     }
-    out.into_inner().map_err(|e| e.into_error())?.sync_all()
+    out.flush()
 }
 
 fn read_csv(reader: impl BufRead) -> Result<Vec<Particle>, String> {

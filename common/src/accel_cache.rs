@@ -1,0 +1,164 @@
+//! The built BVH on disk, keyed by the scene's content hash, so a second start of a render node
+//! (or the next benchmark run) skips the build.
+//!
+//! The file is the raw node and triangle arrays behind a small header; anything that does not
+//! check out (wrong magic, version, sizes, indices) is treated as absent and rebuilt.
+
+use crate::accel::{Accel, BvhNode, LeafTriangle};
+use crate::scene::Scene;
+use std::path::{Path, PathBuf};
+
+const MAGIC: [u8; 4] = *b"TBVH";
+/// Bumped whenever the node layout or the build changes.
+const FORMAT: u32 = 1;
+const HEADER: usize = 4 + 4 + 8 * 3;
+
+/// Where cached BVHs go unless told otherwise: `$XDG_CACHE_HOME/tessera/bvh` or
+/// `~/.cache/tessera/bvh`.
+pub fn default_cache_dir() -> Option<PathBuf> {
+    std::env::var_os("XDG_CACHE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+        .map(|d| d.join("tessera").join("bvh"))
+}
+
+fn cache_path(dir: &Path, scene: &Scene) -> PathBuf {
+    let mut key = blake3::Hasher::new();
+    key.update(&scene.content_hash());
+    key.update(&FORMAT.to_le_bytes());
+    key.update(Accel::preset_name(scene.triangles.len()).as_bytes());
+    dir.join(format!("{}.bvh", &key.finalize().to_hex()[..32]))
+}
+
+/// How the BVH was obtained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Source {
+    Built,
+    Cached,
+}
+
+/// Loads the cached BVH of `scene` from `dir`, or builds it and stores it there. A cache that
+/// cannot be written costs a warning, never the run.
+pub fn load_or_build(scene: &Scene, dir: Option<&Path>) -> (Accel, Source) {
+    let Some(dir) = dir else {
+        return (Accel::build(scene), Source::Built);
+    };
+    let path = cache_path(dir, scene);
+    if let Ok(bytes) = std::fs::read(&path) {
+        match decode(&bytes, scene.triangles.len()) {
+            Some(accel) => return (accel, Source::Cached),
+            None => tracing::warn!("ignoring the damaged BVH cache {}", path.display()),
+        }
+    }
+    let accel = Accel::build(scene);
+    if let Err(e) = store(&accel, dir, &path) {
+        tracing::warn!("cannot cache the BVH in {}: {e}", dir.display());
+    }
+    (accel, Source::Built)
+}
+
+fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let mut bytes =
+        Vec::with_capacity(HEADER + accel.nodes.len() * 32 + accel.triangles.len() * 40);
+    bytes.extend(MAGIC);
+    bytes.extend(FORMAT.to_le_bytes());
+    bytes.extend((accel.nodes.len() as u64).to_le_bytes());
+    bytes.extend((accel.triangles.len() as u64).to_le_bytes());
+    bytes.extend((accel.max_depth() as u64).to_le_bytes());
+    bytes.extend_from_slice(bytemuck::cast_slice(&accel.nodes));
+    bytes.extend_from_slice(bytemuck::cast_slice(&accel.triangles));
+    bytes.extend_from_slice(bytemuck::cast_slice(&accel.scene_index));
+    // Write then rename, so a crash or a concurrent node never leaves a half file in place.
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    std::fs::write(&tmp, &bytes)?;
+    std::fs::rename(&tmp, path)
+}
+
+fn decode(bytes: &[u8], triangles: usize) -> Option<Accel> {
+    if bytes.len() < HEADER || bytes[..4] != MAGIC {
+        return None;
+    }
+    let u32_at = |i: usize| u32::from_le_bytes(bytes[i..i + 4].try_into().expect("4 bytes"));
+    let u64_at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().expect("8 bytes"));
+    if u32_at(4) != FORMAT {
+        return None;
+    }
+    let (nodes, tris, depth) = (u64_at(8) as usize, u64_at(16) as usize, u64_at(24) as usize);
+    if tris != triangles {
+        return None;
+    }
+    let node_bytes = nodes.checked_mul(std::mem::size_of::<BvhNode>())?;
+    let tri_bytes = tris.checked_mul(std::mem::size_of::<LeafTriangle>())?;
+    let index_bytes = tris.checked_mul(4)?;
+    if bytes.len() != HEADER + node_bytes + tri_bytes + index_bytes {
+        return None;
+    }
+    let mut at = HEADER;
+    let mut take = |n: usize| {
+        let s = &bytes[at..at + n];
+        at += n;
+        s
+    };
+    let nodes: Vec<BvhNode> = bytemuck::pod_collect_to_vec(take(node_bytes));
+    let leaf: Vec<LeafTriangle> = bytemuck::pod_collect_to_vec(take(tri_bytes));
+    let scene_index: Vec<u32> = bytemuck::pod_collect_to_vec(take(index_bytes));
+    // Indices must stay in range: traversal trusts them.
+    let nodes_ok = nodes.iter().all(|n| {
+        if n.count == 0 {
+            (n.first as usize) + 1 < nodes.len()
+        } else {
+            (n.first as usize)
+                .checked_add(n.count as usize)
+                .is_some_and(|end| end <= leaf.len())
+        }
+    });
+    if !nodes_ok || scene_index.iter().any(|&i| i as usize >= triangles) {
+        return None;
+    }
+    Some(Accel::from_parts(nodes, leaf, scene_index, depth))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::knot_scene;
+
+    #[test]
+    fn second_load_comes_from_the_cache_and_matches_the_build() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = knot_scene(128, 16);
+        let (built, first) = load_or_build(&scene, Some(dir.path()));
+        let (cached, second) = load_or_build(&scene, Some(dir.path()));
+        assert_eq!((first, second), (Source::Built, Source::Cached));
+        assert_eq!(built.scene_index, cached.scene_index);
+        assert_eq!(
+            bytemuck::cast_slice::<_, u8>(&built.nodes),
+            bytemuck::cast_slice::<_, u8>(&cached.nodes)
+        );
+        assert_eq!(
+            bytemuck::cast_slice::<_, u8>(&built.triangles),
+            bytemuck::cast_slice::<_, u8>(&cached.triangles)
+        );
+    }
+
+    #[test]
+    fn another_scene_or_a_damaged_file_is_rebuilt() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = knot_scene(64, 8);
+        load_or_build(&scene, Some(dir.path()));
+        let other = knot_scene(64, 9);
+        assert_eq!(load_or_build(&other, Some(dir.path())).1, Source::Built);
+        for entry in std::fs::read_dir(dir.path()).unwrap() {
+            let path = entry.unwrap().path();
+            let mut bytes = std::fs::read(&path).unwrap();
+            let last = bytes.len() - 1;
+            bytes[last] = 0xff; // a scene index far out of range
+            bytes[40] ^= 0x55;
+            std::fs::write(&path, &bytes).unwrap();
+        }
+        let (accel, source) = load_or_build(&scene, Some(dir.path()));
+        assert_eq!(source, Source::Built);
+        assert_eq!(accel.triangles.len(), scene.triangles.len());
+    }
+}
