@@ -49,6 +49,9 @@ impl Accel {
     /// Builds the BVH over all triangles of `scene`. The build is deterministic: the same scene
     /// gives the same tree on every node, which keeps tiles bit-identical wherever rendered.
     pub fn build(scene: &Scene) -> Accel {
+        if scene.triangles.is_empty() {
+            return Accel::from_parts(Vec::new(), Vec::new(), Vec::new(), 64);
+        }
         let tris: Vec<Triangle> = scene
             .triangles
             .iter()

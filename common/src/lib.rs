@@ -22,5 +22,6 @@ pub mod protocol;
 pub mod render;
 pub mod scene;
 pub mod sim;
+pub mod spheres;
 pub mod wall;
 pub mod worker;

@@ -57,6 +57,7 @@ fn sphere(center: Vec3, radius: f32, levels: u32) -> Scene {
         triangle_material: vec![0; count],
         materials: vec![Material { albedo: Vec3::ONE }],
         lights: vec![],
+        particles: vec![],
     }
 }
 

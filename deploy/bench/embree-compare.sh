@@ -221,8 +221,8 @@ for MESH in "${MESHES[@]}"; do
         mv -f "$OBJ.tmp" "$OBJ"
     fi
 
-    # Camera framing the mesh (cached with the OBJ; depends on size, fov, view dir and up).
-    CAMFILE=$CACHE/meshes/$KEY.${WIDTH}x${HEIGHT}-$(printf '%s' "$FOV $VIEW_DIR $UP" | sha1sum | cut -c1-8).cam
+    # Camera framing the mesh (cached with the OBJ; keyed on size, fov, view dir, up and the helper).
+    CAMFILE=$CACHE/meshes/$KEY.${WIDTH}x${HEIGHT}-$( (printf '%s' "$FOV $VIEW_DIR $UP"; cat "$SCRIPT_DIR/mesh-camera.py") | sha1sum | cut -c1-8).cam
     if [[ ! -s $CAMFILE || $OBJ -nt $CAMFILE ]]; then
         run "$CAMFILE.tmp" "$LIMIT" python3 "$SCRIPT_DIR/mesh-camera.py" "$OBJ" "$WIDTH" "$HEIGHT" \
             --fov "$FOV" --dir "$VIEW_DIR" --up "$UP"

@@ -2,7 +2,7 @@
 //! the same packets as the colour image so they describe exactly what is shown.
 
 use super::packet::{PacketHit, RayPacket, PACKET_RAYS};
-use super::{FrameView, PreparedScene, PACKET};
+use super::{nearest_surface, FrameView, PreparedScene, PACKET};
 use crate::wall::TileGrid;
 use rayon::prelude::*;
 
@@ -54,12 +54,15 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
         depth: vec![f32::INFINITY; (width * height) as usize],
         prim: vec![-1.0; (width * height) as usize],
     };
+    let mut stack = scene.accel.new_stack();
     for (&(x, y, w, h), hits) in blocks.iter().zip(&traced) {
         for i in 0..(w * h) as usize {
             let at = ((y + i as u32 / w) * width + x + i as u32 % w) as usize;
-            if let Some(slot) = hits[i].slot() {
-                aovs.depth[at] = hits[i].t;
-                aovs.prim[at] = scene.accel.scene_index[slot as usize] as f32;
+            let dir = view.rays.direction(x + i as u32 % w, y + i as u32 / w);
+            if let Some(hit) = nearest_surface(scene, view, view.rays.eye, dir, hits[i], &mut stack)
+            {
+                aovs.depth[at] = hit.t();
+                aovs.prim[at] = hit.scene_primitive(scene) as f32;
             }
         }
     }
@@ -107,6 +110,7 @@ mod tests {
             triangle_material: vec![0, 0],
             materials: vec![Material { albedo: Vec3::ONE }],
             lights: vec![],
+            particles: vec![],
         };
         let prepared = PreparedScene::new(&scene);
         let wall = WallLayout::grid(1, 1, 33, 33).with_tile_size(16);

@@ -16,6 +16,7 @@ use crate::accel::{Accel, Hit};
 use crate::geometry::{triangle_normal, Ray};
 use crate::scene::Light;
 use crate::scene::Scene;
+use crate::spheres::{colormap, SphereAccel};
 use crate::wall::Tile;
 use glam::Vec3;
 use packet::{PacketHit, RayPacket};
@@ -35,6 +36,8 @@ pub struct RenderParams {
     pub ao_samples: u32,
     /// Reach of ambient-occlusion rays, as a fraction of the scene's bounding-box diagonal.
     pub ao_range: f32,
+    /// Only particles whose attribute lies in this range are drawn (and cast shadows).
+    pub crop: Option<(f32, f32)>,
 }
 
 impl RenderParams {
@@ -44,6 +47,7 @@ impl RenderParams {
             shadows: true,
             ao_samples: 0,
             ao_range: 0.1,
+            crop: None,
         }
     }
 
@@ -53,6 +57,7 @@ impl RenderParams {
             shadows: true,
             ao_samples: 16,
             ao_range: 0.1,
+            crop: None,
         }
     }
 
@@ -74,6 +79,10 @@ pub struct PreparedScene {
     lights: Vec<Light>,
     /// Length of the scene's bounding-box diagonal: the scale of offsets and AO reach.
     diagonal: f32,
+    /// Particles, if the scene has any.
+    pub spheres: Option<SphereAccel>,
+    /// Attribute values mapped to the two ends of the colour map.
+    attribute_range: (f32, f32),
 }
 
 impl PreparedScene {
@@ -88,11 +97,19 @@ impl PreparedScene {
             .iter()
             .map(|&i| scene.materials[scene.triangle_material[i as usize] as usize].albedo)
             .collect();
+        let range = scene
+            .particles
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p.attribute), hi.max(p.attribute))
+            });
         PreparedScene {
-            diagonal: accel.bounds().diagonal().length(),
+            diagonal: scene.bounds().diagonal().length(),
             accel,
             slot_albedo,
             lights: scene.lights.clone(),
+            spheres: SphereAccel::build(&scene.particles),
+            attribute_range: range,
         }
     }
 
@@ -211,21 +228,18 @@ fn trace_packet(
     for i in 0..packet.len() {
         let (col, row) = (i as u32 % w, i as u32 / w);
         let dir = packet.direction(i);
-        let color = match hits[i].slot() {
+        let color = match nearest_surface(scene, view, view.rays.eye, dir, hits[i], stack) {
             None => background(dir),
-            Some(slot) => {
-                let hit = Hit { t: hits[i].t, slot };
-                shade(
-                    scene,
-                    view,
-                    (x0 + col, y0 + row),
-                    view.rays.eye,
-                    dir,
-                    hit,
-                    stack,
-                    &mut counts,
-                )
-            }
+            Some(hit) => shade(
+                scene,
+                view,
+                (x0 + col, y0 + row),
+                view.rays.eye,
+                dir,
+                hit,
+                stack,
+                &mut counts,
+            ),
         };
         let o = ((row * PACKET + col) * 3) as usize;
         out[o..o + 3].copy_from_slice(&encode_srgb_ish(color));
@@ -267,6 +281,80 @@ pub fn offset_origin(point: Vec3, normal: Vec3, scene_diagonal: f32) -> Vec3 {
     Vec3::from_array(out)
 }
 
+/// What a primary ray hit first.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SurfaceHit {
+    Triangle(Hit),
+    Sphere { t: f32, slot: u32 },
+}
+
+/// Combines a packet's triangle hit with the particles, when the scene has any.
+pub fn nearest_surface(
+    scene: &PreparedScene,
+    view: &FrameView,
+    origin: Vec3,
+    dir: Vec3,
+    triangle: PacketHit,
+    stack: &mut Vec<u32>,
+) -> Option<SurfaceHit> {
+    let mut nearest = triangle.slot().map(|slot| {
+        SurfaceHit::Triangle(Hit {
+            t: triangle.t,
+            slot,
+        })
+    });
+    if let Some(spheres) = &scene.spheres {
+        if let Some((t, slot)) = spheres.closest_hit(
+            &Ray::new(origin, dir),
+            0.0,
+            triangle.t,
+            view.params.crop,
+            stack,
+        ) {
+            nearest = Some(SurfaceHit::Sphere { t, slot });
+        }
+    }
+    nearest
+}
+
+impl SurfaceHit {
+    pub fn t(&self) -> f32 {
+        match *self {
+            SurfaceHit::Triangle(h) => h.t,
+            SurfaceHit::Sphere { t, .. } => t,
+        }
+    }
+
+    /// Index of the primitive in the scene: triangles first, then particles.
+    pub fn scene_primitive(&self, scene: &PreparedScene) -> u64 {
+        match *self {
+            SurfaceHit::Triangle(h) => scene.accel.scene_index[h.slot as usize] as u64,
+            SurfaceHit::Sphere { slot, .. } => {
+                let spheres = scene
+                    .spheres
+                    .as_ref()
+                    .expect("a sphere hit implies spheres");
+                scene.accel.triangles.len() as u64 + spheres.scene_index[slot as usize] as u64
+            }
+        }
+    }
+}
+
+/// Whether anything (triangles, or particles within the crop range) blocks the ray.
+fn blocked(
+    scene: &PreparedScene,
+    view: &FrameView,
+    ray: &Ray,
+    t_max: f32,
+    stack: &mut Vec<u32>,
+) -> bool {
+    scene.accel.occluded(ray, 0.0, t_max, stack)
+        || scene
+            .spheres
+            .as_ref()
+            .is_some_and(|s| s.occluded(ray, 0.0, t_max, view.params.crop, stack))
+}
+
 #[allow(clippy::too_many_arguments)]
 fn shade(
     scene: &PreparedScene,
@@ -274,12 +362,35 @@ fn shade(
     pixel: (u32, u32),
     origin: Vec3,
     dir: Vec3,
-    hit: Hit,
+    hit: SurfaceHit,
     stack: &mut Vec<u32>,
     counts: &mut RayCounts,
 ) -> Vec3 {
-    let (point, normal) = surface(scene, origin, dir, hit);
-    let albedo = scene.slot_albedo[hit.slot as usize];
+    let (point, normal, albedo) = match hit {
+        SurfaceHit::Triangle(h) => {
+            let (p, n) = surface(scene, origin, dir, h);
+            (p, n, scene.slot_albedo[h.slot as usize])
+        }
+        SurfaceHit::Sphere { t, slot } => {
+            let s = &scene
+                .spheres
+                .as_ref()
+                .expect("a sphere hit implies spheres")
+                .spheres[slot as usize];
+            let p = origin + dir * t;
+            let mut n = ((p - s.center) / s.radius).normalize_or_zero();
+            if n.dot(dir) > 0.0 {
+                n = -n;
+            }
+            let (lo, hi) = scene.attribute_range;
+            let x = if hi > lo {
+                (s.attribute - lo) / (hi - lo)
+            } else {
+                0.5
+            };
+            (p, n, colormap(x))
+        }
+    };
     let headlight = (-normal.dot(dir)).max(0.0);
     let start = offset_origin(point, normal, scene.diagonal);
     let mut direct = 0.0;
@@ -301,10 +412,7 @@ fn shade(
         }
         if view.params.shadows {
             counts.shadow += 1;
-            if scene
-                .accel
-                .occluded(&Ray::new(start, towards), 0.0, reach, stack)
-            {
+            if blocked(scene, view, &Ray::new(start, towards), reach, stack) {
                 continue;
             }
         }
@@ -335,7 +443,7 @@ pub fn ambient_visibility(
     for sample in 0..n {
         let mut stream = SampleStream::new(view.frame, pixel.0, pixel.1, sample);
         let d = cosine_direction(normal, &mut stream);
-        if !scene.accel.occluded(&Ray::new(start, d), 0.0, reach, stack) {
+        if !blocked(scene, view, &Ray::new(start, d), reach, stack) {
             open += 1;
         }
     }
@@ -455,5 +563,66 @@ mod tests {
             let (b, _) = one.install(|| render_tiles(&prepared, &view, grid.tiles()));
             assert_eq!(a, b, "{params:?}");
         }
+    }
+
+    #[test]
+    fn particles_are_drawn_colour_mapped_and_cropped_and_only_they_get_a_sphere_bvh() {
+        use crate::scene::particles::{write_tpart, Particle};
+        assert!(PreparedScene::new(&knot_scene(32, 4)).spheres.is_none());
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.tpart");
+        let particles: Vec<Particle> = (0..50)
+            .map(|i| Particle {
+                center: Vec3::new((i % 10) as f32, (i / 10) as f32, 0.0),
+                radius: 0.4,
+                attribute: i as f32,
+            })
+            .collect();
+        write_tpart(&path, &particles).unwrap();
+        let scene = Scene::load(&crate::scene::SceneSpec::File(path)).unwrap();
+        assert_eq!(scene.particles.len(), 50);
+        let prepared = PreparedScene::new(&scene);
+        assert!(prepared.spheres.is_some() && prepared.accel.nodes.is_empty());
+        let wall = WallLayout::grid(1, 1, 64, 48).with_tile_size(32);
+        let grid = TileGrid::new(wall);
+        let camera = Camera {
+            eye: Vec3::new(4.5, 2.0, 14.0),
+            target: Vec3::new(4.5, 2.0, 0.0),
+            up: Vec3::Y,
+            fov_y_deg: 50.0,
+        };
+        let background_pixels = |params: RenderParams| {
+            let view = FrameView::new(0, &camera, params, 64, 48);
+            let (tiles, _) = render_tiles(&prepared, &view, grid.tiles());
+            let rays = camera.rays_for(64, 48);
+            grid.tiles()
+                .iter()
+                .zip(&tiles)
+                .map(|(t, rgb)| {
+                    (0..t.pixel_count())
+                        .filter(|&k| {
+                            let (x, y) = (t.x + k as u32 % t.width, t.y + k as u32 / t.width);
+                            rgb[k * 3..k * 3 + 3]
+                                == encode_srgb_ish(background(rays.direction(x, y)))
+                        })
+                        .count()
+                })
+                .sum::<usize>()
+        };
+        let all = background_pixels(RenderParams::interactive());
+        let none = background_pixels(RenderParams {
+            crop: Some((1000.0, 2000.0)),
+            ..RenderParams::interactive()
+        });
+        let half = background_pixels(RenderParams {
+            crop: Some((0.0, 24.5)),
+            ..RenderParams::interactive()
+        });
+        assert_eq!(
+            none,
+            64 * 48,
+            "everything cropped away leaves only background"
+        );
+        assert!(all < half && half < none, "{all} < {half} < {none}");
     }
 }

@@ -79,6 +79,8 @@ pub struct Scene {
     pub materials: Vec<Material>,
     /// Lights; a scene without lights traces no shadow rays.
     pub lights: Vec<Light>,
+    /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
+    pub particles: Vec<particles::Particle>,
 }
 
 /// A light source. Intensities are linear multipliers of the diffuse term.
@@ -128,6 +130,11 @@ impl Scene {
     pub fn load(spec: &SceneSpec) -> Result<Scene, SceneError> {
         let scene = match spec {
             SceneSpec::Knot { segments, sides } => knot_scene(*segments, *sides),
+            SceneSpec::File(path) if particles::is_particle_file(path) => Scene {
+                particles: particles::load_particles(path)?,
+                lights: vec![default_light()],
+                ..Scene::default()
+            },
             SceneSpec::File(path) => from_mesh(load_mesh_file(path)?, path),
         };
         scene.validate(&spec_origin(spec))?;
@@ -137,7 +144,7 @@ impl Scene {
     /// Checks what the renderer relies on: finite coordinates, indices in range, something to
     /// draw. Loaders call it so that bad input fails at load, never as a NaN pixel later.
     pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
-        if self.triangles.is_empty() {
+        if self.triangles.is_empty() && self.particles.is_empty() {
             return Err(SceneError::Empty {
                 origin: origin.into(),
             });
@@ -195,6 +202,10 @@ impl Scene {
                 bounds.grow(self.positions[v as usize]);
             }
         }
+        for p in &self.particles {
+            bounds.grow(p.center - Vec3::splat(p.radius));
+            bounds.grow(p.center + Vec3::splat(p.radius));
+        }
         bounds
     }
 
@@ -206,6 +217,15 @@ impl Scene {
         hasher.update(bytemuck::cast_slice(&self.triangle_material));
         for m in &self.materials {
             hasher.update(bytemuck::bytes_of(&m.albedo));
+        }
+        for p in &self.particles {
+            hasher.update(bytemuck::bytes_of(&[
+                p.center.x,
+                p.center.y,
+                p.center.z,
+                p.radius,
+                p.attribute,
+            ]));
         }
         for light in &self.lights {
             let (tag, v, i) = match *light {
@@ -248,6 +268,7 @@ fn from_mesh(mesh: Mesh, _path: &Path) -> Scene {
             albedo: Vec3::new(0.8, 0.78, 0.74),
         }],
         lights: vec![default_light()],
+        particles: Vec::new(),
     }
 }
 

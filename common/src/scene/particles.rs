@@ -48,6 +48,13 @@ fn check_field(field: usize, value: f32) -> Result<(), String> {
     }
 }
 
+/// Whether `path` names a particle file (`.csv` or `.tpart`) rather than a mesh.
+pub fn is_particle_file(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("tpart"))
+}
+
 /// Reads a `.csv` or `.tpart` particle file. The result may be empty.
 ///
 /// # Errors

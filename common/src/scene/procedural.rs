@@ -80,6 +80,7 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
             },
         ],
         lights: vec![default_light()],
+        particles: Vec::new(),
     }
 }
 

@@ -1,0 +1,229 @@
+//! Spheres (particles): their own BVH, built only when a scene has any, a numerically careful
+//! ray–sphere test, and the colour map and crop range that their scalar attribute drives.
+
+use crate::geometry::Ray;
+use crate::scene::particles::Particle;
+use glam::{Vec3, Vec3A};
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::builder::build_bvh2;
+use obvhs::BvhBuildParams;
+use std::time::Duration;
+
+/// Spheres in leaf order with a binary BVH over them.
+pub struct SphereAccel {
+    nodes: Vec<crate::accel::BvhNode>,
+    pub spheres: Vec<Particle>,
+    /// Scene particle index of each leaf slot.
+    pub scene_index: Vec<u32>,
+}
+
+impl SphereAccel {
+    /// `None` for a scene without particles: no structure is built that nothing would use.
+    pub fn build(particles: &[Particle]) -> Option<SphereAccel> {
+        if particles.is_empty() {
+            return None;
+        }
+        let boxes: Vec<Aabb> = particles
+            .iter()
+            .map(|p| {
+                Aabb::new(
+                    Vec3A::from(p.center - Vec3::splat(p.radius)),
+                    Vec3A::from(p.center + Vec3::splat(p.radius)),
+                )
+            })
+            .collect();
+        let bvh = build_bvh2(
+            &boxes,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
+        Some(SphereAccel {
+            nodes: bvh
+                .nodes
+                .iter()
+                .map(|n| crate::accel::BvhNode {
+                    min: n.aabb().min.into(),
+                    max: n.aabb().max.into(),
+                    first: n.first_index,
+                    count: n.prim_count,
+                })
+                .collect(),
+            spheres: bvh
+                .primitive_indices
+                .iter()
+                .map(|&i| particles[i as usize])
+                .collect(),
+            scene_index: bvh.primitive_indices,
+        })
+    }
+
+    /// The nearest sphere hit in `(t_min, t_max)` among spheres whose attribute is in `crop`.
+    pub fn closest_hit(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        crop: Option<(f32, f32)>,
+        stack: &mut Vec<u32>,
+    ) -> Option<(f32, u32)> {
+        let mut best = None;
+        let mut far = t_max;
+        self.visit(ray, far, stack, |slot, s| {
+            if let Some(t) = hit_sphere(ray, s, t_min, far).filter(|_| in_crop(s, crop)) {
+                far = t;
+                best = Some((t, slot));
+            }
+            (false, far)
+        });
+        best
+    }
+
+    pub fn occluded(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        crop: Option<(f32, f32)>,
+        stack: &mut Vec<u32>,
+    ) -> bool {
+        let mut blocked = false;
+        self.visit(ray, t_max, stack, |_, s| {
+            blocked = in_crop(s, crop) && hit_sphere(ray, s, t_min, t_max).is_some();
+            (blocked, t_max)
+        });
+        blocked
+    }
+
+    /// Visits spheres in leaves the ray enters; `visit` returns (stop, new t_far).
+    fn visit(
+        &self,
+        ray: &Ray,
+        mut t_far: f32,
+        stack: &mut Vec<u32>,
+        mut visit: impl FnMut(u32, &Particle) -> (bool, f32),
+    ) {
+        stack.clear();
+        if self.nodes.is_empty() {
+            return;
+        }
+        stack.push(0);
+        while let Some(index) = stack.pop() {
+            let node = &self.nodes[index as usize];
+            if ray.box_entry(node.min, node.max, t_far).is_infinite() {
+                continue;
+            }
+            if node.count > 0 {
+                for slot in node.first..node.first + node.count {
+                    let (stop, far) = visit(slot, &self.spheres[slot as usize]);
+                    t_far = far;
+                    if stop {
+                        return;
+                    }
+                }
+            } else {
+                stack.extend([node.first + 1, node.first]);
+            }
+        }
+    }
+}
+
+fn in_crop(s: &Particle, crop: Option<(f32, f32)>) -> bool {
+    crop.is_none_or(|(lo, hi)| s.attribute >= lo && s.attribute <= hi)
+}
+
+/// Ray–sphere distance (in units of `ray.dir`). The discriminant is computed from the distance
+/// of the centre to the ray's line rather than as b² − c, which cancels catastrophically for
+/// small spheres far away (Haines et al., Ray Tracing Gems ch. 7).
+pub fn hit_sphere(ray: &Ray, s: &Particle, t_min: f32, t_max: f32) -> Option<f32> {
+    let len2 = ray.dir.length_squared();
+    let oc = ray.origin - s.center;
+    let b = oc.dot(ray.dir) / len2;
+    let closest = oc - ray.dir * b;
+    let h = s.radius * s.radius - closest.length_squared();
+    if h < 0.0 {
+        return None;
+    }
+    let root = (h / len2).sqrt();
+    [-b - root, -b + root]
+        .into_iter()
+        .find(|&t| t > t_min && t < t_max)
+}
+
+/// Colour of an attribute value normalized to [0, 1]: a perceptually ordered ramp from deep
+/// blue through teal and yellow-green to yellow (close to viridis).
+pub fn colormap(x: f32) -> Vec3 {
+    const STOPS: [[f32; 3]; 5] = [
+        [0.267, 0.005, 0.329],
+        [0.230, 0.322, 0.546],
+        [0.128, 0.567, 0.551],
+        [0.369, 0.789, 0.383],
+        [0.993, 0.906, 0.144],
+    ];
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let i = (x as usize).min(3);
+    let f = x - i as f32;
+    Vec3::from_array(STOPS[i]).lerp(Vec3::from_array(STOPS[i + 1]), f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(x: f32, attribute: f32) -> Particle {
+        Particle {
+            center: Vec3::new(x, 0.0, 0.0),
+            radius: 0.5,
+            attribute,
+        }
+    }
+
+    #[test]
+    fn nearest_sphere_wins_and_crop_hides_spheres() {
+        let accel = SphereAccel::build(&[p(0.0, 1.0), p(3.0, 5.0), p(-3.0, 9.0)]).unwrap();
+        let mut stack = Vec::new();
+        let ray = Ray::new(Vec3::new(10.0, 0.0, 0.0), Vec3::NEG_X);
+        let (t, slot) = accel
+            .closest_hit(&ray, 0.0, f32::INFINITY, None, &mut stack)
+            .unwrap();
+        assert!((t - 6.5).abs() < 1e-5);
+        assert_eq!(accel.scene_index[slot as usize], 1);
+        let (t, _) = accel
+            .closest_hit(&ray, 0.0, f32::INFINITY, Some((0.0, 2.0)), &mut stack)
+            .unwrap();
+        assert!(
+            (t - 9.5).abs() < 1e-5,
+            "the sphere with attribute 5 is cropped away"
+        );
+        assert!(!accel.occluded(&ray, 0.0, f32::INFINITY, Some((100.0, 200.0)), &mut stack));
+    }
+
+    #[test]
+    fn no_particles_no_structure() {
+        assert!(SphereAccel::build(&[]).is_none());
+    }
+
+    #[test]
+    fn tiny_far_spheres_are_still_hit_from_inside_and_out() {
+        let s = Particle {
+            center: Vec3::new(0.0, 0.0, -1e4),
+            radius: 1e-3,
+            attribute: 0.0,
+        };
+        let ray = Ray::new(Vec3::new(0.0, 0.0, 0.0), Vec3::NEG_Z);
+        let t = hit_sphere(&ray, &s, 0.0, f32::INFINITY).expect("hit");
+        assert!((t - (1e4 - 1e-3)).abs() < 2e-3, "{t}");
+        let inside = Ray::new(s.center, Vec3::X);
+        assert!((hit_sphere(&inside, &s, 0.0, f32::INFINITY).unwrap() - 1e-3).abs() < 1e-6);
+    }
+
+    #[test]
+    fn colormap_is_finite_and_ordered_by_brightness() {
+        let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722));
+        assert!(lum(colormap(0.0)) < lum(colormap(0.5)) && lum(colormap(0.5)) < lum(colormap(1.0)));
+        assert!(colormap(f32::NAN).is_finite() && colormap(7.0) == colormap(1.0));
+    }
+}
