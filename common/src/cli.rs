@@ -106,9 +106,62 @@ impl SceneArgs {
     }
 }
 
+/// Per-frame quality knobs, the same for the wall and the reference render.
+#[derive(Args, Debug, Clone)]
+pub struct QualityArgs {
+    /// Trace no shadow rays.
+    #[arg(long)]
+    pub no_shadows: bool,
+    /// Ambient-occlusion rays per hit (0: none).
+    #[arg(long, default_value_t = 0)]
+    pub ao: u32,
+    /// Draw only particles whose attribute is in LO,HI.
+    #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
+    pub crop: Option<(f32, f32)>,
+}
+
+impl QualityArgs {
+    pub fn params(&self) -> crate::render::RenderParams {
+        crate::render::RenderParams {
+            shadows: !self.no_shadows,
+            ao_samples: self.ao,
+            crop: self.crop,
+            ..crate::render::RenderParams::interactive()
+        }
+    }
+}
+
+fn parse_range(text: &str) -> Result<(f32, f32), String> {
+    let (a, b) = text
+        .split_once(',')
+        .ok_or_else(|| format!("`{text}` is not LO,HI"))?;
+    let lo: f32 = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{a}` in `{text}` is not a number"))?;
+    let hi: f32 = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{b}` in `{text}` is not a number"))?;
+    if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+        return Err(format!(
+            "`{text}` is not a range of finite numbers with LO <= HI"
+        ));
+    }
+    Ok((lo, hi))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn crop_ranges_parse_and_garbage_is_explained() {
+        assert_eq!(parse_range("-1,2.5").unwrap(), (-1.0, 2.5));
+        assert!(parse_range("3,1").is_err());
+        assert!(parse_range("1;2").unwrap_err().contains("LO,HI"));
+        assert!(parse_range("1,nan").is_err());
+    }
 
     #[test]
     fn vectors_parse_and_garbage_is_explained() {

@@ -16,12 +16,12 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tessera_common::cli::{SceneArgs, WallArgs};
+use tessera_common::cli::{QualityArgs, SceneArgs, WallArgs};
 use tessera_common::image_io::{compose_wall, render_wall, RgbImage};
 use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
 use tessera_common::protocol::FrameId;
 use tessera_common::render::aov::{primary_aovs, write_pfm};
-use tessera_common::render::{FrameView, PreparedScene, RenderParams};
+use tessera_common::render::{FrameView, PreparedScene};
 use tessera_common::scene::Scene;
 use tessera_common::wall::{TileGrid, WallLayout};
 
@@ -61,9 +61,8 @@ struct RunArgs {
     /// Each display saves frame K as DIR/display-<id>.png; the master writes DIR/wall.png.
     #[arg(long, requires = "out")]
     save_frame: Option<u64>,
-    /// Trace no shadow rays.
-    #[arg(long)]
-    no_shadows: bool,
+    #[command(flatten)]
+    quality: QualityArgs,
     /// How long to wait for all nodes to join, in seconds.
     #[arg(long, default_value_t = 60)]
     join_timeout: u64,
@@ -114,8 +113,8 @@ struct RenderArgs {
     /// Output directory; wall.png is written there.
     #[arg(long)]
     out: PathBuf,
-    #[arg(long)]
-    no_shadows: bool,
+    #[command(flatten)]
+    quality: QualityArgs,
     /// Also write an output value per pixel: `depth` → DIR/depth.pfm (distance along the ray,
     /// +inf for none), `prim` → DIR/prim.pfm (triangle index, -1 for none). Repeatable.
     #[arg(long, value_enum)]
@@ -176,13 +175,6 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
         .build()?)
 }
 
-fn params(no_shadows: bool) -> RenderParams {
-    RenderParams {
-        shadows: !no_shadows,
-        ..RenderParams::interactive()
-    }
-}
-
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
 fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
     let wall = run.wall.layout()?;
@@ -206,7 +198,7 @@ fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<
         camera: run.scene.camera_mode(&scene)?,
         scene_hash: scene.content_hash(),
         scene: spec,
-        params: params(run.no_shadows),
+        params: run.quality.params(),
         frames: (run.frames > 0).then_some(run.frames),
         render_nodes,
         save_frame: run.save_frame.map(FrameId),
@@ -412,7 +404,7 @@ fn render_reference(args: RenderArgs) -> Result<()> {
     let view = FrameView::new(
         args.frame,
         &camera,
-        params(args.no_shadows),
+        args.quality.params(),
         wall.width(),
         wall.height(),
     );

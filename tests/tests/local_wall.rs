@@ -3,7 +3,11 @@
 use std::time::Duration;
 use tessera_tests::*;
 
-const WALL: [&str; 6] = ["--wall", "2x2", "--screen", "240x136", "--bezel", "12"];
+// Ambient occlusion is on so the comparison covers random samples too: they are keyed on
+// (frame, pixel, sample), so any render node draws the same ones.
+const WALL: [&str; 8] = [
+    "--wall", "2x2", "--screen", "240x136", "--bezel", "12", "--ao", "2",
+];
 
 #[test]
 fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
@@ -28,7 +32,16 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
 
     let mut args = vec!["render"];
     args.extend(WALL);
-    args.extend(["--frame", "3", "--out", reference.to_str().unwrap()]);
+    args.extend([
+        "--frame",
+        "3",
+        "--aov",
+        "depth",
+        "--aov",
+        "prim",
+        "--out",
+        reference.to_str().unwrap(),
+    ]);
     run("tessera-master", &args, Duration::from_secs(120)).assert_success("reference render");
 
     let (w, h, wall) = load_rgb(&out.join("wall.png"));
@@ -42,6 +55,14 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
     );
     // The picture is not trivially black: the comparison means something.
     assert!(expected.iter().filter(|&&b| b > 40).count() > expected.len() / 2);
+
+    // AOVs cover the whole virtual image: a PFM header, then one float per pixel.
+    for name in ["depth.pfm", "prim.pfm"] {
+        let bytes = std::fs::read(reference.join(name)).unwrap();
+        let header = format!("Pf\n{w} {h}\n-1.0\n");
+        assert!(bytes.starts_with(header.as_bytes()), "{name}");
+        assert_eq!(bytes.len(), header.len() + (w * h) as usize * 4, "{name}");
+    }
 
     let report = read_json(&out.join("report.json"));
     assert_eq!(report["frames"], frames);
