@@ -62,16 +62,7 @@ impl Accel {
             })
             .collect();
         let bvh = build_bvh2_from_tris(&tris, Self::preset(tris.len()), &mut Duration::default());
-        let nodes = bvh
-            .nodes
-            .iter()
-            .map(|n| BvhNode {
-                min: n.aabb().min.into(),
-                max: n.aabb().max.into(),
-                first: n.first_index,
-                count: n.prim_count,
-            })
-            .collect();
+        let nodes = bvh.nodes.iter().map(BvhNode::from).collect();
         let triangles = bvh
             .primitive_indices
             .iter()
@@ -185,38 +176,63 @@ impl Accel {
         ray: &Ray,
         stack: &mut Vec<u32>,
         t_far: &mut f32,
-        mut visit: impl FnMut(u32, &mut f32) -> bool,
+        visit: impl FnMut(u32, &mut f32) -> bool,
     ) {
-        stack.clear();
-        let Some(root) = self.nodes.first() else {
-            return;
-        };
-        if ray.box_entry(root.min, root.max, *t_far).is_infinite() {
-            return;
+        traverse_nodes(&self.nodes, ray, stack, t_far, visit);
+    }
+}
+
+impl From<&obvhs::bvh2::node::Bvh2Node> for BvhNode {
+    fn from(n: &obvhs::bvh2::node::Bvh2Node) -> Self {
+        BvhNode {
+            min: n.aabb().min.into(),
+            max: n.aabb().max.into(),
+            first: n.first_index,
+            count: n.prim_count,
         }
-        stack.push(0);
-        while let Some(index) = stack.pop() {
-            let node = &self.nodes[index as usize];
-            if node.count > 0 {
-                for slot in node.first..node.first + node.count {
-                    if visit(slot, t_far) {
-                        return;
-                    }
+    }
+}
+
+/// Single-ray traversal of any of our binary BVHs (triangles or spheres): visits the leaf slots
+/// whose boxes the ray enters before `t_far`, nearer child first. `visit` may shrink `t_far`
+/// and returns `true` to stop.
+#[inline(always)]
+pub(crate) fn traverse_nodes(
+    nodes: &[BvhNode],
+    ray: &Ray,
+    stack: &mut Vec<u32>,
+    t_far: &mut f32,
+    mut visit: impl FnMut(u32, &mut f32) -> bool,
+) {
+    stack.clear();
+    let Some(root) = nodes.first() else {
+        return;
+    };
+    if ray.box_entry(root.min, root.max, *t_far).is_infinite() {
+        return;
+    }
+    stack.push(0);
+    while let Some(index) = stack.pop() {
+        let node = &nodes[index as usize];
+        if node.count > 0 {
+            for slot in node.first..node.first + node.count {
+                if visit(slot, t_far) {
+                    return;
                 }
-                continue;
             }
-            let (l, r) = (node.first, node.first + 1);
-            let (ln, rn) = (&self.nodes[l as usize], &self.nodes[r as usize]);
-            let tl = ray.box_entry(ln.min, ln.max, *t_far);
-            let tr = ray.box_entry(rn.min, rn.max, *t_far);
-            // Push the farther child first so the nearer one is popped next.
-            match (tl.is_finite(), tr.is_finite()) {
-                (true, true) if tl <= tr => stack.extend([r, l]),
-                (true, true) => stack.extend([l, r]),
-                (true, false) => stack.push(l),
-                (false, true) => stack.push(r),
-                (false, false) => {}
-            }
+            continue;
+        }
+        let (l, r) = (node.first, node.first + 1);
+        let (ln, rn) = (&nodes[l as usize], &nodes[r as usize]);
+        let tl = ray.box_entry(ln.min, ln.max, *t_far);
+        let tr = ray.box_entry(rn.min, rn.max, *t_far);
+        // Push the farther child first so the nearer one is popped next.
+        match (tl.is_finite(), tr.is_finite()) {
+            (true, true) if tl <= tr => stack.extend([r, l]),
+            (true, true) => stack.extend([l, r]),
+            (true, false) => stack.push(l),
+            (false, true) => stack.push(r),
+            (false, false) => {}
         }
     }
 }

@@ -1,6 +1,7 @@
 //! Spheres (particles): their own BVH, built only when a scene has any, a numerically careful
 //! ray–sphere test, and the colour map and crop range that their scalar attribute drives.
 
+use crate::accel::{traverse_nodes, BvhNode};
 use crate::geometry::Ray;
 use crate::scene::particles::Particle;
 use glam::{Vec3, Vec3A};
@@ -11,7 +12,7 @@ use std::time::Duration;
 
 /// Spheres in leaf order with a binary BVH over them.
 pub struct SphereAccel {
-    nodes: Vec<crate::accel::BvhNode>,
+    nodes: Vec<BvhNode>,
     pub spheres: Vec<Particle>,
     /// Scene particle index of each leaf slot.
     pub scene_index: Vec<u32>,
@@ -38,16 +39,7 @@ impl SphereAccel {
             &mut Duration::default(),
         );
         Some(SphereAccel {
-            nodes: bvh
-                .nodes
-                .iter()
-                .map(|n| crate::accel::BvhNode {
-                    min: n.aabb().min.into(),
-                    max: n.aabb().max.into(),
-                    first: n.first_index,
-                    count: n.prim_count,
-                })
-                .collect(),
+            nodes: bvh.nodes.iter().map(BvhNode::from).collect(),
             spheres: bvh
                 .primitive_indices
                 .iter()
@@ -68,12 +60,13 @@ impl SphereAccel {
     ) -> Option<(f32, u32)> {
         let mut best = None;
         let mut far = t_max;
-        self.visit(ray, far, stack, |slot, s| {
-            if let Some(t) = hit_sphere(ray, s, t_min, far).filter(|_| in_crop(s, crop)) {
-                far = t;
+        traverse_nodes(&self.nodes, ray, stack, &mut far, |slot, far| {
+            let s = &self.spheres[slot as usize];
+            if let Some(t) = hit_sphere(ray, s, t_min, *far).filter(|_| in_crop(s, crop)) {
+                *far = t;
                 best = Some((t, slot));
             }
-            (false, far)
+            false
         });
         best
     }
@@ -86,44 +79,14 @@ impl SphereAccel {
         crop: Option<(f32, f32)>,
         stack: &mut Vec<u32>,
     ) -> bool {
+        let mut far = t_max;
         let mut blocked = false;
-        self.visit(ray, t_max, stack, |_, s| {
-            blocked = in_crop(s, crop) && hit_sphere(ray, s, t_min, t_max).is_some();
-            (blocked, t_max)
+        traverse_nodes(&self.nodes, ray, stack, &mut far, |slot, far| {
+            let s = &self.spheres[slot as usize];
+            blocked = in_crop(s, crop) && hit_sphere(ray, s, t_min, *far).is_some();
+            blocked
         });
         blocked
-    }
-
-    /// Visits spheres in leaves the ray enters; `visit` returns (stop, new t_far).
-    fn visit(
-        &self,
-        ray: &Ray,
-        mut t_far: f32,
-        stack: &mut Vec<u32>,
-        mut visit: impl FnMut(u32, &Particle) -> (bool, f32),
-    ) {
-        stack.clear();
-        if self.nodes.is_empty() {
-            return;
-        }
-        stack.push(0);
-        while let Some(index) = stack.pop() {
-            let node = &self.nodes[index as usize];
-            if ray.box_entry(node.min, node.max, t_far).is_infinite() {
-                continue;
-            }
-            if node.count > 0 {
-                for slot in node.first..node.first + node.count {
-                    let (stop, far) = visit(slot, &self.spheres[slot as usize]);
-                    t_far = far;
-                    if stop {
-                        return;
-                    }
-                }
-            } else {
-                stack.extend([node.first + 1, node.first]);
-            }
-        }
     }
 }
 

@@ -127,6 +127,11 @@ if [[ ${#MISSING[@]} -gt 0 ]]; then
 fi
 VIEWER=/usr/bin/viewer
 [[ -x $VIEWER ]] || die "$VIEWER (package embree-tools) not found"
+for mesh in "${MESHES[@]}"; do
+    [[ $mesh =~ ^knot:[0-9]+:[0-9]+$ ]] && continue
+    [[ -f $mesh ]] || die "mesh $mesh not found"
+    case ${mesh,,} in *.obj|*.ply) ;; *) die "mesh $mesh: expected .obj, .ply or knot:S:T" ;; esac
+done
 
 # --- 2. Our binaries --------------------------------------------------------------------------
 TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
@@ -204,10 +209,6 @@ tessera_run() {  # tessera_run TAG THREADS -> sets T_PRIMARY T_SHADOW T_AO
 ROWS=()
 SCALE_ROWS=()
 for MESH in "${MESHES[@]}"; do
-    if [[ ! $MESH =~ ^knot:[0-9]+:[0-9]+$ ]]; then
-        [[ -f $MESH ]] || die "mesh $MESH not found"
-        case ${MESH,,} in *.obj|*.ply) ;; *) die "mesh $MESH: expected .obj, .ply or knot:S:T" ;; esac
-    fi
     KEY=$(key_of "$MESH")
     LABEL=$MESH
     [[ $MESH == knot:* ]] || LABEL=$(basename -- "$MESH")
