@@ -128,17 +128,12 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let identity = NodeIdentity::load(&cli.cert_dir)?;
     let endpoint = quic::endpoint(cli.listen, &identity, true)?;
     let pixel_addr = cli.advertise.unwrap_or(endpoint.local_addr()?);
-    let master_addr = tokio::net::lookup_host(&cli.master)
-        .await
-        .with_context(|| format!("cannot resolve master address {}", cli.master))?
-        .next()
-        .with_context(|| format!("master address {} resolves to nothing", cli.master))?;
+    let master_addr = tessera_common::net::resolve_master(&cli.master).await?;
     let conn = quic::connect(&endpoint, master_addr, "the master")
         .await
         .context("is tessera-master running there? see --help")?;
     let (mut send, mut recv) = conn.open_bi().await?;
-    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .map_or_else(|_| "unknown".into(), |h| h.trim().to_string());
+    let host = tessera_common::net::hostname();
     write_msg(
         &mut send,
         &FromNode::Hello(Hello {

@@ -122,15 +122,6 @@ fn join(cli: Cli) -> Result<()> {
         })
 }
 
-/// Resolves HOST:PORT (names allowed).
-pub async fn resolve(addr: &str) -> Result<SocketAddr> {
-    tokio::net::lookup_host(addr)
-        .await
-        .with_context(|| format!("cannot resolve master address {addr}"))?
-        .next()
-        .with_context(|| format!("master address {addr} resolves to nothing"))
-}
-
 enum Done {
     Rendered {
         frame: FrameId,
@@ -160,7 +151,7 @@ async fn run(
             .build()?,
     );
     let identity = NodeIdentity::load(&cert_dir)?;
-    let master_addr = resolve(&master).await?;
+    let master_addr = tessera_common::net::resolve_master(&master).await?;
     let bind: SocketAddr = if master_addr.is_ipv6() {
         "[::]:0"
     } else {
@@ -172,7 +163,7 @@ async fn run(
         .await
         .context("is tessera-master running there? see --help")?;
     let (mut send, mut recv) = conn.open_bi().await?;
-    let host = hostname();
+    let host = tessera_common::net::hostname();
     write_msg(
         &mut send,
         &FromNode::Hello(Hello {
@@ -385,9 +376,4 @@ async fn prepare(
         Ok(PreparedScene::from_accel(&scene, accel))
     })
     .await?
-}
-
-fn hostname() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .map_or_else(|_| "unknown".into(), |h| h.trim().to_string())
 }

@@ -5,3 +5,21 @@
 pub mod cluster;
 pub mod framed;
 pub mod quic;
+
+use anyhow::{Context, Result};
+use std::net::SocketAddr;
+
+/// Resolves the master's HOST:PORT (names allowed) to the first address it names.
+pub async fn resolve_master(addr: &str) -> Result<SocketAddr> {
+    tokio::net::lookup_host(addr)
+        .await
+        .with_context(|| format!("cannot resolve master address {addr}"))?
+        .next()
+        .with_context(|| format!("master address {addr} resolves to nothing"))
+}
+
+/// This host's name, for the hello message and the master's log lines.
+pub fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map_or_else(|_| "unknown".into(), |h| h.trim().to_string())
+}
