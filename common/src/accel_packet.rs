@@ -20,8 +20,11 @@ use glam::Vec3;
 struct Lanes {
     origin: Vec3,
     inv: [[f32; PACKET_RAYS]; 3],
-    /// Closest hit so far; -inf for lanes past the packet's end, so they never enter a box.
+    /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
+    /// packet's end or with an empty interval, so they never enter a box.
     t: [f32; PACKET_RAYS],
+    /// Start of each ray's interval (0 unless cutting planes clip it).
+    t_min: [f32; PACKET_RAYS],
 }
 
 impl Lanes {
@@ -43,7 +46,11 @@ impl Lanes {
             let (x0, x1) = (lo[0] * self.inv[0][i], hi[0] * self.inv[0][i]);
             let (y0, y1) = (lo[1] * self.inv[1][i], hi[1] * self.inv[1][i]);
             let (z0, z1) = (lo[2] * self.inv[2][i], hi[2] * self.inv[2][i]);
-            let near = x0.min(x1).max(y0.min(y1)).max(z0.min(z1)).max(0.0);
+            let near = x0
+                .min(x1)
+                .max(y0.min(y1))
+                .max(z0.min(z1))
+                .max(self.t_min[i]);
             let far = x0.max(x1).min(y0.max(y1)).min(z0.max(z1)).min(self.t[i]);
             let hit = near <= far;
             out[i] = if hit { near } else { f32::INFINITY };
@@ -104,7 +111,7 @@ impl Accel {
             for (i, hit) in hits.iter_mut().enumerate().take(n) {
                 let ray = Ray::new(packet.ray_origin(i), packet.direction(i));
                 *hit = self
-                    .closest_hit(&ray, 0.0, f32::INFINITY, stack)
+                    .closest_hit(&ray, packet.t_min[i], packet.t_max[i], stack)
                     .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
             }
             return;
@@ -120,12 +127,13 @@ impl Accel {
             origin,
             inv: *packet.inverse_directions(),
             t: std::array::from_fn(|i| {
-                if i < n {
-                    f32::INFINITY
+                if i < n && packet.t_min[i] <= packet.t_max[i] {
+                    packet.t_max[i]
                 } else {
                     f32::NEG_INFINITY
                 }
             }),
+            t_min: packet.t_min,
         };
         let mut entry = [0f32; PACKET_RAYS];
         stack.clear();
@@ -145,7 +153,8 @@ impl Accel {
                     }
                     for slot in node.first..node.first + node.count {
                         let tri = &self.triangles[slot as usize];
-                        if let Some(t) = rays[i].hit_triangle(tri.a, tri.b, tri.c, 0.0, lanes.t[i])
+                        if let Some(t) =
+                            rays[i].hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], lanes.t[i])
                         {
                             lanes.t[i] = t;
                             hits[i] = PacketHit::new(t, slot);
@@ -218,7 +227,7 @@ impl Frustum {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{Camera, CameraMode};
+    use crate::render::{Camera, CameraMode, CutPlanes};
     use crate::scene::knot_scene;
 
     #[test]
@@ -230,8 +239,17 @@ mod tests {
         for frame in [0u64, 40, 95, 200] {
             let camera: Camera = orbit.camera_for_frame(frame);
             let rays = camera.rays_for(96, 64);
-            for (x0, y0, w, h) in [(0, 0, 8, 8), (40, 24, 8, 8), (88, 56, 8, 8), (48, 32, 5, 3)] {
+            let cuts = [
+                CutPlanes::EMPTY,
+                CutPlanes::new(&[(Vec3::new(0.2, 1.0, 0.1), 0.3), (-Vec3::Z, 1.0)]).unwrap(),
+            ];
+            for ((x0, y0, w, h), cuts) in
+                [(0, 0, 8, 8), (40, 24, 8, 8), (88, 56, 8, 8), (48, 32, 5, 3)]
+                    .into_iter()
+                    .flat_map(|block| cuts.iter().map(move |c| (block, c)))
+            {
                 let mut packet = RayPacket::primary(&rays, x0, y0, w, h);
+                packet.clip(cuts);
                 let mut fast = [PacketHit::MISS; PACKET_RAYS];
                 let mut portable = [PacketHit::MISS; PACKET_RAYS];
                 accel.closest_hits(&mut packet, &mut fast, &mut stack);
@@ -239,7 +257,8 @@ mod tests {
                 assert_eq!(fast, portable, "SIMD paths disagree (frame {frame})");
                 for i in 0..packet.len() {
                     let ray = Ray::new(camera.eye, packet.direction(i));
-                    let single = accel.closest_hit(&ray, 0.0, f32::INFINITY, &mut stack);
+                    let (t_min, t_max) = cuts.interval(camera.eye, packet.direction(i));
+                    let single = accel.closest_hit(&ray, t_min, t_max, &mut stack);
                     assert_eq!(
                         fast[i].t,
                         single.map_or(f32::INFINITY, |h| h.t),

@@ -118,17 +118,46 @@ pub struct QualityArgs {
     /// Draw only particles whose attribute is in LO,HI.
     #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
     pub crop: Option<(f32, f32)>,
+    /// Cut away everything on the side NX,NY,NZ points to of the plane at distance D from the
+    /// origin (points with N·p > D), to look inside a mesh. Repeat for up to 4 planes; e.g.
+    /// `--cut 0,0,1,0` removes all with z > 0.
+    #[arg(long = "cut", value_name = "NX,NY,NZ,D", value_parser = parse_plane, allow_hyphen_values = true)]
+    pub cuts: Vec<(Vec3, f32)>,
 }
 
 impl QualityArgs {
-    pub fn params(&self) -> crate::render::RenderParams {
-        crate::render::RenderParams {
+    /// # Errors
+    /// More cutting planes than supported.
+    pub fn params(&self) -> Result<crate::render::RenderParams> {
+        Ok(crate::render::RenderParams {
             shadows: !self.no_shadows,
             ao_samples: self.ao,
             crop: self.crop,
+            cuts: crate::render::CutPlanes::new(&self.cuts).context("--cut")?,
             ..crate::render::RenderParams::interactive()
-        }
+        })
     }
+}
+
+fn parse_plane(text: &str) -> Result<(Vec3, f32), String> {
+    let numbers: Vec<&str> = text.split(',').collect();
+    let [x, y, z, d] = numbers[..] else {
+        return Err(format!("`{text}` is not NX,NY,NZ,D (four numbers)"));
+    };
+    let mut values = [0f32; 4];
+    for (value, word) in values.iter_mut().zip([x, y, z, d]) {
+        *value = word
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f32| v.is_finite())
+            .ok_or_else(|| format!("`{word}` in `{text}` is not a finite number"))?;
+    }
+    let normal = Vec3::new(values[0], values[1], values[2]);
+    if normal == Vec3::ZERO {
+        return Err(format!("`{text}`: the normal NX,NY,NZ must not be zero"));
+    }
+    Ok((normal, values[3]))
 }
 
 fn parse_range(text: &str) -> Result<(f32, f32), String> {
@@ -161,6 +190,14 @@ mod tests {
         assert!(parse_range("3,1").is_err());
         assert!(parse_range("1;2").unwrap_err().contains("LO,HI"));
         assert!(parse_range("1,nan").is_err());
+    }
+
+    #[test]
+    fn planes_parse_and_garbage_is_explained() {
+        assert_eq!(parse_plane("0,0,-1,2.5").unwrap(), (-Vec3::Z, 2.5));
+        assert!(parse_plane("0,0,0,1").unwrap_err().contains("zero"));
+        assert!(parse_plane("1,2,3").unwrap_err().contains("NX,NY,NZ,D"));
+        assert!(parse_plane("1,x,3,4").unwrap_err().contains("`x`"));
     }
 
     #[test]

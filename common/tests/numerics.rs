@@ -55,9 +55,8 @@ fn sphere(center: Vec3, radius: f32, levels: u32) -> Scene {
             .collect(),
         triangles: tris,
         triangle_material: vec![0; count],
-        materials: vec![Material { albedo: Vec3::ONE }],
-        lights: vec![],
-        particles: vec![],
+        materials: vec![Material::lambert(Vec3::ONE)],
+        ..Scene::default()
     }
 }
 

@@ -198,7 +198,7 @@ fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<
         camera: run.scene.camera_mode(&scene)?,
         scene_hash: scene.content_hash(),
         scene: spec,
-        params: run.quality.params(),
+        params: run.quality.params()?,
         frames: (run.frames > 0).then_some(run.frames),
         render_nodes,
         save_frame: run.save_frame.map(FrameId),
@@ -404,7 +404,7 @@ fn render_reference(args: RenderArgs) -> Result<()> {
     let view = FrameView::new(
         args.frame,
         &camera,
-        args.quality.params(),
+        args.quality.params()?,
         wall.width(),
         wall.height(),
     );

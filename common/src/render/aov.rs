@@ -3,6 +3,7 @@
 
 use super::packet::{PacketHit, RayPacket, PACKET_RAYS};
 use super::{nearest_surface, FrameView, PreparedScene, PACKET};
+use crate::geometry::Ray;
 use crate::wall::TileGrid;
 use rayon::prelude::*;
 
@@ -36,15 +37,16 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
             })
         })
         .collect();
-    let traced: Vec<[PacketHit; PACKET_RAYS]> = blocks
+    let traced: Vec<(RayPacket, [PacketHit; PACKET_RAYS])> = blocks
         .par_iter()
         .map_init(
             || scene.accel.new_stack(),
             |stack, &(x, y, w, h)| {
                 let mut packet = RayPacket::primary(&view.rays, x, y, w, h);
+                packet.clip(&view.params.cuts);
                 let mut hits = [PacketHit::MISS; PACKET_RAYS];
                 scene.accel.closest_hits(&mut packet, &mut hits, stack);
-                hits
+                (packet, hits)
             },
         )
         .collect();
@@ -55,12 +57,12 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
         prim: vec![-1.0; (width * height) as usize],
     };
     let mut stack = scene.accel.new_stack();
-    for (&(x, y, w, h), hits) in blocks.iter().zip(&traced) {
+    for (&(x, y, w, h), (packet, hits)) in blocks.iter().zip(&traced) {
         for i in 0..(w * h) as usize {
             let at = ((y + i as u32 / w) * width + x + i as u32 % w) as usize;
-            let dir = view.rays.direction(x + i as u32 % w, y + i as u32 / w);
-            if let Some(hit) = nearest_surface(scene, view, view.rays.eye, dir, hits[i], &mut stack)
-            {
+            let ray = Ray::new(view.rays.eye, packet.direction(i));
+            let interval = (packet.t_min[i], packet.t_max[i]);
+            if let Some(hit) = nearest_surface(scene, view, &ray, interval, hits[i], &mut stack) {
                 aovs.depth[at] = hit.t();
                 aovs.prim[at] = hit.scene_primitive(scene) as f32;
             }
@@ -108,9 +110,8 @@ mod tests {
             ],
             triangles: vec![[0, 1, 2], [0, 2, 3]],
             triangle_material: vec![0, 0],
-            materials: vec![Material { albedo: Vec3::ONE }],
-            lights: vec![],
-            particles: vec![],
+            materials: vec![Material::lambert(Vec3::ONE)],
+            ..Scene::default()
         };
         let prepared = PreparedScene::new(&scene);
         let wall = WallLayout::grid(1, 1, 33, 33).with_tile_size(16);

@@ -5,6 +5,7 @@
 //! computed once, on first use, and flagged. Shading splits a packet into sub-packets of
 //! consecutive rays with the same material: ranges of the packet, not copies.
 
+use super::cut::CutPlanes;
 use super::PixelRays;
 use glam::Vec3;
 use std::ops::Range;
@@ -17,6 +18,8 @@ pub const COMMON_ORIGIN: u32 = 1;
 pub const NORMALIZED: u32 = 1 << 1;
 /// `inv` holds the inverse directions.
 pub const HAVE_INVERSE: u32 = 1 << 2;
+/// Some rays are limited to an interval other than `[0, ∞)` (cutting planes).
+pub const CLIPPED: u32 = 1 << 3;
 
 pub struct RayPacket {
     len: usize,
@@ -27,6 +30,9 @@ pub struct RayPacket {
     pub org: [[f32; PACKET_RAYS]; 3],
     pub dir: [[f32; PACKET_RAYS]; 3],
     inv: [[f32; PACKET_RAYS]; 3],
+    /// Per-ray interval searched for hits; `t_min > t_max` for a ray that can hit nothing.
+    pub t_min: [f32; PACKET_RAYS],
+    pub t_max: [f32; PACKET_RAYS],
 }
 
 impl RayPacket {
@@ -43,6 +49,8 @@ impl RayPacket {
             ],
             dir: [[0.0; PACKET_RAYS]; 3],
             inv: [[0.0; PACKET_RAYS]; 3],
+            t_min: [0.0; PACKET_RAYS],
+            t_max: [f32::INFINITY; PACKET_RAYS],
         };
         for i in 0..p.len {
             let d = rays.direction(x0 + i as u32 % w, y0 + i as u32 / w);
@@ -62,6 +70,8 @@ impl RayPacket {
             org: [[0.0; PACKET_RAYS]; 3],
             dir: [[0.0; PACKET_RAYS]; 3],
             inv: [[0.0; PACKET_RAYS]; 3],
+            t_min: [0.0; PACKET_RAYS],
+            t_max: [f32::INFINITY; PACKET_RAYS],
         };
         for (o, d) in rays.into_iter().take(PACKET_RAYS) {
             for axis in 0..3 {
@@ -71,6 +81,17 @@ impl RayPacket {
             p.len += 1;
         }
         p
+    }
+
+    /// Limits every ray to the part of it that the cutting planes keep.
+    pub fn clip(&mut self, cuts: &CutPlanes) {
+        if cuts.is_empty() {
+            return;
+        }
+        for i in 0..self.len {
+            (self.t_min[i], self.t_max[i]) = cuts.interval(self.ray_origin(i), self.direction(i));
+        }
+        self.flags |= CLIPPED;
     }
 
     pub fn len(&self) -> usize {

@@ -42,19 +42,40 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
     };
     let file = std::fs::File::open(path).map_err(|e| file_error(path, e))?;
     let mut reader = std::io::BufReader::new(file);
-    // Materials only affect colour, which the first renderer takes from the scene, so a missing
-    // .mtl must not make a mesh unloadable.
-    let loaded = tobj::load_obj_buf(&mut reader, &options, |_| {
-        Ok((Vec::new(), Default::default()))
-    });
-    let models = match loaded {
-        Ok((models, _)) => models,
+    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let loaded = tobj::load_obj_buf(&mut reader, &options, |mtl| tobj::load_mtl(dir.join(mtl)));
+    let (models, file_materials) = match loaded {
+        Ok(loaded) => loaded,
         Err(e) => {
             let why = obj_culprit(path).unwrap_or_else(|| format!("not a valid OBJ file: {e}"));
             return Err(file_error(path, why));
         }
     };
+    // A mesh shared without its .mtl is still worth drawing: warn and use the neutral material.
+    let file_materials = file_materials.unwrap_or_else(|e| {
+        tracing::warn!(
+            "{}: materials not loaded ({e}); drawing it in one neutral colour",
+            path.display()
+        );
+        Vec::new()
+    });
     let mut mesh = Mesh::default();
+    if models.iter().any(|m| m.mesh.material_id.is_some()) && !file_materials.is_empty() {
+        mesh.materials = file_materials.iter().map(mtl_material).collect();
+        mesh.material_names = file_materials.iter().map(|m| m.name.clone()).collect();
+        mesh.materials.push(super::NEUTRAL);
+        mesh.material_names.push("neutral (no usemtl)".into());
+        if mesh.materials.len() > u16::MAX as usize {
+            return Err(file_error(
+                path,
+                format!(
+                    "has {} materials; at most 65535 are supported",
+                    file_materials.len()
+                ),
+            ));
+        }
+    }
+    let neutral = mesh.materials.len().saturating_sub(1) as u16;
     for model in models {
         let m = model.mesh;
         let base = mesh.positions.len() as u32;
@@ -68,12 +89,40 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
                 .chunks_exact(3)
                 .map(|t| [base + t[0], base + t[1], base + t[2]]),
         );
+        if !mesh.materials.is_empty() {
+            let id = m
+                .material_id
+                .filter(|&id| id < file_materials.len())
+                .map_or(neutral, |id| id as u16);
+            mesh.triangle_material
+                .extend(std::iter::repeat_n(id, m.indices.len() / 3));
+        }
     }
     if mesh.positions.iter().any(|p| !p.is_finite()) {
         let why = obj_culprit(path).unwrap_or_else(|| "has a non-finite vertex".into());
         return Err(file_error(path, why));
     }
     Ok(mesh)
+}
+
+/// An MTL material as Tessera draws it: `Kd` is the diffuse colour; `Ks` and `Ns` (illumination
+/// models 2 and up) make it Phong; models 3, 5 and 7 ("reflection on, ray trace on") make `Ks`
+/// the mirror reflectance; `d` (or `Tr`) below 1 makes it transparent.
+fn mtl_material(m: &tobj::Material) -> super::Material {
+    let illum = m.illumination_model.unwrap_or(2);
+    let albedo = m.diffuse.map_or(super::NEUTRAL.albedo, Vec3::from_array);
+    let specular = m.specular.map_or(Vec3::ZERO, Vec3::from_array);
+    super::Material {
+        albedo,
+        specular: if illum >= 2 { specular } else { Vec3::ZERO },
+        shininess: m.shininess.unwrap_or(32.0),
+        mirror: if matches!(illum, 3 | 5 | 7) {
+            specular.max_element().clamp(0.0, 1.0)
+        } else {
+            0.0
+        },
+        opacity: m.dissolve.unwrap_or(1.0),
+    }
 }
 
 /// Finds the first line of an OBJ file that `tobj` would reject, or that yields a non-finite
@@ -409,6 +458,36 @@ end_header\n";
         assert_eq!(mesh.triangles.len(), 2);
         let mesh = load("r.obj", b"f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n").unwrap();
         assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn obj_materials_come_from_the_mtl_file_and_a_missing_mtl_is_not_fatal() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("m.mtl"),
+            "newmtl matte\nKd 0.5 0.25 0.125\nillum 1\n\
+             newmtl shiny\nKd 1 1 1\nKs 0.4 0.4 0.4\nNs 80\nillum 2\n\
+             newmtl chrome\nKd 0 0 0\nKs 0.9 0.9 0.9\nillum 3\n\
+             newmtl glass\nKd 0.2 0.5 0.8\nd 0.25\n",
+        )
+        .unwrap();
+        let obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nusemtl glass\nf 1 2 3\n\
+                   usemtl matte\nf 1 2 3\nusemtl chrome\nf 1 2 3\nusemtl shiny\nf 1 2 3\n";
+        let path = dir.path().join("m.obj");
+        std::fs::write(&path, obj).unwrap();
+        let mesh = load_mesh_file(&path).unwrap();
+        let of = |i: usize| mesh.materials[mesh.triangle_material[i] as usize];
+        assert_eq!(mesh.triangles.len(), 5);
+        assert_eq!(of(0), crate::scene::NEUTRAL, "faces before any usemtl");
+        assert!(of(1).is_transparent() && of(1).opacity == 0.25);
+        assert_eq!(of(2).albedo, Vec3::new(0.5, 0.25, 0.125));
+        assert!(!of(2).has_specular() && !of(2).is_mirror());
+        assert!(of(3).is_mirror() && of(3).mirror == 0.9);
+        assert!(of(4).has_specular() && of(4).shininess == 80.0 && !of(4).is_mirror());
+
+        std::fs::remove_file(dir.path().join("m.mtl")).unwrap();
+        let mesh = load_mesh_file(&path).unwrap();
+        assert!(mesh.materials.is_empty() && mesh.triangles.len() == 5);
     }
 
     #[test]

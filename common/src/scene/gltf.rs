@@ -31,12 +31,28 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
     let buffers = load_buffers(&document, base, blob).map_err(err)?;
 
     let mut mesh = Mesh::default();
+    if document.materials().len() >= u16::MAX as usize {
+        return Err(err(format!(
+            "has {} materials; at most 65534 are supported",
+            document.materials().len()
+        )));
+    }
+    mesh.materials = document.materials().map(|m| gltf_material(&m)).collect();
+    mesh.material_names = document
+        .materials()
+        .map(|m| m.name().unwrap_or("unnamed").to_string())
+        .collect();
+    // glTF's default material (primitives without one) goes last.
+    mesh.materials.push(super::NEUTRAL);
+    mesh.material_names.push("glTF default".into());
     let mut decoded: HashMap<usize, Mesh> = HashMap::new();
     for (node, world) in instances(&document).map_err(err)? {
         let Some(source) = node.mesh() else { continue };
         let local = match decoded.entry(source.index()) {
             Entry::Occupied(known) => known.into_mut(),
-            Entry::Vacant(new) => new.insert(decode_mesh(&source, &buffers, path).map_err(err)?),
+            Entry::Vacant(new) => new.insert(
+                decode_mesh(&source, &buffers, path, document.materials().len()).map_err(err)?,
+            ),
         };
         let base = mesh.positions.len();
         if u32::try_from(base + local.positions.len()).is_err() {
@@ -66,6 +82,8 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
                     [a, b, c]
                 }
             }));
+        mesh.triangle_material
+            .extend_from_slice(&local.triangle_material);
         if mesh.triangles.len() > MAX_TRIANGLES {
             return Err(SceneError::TooLarge {
                 origin: path.display().to_string(),
@@ -199,7 +217,13 @@ fn instances(document: &gltf::Document) -> Result<Vec<(gltf::Node<'_>, Mat4)>, S
 }
 
 /// One mesh's triangle primitives merged, in the mesh's own space.
-fn decode_mesh(mesh: &gltf::Mesh, buffers: &[Vec<u8>], path: &Path) -> Result<Mesh, String> {
+/// `default_material` is the index that primitives without a material get.
+fn decode_mesh(
+    mesh: &gltf::Mesh,
+    buffers: &[Vec<u8>],
+    path: &Path,
+    default_material: usize,
+) -> Result<Mesh, String> {
     let mut out = Mesh::default();
     for primitive in mesh.primitives() {
         let at = format!("mesh {} primitive {}", mesh.index(), primitive.index());
@@ -266,8 +290,35 @@ fn decode_mesh(mesh: &gltf::Mesh, buffers: &[Vec<u8>], path: &Path) -> Result<Me
             ),
         }
         out.positions.extend(positions);
+        let material = primitive.material().index().unwrap_or(default_material) as u16;
+        out.triangle_material.resize(out.triangles.len(), material);
     }
     Ok(out)
+}
+
+/// A metallic-roughness material as Tessera draws it: the base colour is the diffuse colour;
+/// smooth surfaces get a Phong highlight whose width follows the roughness (the exponent that
+/// matches a Beckmann lobe, 2/r⁴ − 2); smooth metals (roughness ≤ 0.1) become mirrors; alpha
+/// mode BLEND makes the base colour's alpha the opacity.
+fn gltf_material(m: &gltf::Material) -> super::Material {
+    let pbr = m.pbr_metallic_roughness();
+    let [r, g, b, a] = pbr.base_color_factor();
+    let base = glam::Vec3::new(r, g, b);
+    let metallic = pbr.metallic_factor().clamp(0.0, 1.0);
+    let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
+    let smooth = 1.0 - roughness;
+    let alpha = roughness.max(0.05);
+    super::Material {
+        albedo: base * (1.0 - metallic),
+        specular: glam::Vec3::splat(0.04).lerp(base, metallic) * smooth,
+        shininess: (2.0 / alpha.powi(4) - 2.0).clamp(1.0, 10_000.0),
+        mirror: if roughness <= 0.1 { metallic } else { 0.0 },
+        opacity: if m.alpha_mode() == gltf::material::AlphaMode::Blend {
+            a.clamp(0.0, 1.0)
+        } else {
+            1.0
+        },
+    }
 }
 
 fn read_positions(accessor: &gltf::Accessor, buffers: &[Vec<u8>]) -> Result<Vec<Vec3>, String> {
@@ -455,6 +506,29 @@ mod tests {
         let mesh = load("m.gltf", &edited("", "")).unwrap();
         assert_eq!(mesh.positions, WORLD.map(Vec3::from_array));
         assert_eq!(mesh.triangles, [[0, 1, 2], [3, 4, 5]]);
+    }
+
+    #[test]
+    fn materials_map_to_mirror_glass_and_default() {
+        let json = edited(
+            r#""mode":4},{"attributes":{"POSITION":2}}"#,
+            r#""mode":4,"material":1},{"attributes":{"POSITION":2}}"#,
+        );
+        let json = String::from_utf8(json).unwrap().replace(
+            r#""buffers""#,
+            r#""materials":[
+              {"name":"chrome","pbrMetallicRoughness":{"metallicFactor":1,"roughnessFactor":0}},
+              {"name":"glass","alphaMode":"BLEND",
+               "pbrMetallicRoughness":{"baseColorFactor":[0.2,0.4,0.8,0.3],"metallicFactor":0}}],
+            "buffers""#,
+        );
+        let mesh = load("m.gltf", json.as_bytes()).unwrap();
+        assert_eq!(mesh.materials.len(), 3);
+        assert!(mesh.materials[0].is_mirror() && !mesh.materials[0].is_transparent());
+        let glass = mesh.materials[mesh.triangle_material[0] as usize];
+        assert_eq!(glass.opacity, 0.3);
+        assert_eq!(glass.albedo, Vec3::new(0.2, 0.4, 0.8));
+        assert_eq!(mesh.triangle_material[1], 2, "no material: glTF's default");
     }
 
     #[test]

@@ -17,13 +17,16 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 pub use files::load_mesh_file;
-pub use procedural::knot_scene;
+pub use procedural::{gallery_scene, knot_scene};
 
 /// What to render, as given on the command line and sent in the session.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum SceneSpec {
     /// The default procedural scene: a bumpy torus-knot tube over a ground plane.
     Knot { segments: u32, sides: u32 },
+    /// The knot in a small gallery that shows every material: a glossy (Phong) knot, a mirror
+    /// wall behind it and a pane of tinted glass in front.
+    Gallery,
     /// A mesh file (OBJ, PLY, glTF or GLB) at this path on the node that loads it.
     File(PathBuf),
 }
@@ -58,15 +61,99 @@ impl SceneSpec {
         }
         Ok(match text {
             "builtin" | "knot" | "default" => SceneSpec::default(),
+            "gallery" => SceneSpec::Gallery,
             path => SceneSpec::File(PathBuf::from(path)),
         })
     }
 }
 
-/// Surface reflectance; the first renderer knows only diffuse colour.
+/// How a surface reflects and transmits light. One struct covers Lambert (the default), Phong,
+/// mirror and transparency, because real files mix them (an OBJ material can be glossy, partly
+/// mirroring and partly transparent at once); the renderer takes the cheap path for each part
+/// that is zero.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Material {
+    /// Diffuse (Lambert) colour.
     pub albedo: Vec3,
+    /// Phong specular colour; zero for a purely diffuse surface.
+    pub specular: Vec3,
+    /// Phong exponent: larger is a smaller, sharper highlight.
+    pub shininess: f32,
+    /// Fraction of the light a perfect mirror reflects (0: none, 1: a perfect mirror).
+    pub mirror: f32,
+    /// 1 is opaque; below 1 the surface is blended with what lies behind it.
+    pub opacity: f32,
+}
+
+impl Material {
+    pub const fn lambert(albedo: Vec3) -> Self {
+        Material {
+            albedo,
+            specular: Vec3::ZERO,
+            shininess: 1.0,
+            mirror: 0.0,
+            opacity: 1.0,
+        }
+    }
+
+    pub const fn phong(albedo: Vec3, specular: Vec3, shininess: f32) -> Self {
+        Material {
+            specular,
+            shininess,
+            ..Self::lambert(albedo)
+        }
+    }
+
+    pub const fn mirror(albedo: Vec3, reflectance: f32) -> Self {
+        Material {
+            mirror: reflectance,
+            ..Self::lambert(albedo)
+        }
+    }
+
+    pub const fn transparent(albedo: Vec3, opacity: f32) -> Self {
+        Material {
+            opacity,
+            ..Self::lambert(albedo)
+        }
+    }
+
+    pub fn is_transparent(&self) -> bool {
+        self.opacity < 1.0
+    }
+
+    pub fn is_mirror(&self) -> bool {
+        self.mirror > 0.0
+    }
+
+    pub fn has_specular(&self) -> bool {
+        self.specular != Vec3::ZERO
+    }
+
+    /// Material values out of their meaningful ranges would give NaN or negative light.
+    fn check(&self) -> Result<(), String> {
+        let finite = self.albedo.is_finite()
+            && self.specular.is_finite()
+            && self.shininess.is_finite()
+            && self.mirror.is_finite()
+            && self.opacity.is_finite();
+        if !finite {
+            return Err("has a non-finite value".into());
+        }
+        if self.albedo.min_element() < 0.0 || self.specular.min_element() < 0.0 {
+            return Err("has a negative colour".into());
+        }
+        if self.shininess < 0.0 {
+            return Err(format!("has a negative shininess {}", self.shininess));
+        }
+        if !(0.0..=1.0).contains(&self.mirror) || !(0.0..=1.0).contains(&self.opacity) {
+            return Err(format!(
+                "has mirror {} or opacity {} outside 0..1",
+                self.mirror, self.opacity
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The scene as the renderer consumes it.
@@ -77,6 +164,8 @@ pub struct Scene {
     /// Material index of each triangle.
     pub triangle_material: Vec<u16>,
     pub materials: Vec<Material>,
+    /// Names of the materials as the file gave them, for error messages (may be empty).
+    pub material_names: Vec<String>,
     /// Lights; a scene without lights traces no shadow rays.
     pub lights: Vec<Light>,
     /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
@@ -112,6 +201,22 @@ pub enum SceneError {
         vertex: u32,
         count: usize,
     },
+    #[error(
+        "scene {origin}: triangle {index} uses material {material}, but there are only {count}"
+    )]
+    MaterialOutOfRange {
+        origin: String,
+        index: usize,
+        material: u16,
+        count: usize,
+    },
+    #[error("scene {origin}: material {index} ({name}) {why}")]
+    BadMaterial {
+        origin: String,
+        index: usize,
+        name: String,
+        why: String,
+    },
     #[error("scene {origin}: contains no triangles")]
     Empty { origin: String },
     #[error("scene {origin}: {count} triangles is over the limit of {limit}")]
@@ -130,6 +235,7 @@ impl Scene {
     pub fn load(spec: &SceneSpec) -> Result<Scene, SceneError> {
         let scene = match spec {
             SceneSpec::Knot { segments, sides } => knot_scene(*segments, *sides),
+            SceneSpec::Gallery => procedural::gallery_scene(),
             SceneSpec::File(path) if particles::is_particle_file(path) => Scene {
                 particles: particles::load_particles(path)?,
                 lights: vec![default_light()],
@@ -179,7 +285,49 @@ impl Scene {
                 });
             }
         }
+        let materials = self.materials.len();
+        if self.triangle_material.len() != self.triangles.len() {
+            return Err(SceneError::File {
+                path: origin.into(),
+                message: format!(
+                    "{} triangles but {} material indices",
+                    self.triangles.len(),
+                    self.triangle_material.len()
+                ),
+            });
+        }
+        if let Some((index, &material)) = self
+            .triangle_material
+            .iter()
+            .enumerate()
+            .find(|(_, &m)| m as usize >= materials)
+        {
+            return Err(SceneError::MaterialOutOfRange {
+                origin: origin.into(),
+                index,
+                material,
+                count: materials,
+            });
+        }
+        for (index, m) in self.materials.iter().enumerate() {
+            m.check().map_err(|why| SceneError::BadMaterial {
+                origin: origin.into(),
+                index,
+                name: self
+                    .material_names
+                    .get(index)
+                    .cloned()
+                    .unwrap_or_else(|| format!("#{index}")),
+                why,
+            })?;
+        }
         Ok(())
+    }
+
+    /// Whether any surface blends with what lies behind it: without, no transmission rays and
+    /// no blending are ever computed.
+    pub fn has_transparency(&self) -> bool {
+        self.materials.iter().any(Material::is_transparent)
     }
 
     /// Writes the scene's triangles as OBJ, so other renderers can load exactly the same mesh.
@@ -217,6 +365,8 @@ impl Scene {
         hasher.update(bytemuck::cast_slice(&self.triangle_material));
         for m in &self.materials {
             hasher.update(bytemuck::bytes_of(&m.albedo));
+            hasher.update(bytemuck::bytes_of(&m.specular));
+            hasher.update(bytemuck::bytes_of(&[m.shininess, m.mirror, m.opacity]));
         }
         for p in &self.particles {
             hasher.update(bytemuck::bytes_of(&[
@@ -246,27 +396,40 @@ impl Scene {
 fn spec_origin(spec: &SceneSpec) -> String {
     match spec {
         SceneSpec::Knot { .. } => "built-in knot".into(),
+        SceneSpec::Gallery => "built-in gallery".into(),
         SceneSpec::File(path) => path.display().to_string(),
     }
 }
 
-/// Loader output: positions and triangles of one file, before materials and light are added.
+/// Loader output: positions, triangles and the file's own materials, before the light is added.
 #[derive(Clone, Debug, Default)]
 pub struct Mesh {
     pub positions: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
+    /// Material of each triangle; empty when the file has none (all get the neutral one).
+    pub triangle_material: Vec<u16>,
+    pub materials: Vec<Material>,
+    pub material_names: Vec<String>,
 }
 
-/// A file mesh gets one neutral material and a light from the upper front left.
+/// The colour of a mesh whose file gives none.
+pub const NEUTRAL: Material = Material::lambert(Vec3::new(0.8, 0.78, 0.74));
+
+/// A file mesh keeps its materials (or gets the neutral one) and gets a light from the upper
+/// front left.
 fn from_mesh(mesh: Mesh, _path: &Path) -> Scene {
     let count = mesh.triangles.len();
+    let (triangle_material, materials, material_names) = if mesh.materials.is_empty() {
+        (vec![0; count], vec![NEUTRAL], vec!["neutral".into()])
+    } else {
+        (mesh.triangle_material, mesh.materials, mesh.material_names)
+    };
     Scene {
         positions: mesh.positions,
         triangles: mesh.triangles,
-        triangle_material: vec![0; count],
-        materials: vec![Material {
-            albedo: Vec3::new(0.8, 0.78, 0.74),
-        }],
+        triangle_material,
+        materials,
+        material_names,
         lights: vec![default_light()],
         particles: Vec::new(),
     }
@@ -289,6 +452,7 @@ mod tests {
             Mesh {
                 positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
                 triangles: vec![[0, 1, 2]],
+                ..Mesh::default()
             },
             Path::new("t"),
         )
@@ -313,6 +477,24 @@ mod tests {
             err.contains("triangle 0") && err.contains("vertex 7"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn bad_materials_are_rejected_with_their_name() {
+        let mut scene = one_triangle();
+        scene.materials[0].opacity = 1.5;
+        let err = scene.validate("m.obj").unwrap_err().to_string();
+        assert!(
+            err.contains("material 0 (neutral)") && err.contains("opacity"),
+            "{err}"
+        );
+        let mut scene = one_triangle();
+        scene.materials[0].specular.x = f32::NAN;
+        assert!(scene.validate("m.obj").is_err());
+        let mut scene = one_triangle();
+        scene.triangle_material[0] = 3;
+        let err = scene.validate("m.obj").unwrap_err().to_string();
+        assert!(err.contains("material 3"), "{err}");
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! The built-in scene: a (2,3) torus knot drawn as a bumpy tube, over a checkered floor.
+//! The built-in scenes: a (2,3) torus knot drawn as a bumpy tube, over a checkered floor, and
+//! the same knot in a gallery of materials.
 //!
 //! It is generated, not shipped, so a fresh clone has something worth looking at on a wall, and
 //! its triangle count is a parameter so benchmarks can scale it up to millions.
@@ -69,19 +70,66 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
         triangles,
         triangle_material,
         materials: vec![
-            Material {
-                albedo: Vec3::new(0.9, 0.42, 0.25),
-            },
-            Material {
-                albedo: Vec3::new(0.78, 0.78, 0.76),
-            },
-            Material {
-                albedo: Vec3::new(0.32, 0.36, 0.42),
-            },
+            Material::lambert(Vec3::new(0.9, 0.42, 0.25)),
+            Material::lambert(Vec3::new(0.78, 0.78, 0.76)),
+            Material::lambert(Vec3::new(0.32, 0.36, 0.42)),
         ],
+        material_names: vec!["knot".into(), "light floor".into(), "dark floor".into()],
         lights: vec![default_light()],
         particles: Vec::new(),
     }
+}
+
+/// The knot (glossy) in front of a mirror wall, seen through a pane of tinted glass, lit by the
+/// sun and a point light: every material and light kind in one small scene.
+pub fn gallery_scene() -> Scene {
+    let mut scene = knot_scene(256, 32);
+    scene.materials[0] = Material::phong(Vec3::new(0.85, 0.35, 0.2), Vec3::splat(0.6), 40.0);
+    let mirror = scene.materials.len() as u16;
+    scene
+        .materials
+        .push(Material::mirror(Vec3::new(0.9, 0.92, 0.95), 0.85));
+    scene.material_names.push("mirror wall".into());
+    let glass = mirror + 1;
+    scene
+        .materials
+        .push(Material::transparent(Vec3::new(0.3, 0.7, 0.9), 0.35));
+    scene.material_names.push("glass pane".into());
+    let floor_y = -(MINOR_RADIUS + TUBE_RADIUS * 1.6);
+    let s = FLOOR_HALF_SIZE;
+    add_quad(
+        &mut scene,
+        [
+            Vec3::new(-s, floor_y, -s),
+            Vec3::new(s, floor_y, -s),
+            Vec3::new(s, floor_y + 5.0, -s),
+            Vec3::new(-s, floor_y + 5.0, -s),
+        ],
+        mirror,
+    );
+    add_quad(
+        &mut scene,
+        [
+            Vec3::new(-1.5, floor_y, 3.4),
+            Vec3::new(1.5, floor_y, 3.4),
+            Vec3::new(1.5, floor_y + 2.2, 3.4),
+            Vec3::new(-1.5, floor_y + 2.2, 3.4),
+        ],
+        glass,
+    );
+    scene.lights.push(crate::scene::Light::Point {
+        position: Vec3::new(3.0, 3.5, 3.0),
+        intensity: 6.0,
+    });
+    scene
+}
+
+fn add_quad(scene: &mut Scene, corners: [Vec3; 4], material: u16) {
+    let base = scene.positions.len() as u32;
+    scene.positions.extend(corners);
+    scene.triangles.push([base, base + 1, base + 2]);
+    scene.triangles.push([base, base + 2, base + 3]);
+    scene.triangle_material.extend([material, material]);
 }
 
 /// Point, unit tangent and unit normal of the knot at parameter `t`. The normal points away
@@ -118,5 +166,15 @@ mod tests {
         assert_eq!(scene.triangles.len(), scene.triangle_material.len());
         let bounds = scene.bounds();
         assert!(bounds.diagonal().length() > 10.0);
+        assert!(!scene.has_transparency());
+    }
+
+    #[test]
+    fn gallery_has_every_material_kind() {
+        let scene = gallery_scene();
+        scene.validate("gallery").unwrap();
+        assert!(scene.has_transparency());
+        assert!(scene.materials.iter().any(Material::is_mirror));
+        assert!(scene.materials.iter().any(Material::has_specular));
     }
 }
