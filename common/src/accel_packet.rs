@@ -1,10 +1,12 @@
 //! Coherent traversal of the BVH by whole 64-ray packets.
 //!
-//! For packets with a common origin (primary rays), every node is tested against all 64 lanes
-//! at once in structure-of-arrays form, which the compiler turns into 8-wide SIMD, and against
-//! the packet's frustum first (interval arithmetic over its directions) so that whole subtrees
-//! are dropped with one test. Leaves test only the lanes whose rays enter them. Packets that lose
-//! coherence (no common origin) fall back to single rays.
+//! For packets with a common origin (primary rays), every node is first tested against the
+//! packet's frustum (interval arithmetic over its directions), which drops whole subtrees with
+//! one test; inner nodes then test single rays from the first active one until one enters
+//! (Wald's "first hit" traversal), and leaves test all 64 lanes at once in structure-of-arrays
+//! form, which the compiler turns into 8-wide SIMD, so that only the lanes whose rays enter a
+//! leaf test its triangles. Packets that lose coherence (no common origin) fall back to single
+//! rays.
 //!
 //! The SIMD width is chosen at run time: an AVX2 build of the same code runs where the CPU has
 //! it, the baseline SSE2 build elsewhere. Both give bit-identical results, because Rust never
@@ -136,18 +138,20 @@ impl Accel {
             t_min: packet.t_min,
         };
         let mut entry = [0f32; PACKET_RAYS];
+        // Stack entries are pairs (first active lane, node): lanes before the first active one
+        // missed an ancestor's box, so they miss every box below it.
         stack.clear();
-        stack.push(0);
-        while let Some(index) = stack.pop() {
+        stack.extend([0, 0]);
+        while let (Some(index), Some(first)) = (stack.pop(), stack.pop()) {
             let node = &self.nodes[index as usize];
-            let t_max = lanes.t.iter().fold(0.0f32, |a, &b| a.max(b));
-            if frustum.misses(node.min, node.max, origin, t_max)
-                || !lanes.enter(node.min, node.max, &mut entry)
-            {
+            if frustum.misses(node.min, node.max, origin, f32::INFINITY) {
                 continue;
             }
             if node.count > 0 {
-                for i in 0..n {
+                if !lanes.enter(node.min, node.max, &mut entry) {
+                    continue;
+                }
+                for i in first as usize..n {
                     if entry[i] == f32::INFINITY {
                         continue;
                     }
@@ -163,16 +167,23 @@ impl Accel {
                 }
                 continue;
             }
-            // Visit first the child that the first entering ray reaches first.
-            let first = entry.iter().position(|&e| e < f32::INFINITY).unwrap_or(0);
+            // Inner nodes test single rays, from the first active one on, until one enters
+            // (Wald's "first hit" packet traversal): for coherent rays that is the first one,
+            // so a node costs one ray's box test instead of 64.
+            let Some(active) = (first as usize..n)
+                .find(|&i| rays[i].box_entry(node.min, node.max, lanes.t[i]) < f32::INFINITY)
+            else {
+                continue;
+            };
             let (l, r) = (node.first, node.first + 1);
             let (ln, rn) = (&self.nodes[l as usize], &self.nodes[r as usize]);
-            let tl = rays[first].box_entry(ln.min, ln.max, f32::INFINITY);
-            let tr = rays[first].box_entry(rn.min, rn.max, f32::INFINITY);
+            let tl = rays[active].box_entry(ln.min, ln.max, f32::INFINITY);
+            let tr = rays[active].box_entry(rn.min, rn.max, f32::INFINITY);
+            let active = active as u32;
             if tl <= tr {
-                stack.extend([r, l]);
+                stack.extend([active, r, active, l]);
             } else {
-                stack.extend([l, r]);
+                stack.extend([active, l, active, r]);
             }
         }
     }

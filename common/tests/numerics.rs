@@ -233,7 +233,10 @@ fn closest_hits_on_a_real_mesh_agree_with_a_float64_brute_force() {
             other => disagreements.push((i, other.0.map(|h| h.t), other.1)),
         }
     }
-    eprintln!("{hits} agreeing hits, {} disagreements", disagreements.len());
+    eprintln!(
+        "{hits} agreeing hits, {} disagreements",
+        disagreements.len()
+    );
     // Rays that graze a silhouette edge within float32 rounding may go either way; anything
     // more than a handful is a bug, not rounding.
     assert!(hits > rays / 3, "only {hits} of {rays} rays hit the mesh");
