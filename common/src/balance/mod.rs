@@ -182,14 +182,30 @@ impl Coordinator {
 
     /// A render node is ready for frames. It joins the frames in flight at once.
     pub fn handle_render_joined(&mut self, node: RenderNodeId, now: Instant) {
-        self.nodes.insert(node, RenderNode { waiting: true });
         self.stalled = false;
+        let mut joined_frames = false;
         for frame in self.in_flight.values() {
             if !frame.all_rendered() {
+                // A latecomer's share is empty; like every share it follows the start, and
+                // the node asks for work once it has it.
                 self.outputs
                     .push_back(Output::ToRender(node, ToNode::FrameStart(frame.start)));
+                self.outputs.push_back(Output::ToRender(
+                    node,
+                    ToNode::Assign {
+                        frame: frame.start.frame,
+                        tiles: Vec::new(),
+                    },
+                ));
+                joined_frames = true;
             }
         }
+        self.nodes.insert(
+            node,
+            RenderNode {
+                waiting: !joined_frames,
+            },
+        );
         self.feed_waiting();
         self.try_start_frames(now);
     }

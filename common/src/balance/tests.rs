@@ -209,3 +209,33 @@ fn losing_every_render_node_is_reported_as_a_stall() {
     c.handle_render_left(RenderNodeId(0), now);
     assert!(drain(&mut c).contains(&Output::Stalled));
 }
+
+#[test]
+fn a_node_that_joins_mid_frame_gets_the_start_and_an_empty_share() {
+    let mut c = coordinator(40, 1, 2);
+    let now = Instant::now();
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.start(now);
+    let _ = drain(&mut c);
+    c.handle_render_joined(RenderNodeId(1), now);
+    let out = drain(&mut c);
+    let to_late: Vec<&ToNode> = out
+        .iter()
+        .filter_map(|o| match o {
+            Output::ToRender(RenderNodeId(1), msg) => Some(msg),
+            _ => None,
+        })
+        .collect();
+    assert!(matches!(to_late[0], ToNode::FrameStart(s) if s.frame == FrameId(0)));
+    assert_eq!(
+        to_late[1],
+        &ToNode::Assign {
+            frame: FrameId(0),
+            tiles: Vec::new()
+        }
+    );
+    // Its first request is served from the pool.
+    c.handle_tiles_done(RenderNodeId(1), FrameId(0), &[], true, now)
+        .unwrap();
+    assert!(!assigned_to(&drain(&mut c), RenderNodeId(1)).is_empty());
+}
