@@ -73,8 +73,13 @@ impl RenderWorker {
                     return Err(format!("assignment for frame {} before its start", frame.0));
                 }
                 self.starved = false;
+                // Older frames first: tiles of frame f given back by a node that died arrive
+                // after this node's share of f+1, and f holds up the swap barrier.
+                let at = self.queue.partition_point(|(f, _)| f <= frame);
+                let mut later = self.queue.split_off(at);
                 self.queue
                     .extend(tiles.iter().flat_map(|r| r.tiles()).map(|t| (*frame, t)));
+                self.queue.append(&mut later);
             }
             _ => {}
         }
@@ -198,5 +203,20 @@ mod tests {
         w.handle_message(&start(1)).unwrap();
         w.handle_message(&assign(1, 0, 0)).unwrap();
         assert!(w.poll_request().is_some(), "a new frame has a new pool");
+    }
+
+    #[test]
+    fn tiles_of_an_older_frame_are_rendered_before_a_newer_frames_share() {
+        let mut w = RenderWorker::new(1);
+        w.handle_message(&start(0)).unwrap();
+        w.handle_message(&assign(0, 0, 2)).unwrap();
+        w.handle_message(&start(1)).unwrap();
+        w.handle_message(&assign(1, 10, 12)).unwrap();
+        // Tiles of frame 0 given back by a node that died.
+        w.handle_message(&assign(0, 5, 6)).unwrap();
+        let order: Vec<(u64, Vec<u32>)> = std::iter::from_fn(|| w.next_batch(8))
+            .map(|(s, tiles)| (s.frame.0, tiles.iter().map(|t| t.0).collect()))
+            .collect();
+        assert_eq!(order, vec![(0, vec![0, 1, 5]), (1, vec![10, 11])]);
     }
 }
