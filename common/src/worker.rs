@@ -4,6 +4,13 @@
 //! `low_water` tiles left, so the round trip to the master hides behind rendering. At most one
 //! request is outstanding; an empty answer means the frame's pool is drained, and the node stays
 //! quiet until the master sends it something new.
+//!
+//! Every `FrameStart` is followed by the node's static share of that frame (possibly empty).
+//! The node waits for that share before it asks for more: a request sent between the two
+//! would be answered from the pool on top of the share, so at frame start every node, slow or
+//! fast, would take a slice of the pool the guided schedule keeps for whoever runs dry first.
+//! An empty share is not an empty pool (with no static fraction the pool is the whole frame),
+//! so it does not starve the node.
 
 use crate::protocol::{to_ranges, FrameId, FrameStart, FromNode, TileRange, ToNode};
 use crate::wall::TileId;
@@ -14,6 +21,8 @@ pub struct RenderWorker {
     frames: BTreeMap<FrameId, FrameStart>,
     request_outstanding: bool,
     starved: bool,
+    /// A `FrameStart` arrived and its static share has not.
+    awaiting_share: bool,
     low_water: usize,
 }
 
@@ -25,6 +34,7 @@ impl RenderWorker {
             frames: BTreeMap::new(),
             request_outstanding: false,
             starved: false,
+            awaiting_share: false,
             low_water,
         }
     }
@@ -44,19 +54,32 @@ impl RenderWorker {
                     self.frames.pop_first();
                 }
                 self.starved = false;
+                self.awaiting_share = true;
             }
             ToNode::Assign { frame, tiles } => {
-                self.request_outstanding = false;
+                let share = std::mem::take(&mut self.awaiting_share);
+                if !share {
+                    self.request_outstanding = false;
+                }
                 if tiles.is_empty() {
-                    self.starved = true;
+                    // An empty answer means the pool is drained; an empty share says nothing
+                    // about the pool.
+                    if !share {
+                        self.starved = true;
+                    }
                     return Ok(());
                 }
                 if !self.frames.contains_key(frame) {
                     return Err(format!("assignment for frame {} before its start", frame.0));
                 }
                 self.starved = false;
+                // Older frames first: tiles of frame f given back by a node that died arrive
+                // after this node's share of f+1, and f holds up the swap barrier.
+                let at = self.queue.partition_point(|(f, _)| f <= frame);
+                let mut later = self.queue.split_off(at);
                 self.queue
                     .extend(tiles.iter().flat_map(|r| r.tiles()).map(|t| (*frame, t)));
+                self.queue.append(&mut later);
             }
             _ => {}
         }
@@ -118,7 +141,82 @@ impl RenderWorker {
     fn should_request(&self) -> bool {
         !self.request_outstanding
             && !self.starved
+            && !self.awaiting_share
             && self.queue.len() < self.low_water
             && !self.frames.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::{Camera, RenderParams};
+    use glam::Vec3;
+
+    fn start(frame: u64) -> ToNode {
+        ToNode::FrameStart(FrameStart {
+            frame: FrameId(frame),
+            camera: Camera {
+                eye: Vec3::Z,
+                target: Vec3::ZERO,
+                up: Vec3::Y,
+                fov_y_deg: 45.0,
+            },
+            params: RenderParams::interactive(),
+        })
+    }
+
+    fn assign(frame: u64, start: u32, end: u32) -> ToNode {
+        ToNode::Assign {
+            frame: FrameId(frame),
+            tiles: if start == end {
+                Vec::new()
+            } else {
+                vec![TileRange { start, end }]
+            },
+        }
+    }
+
+    #[test]
+    fn no_request_between_a_frame_start_and_its_share() {
+        let mut w = RenderWorker::new(4);
+        w.handle_message(&start(0)).unwrap();
+        assert_eq!(w.poll_request(), None);
+        w.handle_message(&assign(0, 0, 6)).unwrap();
+        assert_eq!(
+            w.poll_request(),
+            None,
+            "six queued tiles are above the low water"
+        );
+        let _ = w.next_batch(3);
+        assert!(w.poll_request().is_some());
+    }
+
+    #[test]
+    fn an_empty_share_is_not_an_empty_pool_but_an_empty_answer_is() {
+        let mut w = RenderWorker::new(4);
+        w.handle_message(&start(0)).unwrap();
+        w.handle_message(&assign(0, 0, 0)).unwrap();
+        assert!(w.poll_request().is_some());
+        w.handle_message(&assign(0, 0, 0)).unwrap();
+        assert_eq!(w.poll_request(), None, "the pool is drained");
+        w.handle_message(&start(1)).unwrap();
+        w.handle_message(&assign(1, 0, 0)).unwrap();
+        assert!(w.poll_request().is_some(), "a new frame has a new pool");
+    }
+
+    #[test]
+    fn tiles_of_an_older_frame_are_rendered_before_a_newer_frames_share() {
+        let mut w = RenderWorker::new(1);
+        w.handle_message(&start(0)).unwrap();
+        w.handle_message(&assign(0, 0, 2)).unwrap();
+        w.handle_message(&start(1)).unwrap();
+        w.handle_message(&assign(1, 10, 12)).unwrap();
+        // Tiles of frame 0 given back by a node that died.
+        w.handle_message(&assign(0, 5, 6)).unwrap();
+        let order: Vec<(u64, Vec<u32>)> = std::iter::from_fn(|| w.next_batch(8))
+            .map(|(s, tiles)| (s.frame.0, tiles.iter().map(|t| t.0).collect()))
+            .collect();
+        assert_eq!(order, vec![(0, vec![0, 1, 5]), (1, vec![10, 11])]);
     }
 }

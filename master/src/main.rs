@@ -5,6 +5,7 @@ mod launcher;
 mod peers;
 mod report;
 mod server;
+mod simulate;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -44,6 +45,9 @@ enum Command {
     Render(RenderArgs),
     /// Write a node certificate signed by the cluster CA (creating the CA on first use).
     IssueCert(IssueCertArgs),
+    /// Simulate a wall in this process on a virtual clock (the real load balancer and frame
+    /// barrier, virtual nodes and network): prints balance efficiency and frames completed.
+    Simulate(simulate::SimulateArgs),
 }
 
 #[derive(clap::Args)]
@@ -166,6 +170,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Command::Local(args) => runtime()?.block_on(local(args)),
         Command::Serve(args) => runtime()?.block_on(serve(args)),
+        Command::Simulate(args) => simulate::simulate(args),
     }
 }
 

@@ -6,8 +6,10 @@
 //!
 //! * **Barrier.** State changes queued with [`Coordinator::queue_change`] are applied only when a
 //!   frame starts and travel in that frame's `FrameStart`. Frame f+1 starts once every tile of
-//!   frame f is rendered and frame f−1 is presented, so rendering f+1 overlaps presenting f and
-//!   displays never hold more than two frames.
+//!   frame f has been handed out and frame f−1 is presented, so at most two frames are in
+//!   flight and rendering f+1 overlaps presenting f. Starting f+1 when f's pool runs dry
+//!   rather than when f's last tile is rendered keeps nodes busy over f's tail: the nodes that
+//!   run out of work first take their share of f+1 while the slowest finish f's last tiles.
 //! * **Balancing.** At frame start each render node gets a static, contiguous share of
 //!   `static_fraction` of the tiles; the rest is handed out on request in progressively smaller
 //!   batches (guided self-scheduling: a batch is the pool divided by twice the node count).
@@ -182,14 +184,30 @@ impl Coordinator {
 
     /// A render node is ready for frames. It joins the frames in flight at once.
     pub fn handle_render_joined(&mut self, node: RenderNodeId, now: Instant) {
-        self.nodes.insert(node, RenderNode { waiting: true });
         self.stalled = false;
+        let mut joined_frames = false;
         for frame in self.in_flight.values() {
             if !frame.all_rendered() {
+                // A latecomer's share is empty; like every share it follows the start, and
+                // the node asks for work once it has it.
                 self.outputs
                     .push_back(Output::ToRender(node, ToNode::FrameStart(frame.start)));
+                self.outputs.push_back(Output::ToRender(
+                    node,
+                    ToNode::Assign {
+                        frame: frame.start.frame,
+                        tiles: Vec::new(),
+                    },
+                ));
+                joined_frames = true;
             }
         }
+        self.nodes.insert(
+            node,
+            RenderNode {
+                waiting: !joined_frames,
+            },
+        );
         self.feed_waiting();
         self.try_start_frames(now);
     }
@@ -307,14 +325,14 @@ impl Coordinator {
         {
             return false;
         }
-        // At most two frames in flight, and the newer one fully rendered.
+        // At most two frames in flight, and every tile of the newer one handed out.
         match self.in_flight.len() {
             0 => true,
             1 => self
                 .in_flight
                 .values()
                 .next()
-                .is_some_and(InFlight::all_rendered),
+                .is_some_and(InFlight::pool_is_empty),
             _ => false,
         }
     }

@@ -209,3 +209,65 @@ fn losing_every_render_node_is_reported_as_a_stall() {
     c.handle_render_left(RenderNodeId(0), now);
     assert!(drain(&mut c).contains(&Output::Stalled));
 }
+
+#[test]
+fn the_next_frame_starts_when_every_tile_is_handed_out_not_when_the_last_is_rendered() {
+    let mut c = coordinator(8, 1, 5);
+    let now = Instant::now();
+    for n in 0..2 {
+        c.handle_render_joined(RenderNodeId(n), now);
+    }
+    c.start(now);
+    let first = drain(&mut c);
+    assert!(first.contains(&Output::FrameStarted(FrameId(0))));
+    // Node 0 takes the pool batch by batch without reporting any tile rendered.
+    let mut outs = Vec::new();
+    for _ in 0..8 {
+        c.handle_tiles_done(RenderNodeId(0), FrameId(0), &[], true, now)
+            .unwrap();
+        outs = drain(&mut c);
+        if outs.contains(&Output::FrameStarted(FrameId(1))) {
+            break;
+        }
+    }
+    assert!(
+        outs.contains(&Output::FrameStarted(FrameId(1))),
+        "frame 1 did not start once frame 0's pool was empty"
+    );
+    // Frame 0 is neither rendered nor presented: no third frame however much is asked for.
+    for _ in 0..16 {
+        c.handle_tiles_done(RenderNodeId(1), FrameId(0), &[], true, now)
+            .unwrap();
+        assert!(!drain(&mut c).contains(&Output::FrameStarted(FrameId(2))));
+    }
+}
+
+#[test]
+fn a_node_that_joins_mid_frame_gets_the_start_and_an_empty_share() {
+    let mut c = coordinator(40, 1, 2);
+    let now = Instant::now();
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.start(now);
+    let _ = drain(&mut c);
+    c.handle_render_joined(RenderNodeId(1), now);
+    let out = drain(&mut c);
+    let to_late: Vec<&ToNode> = out
+        .iter()
+        .filter_map(|o| match o {
+            Output::ToRender(RenderNodeId(1), msg) => Some(msg),
+            _ => None,
+        })
+        .collect();
+    assert!(matches!(to_late[0], ToNode::FrameStart(s) if s.frame == FrameId(0)));
+    assert_eq!(
+        to_late[1],
+        &ToNode::Assign {
+            frame: FrameId(0),
+            tiles: Vec::new()
+        }
+    );
+    // Its first request is served from the pool.
+    c.handle_tiles_done(RenderNodeId(1), FrameId(0), &[], true, now)
+        .unwrap();
+    assert!(!assigned_to(&drain(&mut c), RenderNodeId(1)).is_empty());
+}

@@ -1,0 +1,318 @@
+//! `tessera-master simulate`: a whole wall in this process on a virtual clock, driving the real
+//! load balancer and frame barrier (see `tessera_common::sim` for the model).
+
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+use tessera_common::balance::BalanceConfig;
+use tessera_common::protocol::{FrameId, RenderNodeId};
+use tessera_common::sim::{
+    near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall,
+};
+use tessera_common::wall::parse_size;
+
+#[derive(clap::Args, Debug)]
+pub struct SimulateArgs {
+    /// Virtual render nodes.
+    #[arg(long, default_value_t = 512)]
+    render_nodes: u32,
+    /// Virtual display nodes, one screen each, laid out as a near-square grid (64 → 8x8).
+    #[arg(long, default_value_t = 64)]
+    displays: u32,
+    /// Frames to run.
+    #[arg(long, default_value_t = 100)]
+    frames: u64,
+    /// Probability (0 ≤ p < 1) that one transmission of a message is lost; QUIC retransmits it
+    /// after a timeout, so loss costs time, never data.
+    #[arg(long, default_value_t = 0.0, value_parser = parse_loss)]
+    loss: f64,
+    /// Render node N dies shortly after frame F starts, holding unfinished tiles (N@F,
+    /// repeatable; N counts from 0).
+    #[arg(long = "kill", value_name = "N@F", value_parser = parse_kill)]
+    kills: Vec<Kill>,
+    /// Seed of the jitter, loss and node speeds: the same seed replays the same run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// One-way latency of every link in microseconds (jitter adds up to half of it).
+    #[arg(long, default_value_t = 50)]
+    latency_us: u64,
+    /// Pixels of one screen.
+    #[arg(long, default_value = "1920x1080", value_parser = parse_screen)]
+    screen: (u32, u32),
+    /// Edge length of a tile in pixels.
+    #[arg(long, default_value_t = 64)]
+    tile_size: u32,
+    /// Microseconds the fastest render node takes for a full tile.
+    #[arg(long, default_value_t = 100)]
+    tile_us: u64,
+    /// The slowest render node is up to this many times slower than the fastest (seeded,
+    /// uniform in between; 1 = all alike).
+    #[arg(long, default_value_t = 3.0, value_parser = parse_spread)]
+    speed_spread: f64,
+    /// Assemble and check every pixel of every screen instead of one pixel per tile (same
+    /// messages and timing, much more memory and time on big walls).
+    #[arg(long)]
+    full_pixels: bool,
+    /// Directory to write report.json into.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Kill {
+    node: u32,
+    frame: u64,
+}
+
+fn parse_loss(text: &str) -> Result<f64, String> {
+    let p: f64 = text
+        .parse()
+        .map_err(|_| format!("`{text}` is not a number"))?;
+    if !(0.0..1.0).contains(&p) {
+        return Err(format!(
+            "{p} is not a probability in [0, 1) (1 would lose every message for ever)"
+        ));
+    }
+    Ok(p)
+}
+
+fn parse_kill(text: &str) -> Result<Kill, String> {
+    let bad = || format!("`{text}` is not N@F (render node N dies at frame F), e.g. 5@10");
+    let (n, f) = text.split_once('@').ok_or_else(bad)?;
+    Ok(Kill {
+        node: n.trim().parse().map_err(|_| bad())?,
+        frame: f.trim().parse().map_err(|_| bad())?,
+    })
+}
+
+fn parse_screen(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = parse_size(text).map_err(|e| e.to_string())?;
+    if w == 0 || h == 0 {
+        return Err(format!("screen {w}x{h} has no pixels"));
+    }
+    Ok((w, h))
+}
+
+fn parse_spread(text: &str) -> Result<f64, String> {
+    let s: f64 = text
+        .parse()
+        .map_err(|_| format!("`{text}` is not a number"))?;
+    if !(1.0..=1000.0).contains(&s) {
+        return Err(format!("{s} is not a speed ratio between 1 and 1000"));
+    }
+    Ok(s)
+}
+
+/// report.json: the simulator's figures and what produced them.
+#[derive(Serialize)]
+struct Report<'a> {
+    #[serde(flatten)]
+    sim: &'a SimReport,
+    seed: u64,
+    screen_width: u32,
+    screen_height: u32,
+    columns: u32,
+    rows: u32,
+    tile_size: u32,
+    tile_us: u64,
+    speed_spread: f64,
+    kills: Vec<String>,
+    /// Wall-clock seconds the simulation took on this machine.
+    run_time_s: f64,
+}
+
+fn check(args: &SimulateArgs) -> Result<()> {
+    if args.render_nodes == 0 {
+        bail!("--render-nodes must be at least 1");
+    }
+    if args.displays == 0 {
+        bail!("--displays must be at least 1");
+    }
+    if args.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    if args.tile_size == 0 {
+        bail!("--tile-size must be at least 1");
+    }
+    if args.tile_us == 0 {
+        bail!("--tile-us must be at least 1");
+    }
+    let mut killed = Vec::new();
+    for k in &args.kills {
+        if k.node >= args.render_nodes {
+            bail!(
+                "--kill {}@{}: there is no render node {} (nodes are 0..{})",
+                k.node,
+                k.frame,
+                k.node,
+                args.render_nodes
+            );
+        }
+        if k.frame >= args.frames {
+            bail!(
+                "--kill {}@{}: frame {} is not one of the {} frames (0..{})",
+                k.node,
+                k.frame,
+                k.frame,
+                args.frames,
+                args.frames
+            );
+        }
+        if killed.contains(&k.node) {
+            bail!("--kill: render node {} is killed twice", k.node);
+        }
+        killed.push(k.node);
+    }
+    if killed.len() >= args.render_nodes as usize {
+        bail!(
+            "--kill would kill all {} render nodes; at least one must survive to finish the frames",
+            args.render_nodes
+        );
+    }
+    Ok(())
+}
+
+pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
+    check(&args)?;
+    let (width, height) = args.screen;
+    let wall = near_square_wall(args.displays, width, height).with_tile_size(args.tile_size);
+    wall.validate()
+        .with_context(|| format!("a wall of {} displays of {width}x{height}", args.displays))?;
+    let config = SimConfig {
+        render_nodes: args.render_nodes,
+        speeds: NodeSpeeds::Spread {
+            fastest_us: args.tile_us,
+            spread: args.speed_spread,
+        },
+        latency_us: args.latency_us,
+        loss: args.loss,
+        pixels: if args.full_pixels {
+            PixelCheck::Full
+        } else {
+            PixelCheck::OnePerTile
+        },
+        balance: BalanceConfig::default(),
+        ..SimConfig::new(args.render_nodes)
+    };
+    let t0 = Instant::now();
+    let mut sim = SimWall::with_config(args.seed, wall, &config);
+    for k in &args.kills {
+        sim.kill_at(RenderNodeId(k.node), FrameId(k.frame));
+    }
+    sim.run_frames(args.frames);
+    let run_time_s = t0.elapsed().as_secs_f64();
+    let r = sim.report();
+
+    println!(
+        "simulated {} render nodes, {} displays ({}x{} of {width}x{height}, {} tiles of {} px a frame), {} frames",
+        r.render_nodes, r.displays, wall.columns, wall.rows, r.tiles_per_frame, args.tile_size, r.frames_requested
+    );
+    let b = r.busy_fraction;
+    let rows = [
+        (
+            "frames completed",
+            format!("{} of {} on every display", r.frames_completed, r.frames_requested),
+        ),
+        (
+            "balance efficiency",
+            format!(
+                "{:.2} % mean, {:.2} % min",
+                100.0 * r.efficiency,
+                100.0 * r.efficiency_min
+            ),
+        ),
+        (
+            "busy fraction",
+            format!(
+                "min {:.3}  p10 {:.3}  p50 {:.3}  p90 {:.3}  max {:.3}",
+                b.min, b.p10, b.p50, b.p90, b.max
+            ),
+        ),
+        (
+            "virtual time",
+            format!(
+                "{:.4} s to the last present, {:.1} frames/s",
+                r.elapsed_s, r.fps
+            ),
+        ),
+        (
+            "network",
+            format!(
+                "{} messages, {} retransmissions (loss {}, latency {} us)",
+                r.messages, r.retransmissions, r.loss, r.latency_us
+            ),
+        ),
+        (
+            "node deaths",
+            format!(
+                "{} killed; {} duplicate tiles, {} late tiles ({} from live nodes), {} pixel batches lost with their sender",
+                r.render_nodes_killed,
+                r.duplicate_tiles,
+                r.late_tiles,
+                r.late_tiles_from_live_nodes,
+                r.pixel_batches_lost_with_sender
+            ),
+        ),
+        ("corrupt frames", r.corrupt_frames.to_string()),
+        (
+            "run time",
+            format!("{run_time_s:.2} s wall clock, {} events", r.events),
+        ),
+    ];
+    for (name, value) in rows {
+        println!("  {name:<20} {value}");
+    }
+
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create --out {}", dir.display()))?;
+        let report = Report {
+            sim: &r,
+            seed: args.seed,
+            screen_width: width,
+            screen_height: height,
+            columns: wall.columns,
+            rows: wall.rows,
+            tile_size: args.tile_size,
+            tile_us: args.tile_us,
+            speed_spread: args.speed_spread,
+            kills: args
+                .kills
+                .iter()
+                .map(|k| format!("{}@{}", k.node, k.frame))
+                .collect(),
+            run_time_s,
+        };
+        let path = dir.join("report.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    if r.frames_completed < r.frames_requested || r.corrupt_frames > 0 {
+        bail!(
+            "the simulated wall completed {} of {} frames with {} corrupt frames",
+            r.frames_completed,
+            r.frames_requested,
+            r.corrupt_frames
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kills_and_losses_are_parsed_or_refused_with_the_reason() {
+        assert_eq!(parse_kill("5@10"), Ok(Kill { node: 5, frame: 10 }));
+        assert!(parse_kill("5").unwrap_err().contains("N@F"));
+        assert!(parse_kill("x@1").is_err());
+        assert_eq!(parse_loss("0.01"), Ok(0.01));
+        assert!(parse_loss("1").unwrap_err().contains("[0, 1)"));
+        assert!(parse_loss("-0.1").is_err());
+        assert!(parse_loss("NaN").is_err());
+    }
+}
