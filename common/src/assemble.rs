@@ -122,14 +122,23 @@ impl FrameAssembler {
     }
 
     /// Adds a tile; returns `Some(frame)` when this tile completed the frame.
-    /// A tile that arrives twice (re-rendered after a node failure) is counted and ignored.
+    /// A tile that arrives twice (re-rendered after a node failure) is counted and ignored,
+    /// also when its frame is already presented: after a node is given up for dead, its copy
+    /// may complete the frame while a live node's copy is still on the way, and that late copy
+    /// is no fault of the live node.
     pub fn handle_tile(
         &mut self,
         frame: FrameId,
         tile: TileId,
         rgb: &[u8],
     ) -> Result<Option<FrameId>, AssembleError> {
-        self.check_tile(frame, tile, rgb.len())?;
+        match self.check_tile(frame, tile, rgb.len()) {
+            Err(AssembleError::Stale(_)) => {
+                self.duplicates += 1;
+                return Ok(None);
+            }
+            checked => checked?,
+        };
         let index = (tile.0 - self.first_tile) as usize;
         let t = self.tiles[index];
         let (sw, sh) = (self.screen.width as usize, self.screen.height as usize);
@@ -218,7 +227,7 @@ mod tests {
     }
 
     #[test]
-    fn foreign_wrong_sized_stale_and_early_tiles_are_refused() {
+    fn foreign_wrong_sized_and_early_tiles_are_refused_and_late_ones_counted() {
         let (grid, mut asm) = setup();
         let other = grid.display_tiles(DisplayId(0))[0];
         assert_eq!(
@@ -246,10 +255,10 @@ mod tests {
             asm.handle_tile(FrameId(0), t.id, &pixels(t, 0)).unwrap();
         }
         asm.handle_present(FrameId(0)).unwrap();
-        assert_eq!(
-            asm.handle_tile(FrameId(0), t.id, &pixels(&t, 0)),
-            Err(AssembleError::Stale(FrameId(0)))
-        );
+        // A late copy of a presented frame's tile is a duplicate, not a fault; garbage is.
+        assert_eq!(asm.handle_tile(FrameId(0), t.id, &pixels(&t, 0)), Ok(None));
+        assert_eq!(asm.duplicates(), 1);
+        assert!(asm.handle_tile(FrameId(0), t.id, &[0; 5]).is_err());
     }
 
     #[test]

@@ -78,8 +78,8 @@ pub struct SimReport {
     pub duplicate_tiles: u64,
     /// Tiles that reached a display after it presented their frame.
     pub late_tiles: u64,
-    /// Of `late_tiles`, those sent by a live render node: a real display node closes that
-    /// node's connection on such a tile.
+    /// Of `late_tiles`, those sent by a live render node (counted as duplicates by the display,
+    /// which must not take them for a fault of that node).
     pub late_tiles_from_live_nodes: u64,
     /// (display, frame) pairs whose presented pixels differed from the rendered ones.
     pub corrupt_frames: u64,

@@ -41,7 +41,7 @@ mod tests;
 
 pub use metrics::{SimReport, Spread};
 
-use crate::assemble::{AssembleError, FrameAssembler};
+use crate::assemble::FrameAssembler;
 use crate::balance::{BalanceConfig, Coordinator, Output};
 use crate::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
 use crate::render::{Camera, CameraMode, RenderParams};
@@ -546,6 +546,13 @@ impl SimWall {
             return;
         }
         for &tile in tiles {
+            // A re-rendered copy of a tile whose first copy completed the frame.
+            if frame < self.displays[display.0 as usize].next_present() {
+                self.late_tiles += 1;
+                if alive {
+                    self.late_from_live += 1;
+                }
+            }
             let rgb = sim_pixels(&self.pixel_grid, frame, tile);
             match self.displays[display.0 as usize].handle_tile(frame, tile, &rgb) {
                 Ok(Some(frame)) => self.send(Event::FromDisplay(
@@ -553,13 +560,6 @@ impl SimWall {
                     FromNode::FrameComplete { frame },
                 )),
                 Ok(None) => {}
-                // A re-rendered copy of a tile whose first copy completed the frame.
-                Err(AssembleError::Stale(_)) => {
-                    self.late_tiles += 1;
-                    if alive {
-                        self.late_from_live += 1;
-                    }
-                }
                 Err(e) => panic!("display {} refused a tile: {e}", display.0),
             }
         }
