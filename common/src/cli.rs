@@ -46,8 +46,9 @@ impl WallArgs {
 /// The scene and the camera.
 #[derive(Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// `builtin` (a procedural knot over a floor), `knot:SEGMENTS:SIDES`, or a mesh path
-    /// (OBJ, PLY, glTF/GLB).
+    /// `builtin` (a procedural knot over a floor), `gallery` (the knot among a mirror and
+    /// glass), `empty` (a flat backdrop, nothing traced), `knot:SEGMENTS:SIDES`, a mesh path
+    /// (OBJ, PLY, glTF/GLB) or particles (.csv, .tpart).
     #[arg(long, default_value = "builtin")]
     pub scene: String,
     /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.
@@ -123,6 +124,10 @@ pub struct QualityArgs {
     /// `--cut 0,0,1,0` removes all with z > 0.
     #[arg(long = "cut", value_name = "NX,NY,NZ,D", value_parser = parse_plane, allow_hyphen_values = true)]
     pub cuts: Vec<(Vec3, f32)>,
+    /// Samples per pixel: 1 traces the pixel centre; more average jittered sub-pixel samples
+    /// (antialiasing), each with its own ambient-occlusion rays.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub spp: u32,
 }
 
 impl QualityArgs {
@@ -134,6 +139,7 @@ impl QualityArgs {
             ao_samples: self.ao,
             crop: self.crop,
             cuts: crate::render::CutPlanes::new(&self.cuts).context("--cut")?,
+            spp: self.spp,
             ..crate::render::RenderParams::interactive()
         })
     }

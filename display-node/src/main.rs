@@ -19,7 +19,7 @@ use tessera_common::net::cluster::NodeIdentity;
 use tessera_common::net::framed::{read_msg, write_msg};
 use tessera_common::net::quic;
 use tessera_common::protocol::{
-    DisplayStats, FromNode, Hello, NodeStats, Role, ToNode, PROTOCOL_VERSION,
+    DisplayStats, FrameId, FromNode, Hello, NodeStats, Role, ToNode, PROTOCOL_VERSION,
 };
 use tessera_common::wall::{DisplayId, TileGrid};
 use tokio::sync::mpsc;
@@ -85,10 +85,13 @@ fn run_with_window(cli: Cli) -> Result<()> {
     // first and hands the size over.
     let (size_tx, size_rx) = std::sync::mpsc::channel::<(u32, u32)>();
     let (sender_tx, sender_rx) = std::sync::mpsc::channel::<WindowSender>();
+    // Presents are stamped on the main thread right after softbuffer's present(), and the
+    // stamps travel to the network side, which reports them to the master.
+    let (presented_tx, presented_rx) = mpsc::unbounded_channel::<(u64, u64)>();
     let display = cli.display;
     let net = std::thread::spawn(move || -> Result<()> {
         let rt = runtime()?;
-        rt.block_on(run(cli, Some((size_tx, sender_rx))))
+        rt.block_on(run(cli, Some((size_tx, sender_rx, presented_rx))))
     });
     let Ok((width, height)) = size_rx.recv() else {
         return net
@@ -99,7 +102,9 @@ fn run_with_window(cli: Cli) -> Result<()> {
         format!("Tessera display {display}"),
         width,
         height,
-        Box::new(|_| {}),
+        Box::new(move |frame| {
+            let _ = presented_tx.send((frame, tessera_common::net::unix_ns()));
+        }),
     )?;
     let _ = sender_tx.send(sender);
     let shown = runner.run();
@@ -121,6 +126,7 @@ static WALL_OVER: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool:
 type WindowHandshake = (
     std::sync::mpsc::Sender<(u32, u32)>,
     std::sync::mpsc::Receiver<WindowSender>,
+    mpsc::UnboundedReceiver<(u64, u64)>,
 );
 
 async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
@@ -157,17 +163,17 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         .wall
         .screen(me)
         .with_context(|| format!("the wall has no display {}", me.0))?;
-    let window = match window {
-        Some((size_tx, sender_rx)) => {
+    let (window, mut window_presents) = match window {
+        Some((size_tx, sender_rx, presents)) => {
             size_tx
                 .send((screen.width, screen.height))
                 .context("window thread is gone")?;
             let sender = tokio::task::spawn_blocking(move || sender_rx.recv())
                 .await?
                 .context("cannot open the window")?;
-            Some(sender)
+            (Some(sender), Some(presents))
         }
-        None => None,
+        None => (None, None),
     };
     let grid = Arc::new(TileGrid::new(session.wall));
     let mut assembler = FrameAssembler::new(&grid, screen);
@@ -204,9 +210,16 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                         }
                     }
                     if let Some(w) = &window {
+                        // Reported once the window has really presented it (below).
                         w.send(WindowCommand::Show(WindowFrame { frame: frame.0, width: shown.width, height: shown.height, rgb: shown.rgb }));
+                    } else {
+                        let clock_ns = tessera_common::net::unix_ns();
+                        write_msg(&mut send, &FromNode::Presented { frame, clock_ns }).await?;
                     }
-                    write_msg(&mut send, &FromNode::Presented { frame }).await?;
+                }
+                Ok(Some(ToNode::Ping { seq })) => {
+                    let clock_ns = tessera_common::net::unix_ns();
+                    write_msg(&mut send, &FromNode::Pong { seq, clock_ns }).await?;
                 }
                 Ok(Some(ToNode::Shutdown)) => {
                     let stats = DisplayStats {
@@ -233,6 +246,9 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                 Ok(None) => bail!("the master ended the session without a shutdown"),
                 Err(e) => bail!("lost the master: {e:#}"),
             },
+            Some((frame, clock_ns)) = async { window_presents.as_mut()?.recv().await } => {
+                write_msg(&mut send, &FromNode::Presented { frame: FrameId(frame), clock_ns }).await?;
+            }
             Some(tile) = tiles.recv() => {
                 match assembler.handle_tile(tile.frame, tile.tile, &tile.rgb) {
                     Ok(Some(frame)) => write_msg(&mut send, &FromNode::FrameComplete { frame }).await?,

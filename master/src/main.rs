@@ -1,11 +1,13 @@
 //! `tessera-master`: balances the wall's work, runs the frame barrier, and can launch a whole
 //! local wall or render the single-process reference image.
 
+mod bench;
 mod launcher;
 mod peers;
 mod report;
 mod server;
 mod simulate;
+mod timing;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -43,6 +45,9 @@ enum Command {
     Serve(ServeArgs),
     /// Render one frame of the wall in this process, no network: the reference image.
     Render(RenderArgs),
+    /// Run a measurement experiment on a local wall: max-fps, latency, scaling or
+    /// error-vs-time; writes report.json, a CSV and an SVG plot into --out DIR.
+    Bench(bench::BenchArgs),
     /// Write a node certificate signed by the cluster CA (creating the CA on first use).
     IssueCert(IssueCertArgs),
     /// Simulate a wall in this process on a virtual clock (the real load balancer and frame
@@ -50,7 +55,7 @@ enum Command {
     Simulate(simulate::SimulateArgs),
 }
 
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 struct RunArgs {
     #[command(flatten)]
     wall: WallArgs,
@@ -72,7 +77,7 @@ struct RunArgs {
     join_timeout: u64,
 }
 
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 struct LocalArgs {
     #[command(flatten)]
     run: RunArgs,
@@ -171,6 +176,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Local(args) => runtime()?.block_on(local(args)),
         Command::Serve(args) => runtime()?.block_on(serve(args)),
         Command::Simulate(args) => simulate::simulate(args),
+        Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
     }
 }
 
@@ -230,10 +236,33 @@ fn stop_on_ctrl_c() -> (tokio::sync::watch::Receiver<bool>, Arc<AtomicBool>) {
 }
 
 async fn local(args: LocalArgs) -> Result<ExitCode> {
+    let run = run_local(&args, true).await?;
+    finish_run(
+        run.outcome,
+        &args.run,
+        &run.wall,
+        run.interrupted,
+        run.lost,
+        run.failures,
+    )
+}
+
+/// What a local wall run gave: the report (or why there is none) and which nodes failed.
+struct LocalRun {
+    outcome: Result<report::Report>,
+    wall: WallLayout,
+    interrupted: bool,
+    lost: Vec<String>,
+    failures: Vec<String>,
+}
+
+/// Starts the display and render nodes of `args` as child processes, runs the wall, and reaps
+/// every child before returning.
+async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun> {
     if args.render_nodes == 0 {
         bail!("--render-nodes must be at least 1");
     }
-    let cfg = prepare_run(&args.run, args.render_nodes, true)?;
+    let cfg = prepare_run(&args.run, args.render_nodes, show_progress)?;
     let display_bin = sibling_binary("tessera-display-node")?;
     let render_bin = sibling_binary("tessera-render-node")?;
     let certs = tempfile::Builder::new()
@@ -301,14 +330,13 @@ async fn local(args: LocalArgs) -> Result<ExitCode> {
     // Windows stay up for --linger after the run; only then is a display late to exit.
     let grace = Duration::from_secs(5) + Duration::from_secs_f64(args.linger.max(0.0));
     let failures = reap(&mut children, grace).await;
-    finish_run(
+    Ok(LocalRun {
         outcome,
-        &args.run,
-        &wall,
-        interrupted.load(std::sync::atomic::Ordering::SeqCst),
+        wall,
+        interrupted: interrupted.load(std::sync::atomic::Ordering::SeqCst),
         lost,
         failures,
-    )
+    })
 }
 
 /// Writes the report and wall image and turns the run's outcome into an exit code.

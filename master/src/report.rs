@@ -16,6 +16,11 @@ pub struct Report {
     pub frame_ms: Percentiles,
     /// From a frame's start (camera applied) to its present on all displays.
     pub start_to_present_ms: Percentiles,
+    /// Mean time between presents.
+    pub frame_period_ms: f64,
+    /// Camera change → present on every display, and present skew across displays.
+    #[serde(flatten)]
+    pub timing: crate::timing::TimingSummary,
     pub elapsed_s: f64,
     pub render_nodes_lost: u32,
 }
@@ -87,6 +92,7 @@ pub struct RenderNodeReport {
 pub struct Percentiles {
     pub p50: f64,
     pub p95: f64,
+    pub p99: f64,
     pub max: f64,
 }
 
@@ -106,6 +112,7 @@ impl Percentiles {
         Percentiles {
             p50: ms(hist.value_at_quantile(0.5)),
             p95: ms(hist.value_at_quantile(0.95)),
+            p99: ms(hist.value_at_quantile(0.99)),
             max: ms(hist.max()),
         }
     }

@@ -3,6 +3,7 @@
 
 use crate::peers::{accept_peer, Event, PeerId};
 use crate::report::{DisplayReport, Percentiles, RenderNodeReport, Report, WallReport};
+use crate::timing::{Timing, PINGS};
 use anyhow::{bail, Context, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::net::SocketAddr;
@@ -10,6 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_common::balance::{BalanceConfig, Coordinator, Output};
+use tessera_common::net::unix_ns;
 use tessera_common::protocol::{
     DisplayEndpoint, FrameId, FromNode, NodeStats, RenderNodeId, Role, Session, ToNode,
 };
@@ -60,6 +62,7 @@ struct Wall {
     started: Option<Instant>,
     frame_started: HashMap<FrameId, Instant>,
     presents: Vec<(FrameId, Instant)>,
+    timing: Timing,
     lost_render_nodes: u32,
     finished: bool,
     progress: Option<indicatif::ProgressBar>,
@@ -105,6 +108,7 @@ pub async fn run_wall(
         started: None,
         frame_started: HashMap::new(),
         presents: Vec::new(),
+        timing: Timing::default(),
         lost_render_nodes: 0,
         finished: false,
         progress: None,
@@ -320,6 +324,9 @@ impl Wall {
                             "display {id} joined from {} ({remote}), pixels at {addr}",
                             hello.host
                         );
+                        if hello.host == tessera_common::net::hostname() {
+                            self.timing.same_host(display);
+                        }
                         self.displays.insert(display, peer);
                         self.display_endpoints.insert(display, addr);
                         self.peers.insert(
@@ -457,7 +464,14 @@ impl Wall {
                     self.coordinator.handle_render_joined(node, now);
                 }
             }
-            (PeerRole::Display(_), FromNode::Ready) => p.ready = true,
+            (PeerRole::Display(d), FromNode::Ready) => {
+                let d = *d;
+                p.ready = true;
+                for seq in 0..PINGS {
+                    self.timing.ping_sent(d, seq, unix_ns());
+                    self.send(peer, ToNode::Ping { seq });
+                }
+            }
             (
                 PeerRole::Render { node, .. },
                 FromNode::TilesDone {
@@ -474,10 +488,24 @@ impl Wall {
                 let d = *d;
                 self.coordinator.handle_frame_complete(d, frame, now)?;
             }
-            (PeerRole::Display(_), FromNode::Presented { .. }) => {}
+            (PeerRole::Display(_), msg @ (FromNode::Presented { .. } | FromNode::Pong { .. })) => {
+                self.note_timing(peer, &msg);
+            }
             (_, other) => bail!("sent {other:?}, which its role never sends"),
         }
         Ok(())
+    }
+
+    /// Records a display's present stamp or clock probe answer.
+    fn note_timing(&mut self, peer: PeerId, msg: &FromNode) {
+        let Some(PeerRole::Display(d)) = self.peers.get(&peer).map(|p| &p.role) else {
+            return;
+        };
+        match *msg {
+            FromNode::Presented { frame, clock_ns } => self.timing.presented(*d, frame, clock_ns),
+            FromNode::Pong { seq, clock_ns } => self.timing.pong(*d, seq, clock_ns, unix_ns()),
+            _ => {}
+        }
     }
 
     fn pump(&mut self) -> Result<()> {
@@ -495,6 +523,7 @@ impl Wall {
                 }
                 Output::FrameStarted(frame) => {
                     self.frame_started.insert(frame, Instant::now());
+                    self.timing.frame_started(frame, unix_ns());
                 }
                 Output::FramePresented(frame) => {
                     self.presents.push((frame, Instant::now()));
@@ -532,6 +561,7 @@ impl Wall {
                         p.stats = Some(stats);
                     }
                 }
+                Some(Event::Msg(peer, msg)) => self.note_timing(peer, &msg),
                 Some(Event::Closed(peer, _)) => {
                     if self.peers.get(&peer).is_some_and(|p| p.stats.is_none()) {
                         self.peers.remove(&peer);
@@ -612,6 +642,12 @@ impl Wall {
             },
             frame_ms: Percentiles::of_ms(&frame_ms),
             start_to_present_ms: Percentiles::of_ms(&start_to_present),
+            frame_period_ms: if frames > 0 {
+                elapsed * 1000.0 / frames as f64
+            } else {
+                0.0
+            },
+            timing: self.timing.summary(self.cfg.wall.display_count()),
             elapsed_s: elapsed,
             render_nodes_lost: self.lost_render_nodes,
         }

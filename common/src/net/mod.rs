@@ -18,6 +18,15 @@ pub async fn resolve_master(addr: &str) -> Result<SocketAddr> {
         .with_context(|| format!("master address {addr} resolves to nothing"))
 }
 
+/// Nanoseconds since the Unix epoch: the clock that display nodes stamp presents with and the
+/// master maps onto its own (see `tessera-master`'s clock sync). A clock read, so only the
+/// drivers call it.
+pub fn unix_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
 /// This host's name, for the hello message and the master's log lines.
 pub fn hostname() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 2;
+pub const PROTOCOL_VERSION: u32 = 3;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
@@ -140,6 +140,11 @@ pub enum ToNode {
     },
     /// The run is over: send your stats and close.
     Shutdown,
+    /// Clock probe: a display answers at once with [`FromNode::Pong`], so the master can map
+    /// the display's clock onto its own (NTP-style, keeping the fastest round trip).
+    Ping {
+        seq: u32,
+    },
 }
 
 /// Node → master.
@@ -158,9 +163,15 @@ pub enum FromNode {
     FrameComplete {
         frame: FrameId,
     },
-    /// A display showed `frame`.
+    /// A display showed `frame`, at `clock_ns` on its own clock (ns since the Unix epoch).
     Presented {
         frame: FrameId,
+        clock_ns: u64,
+    },
+    /// Answer to [`ToNode::Ping`]: the display's clock when it answered.
+    Pong {
+        seq: u32,
+        clock_ns: u64,
     },
     Stats(NodeStats),
     /// The node cannot go on; the master logs this and treats the node as gone.

@@ -127,8 +127,15 @@ impl PixelRays {
     /// Normalized direction through the centre of pixel `(x, y)`.
     #[inline(always)]
     pub fn direction(&self, x: u32, y: u32) -> Vec3 {
-        let sx = (x as f32 + 0.5) * self.inv_width - 1.0;
-        let sy = 1.0 - (y as f32 + 0.5) * self.inv_height;
+        self.direction_at(x, y, 0.5, 0.5)
+    }
+
+    /// Normalized direction through the point `(x + jx, y + jy)` of the image, `jx, jy` in
+    /// [0, 1): the sub-pixel samples of supersampling.
+    #[inline(always)]
+    pub fn direction_at(&self, x: u32, y: u32, jx: f32, jy: f32) -> Vec3 {
+        let sx = (x as f32 + jx) * self.inv_width - 1.0;
+        let sy = 1.0 - (y as f32 + jy) * self.inv_height;
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
 }

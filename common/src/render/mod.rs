@@ -24,8 +24,10 @@ use crate::geometry::Ray;
 use crate::scene::{Light, Material, Scene};
 use crate::spheres::SphereAccel;
 use crate::wall::Tile;
+use glam::Vec3;
 use packet::{runs_by, PacketHit, RayPacket};
 use rayon::prelude::*;
+use sampling::SampleStream;
 use serde::{Deserialize, Serialize};
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
@@ -44,6 +46,10 @@ pub struct RenderParams {
     pub crop: Option<(f32, f32)>,
     /// Half-spaces removed from the scene.
     pub cuts: CutPlanes,
+    /// Samples per pixel: 1 traces the pixel centre; more average jittered sub-pixel samples.
+    pub spp: u32,
+    /// Index of the first sample, so that successive progressive passes draw new samples.
+    pub first_sample: u32,
 }
 
 impl RenderParams {
@@ -55,6 +61,8 @@ impl RenderParams {
             ao_range: 0.1,
             crop: None,
             cuts: CutPlanes::EMPTY,
+            spp: 1,
+            first_sample: 0,
         }
     }
 
@@ -66,6 +74,8 @@ impl RenderParams {
             ao_range: 0.1,
             crop: None,
             cuts: CutPlanes::EMPTY,
+            spp: 1,
+            first_sample: 0,
         }
     }
 
@@ -124,6 +134,11 @@ impl PreparedScene {
             spheres: SphereAccel::build(&scene.particles),
             attribute_range: range,
         }
+    }
+
+    /// No triangles and no particles: every pixel is the backdrop.
+    pub fn is_empty(&self) -> bool {
+        self.accel.triangles.is_empty() && self.spheres.is_none()
     }
 
     pub fn lights(&self) -> &[Light] {
@@ -230,6 +245,11 @@ pub fn render_tiles(
     (images, counts)
 }
 
+/// Samples of supersampling and of ambient occlusion are drawn from one key space per pixel:
+/// sample `s` of the pixel's jitter has key `JITTER_KEYS + s`, ambient-occlusion ray `k` of
+/// supersample `s` has key `s · ao_samples + k`.
+const JITTER_KEYS: u32 = 1 << 31;
+
 /// Traces the packet whose top-left corner is `(px, py)` inside `tile`; returns 8×8 RGB8 pixels
 /// (pixels outside the tile left black) and the rays traced.
 fn trace_packet(
@@ -243,10 +263,61 @@ fn trace_packet(
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
     let (x0, y0) = (tile.x + px, tile.y + py);
     let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
-    let mut packet = RayPacket::primary(&view.rays, x0, y0, w, h);
+    let n = (w * h) as usize;
+    if scene.is_empty() {
+        // Nothing to hit: the flat backdrop of an empty scene, no ray traced.
+        let backdrop = encode_srgb_ish(background(Vec3::Z));
+        for i in 0..n {
+            let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
+            out[o..o + 3].copy_from_slice(&backdrop);
+        }
+        return (out, RayCounts::default());
+    }
+    let mut counts = RayCounts::default();
+    let spp = view.params.spp.max(1);
+    let mut sum = [Vec3::ZERO; 64];
+    for s in 0..spp {
+        let sample = view.params.first_sample + s;
+        let mut packet = if spp == 1 && view.params.first_sample == 0 {
+            RayPacket::primary(&view.rays, x0, y0, w, h)
+        } else {
+            RayPacket::primary_jittered(&view.rays, x0, y0, w, h, |x, y| {
+                let mut stream = SampleStream::new(view.frame, x, y, JITTER_KEYS + sample);
+                (stream.next_f32(), stream.next_f32())
+            })
+        };
+        let c = shade_packet(
+            scene,
+            view,
+            &mut packet,
+            (x0, y0, w),
+            sample,
+            stack,
+            &mut sum,
+        );
+        counts = counts.add(c);
+    }
+    for (i, color) in sum.iter().enumerate().take(n) {
+        let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
+        out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
+    }
+    (out, counts)
+}
+
+/// Traces `packet` (the rays of the block at `x0, y0`, `w` wide) and adds each ray's colour to
+/// `sum`.
+fn shade_packet(
+    scene: &PreparedScene,
+    view: &FrameView,
+    packet: &mut RayPacket,
+    (x0, y0, w): (u32, u32, u32),
+    sample: u32,
+    stack: &mut Vec<u32>,
+    sum: &mut [Vec3; 64],
+) -> RayCounts {
     packet.clip(&view.params.cuts);
     let mut hits = [PacketHit::MISS; 64];
-    scene.accel.closest_hits(&mut packet, &mut hits, stack);
+    scene.accel.closest_hits(packet, &mut hits, stack);
     let surfaces: [Option<SurfaceHit>; 64] = std::array::from_fn(|i| {
         (i < packet.len()).then(|| {
             let ray = Ray::new(view.rays.eye, packet.direction(i));
@@ -263,6 +334,7 @@ fn trace_packet(
             ..RayCounts::default()
         },
         pixel: (x0, y0),
+        first_ao_key: sample * view.params.ao_samples,
     };
     // Sub-packets of consecutive rays that hit the same material (or nothing) are shaded
     // together, the material looked up once per run: ranges of the packet, not copies.
@@ -275,23 +347,19 @@ fn trace_packet(
             .filter(|&k| k != shade::PARTICLE_KEY)
             .map(|k| scene.materials[k as usize]);
         for i in run {
-            let (col, row) = (i as u32 % w, i as u32 / w);
             let dir = packet.direction(i);
-            let color = match surfaces[i] {
+            sum[i] += match surfaces[i] {
                 None => background(dir),
                 Some(hit) => {
                     // Particles share one key but each has its own colour.
                     let m = material.unwrap_or_else(|| scene.material_of(hit));
-                    shader.pixel = (x0 + col, y0 + row);
+                    shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
                     shader.shade(view.rays.eye, dir, hit, &m, 0)
                 }
             };
-            let o = ((row * PACKET + col) * 3) as usize;
-            out[o..o + 3].copy_from_slice(&encode_srgb_ish(color));
         }
     }
-    let counts = shader.counts;
-    (out, counts)
+    shader.counts
 }
 
 #[cfg(test)]

@@ -38,6 +38,18 @@ pub struct RayPacket {
 impl RayPacket {
     /// Primary rays of the `w × h ≤ 8 × 8` pixel block at `(x0, y0)`, row-major.
     pub fn primary(rays: &PixelRays, x0: u32, y0: u32, w: u32, h: u32) -> Self {
+        Self::primary_jittered(rays, x0, y0, w, h, |_, _| (0.5, 0.5))
+    }
+
+    /// Primary rays through the points `jitter(x, y)` of each pixel of the block.
+    pub fn primary_jittered(
+        rays: &PixelRays,
+        x0: u32,
+        y0: u32,
+        w: u32,
+        h: u32,
+        mut jitter: impl FnMut(u32, u32) -> (f32, f32),
+    ) -> Self {
         let mut p = RayPacket {
             len: (w * h) as usize,
             flags: COMMON_ORIGIN | NORMALIZED,
@@ -53,7 +65,9 @@ impl RayPacket {
             t_max: [f32::INFINITY; PACKET_RAYS],
         };
         for i in 0..p.len {
-            let d = rays.direction(x0 + i as u32 % w, y0 + i as u32 / w);
+            let (x, y) = (x0 + i as u32 % w, y0 + i as u32 / w);
+            let (jx, jy) = jitter(x, y);
+            let d = rays.direction_at(x, y, jx, jy);
             for axis in 0..3 {
                 p.dir[axis][i] = d[axis];
             }

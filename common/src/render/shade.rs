@@ -128,6 +128,8 @@ pub struct Shader<'a> {
     pub counts: RayCounts,
     /// The pixel whose samples (ambient occlusion) are drawn.
     pub pixel: (u32, u32),
+    /// Key of the first ambient-occlusion sample (non-zero for later supersamples).
+    pub first_ao_key: u32,
 }
 
 impl Shader<'_> {
@@ -283,7 +285,8 @@ impl Shader<'_> {
         let reach = self.scene.diagonal * self.view.params.ao_range;
         let mut open = 0;
         for sample in 0..n {
-            let mut stream = SampleStream::new(self.view.frame, self.pixel.0, self.pixel.1, sample);
+            let key = self.first_ao_key + sample;
+            let mut stream = SampleStream::new(self.view.frame, self.pixel.0, self.pixel.1, key);
             let d = cosine_direction(normal, &mut stream);
             if !self.blocked(&Ray::new(start, d), reach) {
                 open += 1;

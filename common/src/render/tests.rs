@@ -269,3 +269,51 @@ fn cutting_planes_remove_what_they_cut_and_nothing_else() {
         assert_eq!(px, encode_srgb_ish(background(dir)));
     }
 }
+
+#[test]
+fn supersampling_averages_jittered_samples_and_stays_deterministic() {
+    let scene = knot_scene(64, 8);
+    let prepared = PreparedScene::new(&scene);
+    let camera = CameraMode::orbit_of(&scene.bounds()).camera_for_frame(1);
+    let with = |spp, first_sample| RenderParams {
+        spp,
+        first_sample,
+        ..RenderParams::interactive()
+    };
+    let view = |p| FrameView::new(1, &camera, p, 48, 32);
+    let (one, c1) = render_all(&prepared, &view(with(1, 0)), 48, 32);
+    let (four, c4) = render_all(&prepared, &view(with(4, 0)), 48, 32);
+    assert_eq!(c4.primary, 4 * c1.primary);
+    // Edges get antialiased: some pixels change, most stay close.
+    let changed = one.iter().zip(&four).filter(|(a, b)| a != b).count();
+    assert!(changed > 0);
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let again = one_thread.install(|| render_all(&prepared, &view(with(4, 0)), 48, 32).0);
+    assert_eq!(four, again);
+    // A later progressive pass draws other samples.
+    let (later, _) = render_all(&prepared, &view(with(4, 4)), 48, 32);
+    assert_ne!(later, four);
+}
+
+#[test]
+fn an_empty_scene_traces_nothing() {
+    let prepared = PreparedScene::new(&Scene::default());
+    assert!(prepared.is_empty());
+    let camera = Camera {
+        eye: Vec3::Z,
+        target: Vec3::ZERO,
+        up: Vec3::Y,
+        fov_y_deg: 40.0,
+    };
+    let (image, counts) = render_all(
+        &prepared,
+        &FrameView::new(0, &camera, RenderParams::final_frame(), 20, 10),
+        20,
+        10,
+    );
+    assert_eq!(counts.total(), 0);
+    assert!(image.chunks(3).all(|p| p == &image[..3]));
+}

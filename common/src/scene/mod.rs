@@ -27,6 +27,9 @@ pub enum SceneSpec {
     /// The knot in a small gallery that shows every material: a glossy (Phong) knot, a mirror
     /// wall behind it and a pane of tinted glass in front.
     Gallery,
+    /// Nothing at all: a flat backdrop that costs no tracing, for measuring the transport
+    /// (the `max-fps` experiment).
+    Empty,
     /// A mesh file (OBJ, PLY, glTF or GLB) at this path on the node that loads it.
     File(PathBuf),
 }
@@ -62,6 +65,7 @@ impl SceneSpec {
         Ok(match text {
             "builtin" | "knot" | "default" => SceneSpec::default(),
             "gallery" => SceneSpec::Gallery,
+            "empty" => SceneSpec::Empty,
             path => SceneSpec::File(PathBuf::from(path)),
         })
     }
@@ -236,6 +240,8 @@ impl Scene {
         let scene = match spec {
             SceneSpec::Knot { segments, sides } => knot_scene(*segments, *sides),
             SceneSpec::Gallery => procedural::gallery_scene(),
+            // Empty by design, so the check for something to draw does not apply.
+            SceneSpec::Empty => return Ok(Scene::default()),
             SceneSpec::File(path) if particles::is_particle_file(path) => Scene {
                 particles: particles::load_particles(path)?,
                 lights: vec![default_light()],
@@ -397,6 +403,7 @@ fn spec_origin(spec: &SceneSpec) -> String {
     match spec {
         SceneSpec::Knot { .. } => "built-in knot".into(),
         SceneSpec::Gallery => "built-in gallery".into(),
+        SceneSpec::Empty => "empty scene".into(),
         SceneSpec::File(path) => path.display().to_string(),
     }
 }

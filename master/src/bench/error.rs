@@ -1,0 +1,243 @@
+//! The error-vs-time experiment: for each quality knob, image error against a converged
+//! reference, against the time a frame takes. Rendered in this process (the render nodes'
+//! code, on all of this machine's cores), so the times are what one node spends per frame.
+//!
+//! Knobs: ambient-occlusion rays per hit (`ao`), samples per pixel (`spp`), and progressive
+//! passes (`passes`: pass k traces one new jittered sample per pixel and the display averages
+//! all passes so far, in linear light, so error falls with the cumulative time).
+
+use super::plot::{line_plot, Series};
+use super::{write_csv, write_json, wrote, BenchArgs};
+use anyhow::Result;
+use serde_json::json;
+use std::path::Path;
+use std::time::Instant;
+use tessera_common::image_io::{render_wall, RgbImage};
+use tessera_common::render::{FrameView, PreparedScene, RenderParams};
+use tessera_common::scene::Scene;
+use tessera_common::wall::{TileGrid, WallLayout};
+
+const AO_STEPS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
+const SPP_STEPS: [u32; 5] = [1, 2, 4, 8, 16];
+const PASSES: u32 = 16;
+/// Frame key of the references' samples (the camera is frame 0's either way).
+const REFERENCE_KEY: u64 = 0x5eed_0000_0000;
+
+/// Root-mean-square difference over the screens' pixels (bezels excluded), channels in [0, 1].
+pub fn rmse(wall: &WallLayout, a: &RgbImage, b: &RgbImage) -> f64 {
+    let (mut sum, mut count) = (0.0f64, 0u64);
+    for s in wall.screens() {
+        for y in s.y..s.y + s.height {
+            let row =
+                ((y * a.width + s.x) * 3) as usize..((y * a.width + s.x + s.width) * 3) as usize;
+            for (p, q) in a.rgb[row.clone()].iter().zip(&b.rgb[row]) {
+                let d = (*p as f64 - *q as f64) / 255.0;
+                sum += d * d;
+                count += 1;
+            }
+        }
+    }
+    (sum / count.max(1) as f64).sqrt()
+}
+
+/// Peak signal-to-noise ratio in dB for channels in [0, 1] (infinite for identical images).
+pub fn psnr(rmse: f64) -> f64 {
+    if rmse > 0.0 {
+        -20.0 * rmse.log10()
+    } else {
+        f64::INFINITY
+    }
+}
+
+struct Point {
+    knob: &'static str,
+    value: u32,
+    ms: f64,
+    rmse: f64,
+}
+
+pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
+    let run = &args.local.run;
+    let wall = run.wall.layout()?;
+    let scene = Scene::load(&run.scene.spec()?)?;
+    let camera = run.scene.camera_mode(&scene)?.camera_for_frame(0);
+    let base = run.quality.params()?;
+    let prepared = PreparedScene::new(&scene);
+    let grid = TileGrid::new(wall);
+    let renders = 2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize;
+    let bar = indicatif::ProgressBar::new(renders as u64).with_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} {msg} {pos}/{len} renders {elapsed_precise}",
+        )
+        .expect("valid template"),
+    );
+    // The reference draws its samples under another frame key: sharing the measured images'
+    // first samples would make their error look smaller than it is.
+    let render_keyed = |key: u64, params: RenderParams, what: String| {
+        bar.set_message(what);
+        let view = FrameView::new(key, &camera, params, wall.width(), wall.height());
+        let t0 = Instant::now();
+        let image = render_wall(&prepared, &view, &grid);
+        let ms = t0.elapsed().as_secs_f64() * 1000.0;
+        bar.inc(1);
+        (image, ms)
+    };
+    let render = |params, what| render_keyed(0, params, what);
+    let reference = |params, what| render_keyed(REFERENCE_KEY, params, what);
+    let ao_reference = reference(
+        RenderParams {
+            ao_samples: args.reference_ao,
+            ..base
+        },
+        format!("ao reference ({} rays)", args.reference_ao),
+    )
+    .0;
+    let spp_reference = reference(
+        RenderParams {
+            spp: args.reference_spp,
+            ..base
+        },
+        format!("spp reference ({} samples)", args.reference_spp),
+    )
+    .0;
+    let mut points = Vec::new();
+    for ao in AO_STEPS {
+        let (image, ms) = render(
+            RenderParams {
+                ao_samples: ao,
+                ..base
+            },
+            format!("ao {ao}"),
+        );
+        points.push(Point {
+            knob: "ao",
+            value: ao,
+            ms,
+            rmse: rmse(&wall, &image, &ao_reference),
+        });
+    }
+    for spp in SPP_STEPS {
+        let (image, ms) = render(RenderParams { spp, ..base }, format!("spp {spp}"));
+        points.push(Point {
+            knob: "spp",
+            value: spp,
+            ms,
+            rmse: rmse(&wall, &image, &spp_reference),
+        });
+    }
+    // Progressive: linear-light running sum of the passes' images, as a display would blend.
+    let mut linear = vec![0f64; (wall.width() * wall.height() * 3) as usize];
+    let mut total_ms = 0.0;
+    for pass in 0..PASSES {
+        let params = RenderParams {
+            spp: 1,
+            first_sample: pass,
+            ..base
+        };
+        let (image, ms) = render(params, format!("pass {}", pass + 1));
+        total_ms += ms;
+        for (acc, &v) in linear.iter_mut().zip(&image.rgb) {
+            let c = v as f64 / 255.0;
+            *acc += c * c;
+        }
+        let shown = RgbImage {
+            width: image.width,
+            height: image.height,
+            rgb: linear
+                .iter()
+                .map(|&s| ((s / (pass + 1) as f64).sqrt() * 255.0 + 0.5) as u8)
+                .collect(),
+        };
+        points.push(Point {
+            knob: "passes",
+            value: pass + 1,
+            ms: total_ms,
+            rmse: rmse(&wall, &shown, &spp_reference),
+        });
+    }
+    bar.finish_and_clear();
+
+    let rows: Vec<String> = points
+        .iter()
+        .map(|p| {
+            format!(
+                "{},{},{:.3},{:.6},{:.3}",
+                p.knob,
+                p.value,
+                p.ms,
+                p.rmse,
+                psnr(p.rmse)
+            )
+        })
+        .collect();
+    let csv = out.join("error-vs-time.csv");
+    write_csv(&csv, "knob,value,time_ms,rmse,psnr_db", &rows)?;
+    let series: Vec<Series> = ["ao", "spp", "passes"]
+        .iter()
+        .map(|&k| Series {
+            name: k.into(),
+            points: points
+                .iter()
+                .filter(|p| p.knob == k)
+                .map(|p| (p.ms, p.rmse))
+                .collect(),
+        })
+        .collect();
+    let svg = out.join("error-vs-time.svg");
+    line_plot(
+        &svg,
+        "image error against render time per frame",
+        "ms per frame",
+        "RMSE",
+        &series,
+    )?;
+    let json = write_json(
+        out,
+        &json!({
+            "experiment": "error-vs-time",
+            "wall": { "width": wall.width(), "height": wall.height() },
+            "reference": { "ao": args.reference_ao, "spp": args.reference_spp },
+            "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
+            "points": points.iter().map(|p| json!({
+                "knob": p.knob, "value": p.value, "time_ms": p.ms, "rmse": p.rmse,
+                "psnr_db": if p.rmse > 0.0 { json!(psnr(p.rmse)) } else { json!(null) },
+            })).collect::<Vec<_>>(),
+        }),
+    )?;
+    println!(
+        "{:<7} {:>6} {:>10} {:>9} {:>9}",
+        "knob", "value", "ms/frame", "RMSE", "PSNR dB"
+    );
+    for p in &points {
+        println!(
+            "{:<7} {:>6} {:>10.1} {:>9.5} {:>9.2}",
+            p.knob,
+            p.value,
+            p.ms,
+            p.rmse,
+            psnr(p.rmse)
+        );
+    }
+    wrote(&[&json, &csv, &svg]);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rmse_ignores_bezels_and_psnr_follows() {
+        let wall = WallLayout::grid(2, 1, 2, 1).with_bezel(2);
+        let black = RgbImage::black(wall.width(), wall.height());
+        let mut other = black.clone();
+        // A bezel pixel differs: no error. Then one channel of one screen pixel by 255.
+        other.rgb[2 * 3] = 255;
+        assert_eq!(rmse(&wall, &black, &other), 0.0);
+        other.rgb[0] = 255;
+        let e = rmse(&wall, &black, &other);
+        assert!((e - (1.0f64 / 12.0).sqrt()).abs() < 1e-12, "{e}");
+        assert!((psnr(0.1) - 20.0).abs() < 1e-9);
+        assert!(psnr(0.0).is_infinite());
+    }
+}

@@ -1,0 +1,398 @@
+//! `tessera-master bench EXPERIMENT`: reproducible measurement runs on a local wall, each
+//! writing `report.json`, a CSV and an SVG plot into `--out DIR` and printing a short table.
+
+mod error;
+mod plot;
+mod transport;
+
+use super::{run_local, LocalArgs};
+use crate::report::Report;
+use anyhow::{bail, Context, Result};
+use plot::{line_plot, Series};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Experiment {
+    /// Frame rate against render nodes on a scene that costs nothing to render, beside the
+    /// transport limit measured in the same run (Ize et al., §5.1).
+    MaxFps,
+    /// Camera change → present on every display, and the present skew across displays.
+    Latency,
+    /// Frames/s and load-balance efficiency against render nodes and threads.
+    Scaling,
+    /// Image error (RMSE, PSNR) against render time for each quality knob.
+    ErrorVsTime,
+}
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// The experiment to run.
+    #[arg(value_enum)]
+    experiment: Experiment,
+    /// The local wall (same flags as `local`); `--out DIR` is required.
+    #[command(flatten)]
+    local: LocalArgs,
+    /// Render-node counts to run (max-fps, scaling), e.g. 1,2,4.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    nodes: Vec<u32>,
+    /// Threads per render node to run (scaling), e.g. 1,2.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    thread_counts: Vec<u32>,
+    /// Seconds of the bulk transfer that measures the transport limit (max-fps).
+    #[arg(long, default_value_t = 3.0)]
+    transport_seconds: f64,
+    /// error-vs-time: ambient-occlusion rays of the converged reference.
+    #[arg(long, default_value_t = 256)]
+    reference_ao: u32,
+    /// error-vs-time: samples per pixel of the converged reference.
+    #[arg(long, default_value_t = 64)]
+    reference_spp: u32,
+}
+
+pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
+    let Some(out) = args.local.run.out.clone() else {
+        bail!("bench needs --out DIR for its report, CSV and plot");
+    };
+    std::fs::create_dir_all(&out)
+        .with_context(|| format!("cannot create --out {}", out.display()))?;
+    if args.nodes.contains(&0) || args.thread_counts.contains(&0) {
+        bail!("--nodes and --thread-counts must be at least 1");
+    }
+    match args.experiment {
+        Experiment::Latency => latency(&args, &out).await?,
+        Experiment::Scaling => scaling(&args, &out).await?,
+        Experiment::MaxFps => max_fps(&args, &out).await?,
+        Experiment::ErrorVsTime => error::error_vs_time(&args, &out)?,
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs one local wall and returns its report; any failed node fails the experiment.
+async fn wall_run(local: &LocalArgs, what: &str) -> Result<Report> {
+    eprintln!("bench: {what}");
+    let run = run_local(local, true).await?;
+    if run.interrupted {
+        bail!("interrupted during {what}");
+    }
+    let report = run.outcome.with_context(|| format!("{what} failed"))?;
+    let problems: Vec<String> = run.lost.into_iter().chain(run.failures).collect();
+    if !problems.is_empty() {
+        bail!("{what}: nodes failed: {}", problems.join("; "));
+    }
+    Ok(report)
+}
+
+fn write_json(out: &Path, value: &serde_json::Value) -> Result<PathBuf> {
+    let path = out.join("report.json");
+    std::fs::write(&path, serde_json::to_string_pretty(value)?)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(path)
+}
+
+fn write_csv(path: &Path, header: &str, rows: &[String]) -> Result<()> {
+    let mut text = String::from(header);
+    text.push('\n');
+    for row in rows {
+        text.push_str(row);
+        text.push('\n');
+    }
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn wrote(paths: &[&Path]) {
+    for p in paths {
+        println!("wrote {}", p.display());
+    }
+}
+
+/// Wire bytes over pixel bytes of the whole run, all displays together.
+fn wire_ratio(report: &Report) -> f64 {
+    let wire: u64 = report
+        .displays
+        .iter()
+        .map(|d| d.stats.wire_bytes_received)
+        .sum();
+    let pixels: f64 = report
+        .displays
+        .iter()
+        .map(|d| d.stats.pixels_owned as f64 * 3.0 * d.stats.frames_presented as f64)
+        .sum();
+    if pixels > 0.0 {
+        wire as f64 / pixels
+    } else {
+        0.0
+    }
+}
+
+/// Mean and lowest busy/elapsed over the render nodes.
+fn efficiency(report: &Report) -> (f64, f64) {
+    let shares: Vec<f64> = report
+        .render_nodes
+        .iter()
+        .filter(|r| r.stats.elapsed_s > 0.0)
+        .map(|r| r.stats.busy_s / r.stats.elapsed_s)
+        .collect();
+    if shares.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mean = shares.iter().sum::<f64>() / shares.len() as f64;
+    (mean, shares.iter().copied().fold(f64::INFINITY, f64::min))
+}
+
+async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
+    let report = wall_run(&args.local, "latency run").await?;
+    let t = &report.timing;
+    if t.frames_measured == 0 {
+        bail!("no frame was reported presented by every display");
+    }
+    let period = report.frame_period_ms;
+    let rows: Vec<String> = t
+        .per_frame
+        .iter()
+        .map(|f| format!("{},{:.4},{:.4}", f.frame, f.latency_ms, f.skew_ms))
+        .collect();
+    let csv = out.join("latency.csv");
+    write_csv(&csv, "frame,latency_ms,skew_ms", &rows)?;
+    let svg = out.join("latency.svg");
+    let series = |name: &str, pick: fn(&crate::timing::FrameTiming) -> f64| Series {
+        name: name.into(),
+        points: t
+            .per_frame
+            .iter()
+            .map(|f| (f.frame as f64, pick(f)))
+            .collect(),
+    };
+    line_plot(
+        &svg,
+        "camera change → present on every display, and present skew",
+        "frame",
+        "ms",
+        &[
+            series("latency", |f| f.latency_ms),
+            series("skew", |f| f.skew_ms),
+        ],
+    )?;
+    let in_periods = if period > 0.0 {
+        t.latency_ms.p95 / period
+    } else {
+        0.0
+    };
+    let json = write_json(
+        out,
+        &json!({
+            "experiment": "latency",
+            "latency_ms": t.latency_ms,
+            "skew_ms": t.skew_ms,
+            "frame_period_ms": period,
+            "latency_p95_in_frame_periods": in_periods,
+            "frames_measured": t.frames_measured,
+            "wire_bytes_per_pixel_byte": wire_ratio(&report),
+            "run": report,
+        }),
+    )?;
+    println!(
+        "{:<10} {:>8} {:>8} {:>8} {:>8}",
+        "ms", "p50", "p95", "p99", "max"
+    );
+    for (name, p) in [("latency", &t.latency_ms), ("skew", &t.skew_ms)] {
+        println!(
+            "{name:<10} {:>8.3} {:>8.3} {:>8.3} {:>8.3}",
+            p.p50, p.p95, p.p99, p.max
+        );
+    }
+    println!(
+        "frame period {period:.2} ms; latency p95 = {in_periods:.2} frame periods; {} frames measured",
+        t.frames_measured
+    );
+    wrote(&[&json, &csv, &svg]);
+    Ok(())
+}
+
+async fn scaling(args: &BenchArgs, out: &Path) -> Result<()> {
+    let mut runs = Vec::new();
+    for &threads in &args.thread_counts {
+        for &nodes in &args.nodes {
+            let mut local = args.local.clone();
+            local.render_nodes = nodes;
+            local.threads = Some(threads);
+            local.run.out = None;
+            let report = wall_run(
+                &local,
+                &format!("{nodes} render node(s) × {threads} thread(s)"),
+            )
+            .await?;
+            let (mean, min) = efficiency(&report);
+            runs.push(json!({
+                "render_nodes": nodes,
+                "threads": threads,
+                "fps": report.fps,
+                "frame_ms": report.frame_ms,
+                "efficiency": mean,
+                "efficiency_min": min,
+            }));
+        }
+    }
+    let rows: Vec<String> = runs
+        .iter()
+        .map(|r| {
+            format!(
+                "{},{},{:.3},{:.4},{:.4}",
+                r["render_nodes"],
+                r["threads"],
+                r["fps"].as_f64().unwrap_or(0.0),
+                r["efficiency"].as_f64().unwrap_or(0.0),
+                r["efficiency_min"].as_f64().unwrap_or(0.0)
+            )
+        })
+        .collect();
+    let csv = out.join("scaling.csv");
+    write_csv(
+        &csv,
+        "render_nodes,threads,fps,efficiency,efficiency_min",
+        &rows,
+    )?;
+    let series: Vec<Series> = args
+        .thread_counts
+        .iter()
+        .map(|&t| Series {
+            name: format!("{t} thread(s) per node"),
+            points: runs
+                .iter()
+                .filter(|r| r["threads"] == t)
+                .map(|r| {
+                    (
+                        r["render_nodes"].as_f64().unwrap_or(0.0),
+                        r["fps"].as_f64().unwrap_or(0.0),
+                    )
+                })
+                .collect(),
+        })
+        .collect();
+    let svg = out.join("scaling.svg");
+    line_plot(
+        &svg,
+        "frames/s against render nodes",
+        "render nodes",
+        "frames/s",
+        &series,
+    )?;
+    let json = write_json(out, &json!({ "experiment": "scaling", "runs": runs }))?;
+    println!(
+        "{:>6} {:>8} {:>9} {:>11} {:>9}",
+        "nodes", "threads", "fps", "efficiency", "min"
+    );
+    for r in &runs {
+        println!(
+            "{:>6} {:>8} {:>9.2} {:>10.1}% {:>8.1}%",
+            r["render_nodes"].as_u64().unwrap_or(0),
+            r["threads"].as_u64().unwrap_or(0),
+            r["fps"].as_f64().unwrap_or(0.0),
+            100.0 * r["efficiency"].as_f64().unwrap_or(0.0),
+            100.0 * r["efficiency_min"].as_f64().unwrap_or(0.0)
+        );
+    }
+    wrote(&[&json, &csv, &svg]);
+    Ok(())
+}
+
+async fn max_fps(args: &BenchArgs, out: &Path) -> Result<()> {
+    let displays = args.local.run.wall.layout()?.display_count();
+    let mut runs = Vec::new();
+    for &nodes in &args.nodes {
+        let mut local = args.local.clone();
+        local.render_nodes = nodes;
+        local.run.scene.scene = "empty".into();
+        local.run.out = None;
+        let report = wall_run(&local, &format!("empty scene, {nodes} render node(s)")).await?;
+        let frames = report.frames.max(1) as f64;
+        let wire_per_frame: f64 = report
+            .displays
+            .iter()
+            .map(|d| d.stats.wire_bytes_received as f64)
+            .sum::<f64>()
+            / frames;
+        runs.push((nodes, report.fps, wire_per_frame, wire_ratio(&report)));
+    }
+    eprintln!(
+        "bench: bulk transfer over {displays} link(s) for {} s",
+        args.transport_seconds
+    );
+    let bulk = transport::bulk_throughput(displays, args.transport_seconds, 256 * 1024).await?;
+    let best = runs
+        .iter()
+        .copied()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .context("no run")?;
+    let limit = bulk.wire_bytes_per_s / best.2.max(1.0);
+    let ratio = best.1 / limit;
+    let rows: Vec<String> = runs
+        .iter()
+        .map(|&(n, fps, bytes, r)| {
+            format!(
+                "{n},{fps:.3},{bytes:.0},{r:.5},{:.3}",
+                bulk.wire_bytes_per_s / bytes.max(1.0)
+            )
+        })
+        .collect();
+    let csv = out.join("max-fps.csv");
+    write_csv(
+        &csv,
+        "render_nodes,fps,wire_bytes_per_frame,wire_bytes_per_pixel_byte,transport_limit_fps",
+        &rows,
+    )?;
+    let svg = out.join("max-fps.svg");
+    line_plot(
+        &svg,
+        "frame rate on an empty scene against the transport limit",
+        "render nodes",
+        "frames/s",
+        &[
+            Series {
+                name: "fps".into(),
+                points: runs.iter().map(|r| (r.0 as f64, r.1)).collect(),
+            },
+            Series {
+                name: "transport limit".into(),
+                points: runs
+                    .iter()
+                    .map(|r| (r.0 as f64, bulk.wire_bytes_per_s / r.2.max(1.0)))
+                    .collect(),
+            },
+        ],
+    )?;
+    let json = write_json(
+        out,
+        &json!({
+            "experiment": "max-fps",
+            "fps": best.1,
+            "render_nodes_at_best": best.0,
+            "transport_limit_fps": limit,
+            "ratio": ratio,
+            "wire_bytes_per_frame": best.2,
+            "wire_bytes_per_pixel_byte": best.3,
+            "bulk_transfer": bulk,
+            "runs": runs.iter().map(|&(n, fps, bytes, r)| json!({
+                "render_nodes": n, "fps": fps, "wire_bytes_per_frame": bytes,
+                "wire_bytes_per_pixel_byte": r,
+            })).collect::<Vec<_>>(),
+        }),
+    )?;
+    println!(
+        "{:>6} {:>9} {:>16} {:>10}",
+        "nodes", "fps", "wire B/frame", "wire/pixel"
+    );
+    for &(n, fps, bytes, r) in &runs {
+        println!("{n:>6} {fps:>9.1} {bytes:>16.0} {r:>10.4}");
+    }
+    println!(
+        "bulk transfer: {:.1} MB/s over {} link(s) → transport limit {limit:.1} fps; best {:.1} fps = {:.3} of the limit",
+        bulk.wire_bytes_per_s / 1e6,
+        displays,
+        best.1,
+        ratio
+    );
+    wrote(&[&json, &csv, &svg]);
+    Ok(())
+}

@@ -1,0 +1,194 @@
+//! Latency and present skew, measured on every run.
+//!
+//! Each display stamps its presents with its own clock; the master maps those stamps onto its
+//! clock. A display on the master's own host (a local wall, network namespaces) reads the very
+//! same clock, so its stamps are used as they are; for other hosts the offset is estimated
+//! NTP-style from ping/pong round trips, keeping the fastest round trip (the least queuing, so
+//! the tightest bound: the offset is known to within half of it). Cross-host figures are thus
+//! only as good as that bound, which the report states per display.
+//!
+//! Latency of frame f: from the master issuing f's `FrameStart` (the barrier where the camera
+//! changes) to the last display presenting f. Skew of f: last present minus first present.
+//! Pure bookkeeping over timestamps in nanoseconds; the driver reads the clocks.
+
+use crate::report::Percentiles;
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use tessera_common::protocol::FrameId;
+use tessera_common::wall::DisplayId;
+
+/// Pings sent to each display when it is ready; the fastest answer wins.
+pub const PINGS: u32 = 16;
+
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct ClockEstimate {
+    /// Display clock minus master clock, in microseconds.
+    pub offset_us: f64,
+    /// Round trip of the ping the estimate comes from; the offset is within half of it.
+    pub rtt_us: f64,
+    /// On the master's host: the estimate is reported but stamps are used as they are.
+    pub same_host: bool,
+}
+
+#[derive(Default)]
+pub struct Timing {
+    pings: HashMap<(DisplayId, u32), u64>,
+    clocks: BTreeMap<DisplayId, (u64, i64)>,
+    same_host: std::collections::BTreeSet<DisplayId>,
+    starts: HashMap<FrameId, u64>,
+    presents: BTreeMap<FrameId, Vec<(DisplayId, u64)>>,
+}
+
+/// One frame's figures, for the per-frame CSV.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct FrameTiming {
+    pub frame: u64,
+    pub latency_ms: f64,
+    pub skew_ms: f64,
+}
+
+#[derive(Debug, Default, Serialize)]
+pub struct TimingSummary {
+    pub latency_ms: Percentiles,
+    pub skew_ms: Percentiles,
+    /// Frames every display reported a present for (a window may coalesce frames).
+    pub frames_measured: u64,
+    pub clocks: BTreeMap<u32, ClockEstimate>,
+    #[serde(skip)]
+    pub per_frame: Vec<FrameTiming>,
+}
+
+impl Timing {
+    /// The display runs on the master's host, so it reads the same clock.
+    pub fn same_host(&mut self, display: DisplayId) {
+        self.same_host.insert(display);
+    }
+
+    fn offset(&self, display: DisplayId) -> i64 {
+        if self.same_host.contains(&display) {
+            return 0;
+        }
+        self.clocks.get(&display).map_or(0, |c| c.1)
+    }
+
+    pub fn ping_sent(&mut self, display: DisplayId, seq: u32, master_ns: u64) {
+        self.pings.insert((display, seq), master_ns);
+    }
+
+    pub fn pong(&mut self, display: DisplayId, seq: u32, display_ns: u64, master_ns: u64) {
+        let Some(sent) = self.pings.remove(&(display, seq)) else {
+            return;
+        };
+        let rtt = master_ns.saturating_sub(sent);
+        let midpoint = sent as i128 + rtt as i128 / 2;
+        let offset = (display_ns as i128 - midpoint) as i64;
+        let best = self.clocks.entry(display).or_insert((u64::MAX, 0));
+        if rtt < best.0 {
+            *best = (rtt, offset);
+        }
+    }
+
+    pub fn frame_started(&mut self, frame: FrameId, master_ns: u64) {
+        self.starts.insert(frame, master_ns);
+    }
+
+    pub fn presented(&mut self, display: DisplayId, frame: FrameId, display_ns: u64) {
+        self.presents
+            .entry(frame)
+            .or_default()
+            .push((display, display_ns));
+    }
+
+    /// Figures over the frames that every one of `displays` presented.
+    pub fn summary(&self, displays: u32) -> TimingSummary {
+        let mut per_frame = Vec::new();
+        for (frame, presents) in &self.presents {
+            let Some(&start) = self.starts.get(frame) else {
+                continue;
+            };
+            if presents.len() < displays as usize {
+                continue;
+            }
+            let on_master: Vec<i128> = presents
+                .iter()
+                .map(|&(d, ns)| ns as i128 - self.offset(d) as i128)
+                .collect();
+            let first = *on_master.iter().min().expect("at least one present");
+            let last = *on_master.iter().max().expect("at least one present");
+            per_frame.push(FrameTiming {
+                frame: frame.0,
+                latency_ms: (last - start as i128) as f64 / 1e6,
+                skew_ms: (last - first) as f64 / 1e6,
+            });
+        }
+        let latency: Vec<f64> = per_frame.iter().map(|f| f.latency_ms).collect();
+        let skew: Vec<f64> = per_frame.iter().map(|f| f.skew_ms).collect();
+        TimingSummary {
+            latency_ms: Percentiles::of_ms(&latency),
+            skew_ms: Percentiles::of_ms(&skew),
+            frames_measured: per_frame.len() as u64,
+            clocks: self
+                .clocks
+                .iter()
+                .map(|(d, &(rtt, offset))| {
+                    (
+                        d.0,
+                        ClockEstimate {
+                            offset_us: offset as f64 / 1e3,
+                            rtt_us: rtt as f64 / 1e3,
+                            same_host: self.same_host.contains(d),
+                        },
+                    )
+                })
+                .collect(),
+            per_frame,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn offsets_come_from_the_fastest_ping_and_map_presents_onto_the_master_clock() {
+        let mut t = Timing::default();
+        let (a, b) = (DisplayId(0), DisplayId(1));
+        // Display b's clock runs 5 ms ahead. A slow ping (queued on the way back) would
+        // suggest 9 ms; the fast one must win.
+        t.ping_sent(b, 0, 1_000_000);
+        t.pong(b, 0, 1_000_000 + 5_000_000 + 100_000, 1_000_000 + 8_000_000);
+        t.ping_sent(b, 1, 2_000_000);
+        t.pong(b, 1, 2_000_000 + 5_000_000 + 50_000, 2_000_000 + 100_000);
+        t.ping_sent(a, 0, 0);
+        t.pong(a, 0, 50_000, 100_000);
+        t.pong(a, 7, 0, 0); // an answer to no ping is ignored
+                            // Frame 3 starts at 10 ms; a presents at 14 ms, b at 14.5 ms (its clock: 19.5 ms).
+        t.frame_started(FrameId(3), 10_000_000);
+        t.presented(a, FrameId(3), 14_000_000);
+        t.presented(b, FrameId(3), 19_500_000);
+        // Frame 4 reached only one display: not measured.
+        t.frame_started(FrameId(4), 20_000_000);
+        t.presented(a, FrameId(4), 25_000_000);
+        let s = t.summary(2);
+        assert_eq!(s.frames_measured, 1);
+        assert_eq!(
+            s.per_frame,
+            vec![FrameTiming {
+                frame: 3,
+                latency_ms: 4.5,
+                skew_ms: 0.5
+            }]
+        );
+        assert_eq!(s.clocks[&1].offset_us, 5000.0);
+        assert_eq!(s.clocks[&1].rtt_us, 100.0);
+        assert!((s.latency_ms.max - 4.5).abs() < 0.01);
+
+        // On the master's host the stamps are taken as they are, whatever the estimate.
+        t.same_host(b);
+        t.presented(b, FrameId(4), 25_200_000);
+        let s = t.summary(2);
+        assert_eq!(s.per_frame[1].skew_ms, 0.2);
+        assert!(s.clocks[&1].same_host);
+    }
+}

@@ -1,0 +1,143 @@
+//! `tessera-master bench`: each experiment runs on a small local wall and writes its report,
+//! CSV and SVG with the figures the issue names. Figures are checked for sense, never for speed.
+
+use std::path::Path;
+use std::time::Duration;
+use tessera_tests::{read_json, run};
+
+const LIMIT: Duration = Duration::from_secs(300);
+
+fn bench(experiment: &str, extra: &[&str], out: &Path) -> serde_json::Value {
+    let out_arg = out.display().to_string();
+    let mut args = vec![
+        "bench", experiment, "--wall", "2x1", "--screen", "64x48", "--out", &out_arg,
+    ];
+    args.extend_from_slice(extra);
+    let o = run("tessera-master", &args, LIMIT);
+    o.assert_success(&format!("bench {experiment}"));
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["experiment"], experiment, "{report}");
+    let stem = experiment;
+    for ext in ["csv", "svg"] {
+        let path = out.join(format!("{stem}.{ext}"));
+        let text =
+            std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert!(text.lines().count() > 1, "{} is empty", path.display());
+    }
+    report
+}
+
+fn positive(v: &serde_json::Value) -> f64 {
+    let x = v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"));
+    assert!(x.is_finite() && x > 0.0, "{x}");
+    x
+}
+
+#[test]
+fn latency_reports_percentiles_of_latency_and_skew() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = bench(
+        "latency",
+        &["--frames", "30", "--scene", "knot:32:4"],
+        dir.path(),
+    );
+    for key in ["latency_ms", "skew_ms"] {
+        let p = &r[key];
+        let (p50, p99, max) = (
+            positive(&p["p50"]),
+            positive(&p["p99"]),
+            positive(&p["max"]),
+        );
+        assert!(p50 <= p99 && p99 <= max, "{key}: {p}");
+    }
+    assert!(r["skew_ms"]["max"].as_f64().unwrap() <= r["latency_ms"]["max"].as_f64().unwrap());
+    positive(&r["frame_period_ms"]);
+    assert_eq!(r["frames_measured"], 30);
+    let csv = std::fs::read_to_string(dir.path().join("latency.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 31, "header and one row per frame");
+}
+
+#[test]
+fn max_fps_compares_the_wall_with_a_measured_bulk_transfer() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = bench(
+        "max-fps",
+        &[
+            "--frames",
+            "30",
+            "--nodes",
+            "1,2",
+            "--transport-seconds",
+            "0.5",
+        ],
+        dir.path(),
+    );
+    let fps = positive(&r["fps"]);
+    let limit = positive(&r["transport_limit_fps"]);
+    assert!((r["ratio"].as_f64().unwrap() - fps / limit).abs() < 1e-9);
+    assert_eq!(r["runs"].as_array().unwrap().len(), 2);
+    positive(&r["bulk_transfer"]["wire_bytes_per_s"]);
+    // An empty scene still sends every pixel: 64×48×2 displays × 3 bytes per frame, at least.
+    assert!(r["wire_bytes_per_frame"].as_f64().unwrap() >= (64 * 48 * 2 * 3) as f64);
+}
+
+#[test]
+fn scaling_reports_fps_and_efficiency_per_configuration() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = bench(
+        "scaling",
+        &[
+            "--frames",
+            "15",
+            "--scene",
+            "knot:32:4",
+            "--nodes",
+            "1,2",
+            "--thread-counts",
+            "1",
+        ],
+        dir.path(),
+    );
+    let runs = r["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    for run in runs {
+        positive(&run["fps"]);
+        let e = positive(&run["efficiency"]);
+        assert!(e <= 1.0 + 1e-9, "{run}");
+    }
+}
+
+#[test]
+fn error_falls_as_each_knob_spends_more_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = bench(
+        "error-vs-time",
+        &["--ao", "0", "--reference-ao", "64", "--reference-spp", "16"],
+        dir.path(),
+    );
+    let points = r["points"].as_array().unwrap();
+    for knob in ["ao", "spp", "passes"] {
+        let errors: Vec<f64> = points
+            .iter()
+            .filter(|p| p["knob"] == knob)
+            .map(|p| p["rmse"].as_f64().unwrap())
+            .collect();
+        assert!(errors.len() >= 5, "{knob}");
+        // Noise makes single steps wobble; the most expensive setting must beat the cheapest.
+        assert!(
+            errors.last().unwrap() < errors.first().unwrap(),
+            "{knob}: {errors:?}"
+        );
+    }
+}
+
+#[test]
+fn bench_without_out_is_refused_with_a_reason() {
+    let o = run(
+        "tessera-master",
+        &["bench", "latency", "--frames", "2"],
+        LIMIT,
+    );
+    assert!(!o.status.success());
+    assert!(o.stderr.contains("--out"), "{}", o.stderr);
+}
