@@ -36,7 +36,12 @@ impl Proc {
     }
 
     pub fn start_with_env(name: &str, args: &[&str], env: &[(&str, &str)]) -> Proc {
-        let mut cmd = Command::new(bin(name));
+        Self::start_program(&bin(name), name, args, env)
+    }
+
+    /// Starts any program (a script, say), not only a workspace binary.
+    pub fn start_program(program: &Path, name: &str, args: &[&str], env: &[(&str, &str)]) -> Proc {
+        let mut cmd = Command::new(program);
         cmd.args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
