@@ -120,6 +120,29 @@ fn run_with_window(cli: Cli) -> Result<()> {
     net.and(shown)
 }
 
+/// Sleeps until the clock (ns since the Unix epoch) reads `at`: the last stretch is spun, since
+/// a sleeping thread wakes up to tens of microseconds late. A deadline more than a second away
+/// means clocks that disagree; waiting for it would stall the wall, so it is not waited for.
+fn wait_until(at: u64) {
+    const SPIN: Duration = Duration::from_micros(200);
+    for _ in 0..100_000_000u64 {
+        let now = tessera_common::net::unix_ns();
+        let Some(left) = at.checked_sub(now).filter(|&l| l > 0) else {
+            return;
+        };
+        let left = Duration::from_nanos(left);
+        if left > Duration::from_secs(1) {
+            tracing::warn!("a present deadline {left:?} away: clocks disagree; presenting now");
+            return;
+        }
+        if left > SPIN {
+            std::thread::sleep(left - SPIN);
+        } else {
+            std::hint::spin_loop();
+        }
+    }
+}
+
 /// Set when the run is over and the network side itself closes the window.
 static WALL_OVER: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
@@ -199,15 +222,19 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     loop {
         tokio::select! {
             msg = read_msg::<ToNode>(&mut recv) => match msg {
-                Ok(Some(ToNode::Present { frame })) => {
+                Ok(Some(msg @ (ToNode::Present { .. } | ToNode::PresentAt { .. }))) => {
+                    let (frame, deadline) = match msg {
+                        ToNode::PresentAt { frame, clock_ns } => (frame, Some(clock_ns)),
+                        ToNode::Present { frame } => (frame, None),
+                        _ => unreachable!("matched above"),
+                    };
                     let shown = assembler.handle_present(frame).map_err(|e| anyhow::anyhow!("the master broke the swap barrier: {e}"))?;
                     presented += 1;
-                    if session.save_frame == Some(frame) {
-                        if let Some(dir) = &cli.out {
-                            let path = dir.join(format!("display-{}.png", me.0));
-                            let image = RgbImage { width: shown.width, height: shown.height, rgb: shown.rgb.clone() };
-                            tokio::task::spawn_blocking(move || image.save_png(&path)).await??;
-                        }
+                    let saved = (session.save_frame == Some(frame)).then(|| RgbImage { width: shown.width, height: shown.height, rgb: shown.rgb.clone() });
+                    if let Some(at) = deadline {
+                        // A precise wait (tokio's timer has 1 ms steps), kept off the async
+                        // workers' queue so pixel intake goes on meanwhile.
+                        tokio::task::block_in_place(|| wait_until(at));
                     }
                     if let Some(w) = &window {
                         // Reported once the window has really presented it (below).
@@ -215,6 +242,10 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     } else {
                         let clock_ns = tessera_common::net::unix_ns();
                         write_msg(&mut send, &FromNode::Presented { frame, clock_ns }).await?;
+                    }
+                    if let (Some(image), Some(dir)) = (saved, &cli.out) {
+                        let path = dir.join(format!("display-{}.png", me.0));
+                        tokio::task::spawn_blocking(move || image.save_png(&path)).await??;
                     }
                 }
                 Ok(Some(ToNode::Ping { seq })) => {

@@ -75,6 +75,11 @@ struct RunArgs {
     /// How long to wait for all nodes to join, in seconds.
     #[arg(long, default_value_t = 60)]
     join_timeout: u64,
+    /// Displays present this many ms after the frame barrier, all at the same instant by
+    /// their clocks (0: each presents when the message arrives, which lets them drift apart
+    /// by however late each is scheduled).
+    #[arg(long, default_value_t = 2.0)]
+    present_margin_ms: f64,
 }
 
 #[derive(clap::Args, Clone)]
@@ -215,6 +220,10 @@ fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<
         save_frame: run.save_frame.map(FrameId),
         join_timeout: Duration::from_secs(run.join_timeout),
         show_progress,
+        present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
+            .ok()
+            .filter(|m| *m <= Duration::from_secs(1))
+            .context("--present-margin-ms must be between 0 and 1000")?,
     })
 }
 

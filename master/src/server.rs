@@ -35,6 +35,9 @@ pub struct RunConfig {
     pub save_frame: Option<FrameId>,
     pub join_timeout: Duration,
     pub show_progress: bool,
+    /// Displays present this long after the master's barrier decision, all at the same
+    /// instant; zero presents on arrival.
+    pub present_margin: Duration,
 }
 
 enum PeerRole {
@@ -514,6 +517,15 @@ impl Wall {
                 Output::ToRender(node, msg) => {
                     if let Some(peer) = self.render_peer(node) {
                         self.send(peer, msg);
+                    }
+                }
+                Output::ToDisplays(ToNode::Present { frame })
+                    if !self.cfg.present_margin.is_zero() =>
+                {
+                    let at = unix_ns() + self.cfg.present_margin.as_nanos() as u64;
+                    for (&d, peer) in &self.displays {
+                        let clock_ns = (at as i64 + self.timing.offset(d)) as u64;
+                        self.send(*peer, ToNode::PresentAt { frame, clock_ns });
                     }
                 }
                 Output::ToDisplays(msg) => {

@@ -64,7 +64,8 @@ impl Timing {
         self.same_host.insert(display);
     }
 
-    fn offset(&self, display: DisplayId) -> i64 {
+    /// Display clock minus master clock, in ns, as well as it is known.
+    pub fn offset(&self, display: DisplayId) -> i64 {
         if self.same_host.contains(&display) {
             return 0;
         }

@@ -138,6 +138,13 @@ pub enum ToNode {
     Present {
         frame: FrameId,
     },
+    /// The swap barrier with a deadline: show `frame` when this display's clock (ns since the
+    /// Unix epoch) reads `clock_ns`, or at once if that has passed. Every display waking at
+    /// the same instant, rather than whenever the message arrives, is what keeps them in step.
+    PresentAt {
+        frame: FrameId,
+        clock_ns: u64,
+    },
     /// The run is over: send your stats and close.
     Shutdown,
     /// Clock probe: a display answers at once with [`FromNode::Pong`], so the master can map
