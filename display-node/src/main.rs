@@ -177,6 +177,7 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         endpoint.clone(),
         grid.clone(),
         me,
+        session.compression,
         intake.clone(),
         tiles_tx,
     ));

@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 use tessera_common::cli::{QualityArgs, SceneArgs, WallArgs};
 use tessera_common::image_io::{compose_wall, render_wall, RgbImage};
 use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
+use tessera_common::protocol::pixels::Compression;
 use tessera_common::protocol::FrameId;
 use tessera_common::render::aov::{primary_aovs, write_pfm};
 use tessera_common::render::{FrameView, PreparedScene};
@@ -70,6 +71,10 @@ struct RunArgs {
     /// How long to wait for all nodes to join, in seconds.
     #[arg(long, default_value_t = 60)]
     join_timeout: u64,
+    /// How render nodes pack each tile for its display: `lz4` trades render-node and display
+    /// CPU for fewer bytes where the link, not rendering, limits the frame rate.
+    #[arg(long, value_enum, default_value_t = Compression::None)]
+    compress: Compression,
 }
 
 #[derive(clap::Args)]
@@ -207,6 +212,7 @@ fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<
         frames: (run.frames > 0).then_some(run.frames),
         render_nodes,
         save_frame: run.save_frame.map(FrameId),
+        compression: run.compress,
         join_timeout: Duration::from_secs(run.join_timeout),
         show_progress,
     })
