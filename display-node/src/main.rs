@@ -16,7 +16,7 @@ use std::time::Duration;
 use tessera_common::assemble::FrameAssembler;
 use tessera_common::image_io::RgbImage;
 use tessera_common::net::cluster::NodeIdentity;
-use tessera_common::net::framed::{read_msg, write_msg};
+use tessera_common::net::framed::{read_msg, spawn_reader, write_msg};
 use tessera_common::net::quic;
 use tessera_common::protocol::{
     DisplayStats, FrameId, FromNode, Hello, NodeStats, Role, ToNode, PROTOCOL_VERSION,
@@ -120,6 +120,19 @@ fn run_with_window(cli: Cli) -> Result<()> {
     net.and(shown)
 }
 
+/// Reports `next` complete to the master if it is assembled.
+async fn report_next_complete(
+    completed: &mut std::collections::BTreeSet<FrameId>,
+    next: FrameId,
+    send: &mut quinn::SendStream,
+) -> Result<()> {
+    completed.retain(|&f| f >= next);
+    if completed.remove(&next) {
+        write_msg(send, &FromNode::FrameComplete { frame: next }).await?;
+    }
+    Ok(())
+}
+
 /// Sleeps until the clock (ns since the Unix epoch) reads `at`: the last stretch is spun, since
 /// a sleeping thread wakes up to tens of microseconds late. A deadline more than a second away
 /// means clocks that disagree; waiting for it would stall the wall, so it is not waited for.
@@ -206,6 +219,7 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         endpoint.clone(),
         grid.clone(),
         me,
+        session.compression,
         intake.clone(),
         tiles_tx,
     ));
@@ -219,9 +233,17 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     );
 
     let mut presented = 0u64;
+    // Frames assembled but not yet reported: a frame is reported complete only once it is the
+    // next to present, so the master cannot start frames further ahead than this display
+    // accepts, whatever order its messages and the tiles arrive in.
+    let mut completed = std::collections::BTreeSet::new();
+    let mut control = spawn_reader::<ToNode>(recv);
     loop {
         tokio::select! {
-            msg = read_msg::<ToNode>(&mut recv) => match msg {
+            // The master's messages first: a Present waiting behind a burst of tiles would let
+            // tiles of later frames be judged against a stale frame count, and refused.
+            biased;
+            msg = control.recv() => match msg.unwrap_or(Ok(None)) {
                 Ok(Some(msg @ (ToNode::Present { .. } | ToNode::PresentAt { .. }))) => {
                     let (frame, deadline) = match msg {
                         ToNode::PresentAt { frame, clock_ns } => (frame, Some(clock_ns)),
@@ -230,6 +252,7 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     };
                     let shown = assembler.handle_present(frame).map_err(|e| anyhow::anyhow!("the master broke the swap barrier: {e}"))?;
                     presented += 1;
+                    report_next_complete(&mut completed, assembler.next_present(), &mut send).await?;
                     let saved = (session.save_frame == Some(frame)).then(|| RgbImage { width: shown.width, height: shown.height, rgb: shown.rgb.clone() });
                     if let Some(at) = deadline {
                         // A precise wait (tokio's timer has 1 ms steps), kept off the async
@@ -282,7 +305,10 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
             }
             Some(tile) = tiles.recv() => {
                 match assembler.handle_tile(tile.frame, tile.tile, &tile.rgb) {
-                    Ok(Some(frame)) => write_msg(&mut send, &FromNode::FrameComplete { frame }).await?,
+                    Ok(Some(frame)) => {
+                        completed.insert(frame);
+                        report_next_complete(&mut completed, assembler.next_present(), &mut send).await?;
+                    }
                     Ok(None) => {}
                     Err(e) => {
                         tracing::error!("display {}: closing a render node's connection: {e}", me.0);

@@ -1,11 +1,12 @@
 //! Receiving pixel streams from render nodes. Each stream is checked against the wall before
-//! any pixel is read: a bad header, a tile of another display or a wrong length closes that
-//! render node's connection with a log line, and the display goes on.
+//! any pixel is read: a bad header, a compression other than the session's, a tile of another
+//! display, a wrong length or a tile that does not unpack to its pixels closes that render
+//! node's connection with a log line, and the display goes on.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use tessera_common::protocol::pixels::{
-    StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
+    Compression, StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
 };
 use tessera_common::protocol::FrameId;
 use tessera_common::wall::{DisplayId, TileGrid, TileId};
@@ -39,6 +40,7 @@ pub async fn accept_render_nodes(
     endpoint: quinn::Endpoint,
     grid: Arc<TileGrid>,
     me: DisplayId,
+    compression: Compression,
     intake: Arc<Intake>,
     tiles: mpsc::Sender<IncomingTile>,
 ) {
@@ -62,7 +64,9 @@ pub async fn accept_render_nodes(
                 let (grid, intake, tiles, conn) =
                     (grid.clone(), intake.clone(), tiles.clone(), conn.clone());
                 tokio::spawn(async move {
-                    if let Err(e) = read_stream(stream, &grid, me, &intake, &tiles, &conn).await {
+                    if let Err(e) =
+                        read_stream(stream, &grid, me, compression, &intake, &tiles, &conn).await
+                    {
                         tracing::error!(
                             "display {}: closing the connection from {remote}: {e:#}",
                             me.0
@@ -79,6 +83,7 @@ async fn read_stream(
     mut stream: quinn::RecvStream,
     grid: &TileGrid,
     me: DisplayId,
+    compression: Compression,
     intake: &Intake,
     tiles: &mpsc::Sender<IncomingTile>,
     conn: &quinn::Connection,
@@ -86,6 +91,12 @@ async fn read_stream(
     let mut header = [0u8; STREAM_HEADER_LEN];
     stream.read_exact(&mut header).await?;
     let header = StreamHeader::decode(&header, grid.display_tiles(me).len() as u32)?;
+    if header.compression != compression {
+        anyhow::bail!(
+            "pixel stream packed as {:?}, but this run's compression is {compression:?}",
+            header.compression
+        );
+    }
     intake
         .stream_bytes
         .fetch_add(STREAM_HEADER_LEN as u64, Ordering::Relaxed);
@@ -100,18 +111,13 @@ async fn read_stream(
                 anyhow::anyhow!("tile {} does not belong to display {}", th.tile.0, me.0)
             })?;
         let expected = tile.pixel_count() * header.format.bytes_per_pixel();
-        if th.byte_len as usize != expected {
-            anyhow::bail!(
-                "tile {} carries {} bytes, expected {expected}",
-                th.tile.0,
-                th.byte_len
-            );
-        }
-        let mut rgb = vec![0u8; expected];
-        stream.read_exact(&mut rgb).await?;
+        compression.check_tile_len(&th, expected)?;
+        let mut payload = vec![0u8; th.byte_len as usize];
+        stream.read_exact(&mut payload).await?;
         intake
             .stream_bytes
-            .fetch_add((TILE_HEADER_LEN + expected) as u64, Ordering::Relaxed);
+            .fetch_add((TILE_HEADER_LEN + payload.len()) as u64, Ordering::Relaxed);
+        let rgb = compression.decode_tile(th.tile, payload, expected)?;
         intake
             .pixel_bytes
             .fetch_add(expected as u64, Ordering::Relaxed);

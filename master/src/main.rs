@@ -22,6 +22,7 @@ use std::time::{Duration, Instant};
 use tessera_common::cli::{QualityArgs, SceneArgs, WallArgs};
 use tessera_common::image_io::{compose_wall, render_wall, RgbImage};
 use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
+use tessera_common::protocol::pixels::Compression;
 use tessera_common::protocol::FrameId;
 use tessera_common::render::aov::{primary_aovs, write_pfm};
 use tessera_common::render::{FrameView, PreparedScene};
@@ -80,6 +81,10 @@ struct RunArgs {
     /// by however late each is scheduled).
     #[arg(long, default_value_t = 2.0)]
     present_margin_ms: f64,
+    /// How render nodes pack each tile for its display: `lz4` trades render-node and display
+    /// CPU for fewer bytes where the link, not rendering, limits the frame rate.
+    #[arg(long, value_enum, default_value_t = Compression::None)]
+    compress: Compression,
 }
 
 #[derive(clap::Args, Clone)]
@@ -218,6 +223,7 @@ fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<
         frames: (run.frames > 0).then_some(run.frames),
         render_nodes,
         save_frame: run.save_frame.map(FrameId),
+        compression: run.compress,
         join_timeout: Duration::from_secs(run.join_timeout),
         show_progress,
         present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)

@@ -1,12 +1,15 @@
 //! `report.json`: what a run measured.
 
 use serde::Serialize;
+use tessera_common::protocol::pixels::Compression;
 use tessera_common::protocol::{DisplayStats, RenderStats};
 use tessera_common::wall::WallLayout;
 
 #[derive(Serialize, Debug)]
 pub struct Report {
     pub frames: u64,
+    /// How tiles were packed on their way to the displays (`--compress`).
+    pub compression: Compression,
     pub wall: WallReport,
     pub displays: Vec<DisplayReport>,
     pub render_nodes: Vec<RenderNodeReport>,
@@ -74,7 +77,9 @@ pub struct DisplayReport {
     pub host: String,
     #[serde(flatten)]
     pub stats: DisplayStats,
-    /// Wire bytes over the pixel bytes this display owns for the frames it presented.
+    /// Wire bytes (UDP payloads, see [`DisplayStats::wire_bytes_received`]) over the pixel bytes
+    /// this display owns for the frames it presented, at 3 bytes per pixel: QUIC's overhead,
+    /// less what compression saves.
     pub wire_bytes_per_pixel_byte: f64,
 }
 

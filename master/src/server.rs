@@ -12,6 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_common::balance::{BalanceConfig, Coordinator, Output};
 use tessera_common::net::unix_ns;
+use tessera_common::protocol::pixels::Compression;
 use tessera_common::protocol::{
     DisplayEndpoint, FrameId, FromNode, NodeStats, RenderNodeId, Role, Session, ToNode,
 };
@@ -33,6 +34,8 @@ pub struct RunConfig {
     /// Render nodes to wait for before the first frame.
     pub render_nodes: u32,
     pub save_frame: Option<FrameId>,
+    /// How render nodes pack tiles for the displays.
+    pub compression: Compression,
     pub join_timeout: Duration,
     pub show_progress: bool,
     /// Displays present this long after the master's barrier decision, all at the same
@@ -249,6 +252,7 @@ impl Wall {
                 .map(|(&display, &addr)| DisplayEndpoint { display, addr })
                 .collect(),
             save_frame: self.cfg.save_frame,
+            compression: self.cfg.compression,
         }
     }
 
@@ -644,6 +648,7 @@ impl Wall {
         let frames = self.presents.len() as u64;
         Report {
             frames,
+            compression: self.cfg.compression,
             wall: WallReport::of(&self.cfg.wall),
             displays,
             render_nodes,

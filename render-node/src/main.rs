@@ -5,6 +5,7 @@ mod bench;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -12,9 +13,9 @@ use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_common::net::cluster::NodeIdentity;
-use tessera_common::net::framed::{read_msg, write_msg};
+use tessera_common::net::framed::{read_msg, spawn_reader, write_msg};
 use tessera_common::net::quic;
-use tessera_common::protocol::pixels::encode_batch;
+use tessera_common::protocol::pixels::{encode_batch, Compression};
 use tessera_common::protocol::{
     FrameId, FromNode, Hello, NodeStats, RenderStats, Role, Session, ToNode, PROTOCOL_VERSION,
 };
@@ -126,7 +127,8 @@ enum Done {
     Rendered {
         frame: FrameId,
         tiles: Vec<TileId>,
-        pixels: Vec<Vec<u8>>,
+        /// Each tile's payload, packed as the session's compression says.
+        payloads: Vec<Vec<u8>>,
         rays: RayCounts,
         took: Duration,
     },
@@ -210,12 +212,14 @@ async fn run(
     );
 
     let grid = Arc::new(TileGrid::new(session.wall));
+    let compression = session.compression;
     let prepared = Arc::new(prepared);
     let mut worker = RenderWorker::new(threads * 2);
     let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Done>();
     let mut rendering = false;
     let mut stats = RenderStats::default();
     let first_frame = Instant::now();
+    let mut control = spawn_reader::<ToNode>(recv);
     loop {
         if !rendering {
             if let Some((start, tiles)) = worker.next_batch(threads.max(2)) {
@@ -240,12 +244,20 @@ async fn run(
                         .map(|t| *grid.tile(*t).expect("assigned tiles are validated"))
                         .collect();
                     let (pixels, rays) = pool.install(|| render_tiles(&prepared, &view, &geometry));
+                    // Rendering time alone, so rays/s does not depend on the compression.
+                    let took = t0.elapsed();
+                    let payloads = pool.install(|| {
+                        pixels
+                            .into_par_iter()
+                            .map(|rgb| compression.encode_tile(rgb))
+                            .collect()
+                    });
                     let _ = done_tx.send(Done::Rendered {
                         frame: start.frame,
                         tiles,
-                        pixels,
+                        payloads,
                         rays,
-                        took: t0.elapsed(),
+                        took,
                     });
                 });
             }
@@ -254,8 +266,8 @@ async fn run(
             }
         }
         tokio::select! {
-            msg = read_msg::<ToNode>(&mut recv) => {
-                match msg {
+            msg = control.recv() => {
+                match msg.unwrap_or(Ok(None)) {
                     Ok(Some(ToNode::Shutdown)) => {
                         stats.elapsed_s = first_frame.elapsed().as_secs_f64();
                         write_msg(&mut send, &FromNode::Stats(NodeStats::Render(stats.clone()))).await?;
@@ -274,12 +286,12 @@ async fn run(
                 }
             }
             Some(done) = done_rx.recv() => match done {
-                Done::Rendered { frame, tiles, pixels, rays, took } => {
+                Done::Rendered { frame, tiles, payloads, rays, took } => {
                     rendering = false;
                     stats.tiles += tiles.len() as u64;
                     stats.rays += rays.total();
                     stats.busy_s += took.as_secs_f64();
-                    send_pixels(&displays, &grid, frame, tiles, pixels, done_tx.clone());
+                    send_pixels(&displays, &grid, frame, compression, tiles, payloads, done_tx.clone());
                 }
                 Done::Delivered { frame, tiles } => {
                     let report = worker.handle_delivered(frame, &tiles);
@@ -314,8 +326,9 @@ fn send_pixels(
     displays: &BTreeMap<DisplayId, quinn::Connection>,
     grid: &TileGrid,
     frame: FrameId,
+    compression: Compression,
     tiles: Vec<TileId>,
-    pixels: Vec<Vec<u8>>,
+    payloads: Vec<Vec<u8>>,
     done: mpsc::UnboundedSender<Done>,
 ) {
     let mut by_display: BTreeMap<DisplayId, Vec<usize>> = BTreeMap::new();
@@ -336,7 +349,8 @@ fn send_pixels(
         };
         let bytes = encode_batch(
             frame,
-            indices.iter().map(|&i| (tiles[i], pixels[i].as_slice())),
+            compression,
+            indices.iter().map(|&i| (tiles[i], payloads[i].as_slice())),
         );
         sends.push(async move {
             let mut stream = conn.open_uni().await?;

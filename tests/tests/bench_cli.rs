@@ -75,7 +75,17 @@ fn max_fps_compares_the_wall_with_a_measured_bulk_transfer() {
     let fps = positive(&r["fps"]);
     let limit = positive(&r["transport_limit_fps"]);
     assert!((r["ratio"].as_f64().unwrap() - fps / limit).abs() < 1e-9);
-    assert_eq!(r["runs"].as_array().unwrap().len(), 2);
+    // Both node counts, raw and with lz4; the flat backdrop compresses to a fraction.
+    assert_eq!(r["runs"].as_array().unwrap().len(), 4);
+    positive(&r["lz4"]["fps"]);
+    let (raw, packed) = (
+        &r["wire_bytes_per_frame"],
+        &r["lz4"]["wire_bytes_per_frame"],
+    );
+    assert!(
+        packed.as_f64().unwrap() < 0.5 * raw.as_f64().unwrap(),
+        "{raw} vs {packed}"
+    );
     positive(&r["bulk_transfer"]["wire_bytes_per_s"]);
     // An empty scene still sends every pixel: 64×48×2 displays × 3 bytes per frame, at least.
     assert!(r["wire_bytes_per_frame"].as_f64().unwrap() >= (64 * 48 * 2 * 3) as f64);

@@ -9,13 +9,14 @@ const WALL: [&str; 8] = [
     "--wall", "2x2", "--screen", "240x136", "--bezel", "12", "--ao", "2",
 ];
 
-#[test]
-fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("wall");
-    let reference = dir.path().join("reference");
-    let out_s = out.to_str().unwrap();
-    let frames = 5u64;
+const FRAMES: u64 = 5;
+/// Pixels of one 240x136 screen.
+const OWNED: u64 = 240 * 136;
+/// 240x136 screens in 64-pixel tiles: 4 columns, 3 rows.
+const TILES_PER_DISPLAY: u64 = 4 * 3;
+
+/// Runs the local wall for FRAMES frames, saving frame 3 to `out`.
+fn run_local_wall(out: &std::path::Path, extra: &[&str]) {
     let mut args = vec!["local"];
     args.extend(WALL);
     args.extend([
@@ -26,9 +27,53 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
         "--save-frame",
         "3",
         "--out",
-        out_s,
+        out.to_str().unwrap(),
     ]);
+    args.extend(extra);
     run("tessera-master", &args, Duration::from_secs(120)).assert_success("local wall");
+}
+
+/// Checks what every display counted that does not depend on timing, and returns each
+/// display's (stream bytes, wire bytes).
+fn check_display_bytes(report: &serde_json::Value) -> Vec<(u64, u64)> {
+    let displays = report["displays"].as_array().unwrap();
+    assert_eq!(displays.len(), 4);
+    displays
+        .iter()
+        .map(|d| {
+            assert_eq!(d["pixels_owned"], OWNED);
+            // Exactly its own pixels (as unpacked), once per frame: nothing of other screens,
+            // nothing twice.
+            assert_eq!(
+                d["pixel_bytes_received"],
+                OWNED * 3 * FRAMES,
+                "display {}",
+                d["id"]
+            );
+            assert_eq!(d["duplicate_tiles"], 0);
+            assert_eq!(d["frames_presented"], FRAMES);
+            let stream = d["stream_bytes_received"].as_u64().unwrap();
+            let wire = d["wire_bytes_received"].as_u64().unwrap();
+            // Every stream byte reaches the display inside some QUIC packet.
+            assert!(
+                wire > stream,
+                "wire bytes {wire} below stream bytes {stream}"
+            );
+            let ratio = d["wire_bytes_per_pixel_byte"].as_f64().unwrap();
+            let expected = wire as f64 / (OWNED * 3 * FRAMES) as f64;
+            assert!((ratio - expected).abs() < 1e-9, "{ratio} vs {expected}");
+            (stream, wire)
+        })
+        .collect()
+}
+
+#[test]
+fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("wall");
+    let reference = dir.path().join("reference");
+    let frames = FRAMES;
+    run_local_wall(&out, &[]);
 
     let mut args = vec!["render"];
     args.extend(WALL);
@@ -66,26 +111,19 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
 
     let report = read_json(&out.join("report.json"));
     assert_eq!(report["frames"], frames);
+    assert_eq!(report["compression"], "none");
     assert!(report["fps"].as_f64().unwrap() > 0.0);
-    let displays = report["displays"].as_array().unwrap();
-    assert_eq!(displays.len(), 4);
-    for d in displays {
-        let owned = 240 * 136;
-        assert_eq!(d["pixels_owned"], owned);
-        // Exactly its own pixels, once per frame: nothing of other screens, nothing twice.
-        assert_eq!(
-            d["pixel_bytes_received"],
-            owned * 3 * frames,
-            "display {}",
-            d["id"]
-        );
-        assert_eq!(d["duplicate_tiles"], 0);
-        assert_eq!(d["frames_presented"], frames);
-        let wire = d["wire_bytes_received"].as_u64().unwrap();
+    for (stream, wire) in check_display_bytes(&report) {
+        // Raw tiles: the pixels, an 8-byte header per tile, a 24-byte header per stream (at
+        // least one stream per frame, at most one per tile).
+        let headers = 8 * TILES_PER_DISPLAY * FRAMES;
+        let pixels = OWNED * 3 * FRAMES;
+        assert!(stream >= pixels + headers + 24 * FRAMES, "{stream}");
         assert!(
-            wire >= owned * 3 * frames,
-            "wire bytes {wire} below pixel bytes"
+            stream <= pixels + headers + 24 * TILES_PER_DISPLAY * FRAMES,
+            "{stream}"
         );
+        assert!(wire > pixels, "wire bytes {wire} below pixel bytes");
     }
     let rendered: u64 = report["render_nodes"]
         .as_array()
@@ -93,7 +131,7 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
         .iter()
         .map(|r| r["tiles"].as_u64().unwrap())
         .sum();
-    let tiles_per_frame = 4 * 4 * 3; // 240x136 screens in 64-pixel tiles: 4 columns, 3 rows
+    let tiles_per_frame = 4 * TILES_PER_DISPLAY;
     assert_eq!(rendered, tiles_per_frame * frames);
     for (i, display) in report["wall"]["displays"]
         .as_array()
@@ -112,6 +150,36 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
             let at = ((y + row) * w as usize + x) * 3;
             assert_eq!(a, &expected[at..at + 240 * 3], "display {i} row {row}");
         }
+    }
+}
+
+#[test]
+fn lz4_wall_equals_reference_and_sends_fewer_bytes_than_pixels() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("wall");
+    let reference = dir.path().join("reference");
+    run_local_wall(&out, &["--compress", "lz4"]);
+    let mut args = vec!["render"];
+    args.extend(WALL);
+    args.extend(["--frame", "3", "--out", reference.to_str().unwrap()]);
+    run("tessera-master", &args, Duration::from_secs(120)).assert_success("reference render");
+
+    let (w, h, wall) = load_rgb(&out.join("wall.png"));
+    let (rw, rh, expected) = load_rgb(&reference.join("wall.png"));
+    assert_eq!((w, h), (rw, rh));
+    assert!(wall == expected, "the lz4 wall differs from the reference");
+    for i in 0..4 {
+        let (dw, dh, _) = load_rgb(&out.join(format!("display-{i}.png")));
+        assert_eq!((dw, dh), (240, 136));
+    }
+
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["frames"], FRAMES);
+    assert_eq!(report["compression"], "lz4");
+    for (stream, _) in check_display_bytes(&report) {
+        // The scene's flat background packs well, whatever the noise of the AO samples, and a
+        // tile never grows: the stream is well under the raw pixels.
+        assert!(stream < OWNED * 3 * FRAMES / 2, "{stream}");
     }
 }
 

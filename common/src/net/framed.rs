@@ -27,3 +27,23 @@ pub async fn read_msg<T: DeserializeOwned>(recv: &mut quinn::RecvStream) -> Resu
         .context("control message cut short")?;
     Ok(Some(codec::decode(&body)?))
 }
+
+/// Reads messages from `recv` in a task of its own and hands them over a channel, ending with
+/// the stream's end (`Ok(None)`) or its error. Driver loops select on the channel, never on
+/// [`read_msg`] itself: dropping a half-done `read_msg` (another branch won) would lose the
+/// bytes it had read and leave the stream out of step.
+pub fn spawn_reader<T: DeserializeOwned + Send + 'static>(
+    mut recv: quinn::RecvStream,
+) -> tokio::sync::mpsc::Receiver<Result<Option<T>>> {
+    let (tx, rx) = tokio::sync::mpsc::channel(64);
+    tokio::spawn(async move {
+        loop {
+            let msg = read_msg::<T>(&mut recv).await;
+            let last = !matches!(msg, Ok(Some(_)));
+            if tx.send(msg).await.is_err() || last {
+                break;
+            }
+        }
+    });
+    rx
+}

@@ -131,6 +131,7 @@ mod tests {
                         addr: "[::1]:9".parse().unwrap(),
                     }],
                     save_frame: Some(FrameId(3)),
+                    compression: crate::protocol::pixels::Compression::Lz4,
                 },
             },
             ToNode::FrameStart(FrameStart {

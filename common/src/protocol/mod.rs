@@ -2,8 +2,8 @@
 //!
 //! Control messages are postcard-encoded enums in length-prefixed frames ([`codec`]) on one
 //! bidirectional QUIC stream per node–master connection. Pixels travel separately, render node to
-//! display node, as raw RGB8 with one small header per tile ([`pixels`]), one unidirectional
-//! stream per (frame, batch of tiles). Every decoder has a size limit and returns an error on
+//! display node, as RGB8 (raw or LZ4 per tile) with one small header per tile ([`pixels`]), one
+//! unidirectional stream per (frame, batch of tiles, display). Every decoder has a size limit and returns an error on
 //! malformed input; semantic checks (is this tile mine? is this frame in flight?) are done by the
 //! state machine that consumes the message.
 
@@ -72,6 +72,8 @@ pub struct Session {
     pub displays: Vec<DisplayEndpoint>,
     /// Frame whose pixels the displays save as PNG, if any.
     pub save_frame: Option<FrameId>,
+    /// How render nodes pack tiles' pixels; displays refuse streams packed otherwise.
+    pub compression: pixels::Compression,
 }
 
 /// Broadcast at the frame barrier: the state every node renders frame `frame` with.
@@ -207,11 +209,15 @@ pub struct RenderStats {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DisplayStats {
     pub pixels_owned: u64,
-    /// Pixel payload bytes received (tile headers excluded).
+    /// Pixel bytes received, as unpacked (3 per pixel, whatever the compression; tile headers
+    /// excluded).
     pub pixel_bytes_received: u64,
-    /// Bytes received on the UDP socket for pixel connections (QUIC, TLS and headers included).
+    /// UDP payload bytes received on render-node connections, as quinn counts them: every
+    /// datagram's QUIC packet headers, AEAD tags, frames (handshake, ACKs, retransmissions
+    /// included), but not the IP and UDP headers.
     pub wire_bytes_received: u64,
-    /// Application bytes of pixel streams (stream and tile headers included).
+    /// Application bytes of pixel streams as sent (stream and tile headers included, tiles
+    /// compressed if the run compresses).
     pub stream_bytes_received: u64,
     pub frames_presented: u64,
     pub duplicate_tiles: u64,

@@ -12,6 +12,7 @@ use plot::{line_plot, Series};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use tessera_common::protocol::pixels::Compression;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Experiment {
@@ -297,101 +298,143 @@ async fn scaling(args: &BenchArgs, out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// One max-fps wall run: its settings and what it measured.
+#[derive(Clone, Copy)]
+struct FpsRun {
+    compress: Compression,
+    nodes: u32,
+    fps: f64,
+    wire_per_frame: f64,
+    wire_ratio: f64,
+}
+
 async fn max_fps(args: &BenchArgs, out: &Path) -> Result<()> {
     let displays = args.local.run.wall.layout()?.display_count();
     let mut runs = Vec::new();
-    for &nodes in &args.nodes {
-        let mut local = args.local.clone();
-        local.render_nodes = nodes;
-        local.run.scene.scene = "empty".into();
-        local.run.out = None;
-        let report = wall_run(&local, &format!("empty scene, {nodes} render node(s)")).await?;
-        let frames = report.frames.max(1) as f64;
-        let wire_per_frame: f64 = report
-            .displays
-            .iter()
-            .map(|d| d.stats.wire_bytes_received as f64)
-            .sum::<f64>()
-            / frames;
-        runs.push((nodes, report.fps, wire_per_frame, wire_ratio(&report)));
+    for compress in [Compression::None, Compression::Lz4] {
+        for &nodes in &args.nodes {
+            let mut local = args.local.clone();
+            local.render_nodes = nodes;
+            local.run.scene.scene = "empty".into();
+            local.run.compress = compress;
+            local.run.out = None;
+            let what = format!("empty scene, {nodes} render node(s), compression {compress:?}");
+            let report = wall_run(&local, &what).await?;
+            let frames = report.frames.max(1) as f64;
+            let wire: f64 = report
+                .displays
+                .iter()
+                .map(|d| d.stats.wire_bytes_received as f64)
+                .sum();
+            runs.push(FpsRun {
+                compress,
+                nodes,
+                fps: report.fps,
+                wire_per_frame: wire / frames,
+                wire_ratio: wire_ratio(&report),
+            });
+        }
     }
     eprintln!(
         "bench: bulk transfer over {displays} link(s) for {} s",
         args.transport_seconds
     );
     let bulk = transport::bulk_throughput(displays, args.transport_seconds, 256 * 1024).await?;
-    let best = runs
-        .iter()
-        .copied()
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .context("no run")?;
-    let limit = bulk.wire_bytes_per_s / best.2.max(1.0);
-    let ratio = best.1 / limit;
+    let limit_of = |r: &FpsRun| bulk.wire_bytes_per_s / r.wire_per_frame.max(1.0);
+    let best = |c: Compression| {
+        runs.iter()
+            .filter(|r| r.compress == c)
+            .copied()
+            .max_by(|a, b| a.fps.total_cmp(&b.fps))
+            .context("no run")
+    };
+    let (raw, lz4) = (best(Compression::None)?, best(Compression::Lz4)?);
+    let summary = |r: &FpsRun| {
+        json!({
+            "fps": r.fps,
+            "render_nodes_at_best": r.nodes,
+            "transport_limit_fps": limit_of(r),
+            "ratio": r.fps / limit_of(r),
+            "wire_bytes_per_frame": r.wire_per_frame,
+            "wire_bytes_per_pixel_byte": r.wire_ratio,
+        })
+    };
+    let name = |c: Compression| if c == Compression::Lz4 { "lz4" } else { "none" };
     let rows: Vec<String> = runs
         .iter()
-        .map(|&(n, fps, bytes, r)| {
+        .map(|r| {
             format!(
-                "{n},{fps:.3},{bytes:.0},{r:.5},{:.3}",
-                bulk.wire_bytes_per_s / bytes.max(1.0)
+                "{},{},{:.3},{:.0},{:.5},{:.3}",
+                name(r.compress),
+                r.nodes,
+                r.fps,
+                r.wire_per_frame,
+                r.wire_ratio,
+                limit_of(r)
             )
         })
         .collect();
     let csv = out.join("max-fps.csv");
     write_csv(
         &csv,
-        "render_nodes,fps,wire_bytes_per_frame,wire_bytes_per_pixel_byte,transport_limit_fps",
+        "compression,render_nodes,fps,wire_bytes_per_frame,wire_bytes_per_pixel_byte,transport_limit_fps",
         &rows,
     )?;
+    let mut series = Vec::new();
+    for c in [Compression::None, Compression::Lz4] {
+        let of = || runs.iter().filter(move |r| r.compress == c);
+        series.push(Series {
+            name: format!("fps, compression {}", name(c)),
+            points: of().map(|r| (r.nodes as f64, r.fps)).collect(),
+        });
+        series.push(Series {
+            name: format!("transport limit, compression {}", name(c)),
+            points: of().map(|r| (r.nodes as f64, limit_of(r))).collect(),
+        });
+    }
     let svg = out.join("max-fps.svg");
     line_plot(
         &svg,
         "frame rate on an empty scene against the transport limit",
         "render nodes",
         "frames/s",
-        &[
-            Series {
-                name: "fps".into(),
-                points: runs.iter().map(|r| (r.0 as f64, r.1)).collect(),
-            },
-            Series {
-                name: "transport limit".into(),
-                points: runs
-                    .iter()
-                    .map(|r| (r.0 as f64, bulk.wire_bytes_per_s / r.2.max(1.0)))
-                    .collect(),
-            },
-        ],
+        &series,
     )?;
-    let json = write_json(
-        out,
-        &json!({
-            "experiment": "max-fps",
-            "fps": best.1,
-            "render_nodes_at_best": best.0,
-            "transport_limit_fps": limit,
-            "ratio": ratio,
-            "wire_bytes_per_frame": best.2,
-            "wire_bytes_per_pixel_byte": best.3,
-            "bulk_transfer": bulk,
-            "runs": runs.iter().map(|&(n, fps, bytes, r)| json!({
-                "render_nodes": n, "fps": fps, "wire_bytes_per_frame": bytes,
-                "wire_bytes_per_pixel_byte": r,
-            })).collect::<Vec<_>>(),
-        }),
-    )?;
+    let mut report = summary(&raw);
+    report["experiment"] = json!("max-fps");
+    report["lz4"] = summary(&lz4);
+    report["bulk_transfer"] = json!(bulk);
+    report["runs"] = runs
+        .iter()
+        .map(|r| {
+            json!({
+                "compression": name(r.compress), "render_nodes": r.nodes, "fps": r.fps,
+                "wire_bytes_per_frame": r.wire_per_frame, "wire_bytes_per_pixel_byte": r.wire_ratio,
+                "transport_limit_fps": limit_of(r),
+            })
+        })
+        .collect();
+    let json = write_json(out, &report)?;
     println!(
-        "{:>6} {:>9} {:>16} {:>10}",
-        "nodes", "fps", "wire B/frame", "wire/pixel"
+        "{:<6} {:>6} {:>9} {:>14} {:>10} {:>11}",
+        "comp", "nodes", "fps", "wire B/frame", "wire/pixel", "limit fps"
     );
-    for &(n, fps, bytes, r) in &runs {
-        println!("{n:>6} {fps:>9.1} {bytes:>16.0} {r:>10.4}");
+    for r in &runs {
+        println!(
+            "{:<6} {:>6} {:>9.1} {:>14.0} {:>10.4} {:>11.1}",
+            name(r.compress),
+            r.nodes,
+            r.fps,
+            r.wire_per_frame,
+            r.wire_ratio,
+            limit_of(r)
+        );
     }
     println!(
-        "bulk transfer: {:.1} MB/s over {} link(s) → transport limit {limit:.1} fps; best {:.1} fps = {:.3} of the limit",
+        "bulk transfer: {:.1} MB/s over {displays} link(s); best fps / transport limit: {:.3} raw, {:.3} with lz4",
         bulk.wire_bytes_per_s / 1e6,
-        displays,
-        best.1,
-        ratio
+        raw.fps / limit_of(&raw),
+        lz4.fps / limit_of(&lz4)
     );
     wrote(&[&json, &csv, &svg]);
     Ok(())
