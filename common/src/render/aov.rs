@@ -3,7 +3,6 @@
 
 use super::packet::{PacketHit, RayPacket, PACKET_RAYS};
 use super::{nearest_surface, FrameView, PreparedScene, PACKET};
-use crate::geometry::Ray;
 use crate::wall::TileGrid;
 use rayon::prelude::*;
 
@@ -60,9 +59,9 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
     for (&(x, y, w, h), (packet, hits)) in blocks.iter().zip(&traced) {
         for i in 0..(w * h) as usize {
             let at = ((y + i as u32 / w) * width + x + i as u32 % w) as usize;
-            let ray = Ray::new(view.rays.eye, packet.direction(i));
+            let ray = (view.rays.eye, packet.direction(i));
             let interval = (packet.t_min[i], packet.t_max[i]);
-            if let Some(hit) = nearest_surface(scene, view, &ray, interval, hits[i], &mut stack) {
+            if let Some(hit) = nearest_surface(scene, view, ray, interval, hits[i], &mut stack) {
                 aovs.depth[at] = hit.t();
                 aovs.prim[at] = hit.scene_primitive(scene) as f32;
             }

@@ -20,7 +20,6 @@ pub use shade::{
 };
 
 use crate::accel::Accel;
-use crate::geometry::Ray;
 use crate::scene::{Light, Material, Scene};
 use crate::spheres::SphereAccel;
 use crate::wall::Tile;
@@ -69,13 +68,8 @@ impl RenderParams {
     /// A still worth waiting for: shadows and 16 ambient-occlusion rays per hit.
     pub const fn final_frame() -> Self {
         RenderParams {
-            shadows: true,
             ao_samples: 16,
-            ao_range: 0.1,
-            crop: None,
-            cuts: CutPlanes::EMPTY,
-            spp: 1,
-            first_sample: 0,
+            ..Self::interactive()
         }
     }
 
@@ -263,41 +257,37 @@ fn trace_packet(
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
     let (x0, y0) = (tile.x + px, tile.y + py);
     let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
-    let n = (w * h) as usize;
-    if scene.is_empty() {
-        // Nothing to hit: the flat backdrop of an empty scene, no ray traced.
-        let backdrop = encode_srgb_ish(background(Vec3::Z));
-        for i in 0..n {
-            let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
-            out[o..o + 3].copy_from_slice(&backdrop);
-        }
-        return (out, RayCounts::default());
-    }
     let mut counts = RayCounts::default();
-    let spp = view.params.spp.max(1);
     let mut sum = [Vec3::ZERO; 64];
-    for s in 0..spp {
-        let sample = view.params.first_sample + s;
-        let mut packet = if spp == 1 && view.params.first_sample == 0 {
-            RayPacket::primary(&view.rays, x0, y0, w, h)
-        } else {
-            RayPacket::primary_jittered(&view.rays, x0, y0, w, h, |x, y| {
-                let mut stream = SampleStream::new(view.frame, x, y, JITTER_KEYS + sample);
-                (stream.next_f32(), stream.next_f32())
-            })
-        };
-        let c = shade_packet(
-            scene,
-            view,
-            &mut packet,
-            (x0, y0, w),
-            sample,
-            stack,
-            &mut sum,
-        );
-        counts = counts.add(c);
+    let empty = scene.is_empty();
+    let spp = if empty { 1 } else { view.params.spp.max(1) };
+    if empty {
+        // Nothing to hit: one flat backdrop sample, no ray traced.
+        sum = [background(Vec3::Z); 64];
+    } else {
+        for s in 0..spp {
+            let sample = view.params.first_sample + s;
+            let mut packet = if spp == 1 && view.params.first_sample == 0 {
+                RayPacket::primary(&view.rays, x0, y0, w, h)
+            } else {
+                RayPacket::primary_jittered(&view.rays, x0, y0, w, h, |x, y| {
+                    let mut stream = SampleStream::new(view.frame, x, y, JITTER_KEYS + sample);
+                    (stream.next_f32(), stream.next_f32())
+                })
+            };
+            let c = shade_packet(
+                scene,
+                view,
+                &mut packet,
+                (x0, y0, w),
+                sample,
+                stack,
+                &mut sum,
+            );
+            counts = counts.add(c);
+        }
     }
-    for (i, color) in sum.iter().enumerate().take(n) {
+    for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
         let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
         out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
     }
@@ -320,9 +310,9 @@ fn shade_packet(
     scene.accel.closest_hits(packet, &mut hits, stack);
     let surfaces: [Option<SurfaceHit>; 64] = std::array::from_fn(|i| {
         (i < packet.len()).then(|| {
-            let ray = Ray::new(view.rays.eye, packet.direction(i));
+            let ray = (view.rays.eye, packet.direction(i));
             let interval = (packet.t_min[i], packet.t_max[i]);
-            nearest_surface(scene, view, &ray, interval, hits[i], stack)
+            nearest_surface(scene, view, ray, interval, hits[i], stack)
         })?
     });
     let mut shader = Shader {
@@ -338,11 +328,9 @@ fn shade_packet(
     };
     // Sub-packets of consecutive rays that hit the same material (or nothing) are shaded
     // together, the material looked up once per run: ranges of the packet, not copies.
-    let keys: Vec<Option<u16>> = surfaces[..packet.len()]
-        .iter()
-        .map(|s| s.map(|s| s.material_key(scene)))
-        .collect();
-    for (key, run) in runs_by(&keys) {
+    let keys: [Option<u16>; 64] =
+        std::array::from_fn(|i| surfaces[i].map(|s| s.material_key(scene)));
+    for (key, run) in runs_by(&keys[..packet.len()]) {
         let material = key
             .filter(|&k| k != shade::PARTICLE_KEY)
             .map(|k| scene.materials[k as usize]);

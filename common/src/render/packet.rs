@@ -166,16 +166,16 @@ impl PacketHit {
 }
 
 /// Splits `keys` into maximal runs of equal consecutive keys: the sub-packets of rays that share
-/// a material, as ranges into the packet.
-pub fn runs_by<K: PartialEq + Copy>(keys: &[K]) -> Vec<(K, Range<usize>)> {
-    let mut runs: Vec<(K, Range<usize>)> = Vec::new();
-    for (i, &k) in keys.iter().enumerate() {
-        match runs.last_mut() {
-            Some((key, range)) if *key == k => range.end = i + 1,
-            _ => runs.push((k, i..i + 1)),
-        }
-    }
-    runs
+/// a material, as ranges into the packet (no allocation: it runs once per packet).
+pub fn runs_by<K: PartialEq + Copy>(keys: &[K]) -> impl Iterator<Item = (K, Range<usize>)> + '_ {
+    let mut start = 0;
+    std::iter::from_fn(move || {
+        let &key = keys.get(start)?;
+        let len = keys[start..].iter().take_while(|&&k| k == key).count();
+        let run = start..start + len;
+        start += len;
+        Some((key, run))
+    })
 }
 
 #[cfg(test)]
@@ -203,8 +203,8 @@ mod tests {
 
     #[test]
     fn runs_split_by_material_without_gaps() {
-        let runs = runs_by(&[2u16, 2, 5, 5, 5, 2, 7]);
+        let runs: Vec<_> = runs_by(&[2u16, 2, 5, 5, 5, 2, 7]).collect();
         assert_eq!(runs, vec![(2, 0..2), (5, 2..5), (2, 5..6), (7, 6..7)]);
-        assert!(runs_by::<u16>(&[]).is_empty());
+        assert!(runs_by::<u16>(&[]).next().is_none());
     }
 }

@@ -94,11 +94,12 @@ impl SurfaceHit {
 }
 
 /// Combines a packet's triangle hit with the particles, when the scene has any; `interval` is
-/// the part of the ray the cutting planes keep.
+/// the part of the ray the cutting planes keep. The sphere test's ray (a division per axis) is
+/// only set up when there are spheres.
 pub fn nearest_surface(
     scene: &PreparedScene,
     view: &FrameView,
-    ray: &Ray,
+    (origin, dir): (Vec3, Vec3),
     interval: (f32, f32),
     triangle: PacketHit,
     stack: &mut Vec<u32>,
@@ -111,9 +112,13 @@ pub fn nearest_surface(
     });
     if let Some(spheres) = &scene.spheres {
         let t_max = triangle.t.min(interval.1);
-        if let Some((t, slot)) =
-            spheres.closest_hit(ray, interval.0, t_max, view.params.crop, stack)
-        {
+        if let Some((t, slot)) = spheres.closest_hit(
+            &Ray::new(origin, dir),
+            interval.0,
+            t_max,
+            view.params.crop,
+            stack,
+        ) {
             nearest = Some(SurfaceHit::Sphere { t, slot });
         }
     }
@@ -149,7 +154,14 @@ impl Shader<'_> {
             .accel
             .closest_hit(&ray, interval.0, interval.1, self.stack)
             .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
-        match nearest_surface(self.scene, self.view, &ray, interval, triangle, self.stack) {
+        match nearest_surface(
+            self.scene,
+            self.view,
+            (origin, dir),
+            interval,
+            triangle,
+            self.stack,
+        ) {
             None => background(dir),
             Some(hit) => {
                 let material = self.scene.material_of(hit);
