@@ -77,6 +77,11 @@ impl FrameAssembler {
         self.duplicates
     }
 
+    /// Whether every tile of `frame` is here (and it is not presented yet).
+    pub fn is_complete(&self, frame: FrameId) -> bool {
+        self.frames.get(&frame).is_some_and(|p| p.missing == 0)
+    }
+
     pub fn next_present(&self) -> FrameId {
         self.next_present
     }
@@ -275,5 +280,6 @@ mod tests {
             completed = asm.handle_tile(FrameId(1), t.id, &pixels(t, 1)).unwrap();
         }
         assert_eq!(completed, Some(FrameId(1)));
+        assert!(asm.is_complete(FrameId(1)) && !asm.is_complete(FrameId(0)));
     }
 }
