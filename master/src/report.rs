@@ -102,18 +102,19 @@ pub struct Percentiles {
 }
 
 impl Percentiles {
-    /// Percentiles of durations in milliseconds, kept at microsecond resolution.
+    /// Percentiles of durations in milliseconds, to three significant digits and nanosecond
+    /// resolution: the present skew of displays on one host can be well under a microsecond.
     pub fn of_ms(samples: &[f64]) -> Self {
         // Bounds up to an hour; `saturating_record` clamps instead of growing the histogram.
-        let mut hist = hdrhistogram::Histogram::<u64>::new_with_bounds(1, 3_600_000_000, 3)
+        let mut hist = hdrhistogram::Histogram::<u64>::new_with_bounds(1, 3_600_000_000_000, 3)
             .expect("valid histogram bounds");
         for &ms in samples {
-            hist.saturating_record((ms * 1000.0).round().max(0.0) as u64);
+            hist.saturating_record((ms * 1e6).round().max(0.0) as u64);
         }
         if hist.is_empty() {
             return Percentiles::default();
         }
-        let ms = |us: u64| us as f64 / 1000.0;
+        let ms = |ns: u64| ns as f64 / 1e6;
         Percentiles {
             p50: ms(hist.value_at_quantile(0.5)),
             p95: ms(hist.value_at_quantile(0.95)),
@@ -135,5 +136,10 @@ mod tests {
         assert!((p.p95 - 950.0).abs() < 1.0, "{p:?}");
         assert!((p.max - 1000.0).abs() < 1.0, "{p:?}");
         assert_eq!(Percentiles::of_ms(&[]).max, 0.0);
+        let sub_microsecond = Percentiles::of_ms(&[0.0003, 0.0004]);
+        assert!(
+            sub_microsecond.p50 > 0.0 && sub_microsecond.max < 0.001,
+            "{sub_microsecond:?}"
+        );
     }
 }
