@@ -22,7 +22,7 @@ use tessera_common::protocol::{
 use tessera_common::render::{render_tiles, FrameView, PreparedScene, RayCounts};
 use tessera_common::scene::Scene;
 use tessera_common::wall::{DisplayId, TileGrid, TileId};
-use tessera_common::worker::RenderWorker;
+use tessera_common::worker::{BatchSizer, RenderWorker};
 use tokio::sync::mpsc;
 
 /// Tessera render node: renders the tiles a master assigns and sends them to the displays.
@@ -130,7 +130,10 @@ enum Done {
         /// Each tile's payload, packed as the session's compression says.
         payloads: Vec<Vec<u8>>,
         rays: RayCounts,
+        /// Rendering alone.
         took: Duration,
+        /// Rendering and packing: what sizes the next batch.
+        batch_took: Duration,
     },
     Delivered {
         frame: FrameId,
@@ -214,7 +217,8 @@ async fn run(
     let grid = Arc::new(TileGrid::new(session.wall));
     let compression = session.compression;
     let prepared = Arc::new(prepared);
-    let mut worker = RenderWorker::new(threads * 2);
+    let mut sizer = BatchSizer::new(threads);
+    let mut worker = RenderWorker::new(sizer.low_water());
     let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Done>();
     let mut rendering = false;
     let mut stats = RenderStats::default();
@@ -222,7 +226,7 @@ async fn run(
     let mut control = spawn_reader::<ToNode>(recv);
     loop {
         if !rendering {
-            if let Some((start, tiles)) = worker.next_batch(threads.max(2)) {
+            if let Some((start, tiles)) = worker.next_batch(sizer.batch()) {
                 rendering = true;
                 let (prepared, grid, pool, done_tx) = (
                     prepared.clone(),
@@ -258,6 +262,7 @@ async fn run(
                         payloads,
                         rays,
                         took,
+                        batch_took: t0.elapsed(),
                     });
                 });
             }
@@ -286,8 +291,10 @@ async fn run(
                 }
             }
             Some(done) = done_rx.recv() => match done {
-                Done::Rendered { frame, tiles, payloads, rays, took } => {
+                Done::Rendered { frame, tiles, payloads, rays, took, batch_took } => {
                     rendering = false;
+                    sizer.record(tiles.len(), batch_took);
+                    worker.set_low_water(sizer.low_water());
                     stats.tiles += tiles.len() as u64;
                     stats.rays += rays.total();
                     stats.busy_s += took.as_secs_f64();
