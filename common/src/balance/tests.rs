@@ -271,3 +271,68 @@ fn a_node_that_joins_mid_frame_gets_the_start_and_an_empty_share() {
         .unwrap();
     assert!(!assigned_to(&drain(&mut c), RenderNodeId(1)).is_empty());
 }
+
+fn assigned_in(outputs: &[Output], node: RenderNodeId, frame: FrameId) -> Vec<TileRange> {
+    outputs
+        .iter()
+        .filter_map(|o| match o {
+            Output::ToRender(n, ToNode::Assign { frame: f, tiles })
+                if *n == node && *f == frame =>
+            {
+                Some(tiles.clone())
+            }
+            _ => None,
+        })
+        .flatten()
+        .collect()
+}
+
+#[test]
+fn a_node_that_renders_more_of_a_frame_gets_a_larger_static_share_later() {
+    let mut c = coordinator(100, 1, 4);
+    let now = Instant::now();
+    let (fast, slow) = (RenderNodeId(0), RenderNodeId(1));
+    c.handle_render_joined(fast, now);
+    c.handle_render_joined(slow, now);
+    c.start(now);
+    let mut out = drain(&mut c);
+    let count = |tiles: &[TileRange]| tiles.iter().map(|r| r.len()).sum::<usize>();
+    assert_eq!(count(&assigned_in(&out, fast, FrameId(0))), 25);
+    assert_eq!(count(&assigned_in(&out, slow, FrameId(0))), 25);
+    // The slow node renders only its static shares; the fast one everything else. The display
+    // reports a frame complete once every tile of it is rendered.
+    let mut second_frame_share = None;
+    let mut rendered = [0; 3];
+    for _ in 0..200 {
+        for frame in (0..3).map(FrameId) {
+            for node in [slow, fast] {
+                let tiles = assigned_in(&out, node, frame);
+                if !tiles.is_empty() {
+                    c.handle_tiles_done(node, frame, &tiles, false, now)
+                        .unwrap();
+                    rendered[frame.0 as usize] += count(&tiles);
+                }
+            }
+            if rendered[frame.0 as usize] == 100 {
+                c.handle_frame_complete(DisplayId(0), frame, now).unwrap();
+            }
+        }
+        c.handle_tiles_done(fast, FrameId(0), &[], true, now)
+            .unwrap();
+        out = drain(&mut c);
+        if out.contains(&Output::FrameStarted(FrameId(2))) {
+            second_frame_share = Some((
+                count(&assigned_in(&out, fast, FrameId(2))),
+                count(&assigned_in(&out, slow, FrameId(2))),
+            ));
+            break;
+        }
+    }
+    let (fast_share, slow_share) = second_frame_share.expect("frame 2 started");
+    // Frame 0 went 75 : 25, so the static half of frame 2 follows suit (each half rounded).
+    assert!(
+        (50..=51).contains(&(fast_share + slow_share)),
+        "{fast_share} + {slow_share}"
+    );
+    assert!(fast_share >= 2 * slow_share, "{fast_share} : {slow_share}");
+}

@@ -153,3 +153,27 @@ fn near_square_walls_have_exactly_the_displays_asked_for() {
         assert_eq!(wall.display_count(), displays);
     }
 }
+
+#[test]
+fn static_shares_follow_node_speed_so_a_tenfold_spread_still_balances() {
+    // 32 nodes whose slowest is ten times slower than the fastest, 4,608 tiles a frame. With
+    // equal static shares the slow nodes' halves held up every frame: 78 % efficiency here.
+    let config = SimConfig {
+        speeds: NodeSpeeds::Spread {
+            fastest_us: 100,
+            spread: 10.0,
+        },
+        pixels: PixelCheck::OnePerTile,
+        ..SimConfig::new(32)
+    };
+    let sim = run(
+        3,
+        WallLayout::grid(4, 2, 1024, 576).with_tile_size(32),
+        &config,
+        &[],
+        30,
+    );
+    let report = sim.report();
+    assert_eq!(report.frames_completed, 30);
+    assert!(report.efficiency > 0.95, "{report:?}");
+}
