@@ -53,6 +53,8 @@ pub struct FrameAssembler {
     frames: BTreeMap<FrameId, Partial>,
     next_present: FrameId,
     duplicates: u64,
+    /// The last frame [`FrameAssembler::poll_complete`] handed out.
+    reported_complete: Option<FrameId>,
 }
 
 impl FrameAssembler {
@@ -66,6 +68,7 @@ impl FrameAssembler {
             frames: BTreeMap::new(),
             next_present: FrameId(0),
             duplicates: 0,
+            reported_complete: None,
         }
     }
 
@@ -84,6 +87,19 @@ impl FrameAssembler {
 
     pub fn next_present(&self) -> FrameId {
         self.next_present
+    }
+
+    /// The frame to report complete to the master, once each: the next frame to present, when
+    /// every tile of it is here. Call it after every tile and every present. A later frame that
+    /// completes first is held back until it is next, so the master cannot start frames further
+    /// ahead than this assembler accepts, whatever order tiles and presents arrive in.
+    pub fn poll_complete(&mut self) -> Option<FrameId> {
+        let next = self.next_present;
+        if self.is_complete(next) && self.reported_complete != Some(next) {
+            self.reported_complete = Some(next);
+            return Some(next);
+        }
+        None
     }
 
     /// Checks a tile header before its pixels are read; returns the expected byte length.
@@ -281,5 +297,25 @@ mod tests {
         }
         assert_eq!(completed, Some(FrameId(1)));
         assert!(asm.is_complete(FrameId(1)) && !asm.is_complete(FrameId(0)));
+    }
+
+    #[test]
+    fn a_frame_is_reported_complete_once_and_only_when_it_is_next_to_present() {
+        let (grid, mut asm) = setup();
+        let mine = grid.display_tiles(DisplayId(1)).to_vec();
+        let fill = |asm: &mut FrameAssembler, frame: u64| {
+            for t in &mine {
+                asm.handle_tile(FrameId(frame), t.id, &pixels(t, frame))
+                    .unwrap();
+            }
+        };
+        fill(&mut asm, 1);
+        assert_eq!(asm.poll_complete(), None, "frame 1 waits for frame 0");
+        fill(&mut asm, 0);
+        assert_eq!(asm.poll_complete(), Some(FrameId(0)));
+        assert_eq!(asm.poll_complete(), None, "reported once");
+        asm.handle_present(FrameId(0)).unwrap();
+        assert_eq!(asm.poll_complete(), Some(FrameId(1)));
+        assert_eq!(asm.poll_complete(), None);
     }
 }

@@ -122,14 +122,11 @@ fn run_with_window(cli: Cli) -> Result<()> {
 
 /// Reports the next frame to present complete to the master, once, when it is assembled.
 async fn report_next_complete(
-    assembler: &FrameAssembler,
-    reported: &mut Option<FrameId>,
+    assembler: &mut FrameAssembler,
     send: &mut quinn::SendStream,
 ) -> Result<()> {
-    let next = assembler.next_present();
-    if assembler.is_complete(next) && *reported != Some(next) {
-        *reported = Some(next);
-        write_msg(send, &FromNode::FrameComplete { frame: next }).await?;
+    if let Some(frame) = assembler.poll_complete() {
+        write_msg(send, &FromNode::FrameComplete { frame }).await?;
     }
     Ok(())
 }
@@ -234,10 +231,6 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     );
 
     let mut presented = 0u64;
-    // A frame is reported complete only once it is the next to present, so the master cannot
-    // start frames further ahead than this display accepts, whatever order its messages and the
-    // tiles arrive in. The last frame reported:
-    let mut reported = None;
     let mut control = spawn_reader::<ToNode>(recv);
     loop {
         tokio::select! {
@@ -253,7 +246,7 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     };
                     let shown = assembler.handle_present(frame).map_err(|e| anyhow::anyhow!("the master broke the swap barrier: {e}"))?;
                     presented += 1;
-                    report_next_complete(&assembler, &mut reported, &mut send).await?;
+                    report_next_complete(&mut assembler, &mut send).await?;
                     let saved = (session.save_frame == Some(frame)).then(|| RgbImage { width: shown.width, height: shown.height, rgb: shown.rgb.clone() });
                     if let Some(at) = deadline {
                         // A precise wait (tokio's timer has 1 ms steps), kept off the async
@@ -306,7 +299,7 @@ async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
             }
             Some(tile) = tiles.recv() => {
                 match assembler.handle_tile(tile.frame, tile.tile, &tile.rgb) {
-                    Ok(Some(_)) => report_next_complete(&assembler, &mut reported, &mut send).await?,
+                    Ok(Some(_)) => report_next_complete(&mut assembler, &mut send).await?,
                     Ok(None) => {}
                     Err(e) => {
                         tracing::error!("display {}: closing a render node's connection: {e}", me.0);

@@ -464,9 +464,16 @@ impl SimWall {
             }
             Event::ToDisplay(display, msg) => {
                 if let ToNode::Present { frame } = msg {
-                    let shown = self.displays[display.0 as usize]
+                    let assembler = &mut self.displays[display.0 as usize];
+                    let shown = assembler
                         .handle_present(frame)
                         .expect("present only complete frames");
+                    if let Some(frame) = assembler.poll_complete() {
+                        self.send(Event::FromDisplay(
+                            display,
+                            FromNode::FrameComplete { frame },
+                        ));
+                    }
                     let screen = self.pixel_grid.layout().screen(display).expect("display");
                     if !self.frame_matches(screen, frame, &shown.rgb) {
                         self.corrupt.push((display, frame));
@@ -554,13 +561,15 @@ impl SimWall {
                 }
             }
             let rgb = sim_pixels(&self.pixel_grid, frame, tile);
-            match self.displays[display.0 as usize].handle_tile(frame, tile, &rgb) {
-                Ok(Some(frame)) => self.send(Event::FromDisplay(
+            let assembler = &mut self.displays[display.0 as usize];
+            if let Err(e) = assembler.handle_tile(frame, tile, &rgb) {
+                panic!("display {} refused a tile: {e}", display.0);
+            }
+            if let Some(frame) = assembler.poll_complete() {
+                self.send(Event::FromDisplay(
                     display,
                     FromNode::FrameComplete { frame },
-                )),
-                Ok(None) => {}
-                Err(e) => panic!("display {} refused a tile: {e}", display.0),
+                ));
             }
         }
     }
