@@ -15,6 +15,7 @@
 use crate::protocol::{to_ranges, FrameId, FrameStart, FromNode, TileRange, ToNode};
 use crate::wall::TileId;
 use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
 
 pub struct RenderWorker {
     queue: VecDeque<(FrameId, TileId)>,
@@ -24,6 +25,10 @@ pub struct RenderWorker {
     /// A `FrameStart` arrived and its static share has not.
     awaiting_share: bool,
     low_water: usize,
+    /// When the outstanding request went out.
+    request_sent: Option<Instant>,
+    /// Request to answer, smoothed: how long a node waits for work it asks for.
+    round_trip: Option<Duration>,
 }
 
 impl RenderWorker {
@@ -36,6 +41,8 @@ impl RenderWorker {
             starved: false,
             awaiting_share: false,
             low_water,
+            request_sent: None,
+            round_trip: None,
         }
     }
 
@@ -49,9 +56,31 @@ impl RenderWorker {
         self.queue.len()
     }
 
+    /// Request to answer, smoothed; `None` before the first answer.
+    pub fn round_trip(&self) -> Option<Duration> {
+        self.round_trip
+    }
+
+    fn request(&mut self, now: Instant) {
+        self.request_outstanding = true;
+        self.request_sent = Some(now);
+    }
+
+    fn answered(&mut self, now: Instant) {
+        self.request_outstanding = false;
+        if let Some(sent) = self.request_sent.take() {
+            let sample = now.saturating_duration_since(sent);
+            // Up at once, down slowly: a queue that runs dry costs more than one that is long.
+            self.round_trip = Some(match self.round_trip {
+                Some(old) if sample < old => old.mul_f64(0.75) + sample.mul_f64(0.25),
+                _ => sample,
+            });
+        }
+    }
+
     /// Takes a message from the master. Returns an error text for messages that make no sense
     /// to a render node (an assignment for a frame it was never told about).
-    pub fn handle_message(&mut self, msg: &ToNode) -> Result<(), String> {
+    pub fn handle_message(&mut self, msg: &ToNode, now: Instant) -> Result<(), String> {
         match msg {
             ToNode::FrameStart(start) => {
                 self.frames.insert(start.frame, *start);
@@ -65,7 +94,7 @@ impl RenderWorker {
             ToNode::Assign { frame, tiles } => {
                 let share = std::mem::take(&mut self.awaiting_share);
                 if !share {
-                    self.request_outstanding = false;
+                    self.answered(now);
                 }
                 if tiles.is_empty() {
                     // An empty answer means the pool is drained; an empty share says nothing
@@ -118,10 +147,10 @@ impl RenderWorker {
     }
 
     /// Tiles reached their displays: the report to the master, asking for more if low.
-    pub fn handle_delivered(&mut self, frame: FrameId, tiles: &[TileId]) -> FromNode {
+    pub fn handle_delivered(&mut self, frame: FrameId, tiles: &[TileId], now: Instant) -> FromNode {
         let want_more = self.should_request();
         if want_more {
-            self.request_outstanding = true;
+            self.request(now);
         }
         FromNode::TilesDone {
             frame,
@@ -131,11 +160,11 @@ impl RenderWorker {
     }
 
     /// A request for more work on its own, when the queue ran low without a delivery to carry it.
-    pub fn poll_request(&mut self) -> Option<FromNode> {
+    pub fn poll_request(&mut self, now: Instant) -> Option<FromNode> {
         if !self.should_request() {
             return None;
         }
-        self.request_outstanding = true;
+        self.request(now);
         let frame = self.latest_frame();
         Some(FromNode::TilesDone {
             frame,
@@ -174,7 +203,7 @@ impl BatchSizer {
     /// On the empty-scene wall 0.5, 1 and 2 ms gave the same frame rate within the noise; on the
     /// knot scene, whose sky tiles are cheap and knot tiles dear, 2 ms lengthened the frame by
     /// 5–10 %, 0.5 ms did not.
-    pub const TARGET: std::time::Duration = std::time::Duration::from_micros(500);
+    pub const TARGET: Duration = Duration::from_micros(500);
     /// Bounds the first batch after a scene that cost next to nothing.
     pub const MAX_TILES: usize = 1024;
 
@@ -186,7 +215,7 @@ impl BatchSizer {
     }
 
     /// A batch of `tiles` took `took` from hand-off to encoded pixels.
-    pub fn record(&mut self, tiles: usize, took: std::time::Duration) {
+    pub fn record(&mut self, tiles: usize, took: Duration) {
         if tiles == 0 {
             return;
         }
@@ -213,10 +242,18 @@ impl BatchSizer {
     }
 
     /// The queue length below which to ask the master for more: two tiles per thread, as many
-    /// as a batch where batches are larger. Asking earlier for dear tiles would hoard them and
-    /// leave the frame's tail unbalanced.
-    pub fn low_water(&self) -> usize {
-        (2 * self.threads).max(self.batch())
+    /// as a batch where batches are larger, and enough to keep rendering for one `round_trip`
+    /// on top of a batch, so the answer arrives before the queue runs dry. Asking earlier than
+    /// that for dear tiles would hoard them and leave the frame's tail unbalanced.
+    pub fn low_water(&self, round_trip: Option<Duration>) -> usize {
+        let covering = match (round_trip, self.seconds_per_tile) {
+            (Some(rtt), Some(per_tile)) => {
+                let tiles = rtt.as_secs_f64() / per_tile.max(1e-9);
+                self.batch() + tiles.min(Self::MAX_TILES as f64).floor() as usize
+            }
+            _ => 0,
+        };
+        (2 * self.threads).max(self.batch()).max(covering)
     }
 }
 
@@ -225,6 +262,12 @@ mod tests {
     use super::*;
     use crate::render::{Camera, RenderParams};
     use glam::Vec3;
+
+    fn now() -> Instant {
+        // One instant for the tests that are not about time.
+        static BASE: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+        *BASE.get_or_init(Instant::now)
+    }
 
     fn start(frame: u64) -> ToNode {
         ToNode::FrameStart(FrameStart {
@@ -253,40 +296,43 @@ mod tests {
     #[test]
     fn no_request_between_a_frame_start_and_its_share() {
         let mut w = RenderWorker::new(4);
-        w.handle_message(&start(0)).unwrap();
-        assert_eq!(w.poll_request(), None);
-        w.handle_message(&assign(0, 0, 6)).unwrap();
+        w.handle_message(&start(0), now()).unwrap();
+        assert_eq!(w.poll_request(now()), None);
+        w.handle_message(&assign(0, 0, 6), now()).unwrap();
         assert_eq!(
-            w.poll_request(),
+            w.poll_request(now()),
             None,
             "six queued tiles are above the low water"
         );
         let _ = w.next_batch(3);
-        assert!(w.poll_request().is_some());
+        assert!(w.poll_request(now()).is_some());
     }
 
     #[test]
     fn an_empty_share_is_not_an_empty_pool_but_an_empty_answer_is() {
         let mut w = RenderWorker::new(4);
-        w.handle_message(&start(0)).unwrap();
-        w.handle_message(&assign(0, 0, 0)).unwrap();
-        assert!(w.poll_request().is_some());
-        w.handle_message(&assign(0, 0, 0)).unwrap();
-        assert_eq!(w.poll_request(), None, "the pool is drained");
-        w.handle_message(&start(1)).unwrap();
-        w.handle_message(&assign(1, 0, 0)).unwrap();
-        assert!(w.poll_request().is_some(), "a new frame has a new pool");
+        w.handle_message(&start(0), now()).unwrap();
+        w.handle_message(&assign(0, 0, 0), now()).unwrap();
+        assert!(w.poll_request(now()).is_some());
+        w.handle_message(&assign(0, 0, 0), now()).unwrap();
+        assert_eq!(w.poll_request(now()), None, "the pool is drained");
+        w.handle_message(&start(1), now()).unwrap();
+        w.handle_message(&assign(1, 0, 0), now()).unwrap();
+        assert!(
+            w.poll_request(now()).is_some(),
+            "a new frame has a new pool"
+        );
     }
 
     #[test]
     fn tiles_of_an_older_frame_are_rendered_before_a_newer_frames_share() {
         let mut w = RenderWorker::new(1);
-        w.handle_message(&start(0)).unwrap();
-        w.handle_message(&assign(0, 0, 2)).unwrap();
-        w.handle_message(&start(1)).unwrap();
-        w.handle_message(&assign(1, 10, 12)).unwrap();
+        w.handle_message(&start(0), now()).unwrap();
+        w.handle_message(&assign(0, 0, 2), now()).unwrap();
+        w.handle_message(&start(1), now()).unwrap();
+        w.handle_message(&assign(1, 10, 12), now()).unwrap();
         // Tiles of frame 0 given back by a node that died.
-        w.handle_message(&assign(0, 5, 6)).unwrap();
+        w.handle_message(&assign(0, 5, 6), now()).unwrap();
         let order: Vec<(u64, Vec<u32>)> = std::iter::from_fn(|| w.next_batch(8))
             .map(|(s, tiles)| (s.frame.0, tiles.iter().map(|t| t.0).collect()))
             .collect();
@@ -302,11 +348,11 @@ mod tests {
             2,
             "one tile per thread until a batch was measured"
         );
-        assert_eq!(b.low_water(), 4);
+        assert_eq!(b.low_water(None), 4);
         // Tiles of 10 µs: a 0.5 ms batch holds 50.
         b.record(2, Duration::from_micros(20));
         assert_eq!(b.batch(), 50);
-        assert_eq!(b.low_water(), 50);
+        assert_eq!(b.low_water(None), 50);
         // The camera turns to a dense mesh: 5 ms per tile, back to one tile per thread.
         b.record(200, Duration::from_secs(1));
         assert_eq!(b.batch(), 2);
@@ -324,5 +370,26 @@ mod tests {
             b.record(10, Duration::ZERO);
         }
         assert_eq!(b.batch(), BatchSizer::MAX_TILES);
+    }
+
+    #[test]
+    fn the_queue_is_refilled_a_round_trip_ahead() {
+        let mut w = RenderWorker::new(4);
+        let t0 = now();
+        w.handle_message(&start(0), t0).unwrap();
+        w.handle_message(&assign(0, 0, 0), t0).unwrap();
+        assert!(w.poll_request(t0).is_some());
+        w.handle_message(&assign(0, 0, 2), t0 + Duration::from_millis(1))
+            .unwrap();
+        assert_eq!(w.round_trip(), Some(Duration::from_millis(1)));
+        let mut b = BatchSizer::new(1);
+        b.record(2, Duration::from_micros(500));
+        // 250 µs tiles: a batch of 2 (0.5 ms), and 4 more to render while 1 ms goes by.
+        assert_eq!(b.batch(), 2);
+        assert_eq!(b.low_water(None), 2);
+        assert_eq!(b.low_water(w.round_trip()), 6);
+        // Dear tiles against a short round trip: no hoarding beyond two per thread.
+        b.record(2, Duration::from_millis(20));
+        assert_eq!(b.low_water(Some(Duration::from_micros(100))), 2);
     }
 }

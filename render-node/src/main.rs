@@ -218,7 +218,7 @@ async fn run(
     let compression = session.compression;
     let prepared = Arc::new(prepared);
     let mut sizer = BatchSizer::new(threads);
-    let mut worker = RenderWorker::new(sizer.low_water());
+    let mut worker = RenderWorker::new(sizer.low_water(None));
     let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Done>();
     let mut rendering = false;
     let mut stats = RenderStats::default();
@@ -266,7 +266,7 @@ async fn run(
                     });
                 });
             }
-            if let Some(request) = worker.poll_request() {
+            if let Some(request) = worker.poll_request(Instant::now()) {
                 write_msg(&mut send, &request).await?;
             }
         }
@@ -284,7 +284,7 @@ async fn run(
                     }
                     Ok(Some(msg)) => {
                         check_assignment(&msg, &grid)?;
-                        worker.handle_message(&msg).map_err(anyhow::Error::msg)?;
+                        worker.handle_message(&msg, Instant::now()).map_err(anyhow::Error::msg)?;
                     }
                     Ok(None) => bail!("the master ended the session without a shutdown"),
                     Err(e) => bail!("lost the master: {e:#}"),
@@ -294,14 +294,14 @@ async fn run(
                 Done::Rendered { frame, tiles, payloads, rays, took, batch_took } => {
                     rendering = false;
                     sizer.record(tiles.len(), batch_took);
-                    worker.set_low_water(sizer.low_water());
+                    worker.set_low_water(sizer.low_water(worker.round_trip()));
                     stats.tiles += tiles.len() as u64;
                     stats.rays += rays.total();
                     stats.busy_s += took.as_secs_f64();
                     send_pixels(&displays, &grid, frame, compression, tiles, payloads, done_tx.clone());
                 }
                 Done::Delivered { frame, tiles } => {
-                    let report = worker.handle_delivered(frame, &tiles);
+                    let report = worker.handle_delivered(frame, &tiles, Instant::now());
                     write_msg(&mut send, &report).await?;
                 }
                 Done::DeliveryFailed(e) => bail!("cannot deliver pixels: {e}"),

@@ -46,7 +46,7 @@ use crate::balance::{BalanceConfig, Coordinator, Output};
 use crate::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
 use crate::render::{Camera, CameraMode, RenderParams};
 use crate::wall::{DisplayId, ScreenRect, TileGrid, TileId, WallLayout};
-use crate::worker::RenderWorker;
+use crate::worker::{BatchSizer, RenderWorker};
 use glam::Vec3;
 use metrics::{busy_fractions, NodeClock};
 use net::{Network, Rng, Stream};
@@ -63,6 +63,16 @@ pub enum NodeSpeeds {
     Spread { fastest_us: u64, spread: f64 },
     /// Node k takes `tile_us[k mod len]` µs.
     List(Vec<u64>),
+}
+
+/// How a simulated render node sizes its batches and its refill threshold.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Batching {
+    /// As the real render node does: [`BatchSizer`] on the measured (virtual) cost per tile and
+    /// the measured request round trip, for one render thread.
+    Measured,
+    /// `batch` tiles at once, asking for more below `low_water` queued tiles.
+    Fixed { batch: usize, low_water: usize },
 }
 
 /// How much of the picture the displays assemble and check.
@@ -83,10 +93,8 @@ pub struct SimConfig {
     pub latency_us: u64,
     /// Probability that one transmission of a message is lost (it is then retransmitted).
     pub loss: f64,
-    /// Tiles a render node takes from its queue at once.
-    pub batch: usize,
-    /// A render node asks for more work when fewer tiles than this are queued.
-    pub low_water: usize,
+    /// How many tiles a render node takes at once, and when it asks for more.
+    pub batching: Batching,
     pub pixels: PixelCheck,
     pub balance: BalanceConfig,
 }
@@ -98,8 +106,7 @@ impl SimConfig {
             speeds: NodeSpeeds::Cycle,
             latency_us: 50,
             loss: 0.0,
-            batch: 2,
-            low_water: 4,
+            batching: Batching::Measured,
             pixels: PixelCheck::Full,
             balance: BalanceConfig::default(),
         }
@@ -151,6 +158,8 @@ enum Event {
 struct SimNode {
     worker: RenderWorker,
     busy: bool,
+    /// `None` for [`Batching::Fixed`].
+    sizer: Option<BatchSizer>,
 }
 
 pub struct SimWall {
@@ -245,9 +254,16 @@ impl SimWall {
             .collect();
         let nodes = (0..config.render_nodes)
             .map(|k| {
+                let sizer = (config.batching == Batching::Measured).then(|| BatchSizer::new(1));
+                let low_water = match (&sizer, config.batching) {
+                    (_, Batching::Fixed { low_water, .. }) => low_water,
+                    (Some(sizer), _) => sizer.low_water(None),
+                    (None, Batching::Measured) => unreachable!("a measured node has a sizer"),
+                };
                 let node = SimNode {
-                    worker: RenderWorker::new(config.low_water),
+                    worker: RenderWorker::new(low_water),
                     busy: false,
+                    sizer,
                 };
                 (RenderNodeId(k), node)
             })
@@ -267,7 +283,10 @@ impl SimWall {
             base: Instant::now(),
             net: Network::new(seed, config.latency_us, config.loss.clamp(0.0, 1.0)),
             kills: Vec::new(),
-            batch: config.batch.max(1),
+            batch: match config.batching {
+                Batching::Fixed { batch, .. } => batch.max(1),
+                Batching::Measured => 1,
+            },
             frames: 0,
             span: (None, None),
             last_present_us: 0,
@@ -459,7 +478,9 @@ impl SimWall {
                 let Some(n) = self.nodes.get_mut(&node) else {
                     return;
                 };
-                n.worker.handle_message(&msg).expect("valid assignment");
+                n.worker
+                    .handle_message(&msg, now)
+                    .expect("valid assignment");
                 self.start_rendering(node);
             }
             Event::ToDisplay(display, msg) => {
@@ -497,6 +518,11 @@ impl SimWall {
                 let clock = &mut self.clocks[node.0 as usize];
                 if let Some(since) = clock.busy_since.take() {
                     clock.busy_us += self.now_us - since;
+                    if let Some(sizer) = &mut n.sizer {
+                        sizer.record(tiles.len(), Duration::from_micros(self.now_us - since));
+                        n.worker
+                            .set_low_water(sizer.low_water(n.worker.round_trip()));
+                    }
                 }
                 // One pixel batch per display, as the real node batches its writes.
                 let mut arrived = self.now_us;
@@ -530,7 +556,7 @@ impl SimWall {
                 let Some(n) = self.nodes.get_mut(&node) else {
                     return;
                 };
-                let report = n.worker.handle_delivered(frame, &tiles);
+                let report = n.worker.handle_delivered(frame, &tiles, now);
                 self.send(Event::FromRender(node, report));
             }
         }
@@ -575,14 +601,15 @@ impl SimWall {
     }
 
     fn start_rendering(&mut self, node: RenderNodeId) {
-        let batch = self.batch;
+        let now = self.now();
         let Some(n) = self.nodes.get_mut(&node) else {
             return;
         };
         if n.busy {
             return;
         }
-        let request = n.worker.poll_request();
+        let batch = n.sizer.as_ref().map_or(self.batch, BatchSizer::batch);
+        let request = n.worker.poll_request(now);
         let Some((start, tiles)) = n.worker.next_batch(batch) else {
             if let Some(r) = request {
                 self.send(Event::FromRender(node, r));
