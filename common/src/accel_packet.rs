@@ -18,9 +18,12 @@ use crate::geometry::Ray;
 use crate::render::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
 
-/// The packet's rays in lanes: shared origin, inverse directions and current hit distances.
+/// The packet's rays in lanes: origins, inverse directions and current hit distances.
 struct Lanes {
+    /// The shared origin, when there is one.
     origin: Vec3,
+    /// Per-lane origins, for packets without a common one (shadow rays).
+    org: [[f32; PACKET_RAYS]; 3],
     inv: [[f32; PACKET_RAYS]; 3],
     /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
     /// packet's end or with an empty interval, so they never enter a box.
@@ -30,24 +33,28 @@ struct Lanes {
 }
 
 impl Lanes {
-    /// Entry distance of every lane into the box, +inf where the lane misses it.
+    /// Entry distance of every lane into the box, +inf where the lane misses it. `COMMON`:
+    /// all lanes start at `origin` (the box offsets are then shared).
     #[inline(always)]
-    fn enter(&self, min: Vec3, max: Vec3, out: &mut [f32; PACKET_RAYS]) -> bool {
-        let lo = [
-            min.x - self.origin.x,
-            min.y - self.origin.y,
-            min.z - self.origin.z,
-        ];
-        let hi = [
-            max.x - self.origin.x,
-            max.y - self.origin.y,
-            max.z - self.origin.z,
-        ];
+    fn enter<const COMMON: bool>(
+        &self,
+        min: Vec3,
+        max: Vec3,
+        out: &mut [f32; PACKET_RAYS],
+    ) -> bool {
+        let shared_lo = min - self.origin;
+        let shared_hi = max - self.origin;
         let mut any = false;
         for i in 0..PACKET_RAYS {
-            let (x0, x1) = (lo[0] * self.inv[0][i], hi[0] * self.inv[0][i]);
-            let (y0, y1) = (lo[1] * self.inv[1][i], hi[1] * self.inv[1][i]);
-            let (z0, z1) = (lo[2] * self.inv[2][i], hi[2] * self.inv[2][i]);
+            let (lo, hi) = if COMMON {
+                (shared_lo, shared_hi)
+            } else {
+                let o = Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i]);
+                (min - o, max - o)
+            };
+            let (x0, x1) = (lo.x * self.inv[0][i], hi.x * self.inv[0][i]);
+            let (y0, y1) = (lo.y * self.inv[1][i], hi.y * self.inv[1][i]);
+            let (z0, z1) = (lo.z * self.inv[2][i], hi.z * self.inv[2][i]);
             let near = x0
                 .min(x1)
                 .max(y0.min(y1))
@@ -118,15 +125,75 @@ impl Accel {
             }
             return;
         }
-        if self.nodes.is_empty() || n == 0 {
-            return;
+        self.traverse_packet::<true, false>(packet, hits, stack);
+    }
+
+    /// Which rays of the packet hit a triangle within their interval, as bits (ray i is bit
+    /// i): shadow rays, which stop at the first hit. Rays need no common origin; the answer is
+    /// the same as [`Accel::occluded`] ray by ray.
+    pub fn occluded_lanes(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2, checked just above.
+            return unsafe { self.occluded_lanes_avx2(packet, stack) };
         }
+        self.occluded_lanes_portable(packet, stack)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn occluded_lanes_avx2(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
+        self.occluded_lanes_generic(packet, stack)
+    }
+
+    /// The baseline build, also used to check that the SIMD builds agree.
+    pub fn occluded_lanes_portable(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
+        self.occluded_lanes_generic(packet, stack)
+    }
+
+    #[inline(always)]
+    fn occluded_lanes_generic(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
+        let mut hits = [PacketHit::MISS; PACKET_RAYS];
+        if packet.has(COMMON_ORIGIN) {
+            self.traverse_packet::<true, true>(packet, &mut hits, stack)
+        } else {
+            self.traverse_packet::<false, true>(packet, &mut hits, stack)
+        }
+    }
+
+    /// The packet traversal. `COMMON`: the rays share `packet.origin`, which allows frustum
+    /// culling. `ANY`: stop each ray at its first hit and return the rays that hit as bits;
+    /// otherwise fill `hits` with the closest hits.
+    #[inline(always)]
+    fn traverse_packet<const COMMON: bool, const ANY: bool>(
+        &self,
+        packet: &mut RayPacket,
+        hits: &mut [PacketHit; PACKET_RAYS],
+        stack: &mut Vec<u32>,
+    ) -> u64 {
+        let n = packet.len();
+        if self.nodes.is_empty() || n == 0 {
+            return 0;
+        }
+        let all: u64 = if n == PACKET_RAYS {
+            u64::MAX
+        } else {
+            (1 << n) - 1
+        };
+        let mut blocked = 0u64;
         let origin = packet.origin;
-        let frustum = Frustum::of(packet);
-        let rays: [Ray; PACKET_RAYS] =
-            std::array::from_fn(|i| Ray::new(origin, packet.direction(i.min(n - 1))));
+        let frustum = if COMMON {
+            Some(Frustum::of(packet))
+        } else {
+            None
+        };
+        let rays: [Ray; PACKET_RAYS] = std::array::from_fn(|i| {
+            let i = i.min(n - 1);
+            Ray::new(packet.ray_origin(i), packet.direction(i))
+        });
         let mut lanes = Lanes {
             origin,
+            org: packet.org,
             inv: *packet.inverse_directions(),
             t: std::array::from_fn(|i| {
                 if i < n && packet.t_min[i] <= packet.t_max[i] {
@@ -144,11 +211,14 @@ impl Accel {
         stack.extend([0, 0]);
         while let (Some(index), Some(first)) = (stack.pop(), stack.pop()) {
             let node = &self.nodes[index as usize];
-            if frustum.misses(node.min, node.max, origin, f32::INFINITY) {
+            if frustum
+                .as_ref()
+                .is_some_and(|f| f.misses(node.min, node.max, origin, f32::INFINITY))
+            {
                 continue;
             }
             if node.count > 0 {
-                if !lanes.enter(node.min, node.max, &mut entry) {
+                if !lanes.enter::<COMMON>(node.min, node.max, &mut entry) {
                     continue;
                 }
                 for i in first as usize..n {
@@ -160,10 +230,19 @@ impl Accel {
                         if let Some(t) =
                             rays[i].hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], lanes.t[i])
                         {
+                            if ANY {
+                                // Done with this ray: it enters no box from now on.
+                                blocked |= 1 << i;
+                                lanes.t[i] = f32::NEG_INFINITY;
+                                break;
+                            }
                             lanes.t[i] = t;
                             hits[i] = PacketHit::new(t, slot);
                         }
                     }
+                }
+                if ANY && blocked == all {
+                    break;
                 }
                 continue;
             }
@@ -186,6 +265,7 @@ impl Accel {
                 stack.extend([active, l, active, r]);
             }
         }
+        blocked
     }
 }
 
@@ -278,5 +358,60 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn shadow_packets_agree_with_single_shadow_rays_on_every_simd_path() {
+        let scene = knot_scene(256, 32);
+        let accel = Accel::build(&scene);
+        let mut stack = accel.new_stack();
+        let camera = CameraMode::orbit_of(&scene.bounds()).camera_for_frame(30);
+        let rays = camera.rays_for(96, 64);
+        let light = Vec3::new(3.0, 4.0, 2.0);
+        let mut blocked_somewhere = 0;
+        for (x0, y0) in [(0, 0), (40, 24), (48, 32), (88, 56), (24, 40)] {
+            // Shadow rays from where the primary rays hit, towards a point light (stopping
+            // short of it) and towards a directional light (no end).
+            let mut primary = RayPacket::primary(&rays, x0, y0, 8, 8);
+            let mut hits = [PacketHit::MISS; PACKET_RAYS];
+            accel.closest_hits(&mut primary, &mut hits, &mut stack);
+            let starts: Vec<Vec3> = (0..primary.len())
+                .map(|i| {
+                    let t = if hits[i].t.is_finite() {
+                        hits[i].t * 0.999
+                    } else {
+                        1.0
+                    };
+                    camera.eye + primary.direction(i) * t
+                })
+                .collect();
+            for point_light in [true, false] {
+                let mut packet = RayPacket::from_rays(starts.iter().map(|&o| {
+                    let towards = if point_light {
+                        light - o
+                    } else {
+                        Vec3::new(0.3, 1.0, 0.2)
+                    };
+                    (o, towards.normalize())
+                }));
+                for (i, &o) in starts.iter().enumerate() {
+                    packet.t_max[i] = if point_light {
+                        (light - o).length()
+                    } else {
+                        f32::INFINITY
+                    };
+                }
+                let fast = accel.occluded_lanes(&mut packet, &mut stack);
+                let portable = accel.occluded_lanes_portable(&mut packet, &mut stack);
+                assert_eq!(fast, portable, "SIMD paths disagree");
+                for (i, &o) in starts.iter().enumerate() {
+                    let ray = Ray::new(o, packet.direction(i));
+                    let single = accel.occluded(&ray, 0.0, packet.t_max[i], &mut stack);
+                    assert_eq!(fast >> i & 1 == 1, single, "block ({x0}, {y0}) ray {i}");
+                }
+                blocked_somewhere += fast.count_ones();
+            }
+        }
+        assert!(blocked_somewhere > 0, "the test must see some shadow");
     }
 }

@@ -73,6 +73,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             for (b, n) in [
                 (&mut best.primary, t.primary),
                 (&mut best.shadow, t.shadow),
+                (&mut best.shadow_single, t.shadow_single),
                 (&mut best.ambient, t.ambient),
             ] {
                 if n.seconds < b.seconds {
@@ -85,6 +86,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let times = measure(&pool);
     println!("TESSERA_PRIMARY_MRAYPS {:.3}", times.primary.mrays_per_s());
     println!("TESSERA_SHADOW_MRAYPS {:.3}", times.shadow.mrays_per_s());
+    println!(
+        "TESSERA_SHADOW_SINGLE_MRAYPS {:.3} (the same shadow rays one by one; packets are {:.2}x)",
+        times.shadow_single.mrays_per_s(),
+        times.shadow.mrays_per_s() / times.shadow_single.mrays_per_s()
+    );
     println!("TESSERA_AO_MRAYPS {:.3}", times.ambient.mrays_per_s());
     if threads > 1 {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;

@@ -1,7 +1,8 @@
 //! Throughput of each kind of ray on a whole image, for `tessera-render-node bench`.
 //!
 //! Primary rays are traced as 8×8 packets exactly as when rendering; shadow and
-//! ambient-occlusion rays start from the primary hits. Each pass is timed alone so the figures
+//! ambient-occlusion rays start from the primary hits. Shadow rays are timed twice: as packets
+//! (the hits of one primary packet together, as the renderer traces them) and as single rays. Each pass is timed alone so the figures
 //! compare with other tracers' (e.g. Embree's) ray-cast-only numbers.
 
 use super::packet::{PacketHit, RayPacket, PACKET_RAYS};
@@ -34,7 +35,10 @@ impl Pass {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PassTimes {
     pub primary: Pass,
+    /// Shadow rays in packets, as the renderer traces them.
     pub shadow: Pass,
+    /// The same shadow rays one by one.
+    pub shadow_single: Pass,
     pub ambient: Pass,
 }
 
@@ -90,6 +94,38 @@ pub fn time_passes(
         Light::Directional { towards, .. } => towards,
         Light::Point { position, .. } => position.normalize_or_zero(),
     });
+    // Shadow packets: the hit points of one primary packet, in order.
+    let packets: Vec<Vec<Vec3>> = traced
+        .par_iter()
+        .map(|(packet, hits)| {
+            (0..packet.len())
+                .filter_map(|i| {
+                    let hit = hits[i].slot().map(|slot| Hit { t: hits[i].t, slot })?;
+                    let (p, n) = surface(scene, view.rays.eye, packet.direction(i), hit);
+                    Some(offset_origin(p, n, scene.diagonal))
+                })
+                .collect()
+        })
+        .collect();
+    let t_packets = Instant::now();
+    let shadow_packets: u64 = match towards {
+        Some(l) => packets
+            .par_iter()
+            .map_init(
+                || scene.accel.new_stack(),
+                |stack, starts| {
+                    let mut packet = RayPacket::from_rays(starts.iter().map(|&o| (o, l)));
+                    std::hint::black_box(scene.accel.occluded_lanes(&mut packet, stack));
+                    starts.len() as u64
+                },
+            )
+            .sum(),
+        None => 0,
+    };
+    let shadow = Pass {
+        rays: shadow_packets,
+        seconds: t_packets.elapsed().as_secs_f64(),
+    };
     let t1 = Instant::now();
     let shadow_rays: u64 = match towards {
         Some(l) => starts
@@ -109,7 +145,7 @@ pub fn time_passes(
             .sum(),
         None => 0,
     };
-    let shadow = Pass {
+    let shadow_single = Pass {
         rays: shadow_rays,
         seconds: t1.elapsed().as_secs_f64(),
     };
@@ -133,6 +169,7 @@ pub fn time_passes(
     PassTimes {
         primary: primary_pass,
         shadow,
+        shadow_single,
         ambient: Pass {
             rays: ao_rays,
             seconds: t2.elapsed().as_secs_f64(),

@@ -11,6 +11,7 @@ pub mod cut;
 pub mod packet;
 pub mod sampling;
 mod shade;
+mod shadow_packet;
 
 pub use camera::{Camera, CameraError, CameraMode, PixelRays};
 pub use cut::CutPlanes;
@@ -207,6 +208,23 @@ pub fn render_tiles(
     view: &FrameView,
     tiles: &[Tile],
 ) -> (Vec<Vec<u8>>, RayCounts) {
+    render_tiles_with(scene, view, tiles, ShadowRays::Packets)
+}
+
+/// How primary hits trace their shadow rays; both give the same pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum ShadowRays {
+    Packets,
+    #[cfg_attr(not(test), allow(dead_code))]
+    Single,
+}
+
+fn render_tiles_with(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tiles: &[Tile],
+    shadow_rays: ShadowRays,
+) -> (Vec<Vec<u8>>, RayCounts) {
     if scene.is_empty() {
         // Nothing to hit: every pixel is the one backdrop colour and no ray is traced. Encoding
         // it per pixel cost the empty-scene wall (max-fps) a sixth of its CPU.
@@ -227,7 +245,9 @@ pub fn render_tiles(
         .par_iter()
         .map_init(
             || scene.accel.new_stack(),
-            |stack, &(i, px, py)| trace_packet(scene, view, &tiles[i], px, py, stack),
+            |stack, &(i, px, py)| {
+                trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, stack)
+            },
         )
         .collect();
     let mut images: Vec<Vec<u8>> = tiles.iter().map(|t| vec![0; t.pixel_count() * 3]).collect();
@@ -257,8 +277,8 @@ fn trace_packet(
     scene: &PreparedScene,
     view: &FrameView,
     tile: &Tile,
-    px: u32,
-    py: u32,
+    (px, py): (u32, u32),
+    shadow_rays: ShadowRays,
     stack: &mut Vec<u32>,
 ) -> ([u8; (PACKET * PACKET * 3) as usize], RayCounts) {
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
@@ -282,7 +302,7 @@ fn trace_packet(
             view,
             &mut packet,
             (x0, y0, w),
-            sample,
+            (sample, shadow_rays),
             stack,
             &mut sum,
         );
@@ -302,7 +322,7 @@ fn shade_packet(
     view: &FrameView,
     packet: &mut RayPacket,
     (x0, y0, w): (u32, u32, u32),
-    sample: u32,
+    (sample, shadow_rays): (u32, ShadowRays),
     stack: &mut Vec<u32>,
     sum: &mut [Vec3; 64],
 ) -> RayCounts {
@@ -326,7 +346,21 @@ fn shade_packet(
         },
         pixel: (x0, y0),
         first_ao_key: sample * view.params.ao_samples,
+        primary_shadows: None,
     };
+    let packet_shadows = shadow_rays == ShadowRays::Packets;
+    let shadows =
+        (packet_shadows && view.params.shadows && !scene.lights().is_empty()).then(|| {
+            let directions: [Vec3; 64] = std::array::from_fn(|i| packet.direction(i));
+            shadow_packet::primary_shadows(
+                scene,
+                view,
+                view.rays.eye,
+                &directions[..packet.len()],
+                &surfaces[..packet.len()],
+                shader.stack,
+            )
+        });
     // Sub-packets of consecutive rays that hit the same material (or nothing) are shaded
     // together, the material looked up once per run: ranges of the packet, not copies.
     let keys: [Option<u16>; 64] =
@@ -343,6 +377,7 @@ fn shade_packet(
                     // Particles share one key but each has its own colour.
                     let m = material.unwrap_or_else(|| scene.material_of(hit));
                     shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
+                    shader.primary_shadows = shadows.map(|s| s[i]);
                     shader.shade(view.rays.eye, dir, hit, &m, 0)
                 }
             };

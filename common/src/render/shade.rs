@@ -135,6 +135,46 @@ pub struct Shader<'a> {
     pub pixel: (u32, u32),
     /// Key of the first ambient-occlusion sample (non-zero for later supersamples).
     pub first_ao_key: u32,
+    /// For the next primary hit shaded: which of the first 64 lights are blocked (bit k for
+    /// light k), found by a shadow packet. Taken by that hit; others trace single rays.
+    pub primary_shadows: Option<u64>,
+}
+
+/// Surface point and the normal facing the viewer, for a triangle or particle hit.
+pub fn hit_frame(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: SurfaceHit) -> (Vec3, Vec3) {
+    match hit {
+        SurfaceHit::Triangle(h) => surface(scene, origin, dir, h),
+        SurfaceHit::Sphere { t, slot } => {
+            let s = &scene.spheres().spheres[slot as usize];
+            let p = origin + dir * t;
+            let mut n = ((p - s.center) / s.radius).normalize_or_zero();
+            if n.dot(dir) > 0.0 {
+                n = -n;
+            }
+            (p, n)
+        }
+    }
+}
+
+/// Direction towards `light` from `point`, how far the light is, and its intensity there.
+pub fn towards_light(light: &Light, point: Vec3) -> (Vec3, f32, f32) {
+    match *light {
+        Light::Directional { towards, intensity } => (towards, f32::INFINITY, intensity),
+        Light::Point {
+            position,
+            intensity,
+        } => {
+            let d = position - point;
+            let dist2 = d.length_squared();
+            (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2.max(1e-30))
+        }
+    }
+}
+
+/// Whether a shadow ray leaves towards the light at all: the light is in front of the surface.
+pub fn faces_light(normal: Vec3, towards: Vec3) -> Option<f32> {
+    let cos = normal.dot(towards);
+    (cos > 0.0 && cos.is_finite()).then_some(cos)
 }
 
 impl Shader<'_> {
@@ -196,20 +236,14 @@ impl Shader<'_> {
         material: &Material,
         depth: u32,
     ) -> Vec3 {
-        let (point, normal) = match hit {
-            SurfaceHit::Triangle(h) => surface(self.scene, origin, dir, h),
-            SurfaceHit::Sphere { t, slot } => {
-                let s = &self.scene.spheres().spheres[slot as usize];
-                let p = origin + dir * t;
-                let mut n = ((p - s.center) / s.radius).normalize_or_zero();
-                if n.dot(dir) > 0.0 {
-                    n = -n;
-                }
-                (p, n)
-            }
-        };
+        let (point, normal) = hit_frame(self.scene, origin, dir, hit);
         let start = offset_origin(point, normal, self.scene.diagonal);
-        let mut color = self.local(dir, point, normal, start, material);
+        let known_shadows = if depth == 0 {
+            self.primary_shadows.take()
+        } else {
+            None
+        };
+        let mut color = self.local(dir, point, normal, start, material, known_shadows);
         if material.is_mirror() && depth < MAX_DEPTH {
             self.counts.reflected += 1;
             let reflected = dir - 2.0 * dir.dot(normal) * normal;
@@ -236,6 +270,7 @@ impl Shader<'_> {
         normal: Vec3,
         start: Vec3,
         material: &Material,
+        known_shadows: Option<u64>,
     ) -> Vec3 {
         let headlight = (-normal.dot(dir)).max(0.0);
         let glossy = material.has_specular();
@@ -247,25 +282,18 @@ impl Shader<'_> {
             highlight += 0.35 * phong_lobe(r_dot_v, material.shininess);
         }
         let mut direct = 0.0;
-        for light in self.scene.lights() {
-            let (towards, reach, intensity) = match *light {
-                Light::Directional { towards, intensity } => (towards, f32::INFINITY, intensity),
-                Light::Point {
-                    position,
-                    intensity,
-                } => {
-                    let d = position - point;
-                    let dist2 = d.length_squared();
-                    (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2.max(1e-30))
-                }
-            };
-            let cos = normal.dot(towards);
-            if cos <= 0.0 || !cos.is_finite() {
+        for (k, light) in self.scene.lights().iter().enumerate() {
+            let (towards, reach, intensity) = towards_light(light, point);
+            let Some(cos) = faces_light(normal, towards) else {
                 continue;
-            }
+            };
             if self.view.params.shadows {
                 self.counts.shadow += 1;
-                if self.blocked(&Ray::new(start, towards), reach) {
+                let blocked = match known_shadows {
+                    Some(bits) if k < 64 => bits >> k & 1 == 1,
+                    _ => self.blocked(&Ray::new(start, towards), reach),
+                };
+                if blocked {
                     continue;
                 }
             }

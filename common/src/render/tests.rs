@@ -317,3 +317,47 @@ fn an_empty_scene_traces_nothing() {
     assert_eq!(counts.total(), 0);
     assert!(image.chunks(3).all(|p| p == &image[..3]));
 }
+
+#[test]
+fn shadow_packets_give_the_pixels_of_single_shadow_rays() {
+    use crate::scene::particles::Particle;
+    use crate::scene::{Light, SceneSpec};
+    // Mirrors and glass (their bounces trace single shadow rays), a point light, two
+    // directional lights, particles that cast shadows, and a cutting plane.
+    let mut scene = Scene::load(&SceneSpec::Gallery).unwrap();
+    scene.lights.push(Light::Directional {
+        towards: Vec3::new(0.3, 1.0, 0.4).normalize(),
+        intensity: 0.6,
+    });
+    scene.lights.push(Light::Directional {
+        towards: Vec3::new(-0.8, 0.5, 0.1).normalize(),
+        intensity: 0.3,
+    });
+    scene.particles = (0..12)
+        .map(|i| Particle {
+            center: Vec3::new(i as f32 * 0.5 - 3.0, 1.5, 0.5),
+            radius: 0.2,
+            attribute: i as f32,
+        })
+        .collect();
+    let prepared = PreparedScene::new(&scene);
+    assert!(prepared.spheres.is_some() && prepared.lights().len() >= 3);
+    let grid = TileGrid::new(WallLayout::grid(1, 1, 96, 64).with_tile_size(32));
+    for cuts in [
+        CutPlanes::EMPTY,
+        CutPlanes::new(&[(Vec3::new(0.1, 1.0, 0.0), 1.2)]).unwrap(),
+    ] {
+        let params = RenderParams {
+            cuts,
+            ..RenderParams::interactive()
+        };
+        let view = FrameView::new(0, &gallery_camera(), params, 96, 64);
+        let (packets, packet_counts) =
+            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Packets);
+        let (single, single_counts) =
+            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Single);
+        assert!(packet_counts.shadow > 1000, "{packet_counts:?}");
+        assert_eq!(packet_counts, single_counts);
+        assert_eq!(packets, single);
+    }
+}
