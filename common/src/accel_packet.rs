@@ -182,11 +182,7 @@ impl Accel {
         };
         let mut blocked = 0u64;
         let origin = packet.origin;
-        let frustum = if COMMON {
-            Some(Frustum::of(packet))
-        } else {
-            None
-        };
+        let frustum = Frustum::of(packet);
         let rays: [Ray; PACKET_RAYS] = std::array::from_fn(|i| {
             let i = i.min(n - 1);
             Ray::new(packet.ray_origin(i), packet.direction(i))
@@ -211,10 +207,12 @@ impl Accel {
         stack.extend([0, 0]);
         while let (Some(index), Some(first)) = (stack.pop(), stack.pop()) {
             let node = &self.nodes[index as usize];
-            if frustum
-                .as_ref()
-                .is_some_and(|f| f.misses(node.min, node.max, origin, f32::INFINITY))
-            {
+            let culled = if COMMON {
+                frustum.misses(node.min, node.max, origin, f32::INFINITY)
+            } else {
+                frustum.misses_from_origins(node.min, node.max, f32::INFINITY)
+            };
+            if culled {
                 continue;
             }
             if node.count > 0 {
@@ -269,10 +267,13 @@ impl Accel {
     }
 }
 
-/// Bounds on the inverse directions of a packet, for culling boxes no ray of it can enter.
+/// Bounds on the origins and inverse directions of a packet, for culling boxes no ray of it
+/// can enter.
 struct Frustum {
     /// Per axis: smallest and largest inverse direction, when all rays agree in sign.
     inv: [(f32, f32); 3],
+    /// Per axis: smallest and largest origin (equal for a common origin).
+    org: [(f32, f32); 3],
     usable: bool,
 }
 
@@ -290,8 +291,15 @@ impl Frustum {
             usable &= lo.is_finite() && hi.is_finite() && (lo > 0.0 || hi < 0.0);
             bounds[axis] = (lo, hi);
         }
+        let org = std::array::from_fn(|axis| {
+            let lanes = &packet.org[axis][..n];
+            let lo = lanes.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+            let hi = lanes.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+            (lo, hi)
+        });
         Frustum {
             inv: bounds,
+            org,
             usable,
         }
     }
@@ -310,6 +318,27 @@ impl Frustum {
             let (enter, exit) = if lo > 0.0 { (a, b) } else { (b, a) };
             near = near.max((enter * lo).min(enter * hi));
             far = far.min((exit * lo).max(exit * hi));
+        }
+        near > far
+    }
+
+    /// The same for rays with their own origins: the slab distances become products of two
+    /// intervals (box side minus origin, times inverse direction), bounded by their corners.
+    fn misses_from_origins(&self, min: Vec3, max: Vec3, t_max: f32) -> bool {
+        if !self.usable {
+            return false;
+        }
+        let mut near = 0.0f32;
+        let mut far = t_max;
+        for axis in 0..3 {
+            let (lo, hi) = self.inv[axis];
+            let (o_lo, o_hi) = self.org[axis];
+            let a = (min[axis] - o_hi, min[axis] - o_lo);
+            let b = (max[axis] - o_hi, max[axis] - o_lo);
+            let (enter, exit) = if lo > 0.0 { (a, b) } else { (b, a) };
+            let products = |(x0, x1): (f32, f32)| [x0 * lo, x0 * hi, x1 * lo, x1 * hi];
+            near = near.max(products(enter).into_iter().fold(f32::INFINITY, f32::min));
+            far = far.min(products(exit).into_iter().fold(f32::NEG_INFINITY, f32::max));
         }
         near > far
     }
