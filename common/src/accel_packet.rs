@@ -5,8 +5,9 @@
 //! one test; inner nodes then test single rays from the first active one until one enters
 //! (Wald's "first hit" traversal), and leaves test all 64 lanes at once in structure-of-arrays
 //! form, which the compiler turns into 8-wide SIMD, so that only the lanes whose rays enter a
-//! leaf test its triangles. Packets that lose coherence (no common origin) fall back to single
-//! rays.
+//! leaf test its triangles. Closest-hit packets without a common origin fall back to single
+//! rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a frustum
+//! built from the box of their origins and stop each ray at its first hit.
 //!
 //! The SIMD width is chosen at run time: an AVX2 build of the same code runs where the CPU has
 //! it, the baseline SSE2 build elsewhere. Both give bit-identical results, because Rust never
