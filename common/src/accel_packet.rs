@@ -20,11 +20,11 @@ use crate::render::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
 
 /// The packet's rays in lanes: origins, inverse directions and current hit distances.
-struct Lanes {
+struct Lanes<'a> {
     /// The shared origin, when there is one.
     origin: Vec3,
     /// Per-lane origins, for packets without a common one (shadow rays).
-    org: [[f32; PACKET_RAYS]; 3],
+    org: &'a [[f32; PACKET_RAYS]; 3],
     inv: [[f32; PACKET_RAYS]; 3],
     /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
     /// packet's end or with an empty interval, so they never enter a box.
@@ -33,7 +33,7 @@ struct Lanes {
     t_min: [f32; PACKET_RAYS],
 }
 
-impl Lanes {
+impl Lanes<'_> {
     /// Entry distance of every lane into the box, +inf where the lane misses it. `COMMON`:
     /// all lanes start at `origin` (the box offsets are then shared).
     #[inline(always)]
@@ -183,15 +183,17 @@ impl Accel {
         };
         let mut blocked = 0u64;
         let origin = packet.origin;
-        let frustum = Frustum::of(packet);
+        let frustum = Frustum::of(packet, !COMMON);
         let rays: [Ray; PACKET_RAYS] = std::array::from_fn(|i| {
             let i = i.min(n - 1);
-            Ray::new(packet.ray_origin(i), packet.direction(i))
+            let o = if COMMON { origin } else { packet.ray_origin(i) };
+            Ray::new(o, packet.direction(i))
         });
+        let inv = *packet.inverse_directions();
         let mut lanes = Lanes {
             origin,
-            org: packet.org,
-            inv: *packet.inverse_directions(),
+            org: &packet.org,
+            inv,
             t: std::array::from_fn(|i| {
                 if i < n && packet.t_min[i] <= packet.t_max[i] {
                     packet.t_max[i]
@@ -279,7 +281,8 @@ struct Frustum {
 }
 
 impl Frustum {
-    fn of(packet: &mut RayPacket) -> Self {
+    /// `with_origins`: also bound the origins (for rays that do not share one).
+    fn of(packet: &mut RayPacket, with_origins: bool) -> Self {
         let n = packet.len();
         let inv = packet.inverse_directions();
         let mut bounds = [(0.0, 0.0); 3];
@@ -293,6 +296,9 @@ impl Frustum {
             bounds[axis] = (lo, hi);
         }
         let org = std::array::from_fn(|axis| {
+            if !with_origins {
+                return (0.0, 0.0);
+            }
             let lanes = &packet.org[axis][..n];
             let lo = lanes.iter().fold(f32::INFINITY, |a, &b| a.min(b));
             let hi = lanes.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
