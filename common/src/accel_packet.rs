@@ -183,7 +183,7 @@ impl Accel {
         };
         let mut blocked = 0u64;
         let origin = packet.origin;
-        let frustum = Frustum::of(packet, !COMMON);
+        let frustum = Frustum::of(packet);
         let rays: [Ray; PACKET_RAYS] = std::array::from_fn(|i| {
             let i = i.min(n - 1);
             let o = if COMMON { origin } else { packet.ray_origin(i) };
@@ -210,12 +210,7 @@ impl Accel {
         stack.extend([0, 0]);
         while let (Some(index), Some(first)) = (stack.pop(), stack.pop()) {
             let node = &self.nodes[index as usize];
-            let culled = if COMMON {
-                frustum.misses(node.min, node.max, origin, f32::INFINITY)
-            } else {
-                frustum.misses_from_origins(node.min, node.max, f32::INFINITY)
-            };
-            if culled {
+            if frustum.misses(node.min, node.max, f32::INFINITY) {
                 continue;
             }
             if node.count > 0 {
@@ -275,63 +270,34 @@ impl Accel {
 struct Frustum {
     /// Per axis: smallest and largest inverse direction, when all rays agree in sign.
     inv: [(f32, f32); 3],
-    /// Per axis: smallest and largest origin (equal for a common origin).
+    /// Per axis: smallest and largest origin (one point for a common origin).
     org: [(f32, f32); 3],
     usable: bool,
 }
 
 impl Frustum {
-    /// `with_origins`: also bound the origins (for rays that do not share one).
-    fn of(packet: &mut RayPacket, with_origins: bool) -> Self {
+    fn of(packet: &mut RayPacket) -> Self {
         let n = packet.len();
+        let common = packet.has(COMMON_ORIGIN).then_some(packet.origin);
+        let org = std::array::from_fn(|axis| match common {
+            Some(origin) => (origin[axis], origin[axis]),
+            None => span(&packet.org[axis][..n]),
+        });
         let inv = packet.inverse_directions();
-        let mut bounds = [(0.0, 0.0); 3];
         let mut usable = n > 0;
-        for axis in 0..3 {
-            let lanes = &inv[axis][..n];
-            let lo = lanes.iter().fold(f32::INFINITY, |a, &b| a.min(b));
-            let hi = lanes.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+        let inv = std::array::from_fn(|axis| {
+            let (lo, hi) = span(&inv[axis][..n]);
             // Mixed signs (or an axis-parallel ray) make the interval bounds meaningless.
             usable &= lo.is_finite() && hi.is_finite() && (lo > 0.0 || hi < 0.0);
-            bounds[axis] = (lo, hi);
-        }
-        let org = std::array::from_fn(|axis| {
-            if !with_origins {
-                return (0.0, 0.0);
-            }
-            let lanes = &packet.org[axis][..n];
-            let lo = lanes.iter().fold(f32::INFINITY, |a, &b| a.min(b));
-            let hi = lanes.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
             (lo, hi)
         });
-        Frustum {
-            inv: bounds,
-            org,
-            usable,
-        }
+        Frustum { inv, org, usable }
     }
 
-    /// True when no ray of the packet can enter the box before `t_max`.
-    fn misses(&self, min: Vec3, max: Vec3, origin: Vec3, t_max: f32) -> bool {
-        if !self.usable {
-            return false;
-        }
-        let mut near = 0.0f32;
-        let mut far = t_max;
-        for axis in 0..3 {
-            let (lo, hi) = self.inv[axis];
-            let (a, b) = (min[axis] - origin[axis], max[axis] - origin[axis]);
-            // Rays going + enter through the min slab, rays going - through the max slab.
-            let (enter, exit) = if lo > 0.0 { (a, b) } else { (b, a) };
-            near = near.max((enter * lo).min(enter * hi));
-            far = far.min((exit * lo).max(exit * hi));
-        }
-        near > far
-    }
-
-    /// The same for rays with their own origins: the slab distances become products of two
-    /// intervals (box side minus origin, times inverse direction), bounded by their corners.
-    fn misses_from_origins(&self, min: Vec3, max: Vec3, t_max: f32) -> bool {
+    /// True when no ray of the packet can enter the box before `t_max`. Per axis, the slab
+    /// distances are products of two intervals (box side minus origin, times inverse
+    /// direction), bounded by their corners; for a common origin the first interval is a point.
+    fn misses(&self, min: Vec3, max: Vec3, t_max: f32) -> bool {
         if !self.usable {
             return false;
         }
@@ -342,6 +308,7 @@ impl Frustum {
             let (o_lo, o_hi) = self.org[axis];
             let a = (min[axis] - o_hi, min[axis] - o_lo);
             let b = (max[axis] - o_hi, max[axis] - o_lo);
+            // Rays going + enter through the min slab, rays going - through the max slab.
             let (enter, exit) = if lo > 0.0 { (a, b) } else { (b, a) };
             let products = |(x0, x1): (f32, f32)| [x0 * lo, x0 * hi, x1 * lo, x1 * hi];
             near = near.max(products(enter).into_iter().fold(f32::INFINITY, f32::min));
@@ -349,6 +316,15 @@ impl Frustum {
         }
         near > far
     }
+}
+
+/// Smallest and largest of `values`.
+fn span(values: &[f32]) -> (f32, f32) {
+    values
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        })
 }
 
 #[cfg(test)]
