@@ -346,7 +346,7 @@ fn shade_packet(
         },
         pixel: (x0, y0),
         first_ao_key: sample * view.params.ao_samples,
-        primary_shadows: None,
+        primary: None,
     };
     let packet_shadows = shadow_rays == ShadowRays::Packets;
     let shadows =
@@ -377,7 +377,7 @@ fn shade_packet(
                     // Particles share one key but each has its own colour.
                     let m = material.unwrap_or_else(|| scene.material_of(hit));
                     shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
-                    shader.primary_shadows = shadows.map(|s| s[i]);
+                    shader.primary = shadows.and_then(|s| s[i]);
                     shader.shade(view.rays.eye, dir, hit, &m, 0)
                 }
             };

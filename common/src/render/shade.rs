@@ -9,6 +9,7 @@
 
 use super::cut::CutPlanes;
 use super::sampling::{cosine_direction, SampleStream};
+use super::shadow_packet::PrimaryHit;
 use super::{FrameView, PreparedScene, RayCounts};
 use crate::accel::Hit;
 use crate::geometry::{triangle_normal, Ray};
@@ -135,9 +136,9 @@ pub struct Shader<'a> {
     pub pixel: (u32, u32),
     /// Key of the first ambient-occlusion sample (non-zero for later supersamples).
     pub first_ao_key: u32,
-    /// For the next primary hit shaded: which of the first 64 lights are blocked (bit k for
-    /// light k), found by a shadow packet. Taken by that hit; others trace single rays.
-    pub primary_shadows: Option<u64>,
+    /// The next primary hit to shade, as its shadow packet found it (which of the first 64
+    /// lights are blocked). Taken by that hit; other hits trace single shadow rays.
+    pub primary: Option<PrimaryHit>,
 }
 
 /// Surface point and the normal facing the viewer, for a triangle or particle hit.
@@ -236,14 +237,30 @@ impl Shader<'_> {
         material: &Material,
         depth: u32,
     ) -> Vec3 {
-        let (point, normal) = hit_frame(self.scene, origin, dir, hit);
-        let start = offset_origin(point, normal, self.scene.diagonal);
-        let known_shadows = if depth == 0 {
-            self.primary_shadows.take()
+        let known = if depth == 0 {
+            self.primary.take()
         } else {
             None
         };
-        let mut color = self.local(dir, point, normal, start, material, known_shadows);
+        let (point, normal, start) = match known {
+            Some(p) => (p.point, p.normal, p.start),
+            None => {
+                let (point, normal) = hit_frame(self.scene, origin, dir, hit);
+                (
+                    point,
+                    normal,
+                    offset_origin(point, normal, self.scene.diagonal),
+                )
+            }
+        };
+        let mut color = self.local(
+            dir,
+            point,
+            normal,
+            start,
+            material,
+            known.map(|p| p.blocked),
+        );
         if material.is_mirror() && depth < MAX_DEPTH {
             self.counts.reflected += 1;
             let reflected = dir - 2.0 * dir.dot(normal) * normal;

@@ -17,9 +17,21 @@ use glam::Vec3;
 /// Lights whose shadows are traced as packets; further lights use single rays.
 pub const PACKET_LIGHTS: usize = 64;
 
-/// For each lane with a surface: bit k set when light k (of the first [`PACKET_LIGHTS`]) is
-/// blocked. Lanes whose surface faces away from a light have no shadow ray for it, and their
-/// bit is unused.
+/// A primary hit as the shadow packets saw it, handed on to shading so it is not worked out
+/// twice.
+#[derive(Clone, Copy, Debug)]
+pub struct PrimaryHit {
+    pub point: Vec3,
+    /// Facing the viewer.
+    pub normal: Vec3,
+    /// Where rays leaving the surface start (see [`offset_origin`]).
+    pub start: Vec3,
+    /// Bit k set when light k (of the first [`PACKET_LIGHTS`]) is blocked. A light the surface
+    /// faces away from has no shadow ray, and its bit is unused.
+    pub blocked: u64,
+}
+
+/// For each lane with a surface: its hit, with the lights that are blocked.
 pub fn primary_shadows(
     scene: &PreparedScene,
     view: &FrameView,
@@ -27,28 +39,31 @@ pub fn primary_shadows(
     directions: &[Vec3],
     surfaces: &[Option<SurfaceHit>],
     stack: &mut Vec<u32>,
-) -> [u64; PACKET_RAYS] {
-    let mut blocked = [0u64; PACKET_RAYS];
-    let frames: [Option<(Vec3, Vec3)>; PACKET_RAYS] = std::array::from_fn(|i| {
+) -> [Option<PrimaryHit>; PACKET_RAYS] {
+    let mut hits: [Option<PrimaryHit>; PACKET_RAYS] = std::array::from_fn(|i| {
         let hit = (*surfaces.get(i)?)?;
         let (point, normal) = hit_frame(scene, eye, directions[i], hit);
-        Some((point, normal))
+        Some(PrimaryHit {
+            point,
+            normal,
+            start: offset_origin(point, normal, scene.diagonal),
+            blocked: 0,
+        })
     });
     let cuts: &CutPlanes = &view.params.cuts;
     let mut lanes = [0usize; PACKET_RAYS];
     for (k, light) in scene.lights().iter().enumerate().take(PACKET_LIGHTS) {
         let mut count = 0;
         let mut rays = [(Vec3::ZERO, Vec3::ZERO, 0.0f32); PACKET_RAYS];
-        for (i, frame) in frames.iter().enumerate() {
-            let Some((point, normal)) = *frame else {
+        for (i, hit) in hits.iter().enumerate() {
+            let Some(hit) = hit else {
                 continue;
             };
-            let (towards, reach, _) = towards_light(light, point);
-            if faces_light(normal, towards).is_none() {
+            let (towards, reach, _) = towards_light(light, hit.point);
+            if faces_light(hit.normal, towards).is_none() {
                 continue;
             }
-            let start = offset_origin(point, normal, scene.diagonal);
-            rays[count] = (start, towards, reach);
+            rays[count] = (hit.start, towards, reach);
             lanes[count] = i;
             count += 1;
         }
@@ -61,11 +76,11 @@ pub fn primary_shadows(
             packet.t_min[j] = t_min;
             packet.t_max[j] = reach.min(t_cut);
         }
-        let mut hit = scene.accel.occluded_lanes(&mut packet, stack);
+        let mut occluded = scene.accel.occluded_lanes(&mut packet, stack);
         if let Some(spheres) = scene.spheres.as_ref() {
             for (j, &(start, towards, _)) in rays[..count].iter().enumerate() {
                 let (t_min, t_max) = (packet.t_min[j], packet.t_max[j]);
-                if hit >> j & 1 == 0
+                if occluded >> j & 1 == 0
                     && t_min <= t_max
                     && spheres.occluded(
                         &Ray::new(start, towards),
@@ -75,15 +90,15 @@ pub fn primary_shadows(
                         stack,
                     )
                 {
-                    hit |= 1 << j;
+                    occluded |= 1 << j;
                 }
             }
         }
         for (j, &lane) in lanes[..count].iter().enumerate() {
-            if hit >> j & 1 == 1 {
-                blocked[lane] |= 1 << k;
+            if let (Some(hit), true) = (hits[lane].as_mut(), occluded >> j & 1 == 1) {
+                hit.blocked |= 1 << k;
             }
         }
     }
-    blocked
+    hits
 }
