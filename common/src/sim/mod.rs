@@ -254,11 +254,13 @@ impl SimWall {
             .collect();
         let nodes = (0..config.render_nodes)
             .map(|k| {
-                let sizer = (config.batching == Batching::Measured).then(|| BatchSizer::new(1));
-                let low_water = match (&sizer, config.batching) {
-                    (_, Batching::Fixed { low_water, .. }) => low_water,
-                    (Some(sizer), _) => sizer.low_water(None),
-                    (None, Batching::Measured) => unreachable!("a measured node has a sizer"),
+                let (sizer, low_water) = match config.batching {
+                    Batching::Fixed { low_water, .. } => (None, low_water),
+                    Batching::Measured => {
+                        let sizer = BatchSizer::new(1);
+                        let low_water = sizer.low_water(None);
+                        (Some(sizer), low_water)
+                    }
                 };
                 let node = SimNode {
                     worker: RenderWorker::new(low_water),
