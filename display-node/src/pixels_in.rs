@@ -5,11 +5,11 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use tessera_common::protocol::pixels::{
+use tessera_wire::protocol::pixels::{
     Compression, StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
 };
-use tessera_common::protocol::FrameId;
-use tessera_common::wall::{DisplayId, TileGrid, TileId};
+use tessera_wire::protocol::FrameId;
+use tessera_wire::wall::{DisplayId, TileGrid, TileId};
 use tokio::sync::mpsc;
 
 pub struct IncomingTile {

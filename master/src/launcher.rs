@@ -3,8 +3,8 @@
 //! Children get certificates from a fresh cluster CA in a temporary directory, are killed when
 //! the master exits (also on a crash: `PR_SET_PDEATHSIG`), and are always reaped.
 
-use anyhow::{bail, Context, Result};
-use std::path::{Path, PathBuf};
+use anyhow::{Context, Result};
+use std::path::Path;
 use std::process::ExitStatus;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -16,24 +16,6 @@ pub struct NodeProcess {
     /// A display's death ends the run; a render node's is survivable.
     pub essential: bool,
     child: Child,
-}
-
-/// Finds a sibling binary (installed or built next to the master).
-pub fn sibling_binary(name: &str) -> Result<PathBuf> {
-    let exe = std::env::current_exe().context("cannot locate the running executable")?;
-    let dir = exe.parent().context("executable has no directory")?;
-    let candidate = dir.join(name);
-    if candidate.exists() {
-        return Ok(candidate);
-    }
-    // Test binaries live one level deeper (target/debug/deps).
-    if let Some(up) = dir.parent().map(|d| d.join(name)).filter(|p| p.exists()) {
-        return Ok(up);
-    }
-    bail!(
-        "cannot find {name} next to {}; build the whole workspace (cargo build --workspace) or install all three binaries together",
-        exe.display()
-    )
 }
 
 pub fn spawn(

@@ -3,8 +3,8 @@
 //! slow node never blocks the loop.
 
 use std::time::Duration;
-use tessera_common::net::framed::{read_msg, write_msg};
-use tessera_common::protocol::{FromNode, Hello, ToNode, PROTOCOL_VERSION};
+use tessera_net::framed::{read_msg, write_msg};
+use tessera_wire::protocol::{FromNode, Hello, ToNode, PROTOCOL_VERSION};
 use tokio::sync::mpsc;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

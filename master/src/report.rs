@@ -1,9 +1,9 @@
 //! `report.json`: what a run measured.
 
 use serde::Serialize;
-use tessera_common::protocol::pixels::Compression;
-use tessera_common::protocol::{DisplayStats, RenderStats};
-use tessera_common::wall::WallLayout;
+use tessera_wire::protocol::pixels::Compression;
+use tessera_wire::protocol::{DisplayStats, RenderStats};
+use tessera_wire::wall::WallLayout;
 
 #[derive(Serialize, Debug)]
 pub struct Report {
@@ -53,10 +53,10 @@ impl WallReport {
         WallReport {
             width: layout.width(),
             height: layout.height(),
-            columns: layout.columns,
-            rows: layout.rows,
-            bezel: layout.bezel,
-            tile_size: layout.tile_size,
+            columns: layout.columns(),
+            rows: layout.rows(),
+            bezel: layout.bezel(),
+            tile_size: layout.tile_size(),
             displays: layout
                 .screens()
                 .map(|s| DisplayRect {

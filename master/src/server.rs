@@ -10,15 +10,16 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tessera_common::balance::{BalanceConfig, Coordinator, Output};
-use tessera_common::net::unix_ns;
-use tessera_common::protocol::pixels::Compression;
-use tessera_common::protocol::{
-    DisplayEndpoint, FrameId, FromNode, NodeStats, RenderNodeId, Role, Session, ToNode,
+use tessera_core::balance::{BalanceConfig, Coordinator, Output};
+use tessera_net::unix_ns;
+use tessera_wire::camera::CameraMode;
+use tessera_wire::params::RenderParams;
+use tessera_wire::protocol::pixels::Compression;
+use tessera_wire::protocol::{
+    DisplayEndpoint, FrameId, FromNode, NodeStats, RenderNodeId, Role, Session, SessionSpec, ToNode,
 };
-use tessera_common::render::{CameraMode, RenderParams};
-use tessera_common::scene::SceneSpec;
-use tessera_common::wall::{DisplayId, TileGrid, WallLayout};
+use tessera_wire::scene_spec::SceneSpec;
+use tessera_wire::wall::{DisplayId, TileGrid, WallLayout};
 use tokio::sync::mpsc;
 
 /// What a run needs to know.
@@ -242,7 +243,7 @@ impl Wall {
     }
 
     fn session(&self) -> Session {
-        Session {
+        Session::new(SessionSpec {
             wall: self.cfg.wall,
             scene: self.cfg.scene.clone(),
             scene_hash: self.cfg.scene_hash,
@@ -253,7 +254,8 @@ impl Wall {
                 .collect(),
             save_frame: self.cfg.save_frame,
             compression: self.cfg.compression,
-        }
+        })
+        .expect("displays are checked against the wall, and for duplicates, when they join")
     }
 
     fn send(&self, peer: PeerId, msg: ToNode) {
@@ -331,7 +333,7 @@ impl Wall {
                             "display {id} joined from {} ({remote}), pixels at {addr}",
                             hello.host
                         );
-                        if hello.host == tessera_common::net::hostname() {
+                        if hello.host == tessera_net::hostname() {
                             self.timing.same_host(display);
                         }
                         self.displays.insert(display, peer);
@@ -674,8 +676,8 @@ impl Wall {
 /// Binds the master's endpoint.
 pub fn bind(
     addr: SocketAddr,
-    identity: &tessera_common::net::cluster::NodeIdentity,
+    identity: &tessera_net::cluster::NodeIdentity,
 ) -> Result<quinn::Endpoint> {
-    tessera_common::net::quic::endpoint(addr, identity, true)
+    tessera_net::quic::endpoint(addr, identity, true)
         .context("cannot start the master's QUIC endpoint")
 }

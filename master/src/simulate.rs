@@ -1,17 +1,15 @@
 //! `tessera-master simulate`: a whole wall in this process on a virtual clock, driving the real
-//! load balancer and frame barrier (see `tessera_common::sim` for the model).
+//! load balancer and frame barrier (see `tessera_core::sim` for the model).
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
-use tessera_common::balance::BalanceConfig;
-use tessera_common::protocol::{FrameId, RenderNodeId};
-use tessera_common::sim::{
-    near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall,
-};
-use tessera_common::wall::parse_size;
+use tessera_core::balance::BalanceConfig;
+use tessera_core::sim::{near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall};
+use tessera_wire::protocol::{FrameId, RenderNodeId};
+use tessera_wire::wall::parse_size;
 
 #[derive(clap::Args, Debug)]
 pub struct SimulateArgs {
@@ -177,8 +175,8 @@ fn check(args: &SimulateArgs) -> Result<()> {
 pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
     check(&args)?;
     let (width, height) = args.screen;
-    let wall = near_square_wall(args.displays, width, height).with_tile_size(args.tile_size);
-    wall.validate()
+    let wall = near_square_wall(args.displays, width, height)
+        .and_then(|wall| wall.spec().tile_size(args.tile_size).build())
         .with_context(|| format!("a wall of {} displays of {width}x{height}", args.displays))?;
     let config = SimConfig {
         render_nodes: args.render_nodes,
@@ -207,7 +205,7 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
 
     println!(
         "simulated {} render nodes, {} displays ({}x{} of {width}x{height}, {} tiles of {} px a frame), {} frames",
-        r.render_nodes, r.displays, wall.columns, wall.rows, r.tiles_per_frame, args.tile_size, r.frames_requested
+        r.render_nodes, r.displays, wall.columns(), wall.rows(), r.tiles_per_frame, args.tile_size, r.frames_requested
     );
     let b = r.busy_fraction;
     let rows = [
@@ -273,8 +271,8 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
             seed: args.seed,
             screen_width: width,
             screen_height: height,
-            columns: wall.columns,
-            rows: wall.rows,
+            columns: wall.columns(),
+            rows: wall.rows(),
             tile_size: args.tile_size,
             tile_us: args.tile_us,
             speed_spread: args.speed_spread,

@@ -14,8 +14,8 @@
 use crate::report::Percentiles;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
-use tessera_common::protocol::FrameId;
-use tessera_common::wall::DisplayId;
+use tessera_wire::protocol::FrameId;
+use tessera_wire::wall::DisplayId;
 
 /// Pings sent to each display when it is ready; the fastest answer wins.
 pub const PINGS: u32 = 16;

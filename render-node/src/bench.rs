@@ -5,14 +5,15 @@
 
 use anyhow::{Context, Result};
 use std::time::Instant;
-use tessera_common::accel_cache::load_or_build;
-use tessera_common::cli::SceneArgs;
-use tessera_common::render::bench::{time_passes, PassTimes};
-use tessera_common::render::{FrameView, PreparedScene, RenderParams};
-use tessera_common::scene::Scene;
-use tessera_common::wall::parse_size;
+use tessera_cli::SceneArgs;
+use tessera_render::accel_cache::load_or_build;
+use tessera_render::bench::{time_passes, PassTimes};
+use tessera_render::scene::Scene;
+use tessera_render::{orbit_of, FrameView, PreparedScene};
+use tessera_wire::params::RenderParamsSpec;
+use tessera_wire::wall::parse_size;
 
-#[derive(clap::Args)]
+#[derive(clap::Args, Debug)]
 pub struct BenchArgs {
     #[command(flatten)]
     scene: SceneArgs,
@@ -21,7 +22,7 @@ pub struct BenchArgs {
     size: String,
     /// Threads to render with (default: all cores). With more than one, the 1-thread figure
     /// is measured too and the scaling printed.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::parse_threads)]
     threads: Option<usize>,
     /// Frames to time; the best frame of each pass is reported (after one warm-up frame).
     #[arg(long, default_value_t = 10)]
@@ -39,6 +40,9 @@ pub struct BenchArgs {
 
 pub fn run(args: BenchArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size).context("--size")?;
+    if width == 0 || height == 0 || width > 1 << 16 || height > 1 << 16 {
+        anyhow::bail!("--size {width}x{height}: each side must be from 1 to 65536 pixels");
+    }
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -46,7 +50,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let t0 = Instant::now();
     let scene = Scene::load(&spec)?;
     let loaded = t0.elapsed();
-    let camera = args.scene.camera_mode(&scene)?.camera_for_frame(0);
+    let camera = args
+        .scene
+        .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?
+        .camera_for_frame(0);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;
@@ -61,10 +68,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         t1.elapsed().as_secs_f64(),
         prepared.accel.nodes.len()
     );
-    let params = RenderParams {
+    let params = RenderParamsSpec {
         ao_samples: args.ao,
-        ..RenderParams::interactive()
-    };
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .context("--ao")?;
     let view = FrameView::new(0, &camera, params, width, height);
     let measure = |pool: &rayon::ThreadPool| -> PassTimes {
         let mut best = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));

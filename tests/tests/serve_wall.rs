@@ -3,11 +3,11 @@
 
 use std::path::Path;
 use std::time::Duration;
-use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
-use tessera_common::net::framed::{read_msg, write_msg};
-use tessera_common::net::quic;
-use tessera_common::protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
+use tessera_net::cluster::{ClusterCa, NodeIdentity};
+use tessera_net::framed::{read_msg, write_msg};
+use tessera_net::quic;
 use tessera_tests::*;
+use tessera_wire::protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
 
 fn free_udp_port() -> u16 {
     std::net::UdpSocket::bind("127.0.0.1:0")
@@ -85,7 +85,10 @@ async fn knock(master: std::net::SocketAddr, cluster: &Path, foreign: &Path) -> 
     let r = match quic::connect(&endpoint, master, "master").await {
         Ok(conn) => {
             let opened = async {
-                let (mut send, mut recv) = conn.open_bi().await?;
+                let (mut send, mut recv) = conn
+                    .open_bi()
+                    .await
+                    .map_err(|e| tessera_net::NetError::StreamBroken(e.to_string()))?;
                 let hello = FromNode::Hello(Hello {
                     version: PROTOCOL_VERSION,
                     role: Role::Render { cores: 1 },

@@ -8,14 +8,16 @@
 
 use super::plot::{line_plot, Series};
 use super::{write_csv, write_json, wrote, BenchArgs};
-use anyhow::Result;
+use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
-use tessera_common::image_io::{render_wall, RgbImage};
-use tessera_common::render::{FrameView, PreparedScene, RenderParams};
-use tessera_common::scene::Scene;
-use tessera_common::wall::{TileGrid, WallLayout};
+use tessera_render::render_wall;
+use tessera_render::scene::Scene;
+use tessera_render::{orbit_of, FrameView, PreparedScene};
+use tessera_wire::image::RgbImage;
+use tessera_wire::params::{RenderParams, RenderParamsSpec};
+use tessera_wire::wall::{TileGrid, WallLayout};
 
 const AO_STEPS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
 const SPP_STEPS: [u32; 5] = [1, 2, 4, 8, 16];
@@ -59,9 +61,39 @@ struct Point {
 pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     let run = &args.local.run;
     let wall = run.wall.layout()?;
+    let base = run.quality.params()?.spec();
+    let knobs = |change: &dyn Fn(&mut RenderParamsSpec)| -> Result<RenderParams> {
+        let mut spec = base;
+        change(&mut spec);
+        Ok(spec.build()?)
+    };
+    // Every setting is checked before the first (long) render.
+    let ao_reference_params =
+        knobs(&|s| s.ao_samples = args.reference_ao).context("--reference-ao")?;
+    let spp_reference_params = knobs(&|s| s.spp = args.reference_spp).context("--reference-spp")?;
+    let ao_params = AO_STEPS
+        .iter()
+        .map(|&ao| knobs(&|s| s.ao_samples = ao))
+        .collect::<Result<Vec<_>>>()
+        .context("the ambient-occlusion steps with these flags")?;
+    let spp_params = SPP_STEPS
+        .iter()
+        .map(|&spp| knobs(&|s| s.spp = spp))
+        .collect::<Result<Vec<_>>>()
+        .context("the samples-per-pixel steps with these flags")?;
+    let pass_params = (0..PASSES)
+        .map(|pass| {
+            knobs(&|s| {
+                s.spp = 1;
+                s.first_sample = pass;
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
     let scene = Scene::load(&run.scene.spec()?)?;
-    let camera = run.scene.camera_mode(&scene)?.camera_for_frame(0);
-    let base = run.quality.params()?;
+    let camera = run
+        .scene
+        .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?
+        .camera_for_frame(0);
     let prepared = PreparedScene::new(&scene);
     let grid = TileGrid::new(wall);
     let renders = 2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize;
@@ -85,30 +117,18 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     let render = |params, what| render_keyed(0, params, what);
     let reference = |params, what| render_keyed(REFERENCE_KEY, params, what);
     let ao_reference = reference(
-        RenderParams {
-            ao_samples: args.reference_ao,
-            ..base
-        },
+        ao_reference_params,
         format!("ao reference ({} rays)", args.reference_ao),
     )
     .0;
     let spp_reference = reference(
-        RenderParams {
-            spp: args.reference_spp,
-            ..base
-        },
+        spp_reference_params,
         format!("spp reference ({} samples)", args.reference_spp),
     )
     .0;
     let mut points = Vec::new();
-    for ao in AO_STEPS {
-        let (image, ms) = render(
-            RenderParams {
-                ao_samples: ao,
-                ..base
-            },
-            format!("ao {ao}"),
-        );
+    for (ao, params) in AO_STEPS.into_iter().zip(ao_params) {
+        let (image, ms) = render(params, format!("ao {ao}"));
         points.push(Point {
             knob: "ao",
             value: ao,
@@ -116,8 +136,8 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
             rmse: rmse(&wall, &image, &ao_reference),
         });
     }
-    for spp in SPP_STEPS {
-        let (image, ms) = render(RenderParams { spp, ..base }, format!("spp {spp}"));
+    for (spp, params) in SPP_STEPS.into_iter().zip(spp_params) {
+        let (image, ms) = render(params, format!("spp {spp}"));
         points.push(Point {
             knob: "spp",
             value: spp,
@@ -128,12 +148,7 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     // Progressive: linear-light running sum of the passes' images, as a display would blend.
     let mut linear = vec![0f64; (wall.width() * wall.height() * 3) as usize];
     let mut total_ms = 0.0;
-    for pass in 0..PASSES {
-        let params = RenderParams {
-            spp: 1,
-            first_sample: pass,
-            ..base
-        };
+    for (pass, params) in (0..PASSES).zip(pass_params) {
         let (image, ms) = render(params, format!("pass {}", pass + 1));
         total_ms += ms;
         for (acc, &v) in linear.iter_mut().zip(&image.rgb) {
@@ -225,10 +240,11 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tessera_wire::wall::WallSpec;
 
     #[test]
     fn rmse_ignores_bezels_and_psnr_follows() {
-        let wall = WallLayout::grid(2, 1, 2, 1).with_bezel(2);
+        let wall = WallSpec::grid(2, 1, 2, 1).bezel(2).build().unwrap();
         let black = RgbImage::black(wall.width(), wall.height());
         let mut other = black.clone();
         // A bezel pixel differs: no error. Then one channel of one screen pixel by 255.

@@ -5,14 +5,15 @@ mod error;
 mod plot;
 mod transport;
 
-use super::{run_local, LocalArgs};
+use crate::args::LocalArgs;
 use crate::report::Report;
+use crate::wall_run::run_local;
 use anyhow::{bail, Context, Result};
 use plot::{line_plot, Series};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use tessera_common::protocol::pixels::Compression;
+use tessera_wire::protocol::pixels::Compression;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Experiment {
@@ -316,7 +317,7 @@ async fn max_fps(args: &BenchArgs, out: &Path) -> Result<()> {
             let mut local = args.local.clone();
             local.render_nodes = nodes;
             local.run.scene.scene = "empty".into();
-            local.run.compress = compress;
+            local.run.compress = compress.into();
             local.run.out = None;
             let what = format!("empty scene, {nodes} render node(s), compression {compress:?}");
             let report = wall_run(&local, &what).await?;

@@ -4,8 +4,8 @@
 use anyhow::{Context, Result};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
-use tessera_common::net::cluster::{ClusterCa, NodeIdentity};
-use tessera_common::net::quic;
+use tessera_net::cluster::{ClusterCa, NodeIdentity};
+use tessera_net::quic;
 
 /// What a bulk transfer achieved.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
@@ -26,7 +26,7 @@ pub async fn bulk_throughput(links: u32, seconds: f64, stream_bytes: usize) -> R
     let identity = |name: &str| -> Result<NodeIdentity> {
         let dir = certs.path().join(name);
         ca.issue(name, &dir)?;
-        NodeIdentity::load(&dir)
+        Ok(NodeIdentity::load(&dir)?)
     };
     let loopback: SocketAddr = "127.0.0.1:0".parse()?;
     let mut receivers = Vec::new();

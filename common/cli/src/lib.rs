@@ -1,0 +1,349 @@
+//! What Tessera's binaries share at their edge: command-line arguments for the wall, the
+//! scene, the camera and the quality knobs (clap derive), their checks, and the log set-up.
+//!
+//! Every argument ends up in a `tessera-wire` type through that type's validating constructor,
+//! so the command line can give no value the network would refuse; each error names the flag.
+//! It depends on clap, tracing-subscriber and `tessera-wire` only, so display nodes use it
+//! without compiling the renderer.
+
+pub mod logging;
+
+use clap::Args;
+use glam::Vec3;
+use std::path::PathBuf;
+use tessera_wire::camera::{check_fov, Camera, CameraError, CameraMode, DEFAULT_FOV_DEG};
+use tessera_wire::cut::{CutError, CutPlanes};
+use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
+use tessera_wire::protocol::pixels::Compression;
+use tessera_wire::scene_spec::{SceneSpec, SceneSpecError};
+use tessera_wire::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
+
+/// A flag whose value was refused, named with its flag.
+#[derive(Debug, thiserror::Error)]
+pub enum ArgError {
+    #[error("{flag}")]
+    Wall {
+        flag: &'static str,
+        source: WallError,
+    },
+    #[error("--scene")]
+    Scene(#[from] SceneSpecError),
+    #[error("camera flags")]
+    Camera(#[from] CameraError),
+    #[error("--cut")]
+    Cut(#[from] CutError),
+    #[error("quality flags")]
+    Params(#[from] ParamsError),
+    #[error("--eye and --target go together")]
+    EyeWithoutTarget,
+}
+
+/// The wall: either `--wall-file` or the `--wall/--screen/--bezel` shorthand.
+#[derive(Args, Debug, Clone)]
+pub struct WallArgs {
+    /// Screens as COLUMNSxROWS, e.g. 2x2.
+    #[arg(long, default_value = "2x2", conflicts_with = "wall_file")]
+    pub wall: String,
+    /// Pixels of one screen as WIDTHxHEIGHT.
+    #[arg(long, default_value = "480x270", conflicts_with = "wall_file")]
+    pub screen: String,
+    /// Pixels hidden between neighbouring screens (mullion).
+    #[arg(long, default_value_t = 0, conflicts_with = "wall_file")]
+    pub bezel: u32,
+    /// Tile edge in pixels; tiles are the unit of load balancing.
+    #[arg(long, default_value_t = DEFAULT_TILE_SIZE, conflicts_with = "wall_file")]
+    pub tile: u32,
+    /// A TOML wall file (columns, rows, screen_width, screen_height, bezel, tile_size).
+    #[arg(long)]
+    pub wall_file: Option<PathBuf>,
+}
+
+impl WallArgs {
+    pub fn layout(&self) -> Result<WallLayout, ArgError> {
+        let wall = |flag| move |source| ArgError::Wall { flag, source };
+        if let Some(path) = &self.wall_file {
+            return WallLayout::from_file(path).map_err(wall("--wall-file"));
+        }
+        let (columns, rows) = parse_size(&self.wall).map_err(wall("--wall"))?;
+        let (w, h) = parse_size(&self.screen).map_err(wall("--screen"))?;
+        WallSpec::grid(columns, rows, w, h)
+            .bezel(self.bezel)
+            .tile_size(self.tile)
+            .build()
+            .map_err(wall("--wall/--screen/--bezel/--tile"))
+    }
+}
+
+/// The scene and the camera.
+#[derive(Args, Debug, Clone)]
+pub struct SceneArgs {
+    /// `builtin` (a procedural knot over a floor), `gallery` (the knot among a mirror and
+    /// glass), `empty` (a flat backdrop, nothing traced), `knot:SEGMENTS:SIDES`, a mesh path
+    /// (OBJ, PLY, glTF/GLB) or particles (.csv, .tpart).
+    #[arg(long, default_value = "builtin")]
+    pub scene: String,
+    /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.
+    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
+    pub eye: Option<Vec3>,
+    /// Point the camera looks at, X,Y,Z.
+    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
+    pub target: Option<Vec3>,
+    /// Up direction X,Y,Z.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
+    pub up: Vec3,
+    /// Vertical field of view of the whole wall, in degrees (0 < FOV < 180), for a fixed
+    /// camera and the orbit alike.
+    #[arg(long, default_value_t = DEFAULT_FOV_DEG, value_parser = parse_fov, allow_hyphen_values = true)]
+    pub fov: f32,
+}
+
+/// A flag's value that does not parse, with what was expected.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[error("{0}")]
+pub struct BadValue(String);
+
+fn bad(text: String) -> BadValue {
+    BadValue(text)
+}
+
+impl From<String> for BadValue {
+    fn from(text: String) -> Self {
+        BadValue(text)
+    }
+}
+
+fn parse_fov(text: &str) -> Result<f32, BadValue> {
+    let fov: f32 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{text}` is not a number of degrees"))?;
+    check_fov(fov).map_err(|e| e.to_string())?;
+    Ok(fov)
+}
+
+/// Parses `X,Y,Z` into a vector of finite numbers.
+pub fn parse_vec3(text: &str) -> Result<Vec3, BadValue> {
+    let parts: Vec<&str> = text.split(',').collect();
+    if parts.len() != 3 {
+        return Err(bad(format!("`{text}` is not X,Y,Z")));
+    }
+    let mut v = [0f32; 3];
+    for (slot, part) in v.iter_mut().zip(parts) {
+        *slot = part
+            .trim()
+            .parse()
+            .map_err(|_| format!("`{part}` in `{text}` is not a number"))?;
+        if !slot.is_finite() {
+            return Err(bad(format!("`{part}` in `{text}` is not finite")));
+        }
+    }
+    Ok(Vec3::from_array(v))
+}
+
+impl SceneArgs {
+    pub fn spec(&self) -> Result<SceneSpec, ArgError> {
+        Ok(SceneSpec::from_arg(&self.scene)?)
+    }
+
+    /// The camera mode: fixed if the flags say so, else `orbit`, the default orbit around the
+    /// loaded scene made with [`SceneArgs::fov`] (the renderer's `orbit_of`).
+    pub fn camera_mode(
+        &self,
+        orbit: impl FnOnce(f32) -> Result<CameraMode, CameraError>,
+    ) -> Result<CameraMode, ArgError> {
+        match (self.eye, self.target) {
+            (Some(eye), Some(target)) => Ok(CameraMode::fixed(Camera::new(
+                eye, target, self.up, self.fov,
+            )?)),
+            (None, None) => Ok(orbit(self.fov)?),
+            _ => Err(ArgError::EyeWithoutTarget),
+        }
+    }
+}
+
+/// Per-frame quality knobs, the same for the wall and the reference render.
+#[derive(Args, Debug, Clone)]
+pub struct QualityArgs {
+    /// Trace no shadow rays.
+    #[arg(long)]
+    pub no_shadows: bool,
+    /// Ambient-occlusion rays per hit (0: none; at most 1024).
+    #[arg(long, default_value_t = 0)]
+    pub ao: u32,
+    /// Draw only particles whose attribute is in LO,HI.
+    #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
+    pub crop: Option<(f32, f32)>,
+    /// Cut away everything on the side NX,NY,NZ points to of the plane at distance D from the
+    /// origin (points with N·p > D), to look inside a mesh. Repeat for up to 4 planes; e.g.
+    /// `--cut 0,0,1,0` removes all with z > 0.
+    #[arg(long = "cut", value_name = "NX,NY,NZ,D", value_parser = parse_plane, allow_hyphen_values = true)]
+    pub cuts: Vec<(Vec3, f32)>,
+    /// Samples per pixel: 1 traces the pixel centre; more average jittered sub-pixel samples
+    /// (antialiasing), each with its own ambient-occlusion rays.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=MAX_SPP as i64))]
+    pub spp: u32,
+}
+
+impl QualityArgs {
+    /// # Errors
+    /// More cutting planes than supported, or knobs out of their bounds
+    /// ([`tessera_wire::params`]).
+    pub fn params(&self) -> Result<RenderParams, ArgError> {
+        Ok(RenderParamsSpec {
+            shadows: !self.no_shadows,
+            ao_samples: self.ao,
+            crop: self.crop,
+            cuts: CutPlanes::new(&self.cuts)?,
+            spp: self.spp,
+            ..RenderParamsSpec::INTERACTIVE
+        }
+        .build()?)
+    }
+}
+
+/// How render nodes pack tiles, as a flag (`--compress none|lz4`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CompressArg {
+    /// Raw pixels: no CPU spent, as many bytes as pixels.
+    #[default]
+    None,
+    /// Each tile an LZ4 block (or raw where LZ4 does not make it shorter): for links slower
+    /// than the render nodes.
+    Lz4,
+}
+
+impl From<Compression> for CompressArg {
+    fn from(compression: Compression) -> Self {
+        match compression {
+            Compression::None => CompressArg::None,
+            Compression::Lz4 => CompressArg::Lz4,
+        }
+    }
+}
+
+impl From<CompressArg> for Compression {
+    fn from(arg: CompressArg) -> Self {
+        match arg {
+            CompressArg::None => Compression::None,
+            CompressArg::Lz4 => Compression::Lz4,
+        }
+    }
+}
+
+fn parse_plane(text: &str) -> Result<(Vec3, f32), BadValue> {
+    let numbers: Vec<&str> = text.split(',').collect();
+    let [x, y, z, d] = numbers[..] else {
+        return Err(bad(format!("`{text}` is not NX,NY,NZ,D (four numbers)")));
+    };
+    let mut values = [0f32; 4];
+    for (value, word) in values.iter_mut().zip([x, y, z, d]) {
+        *value = word
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f32| v.is_finite())
+            .ok_or_else(|| format!("`{word}` in `{text}` is not a finite number"))?;
+    }
+    let normal = Vec3::new(values[0], values[1], values[2]);
+    if normal == Vec3::ZERO {
+        return Err(bad(format!(
+            "`{text}`: the normal NX,NY,NZ must not be zero"
+        )));
+    }
+    Ok((normal, values[3]))
+}
+
+fn parse_range(text: &str) -> Result<(f32, f32), BadValue> {
+    let (a, b) = text
+        .split_once(',')
+        .ok_or_else(|| format!("`{text}` is not LO,HI"))?;
+    let lo: f32 = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{a}` in `{text}` is not a number"))?;
+    let hi: f32 = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{b}` in `{text}` is not a number"))?;
+    if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+        return Err(bad(format!(
+            "`{text}` is not a range of finite numbers with LO <= HI"
+        )));
+    }
+    Ok((lo, hi))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crop_ranges_parse_and_garbage_is_explained() {
+        assert_eq!(parse_range("-1,2.5").unwrap(), (-1.0, 2.5));
+        assert!(parse_range("3,1").is_err());
+        assert!(parse_range("1;2").unwrap_err().0.contains("LO,HI"));
+        assert!(parse_range("1,nan").is_err());
+    }
+
+    #[test]
+    fn planes_parse_and_garbage_is_explained() {
+        assert_eq!(parse_plane("0,0,-1,2.5").unwrap(), (-Vec3::Z, 2.5));
+        assert!(parse_plane("0,0,0,1").unwrap_err().0.contains("zero"));
+        assert!(parse_plane("1,2,3").unwrap_err().0.contains("NX,NY,NZ,D"));
+        assert!(parse_plane("1,x,3,4").unwrap_err().0.contains("`x`"));
+    }
+
+    #[test]
+    fn vectors_parse_and_garbage_is_explained() {
+        assert_eq!(parse_vec3("1,-2,3.5").unwrap(), Vec3::new(1.0, -2.0, 3.5));
+        assert!(parse_vec3("1,2").unwrap_err().0.contains("X,Y,Z"));
+        assert!(parse_vec3("1,b,3").unwrap_err().0.contains("`b`"));
+        assert!(parse_vec3("1,inf,3").is_err());
+    }
+
+    #[test]
+    fn a_field_of_view_of_0_or_180_is_refused() {
+        // Both used to be accepted and, with the orbit camera, silently ignored.
+        for bad in ["0", "180", "-5", "nan", "inf", "wide"] {
+            assert!(parse_fov(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_fov("60"), Ok(60.0));
+    }
+
+    #[test]
+    fn the_orbit_gets_the_field_of_view_of_the_flags() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            scene: SceneArgs,
+        }
+        let cli = Cli::try_parse_from(["t", "--fov", "30"]).unwrap();
+        let mut asked = None;
+        cli.scene
+            .camera_mode(|fov| {
+                asked = Some(fov);
+                CameraMode::orbit(Vec3::ZERO, 1.0, fov)
+            })
+            .unwrap();
+        assert_eq!(asked, Some(30.0));
+        assert!(Cli::try_parse_from(["t", "--fov", "0"]).is_err());
+    }
+
+    #[test]
+    fn four_billion_ao_rays_are_refused_naming_the_value() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            quality: QualityArgs,
+        }
+        let cli = Cli::try_parse_from(["t", "--ao", "4000000000"]).unwrap();
+        let err = cli.quality.params().unwrap_err();
+        let why = std::error::Error::source(&err).unwrap().to_string();
+        assert!(
+            err.to_string().contains("quality") && why.contains("4000000000"),
+            "{why}"
+        );
+    }
+}

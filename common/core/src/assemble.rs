@@ -1,0 +1,323 @@
+//! The display node's sans-IO core: puts tiles together into frames and hands a frame over for
+//! presentation only when the master says so.
+//!
+//! It checks every tile against the wall before it touches a pixel: a tile of another display,
+//! a wrong length, or a frame outside the window of frames in flight is an error, and the driver
+//! closes the offending connection. Up to [`FRAMES_AHEAD`] frames are assembled at once, so
+//! frame f+1 can arrive while f waits for the swap barrier.
+
+use std::collections::BTreeMap;
+use tessera_wire::protocol::FrameId;
+use tessera_wire::wall::{ScreenRect, Tile, TileGrid, TileId};
+
+/// Frames beyond the next one to present that may be under assembly.
+pub const FRAMES_AHEAD: u64 = 3;
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum AssembleError {
+    #[error("tile {0} does not belong to this display")]
+    NotMine(u32),
+    #[error("tile {tile} carries {got} bytes, expected {expected}")]
+    WrongLength {
+        tile: u32,
+        expected: usize,
+        got: usize,
+    },
+    #[error("frame {0:?} was already presented")]
+    Stale(FrameId),
+    #[error("frame {frame:?} is too far ahead of frame {next:?}, the next to present")]
+    TooFarAhead { frame: FrameId, next: FrameId },
+    #[error("asked to present frame {0:?}, which is not complete")]
+    Incomplete(FrameId),
+}
+
+struct Partial {
+    image: Vec<u8>,
+    have: Vec<bool>,
+    missing: usize,
+}
+
+/// A frame ready to show: the screen's pixels, RGB8, row-major.
+#[derive(Debug)]
+pub struct PresentedFrame {
+    pub frame: FrameId,
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+}
+
+pub struct FrameAssembler {
+    screen: ScreenRect,
+    tiles: Vec<Tile>,
+    first_tile: u32,
+    frames: BTreeMap<FrameId, Partial>,
+    next_present: FrameId,
+    duplicates: u64,
+    /// The last frame [`FrameAssembler::poll_complete`] handed out.
+    reported_complete: Option<FrameId>,
+}
+
+impl FrameAssembler {
+    pub fn new(grid: &TileGrid, screen: ScreenRect) -> Self {
+        let tiles = grid.display_tiles(screen.id).to_vec();
+        let first_tile = tiles.first().map_or(0, |t| t.id.0);
+        FrameAssembler {
+            screen,
+            tiles,
+            first_tile,
+            frames: BTreeMap::new(),
+            next_present: FrameId(0),
+            duplicates: 0,
+            reported_complete: None,
+        }
+    }
+
+    pub fn tile_count(&self) -> u32 {
+        self.tiles.len() as u32
+    }
+
+    pub fn duplicates(&self) -> u64 {
+        self.duplicates
+    }
+
+    /// Whether every tile of `frame` is here (and it is not presented yet).
+    pub fn is_complete(&self, frame: FrameId) -> bool {
+        self.frames.get(&frame).is_some_and(|p| p.missing == 0)
+    }
+
+    pub fn next_present(&self) -> FrameId {
+        self.next_present
+    }
+
+    /// The frame to report complete to the master, once each: the next frame to present, when
+    /// every tile of it is here. Call it after every tile and every present. A later frame that
+    /// completes first is held back until it is next, so the master cannot start frames further
+    /// ahead than this assembler accepts, whatever order tiles and presents arrive in.
+    pub fn poll_complete(&mut self) -> Option<FrameId> {
+        let next = self.next_present;
+        if self.is_complete(next) && self.reported_complete != Some(next) {
+            self.reported_complete = Some(next);
+            return Some(next);
+        }
+        None
+    }
+
+    /// Checks a tile header before its pixels are read; returns the expected byte length.
+    pub fn check_tile(
+        &self,
+        frame: FrameId,
+        tile: TileId,
+        byte_len: usize,
+    ) -> Result<usize, AssembleError> {
+        let t = self.tile(tile)?;
+        let expected = t.pixel_count() * 3;
+        if byte_len != expected {
+            return Err(AssembleError::WrongLength {
+                tile: tile.0,
+                expected,
+                got: byte_len,
+            });
+        }
+        self.check_frame(frame)?;
+        Ok(expected)
+    }
+
+    fn check_frame(&self, frame: FrameId) -> Result<(), AssembleError> {
+        if frame < self.next_present {
+            return Err(AssembleError::Stale(frame));
+        }
+        if frame.0 >= self.next_present.0 + FRAMES_AHEAD {
+            return Err(AssembleError::TooFarAhead {
+                frame,
+                next: self.next_present,
+            });
+        }
+        Ok(())
+    }
+
+    fn tile(&self, tile: TileId) -> Result<&Tile, AssembleError> {
+        tile.0
+            .checked_sub(self.first_tile)
+            .and_then(|i| self.tiles.get(i as usize))
+            .ok_or(AssembleError::NotMine(tile.0))
+    }
+
+    /// Adds a tile; returns `Some(frame)` when this tile completed the frame.
+    /// A tile that arrives twice (re-rendered after a node failure) is counted and ignored,
+    /// also when its frame is already presented: after a node is given up for dead, its copy
+    /// may complete the frame while a live node's copy is still on the way, and that late copy
+    /// is no fault of the live node.
+    pub fn handle_tile(
+        &mut self,
+        frame: FrameId,
+        tile: TileId,
+        rgb: &[u8],
+    ) -> Result<Option<FrameId>, AssembleError> {
+        match self.check_tile(frame, tile, rgb.len()) {
+            Err(AssembleError::Stale(_)) => {
+                self.duplicates += 1;
+                return Ok(None);
+            }
+            checked => checked?,
+        };
+        let index = (tile.0 - self.first_tile) as usize;
+        let t = self.tiles[index];
+        let (sw, sh) = (self.screen.width as usize, self.screen.height as usize);
+        let tile_count = self.tiles.len();
+        let partial = self.frames.entry(frame).or_insert_with(|| Partial {
+            image: vec![0; sw * sh * 3],
+            have: vec![false; tile_count],
+            missing: tile_count,
+        });
+        if partial.have[index] {
+            self.duplicates += 1;
+            return Ok(None);
+        }
+        partial.have[index] = true;
+        partial.missing -= 1;
+        let (x0, y0) = (
+            (t.x - self.screen.x) as usize,
+            (t.y - self.screen.y) as usize,
+        );
+        let row_bytes = t.width as usize * 3;
+        for row in 0..t.height as usize {
+            let dst = ((y0 + row) * sw + x0) * 3;
+            partial.image[dst..dst + row_bytes]
+                .copy_from_slice(&rgb[row * row_bytes..(row + 1) * row_bytes]);
+        }
+        Ok((partial.missing == 0).then_some(frame))
+    }
+
+    /// The swap barrier: hands over `frame` for presentation. Frames are presented in order.
+    pub fn handle_present(&mut self, frame: FrameId) -> Result<PresentedFrame, AssembleError> {
+        if frame < self.next_present {
+            return Err(AssembleError::Stale(frame));
+        }
+        match self.frames.get(&frame) {
+            Some(p) if p.missing == 0 => {}
+            _ => return Err(AssembleError::Incomplete(frame)),
+        }
+        let partial = self.frames.remove(&frame).expect("checked above");
+        self.next_present = FrameId(frame.0 + 1);
+        self.frames.retain(|f, _| *f > frame);
+        Ok(PresentedFrame {
+            frame,
+            width: self.screen.width,
+            height: self.screen.height,
+            rgb: partial.image,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_wire::wall::{DisplayId, WallSpec};
+
+    fn setup() -> (TileGrid, FrameAssembler) {
+        let wall = WallSpec::grid(2, 1, 20, 10)
+            .tile_size(8)
+            .bezel(3)
+            .build()
+            .unwrap();
+        let grid = TileGrid::new(wall);
+        let asm = FrameAssembler::new(&grid, wall.screen(DisplayId(1)).unwrap());
+        (grid, asm)
+    }
+
+    fn pixels(tile: &Tile, frame: u64) -> Vec<u8> {
+        (0..tile.pixel_count() * 3)
+            .map(|i| (i as u64 * 7 + tile.id.0 as u64 + frame) as u8)
+            .collect()
+    }
+
+    #[test]
+    fn frame_completes_after_its_last_tile_and_lands_where_it_belongs() {
+        let (grid, mut asm) = setup();
+        let mine = grid.display_tiles(DisplayId(1)).to_vec();
+        for (i, t) in mine.iter().enumerate() {
+            let done = asm.handle_tile(FrameId(0), t.id, &pixels(t, 0)).unwrap();
+            assert_eq!(done.is_some(), i + 1 == mine.len());
+        }
+        let shown = asm.handle_present(FrameId(0)).unwrap();
+        let screen_x = 23;
+        for t in &mine {
+            let p = pixels(t, 0);
+            let (x, y) = ((t.x - screen_x) as usize, t.y as usize);
+            let at = (y * 20 + x) * 3;
+            assert_eq!(&shown.rgb[at..at + 3], &p[..3]);
+        }
+    }
+
+    #[test]
+    fn foreign_wrong_sized_and_early_tiles_are_refused_and_late_ones_counted() {
+        let (grid, mut asm) = setup();
+        let other = grid.display_tiles(DisplayId(0))[0];
+        assert_eq!(
+            asm.handle_tile(FrameId(0), other.id, &pixels(&other, 0)),
+            Err(AssembleError::NotMine(other.id.0))
+        );
+        let t = grid.display_tiles(DisplayId(1))[0];
+        assert!(matches!(
+            asm.handle_tile(FrameId(0), t.id, &[0; 5]),
+            Err(AssembleError::WrongLength { .. })
+        ));
+        assert!(matches!(
+            asm.handle_tile(FrameId(FRAMES_AHEAD), t.id, &pixels(&t, 0)),
+            Err(AssembleError::TooFarAhead { .. })
+        ));
+        assert_eq!(
+            asm.handle_tile(FrameId(0), TileId(u32::MAX), &[]),
+            Err(AssembleError::NotMine(u32::MAX))
+        );
+        assert_eq!(
+            asm.handle_present(FrameId(0)).unwrap_err(),
+            AssembleError::Incomplete(FrameId(0))
+        );
+        for t in grid.display_tiles(DisplayId(1)) {
+            asm.handle_tile(FrameId(0), t.id, &pixels(t, 0)).unwrap();
+        }
+        asm.handle_present(FrameId(0)).unwrap();
+        // A late copy of a presented frame's tile is a duplicate, not a fault; garbage is.
+        assert_eq!(asm.handle_tile(FrameId(0), t.id, &pixels(&t, 0)), Ok(None));
+        assert_eq!(asm.duplicates(), 1);
+        assert!(asm.handle_tile(FrameId(0), t.id, &[0; 5]).is_err());
+    }
+
+    #[test]
+    fn duplicates_are_counted_not_double_counted() {
+        let (grid, mut asm) = setup();
+        let mine = grid.display_tiles(DisplayId(1)).to_vec();
+        asm.handle_tile(FrameId(1), mine[0].id, &pixels(&mine[0], 1))
+            .unwrap();
+        asm.handle_tile(FrameId(1), mine[0].id, &pixels(&mine[0], 1))
+            .unwrap();
+        assert_eq!(asm.duplicates(), 1);
+        let mut completed = None;
+        for t in &mine[1..] {
+            completed = asm.handle_tile(FrameId(1), t.id, &pixels(t, 1)).unwrap();
+        }
+        assert_eq!(completed, Some(FrameId(1)));
+        assert!(asm.is_complete(FrameId(1)) && !asm.is_complete(FrameId(0)));
+    }
+
+    #[test]
+    fn a_frame_is_reported_complete_once_and_only_when_it_is_next_to_present() {
+        let (grid, mut asm) = setup();
+        let mine = grid.display_tiles(DisplayId(1)).to_vec();
+        let fill = |asm: &mut FrameAssembler, frame: u64| {
+            for t in &mine {
+                asm.handle_tile(FrameId(frame), t.id, &pixels(t, frame))
+                    .unwrap();
+            }
+        };
+        fill(&mut asm, 1);
+        assert_eq!(asm.poll_complete(), None, "frame 1 waits for frame 0");
+        fill(&mut asm, 0);
+        assert_eq!(asm.poll_complete(), Some(FrameId(0)));
+        assert_eq!(asm.poll_complete(), None, "reported once");
+        asm.handle_present(FrameId(0)).unwrap();
+        assert_eq!(asm.poll_complete(), Some(FrameId(1)));
+        assert_eq!(asm.poll_complete(), None);
+    }
+}

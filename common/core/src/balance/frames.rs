@@ -1,0 +1,153 @@
+//! Book-keeping of one frame in flight: which tiles are unassigned, with whom, and done.
+
+use super::BalanceError;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use tessera_wire::protocol::{FrameId, FrameStart, RenderNodeId};
+use tessera_wire::wall::{DisplayId, TileId};
+
+pub(super) struct InFlight {
+    pub start: FrameStart,
+    /// Tiles nobody has been given yet (or given back by a node that left).
+    pool: VecDeque<TileId>,
+    /// Tiles given to each node and not yet reported done.
+    assigned: BTreeMap<RenderNodeId, BTreeSet<TileId>>,
+    done: Vec<bool>,
+    done_count: u32,
+    /// Tiles each node rendered of this frame: how fast it is, against the others.
+    done_by: BTreeMap<RenderNodeId, u32>,
+    pub displays_complete: BTreeSet<DisplayId>,
+}
+
+impl InFlight {
+    pub fn new(start: FrameStart, tile_count: u32) -> Self {
+        InFlight {
+            start,
+            pool: (0..tile_count).map(TileId).collect(),
+            assigned: BTreeMap::new(),
+            done: vec![false; tile_count as usize],
+            done_count: 0,
+            done_by: BTreeMap::new(),
+            displays_complete: BTreeSet::new(),
+        }
+    }
+
+    pub fn frame(&self) -> FrameId {
+        self.start.frame
+    }
+
+    pub fn all_rendered(&self) -> bool {
+        self.done_count as usize == self.done.len()
+    }
+
+    pub fn pool_is_empty(&self) -> bool {
+        self.pool.is_empty()
+    }
+
+    pub fn done_by(&self) -> &BTreeMap<RenderNodeId, u32> {
+        &self.done_by
+    }
+
+    /// Cuts the frame into one region per node, sized by the node's `weight` (equal weights,
+    /// equal regions), and gives each node the first `static_fraction` of its region; the rest
+    /// of every region stays in the pool, in order.
+    pub fn static_shares(
+        &mut self,
+        nodes: &[(RenderNodeId, f64)],
+        static_fraction: f32,
+    ) -> Vec<Vec<TileId>> {
+        let total = self.pool.len();
+        let weight_sum: f64 = nodes.iter().map(|(_, w)| w.max(0.0)).sum();
+        let equal = !(weight_sum.is_finite() && weight_sum > 0.0);
+        let n = nodes.len().max(1);
+        // Region k ends where the weights up to k reach their share of the frame. The small
+        // bias keeps equal weights on the exact integer bounds `total · k / n`.
+        let mut reached = 0.0;
+        let mut bound = |k: usize, w: f64| -> usize {
+            if equal {
+                return total * (k + 1) / n;
+            }
+            reached += w.max(0.0);
+            ((total as f64 * reached / weight_sum + 1e-9).floor() as usize).min(total)
+        };
+        let mut shares = vec![Vec::new(); nodes.len()];
+        let mut rest = VecDeque::with_capacity(total);
+        let mut lo = 0;
+        for (k, &(node, weight)) in nodes.iter().enumerate() {
+            let hi = if k + 1 == nodes.len() {
+                total
+            } else {
+                bound(k, weight).max(lo)
+            };
+            let fixed = ((hi - lo) as f32 * static_fraction.clamp(0.0, 1.0)).round() as usize;
+            for (i, &tile) in self.pool.range(lo..hi).enumerate() {
+                if i < fixed {
+                    shares[k].push(tile);
+                } else {
+                    rest.push_back(tile);
+                }
+            }
+            self.assigned
+                .entry(node)
+                .or_default()
+                .extend(shares[k].iter().copied());
+            lo = hi;
+        }
+        self.pool = rest;
+        shares
+    }
+
+    /// Guided self-scheduling: a batch is a share of what is left, so batches shrink as the
+    /// frame nears its end and the last nodes to finish do not hold up the barrier.
+    pub fn take_batch(
+        &mut self,
+        node: RenderNodeId,
+        node_count: u32,
+        min_batch: u32,
+    ) -> Vec<TileId> {
+        let size = (self.pool.len() as u32)
+            .div_ceil(2 * node_count)
+            .max(min_batch) as usize;
+        let batch: Vec<TileId> = self.pool.drain(..size.min(self.pool.len())).collect();
+        self.assigned
+            .entry(node)
+            .or_default()
+            .extend(batch.iter().copied());
+        batch
+    }
+
+    pub fn mark_done(
+        &mut self,
+        node: RenderNodeId,
+        tiles: impl Iterator<Item = TileId>,
+    ) -> Result<(), BalanceError> {
+        let frame = self.frame();
+        let assigned = self.assigned.entry(node).or_default();
+        for tile in tiles {
+            if !assigned.remove(&tile) {
+                return Err(BalanceError::NotAssigned {
+                    node,
+                    frame,
+                    tile: tile.0,
+                });
+            }
+            let slot = &mut self.done[tile.0 as usize];
+            if !*slot {
+                *slot = true;
+                self.done_count += 1;
+                *self.done_by.entry(node).or_default() += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// A node left: what it had not finished goes back to the front of the pool.
+    pub fn reclaim(&mut self, node: RenderNodeId) {
+        if let Some(tiles) = self.assigned.remove(&node) {
+            for tile in tiles.into_iter().rev() {
+                if !self.done[tile.0 as usize] {
+                    self.pool.push_front(tile);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,16 @@
+//! Tessera's sans-IO core: the state machines of a wall, with no socket, clock or thread.
+//!
+//! [`balance::Coordinator`] (the master's load balancer and frame barrier),
+//! [`assemble::FrameAssembler`] (a display's frames) and [`worker::RenderWorker`] (a render
+//! node's queue) take messages and `now` and return messages, following quinn-proto's
+//! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
+//! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
+//! in thin tokio + quinn driver loops.
+//!
+//! It depends on `tessera-wire` for the messages and on nothing that does I/O: no tokio,
+//! quinn, socket or clap crate may enter its dependency tree (a test in `tests/` checks).
+
+pub mod assemble;
+pub mod balance;
+pub mod sim;
+pub mod worker;

@@ -1,0 +1,692 @@
+//! A whole wall in one process, no sockets: the real [`Coordinator`], [`RenderWorker`]s and
+//! [`FrameAssembler`]s exchanging the real messages through a simulated network with a virtual
+//! clock, seeded latency, jitter and loss, render nodes of different speeds, and scripted
+//! render-node deaths.
+//!
+//! Pixels are a cheap function of (frame, tile, byte) instead of ray-traced, so hundreds of
+//! virtual nodes run in milliseconds and every presented frame can be checked byte for byte.
+//! With [`PixelCheck::OnePerTile`] each display assembles a thumbnail with one pixel per tile
+//! instead of its full screen: the tile ids, their owners and every message are the same, but a
+//! wall of 64 full-HD screens fits in a few kilobytes and a run of 100 frames in seconds.
+//!
+//! # The network
+//!
+//! Every link is QUIC in the real system, so the model is QUIC's, not UDP's:
+//!
+//! * **Latency.** A message arrives `latency_us` plus a seeded jitter of up to half of that after
+//!   its last transmission.
+//! * **Loss.** Each transmission is lost with probability `loss` (a seeded coin per try). QUIC
+//!   retransmits after a probe timeout, here three one-way latencies (about 1.5 round trips),
+//!   doubling after every further loss; so a message is never lost for good while its sender
+//!   lives, it is late. A render node that dies before a retransmission takes that pixel batch
+//!   with it.
+//! * **Order.** Control messages travel on one stream per direction and node, as in the real
+//!   nodes: a retransmitted message holds back everything behind it (head-of-line blocking).
+//!   Pixel batches and the acknowledgements that tell a render node its pixels arrived each go
+//!   on a stream of their own and may overtake each other.
+//! * **Deaths.** A render node killed with [`SimWall::kill_at`] dies shortly after the frame
+//!   starts, with tiles in hand; the master learns at once (its connection closes). Messages
+//!   to and from it are dropped from then on.
+//!
+//! # Balance efficiency
+//!
+//! A render node is busy while it renders a batch. Its busy fraction is busy time over the
+//! time it was alive within the frames' span, from the first frame's start until the master
+//! knows the last frame is rendered; [`SimReport::efficiency`] is the mean over render nodes.
+
+mod metrics;
+mod net;
+#[cfg(test)]
+mod tests;
+
+pub use metrics::{SimReport, Spread};
+
+use crate::assemble::FrameAssembler;
+use crate::balance::{BalanceConfig, Coordinator, Output};
+use crate::worker::{BatchSizer, RenderWorker};
+use glam::Vec3;
+use metrics::{busy_fractions, NodeClock};
+use net::{Network, Rng, Stream};
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap};
+use std::time::{Duration, Instant};
+use tessera_wire::camera::{Camera, CameraMode};
+use tessera_wire::params::RenderParams;
+use tessera_wire::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
+use tessera_wire::wall::{
+    DisplayId, ScreenRect, TileGrid, TileId, WallError, WallLayout, WallSpec,
+};
+
+/// How fast each render node renders a full tile.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NodeSpeeds {
+    /// Node k takes `100 + 37k mod 200` µs: a fixed, even spread over 100..300 µs.
+    Cycle,
+    /// Each node takes `fastest_us` times a seeded factor drawn uniformly from `[1, spread]`.
+    Spread { fastest_us: u64, spread: f64 },
+    /// Node k takes `tile_us[k mod len]` µs.
+    List(Vec<u64>),
+}
+
+/// How a simulated render node sizes its batches and its refill threshold.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Batching {
+    /// As the real render node does: [`BatchSizer`] on the measured (virtual) cost per tile and
+    /// the measured request round trip, for one render thread.
+    Measured,
+    /// `batch` tiles at once, asking for more below `low_water` queued tiles.
+    Fixed { batch: usize, low_water: usize },
+}
+
+/// How much of the picture the displays assemble and check.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PixelCheck {
+    /// Every pixel of every screen.
+    Full,
+    /// One pixel per tile: the same tiles and messages, a thumbnail's memory.
+    OnePerTile,
+}
+
+/// A simulated wall's nodes and network.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimConfig {
+    pub render_nodes: u32,
+    pub speeds: NodeSpeeds,
+    /// One-way latency of every link, in virtual microseconds, before jitter.
+    pub latency_us: u64,
+    /// Probability that one transmission of a message is lost (it is then retransmitted).
+    pub loss: f64,
+    /// How many tiles a render node takes at once, and when it asks for more.
+    pub batching: Batching,
+    pub pixels: PixelCheck,
+    pub balance: BalanceConfig,
+}
+
+impl SimConfig {
+    pub fn new(render_nodes: u32) -> Self {
+        SimConfig {
+            render_nodes,
+            speeds: NodeSpeeds::Cycle,
+            latency_us: 50,
+            loss: 0.0,
+            batching: Batching::Measured,
+            pixels: PixelCheck::Full,
+            balance: BalanceConfig::default(),
+        }
+    }
+}
+
+/// A near-square grid of `displays` screens of `width × height` pixels: as many rows as the
+/// largest divisor of `displays` not above its square root, so that every display count gives
+/// exactly that many screens (a prime count gives one row).
+///
+/// # Errors
+/// A wall that [`WallSpec::build`] refuses (too many displays or pixels).
+pub fn near_square_wall(displays: u32, width: u32, height: u32) -> Result<WallLayout, WallError> {
+    let rows = (1..=displays.max(1))
+        .take_while(|&r| u64::from(r) * u64::from(r) <= u64::from(displays))
+        .filter(|r| displays.is_multiple_of(*r))
+        .last()
+        .unwrap_or(1);
+    WallLayout::grid(displays.max(1) / rows, rows, width, height)
+}
+
+/// The deterministic pixel bytes of `tile` in `frame`.
+pub fn sim_pixels(grid: &TileGrid, frame: FrameId, tile: TileId) -> Vec<u8> {
+    let t = grid.tile(tile).expect("tile of the grid");
+    (0..t.pixel_count() * 3)
+        .map(|i| {
+            (i as u64)
+                .wrapping_mul(31)
+                .wrapping_add(tile.0 as u64 * 7 + frame.0 * 13) as u8
+        })
+        .collect()
+}
+
+enum Event {
+    FromRender(RenderNodeId, FromNode),
+    FromDisplay(DisplayId, FromNode),
+    ToRender(RenderNodeId, ToNode),
+    ToDisplay(DisplayId, ToNode),
+    Pixels {
+        from: RenderNodeId,
+        /// When the transmission that got through left the render node.
+        last_tx: u64,
+        display: DisplayId,
+        frame: FrameId,
+        tiles: Vec<TileId>,
+    },
+    Rendered(RenderNodeId, FrameId, Vec<TileId>),
+    Delivered(RenderNodeId, FrameId, Vec<TileId>),
+    Kill(RenderNodeId),
+}
+
+struct SimNode {
+    worker: RenderWorker,
+    busy: bool,
+    /// `None` for [`Batching::Fixed`].
+    sizer: Option<BatchSizer>,
+}
+
+pub struct SimWall {
+    grid: TileGrid,
+    /// The grid the displays assemble: `grid` itself, or its one-pixel-per-tile thumbnail.
+    pixel_grid: TileGrid,
+    coordinator: Coordinator,
+    nodes: BTreeMap<RenderNodeId, SimNode>,
+    clocks: Vec<NodeClock>,
+    displays: Vec<FrameAssembler>,
+    presented: Vec<Vec<FrameId>>,
+    /// Frames whose presented pixels differed from what was rendered.
+    corrupt: Vec<(DisplayId, FrameId)>,
+    events: BinaryHeap<Reverse<(u64, u64, usize)>>,
+    slab: Vec<Option<Event>>,
+    free_slots: Vec<usize>,
+    seq: u64,
+    now_us: u64,
+    base: Instant,
+    net: Network,
+    kills: Vec<(RenderNodeId, FrameId)>,
+    batch: usize,
+    frames: u64,
+    span: (Option<u64>, Option<u64>),
+    last_present_us: u64,
+    processed: u64,
+    lost_with_sender: u64,
+    late_tiles: u64,
+    late_from_live: u64,
+}
+
+impl SimWall {
+    /// A wall of `layout` with `render_nodes` nodes of [`NodeSpeeds::Cycle`] speeds, 50 µs links
+    /// and no loss.
+    pub fn new(seed: u64, layout: WallLayout, render_nodes: u32) -> Self {
+        Self::with_config(seed, layout, &SimConfig::new(render_nodes))
+    }
+
+    pub fn with_config(seed: u64, layout: WallLayout, config: &SimConfig) -> Self {
+        let grid = TileGrid::new(layout);
+        let pixel_grid = match config.pixels {
+            PixelCheck::Full => grid.clone(),
+            PixelCheck::OnePerTile => {
+                let t = layout.tile_size();
+                let thumbnails = WallSpec::grid(
+                    layout.columns(),
+                    layout.rows(),
+                    layout.screen_width().div_ceil(t),
+                    layout.screen_height().div_ceil(t),
+                )
+                .tile_size(1)
+                .build()
+                .expect("as many tiles as the valid wall it stands for, and fewer pixels");
+                TileGrid::new(thumbnails)
+            }
+        };
+        debug_assert_eq!(grid.len(), pixel_grid.len());
+        let camera = CameraMode::fixed(
+            Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).expect("a valid constant camera"),
+        );
+        let coordinator = Coordinator::new(
+            grid.len() as u32,
+            layout.display_count(),
+            camera,
+            RenderParams::interactive(),
+            None,
+            config.balance,
+        );
+        let displays = pixel_grid
+            .layout()
+            .screens()
+            .map(|s| FrameAssembler::new(&pixel_grid, s))
+            .collect();
+        let mut speeds = Rng::derived(seed, 2);
+        let clocks = (0..config.render_nodes as u64)
+            .map(|k| NodeClock {
+                tile_us: match &config.speeds {
+                    NodeSpeeds::Cycle => 100 + (37 * k) % 200,
+                    NodeSpeeds::Spread { fastest_us, spread } => {
+                        let factor = 1.0 + (spread - 1.0).max(0.0) * speeds.unit();
+                        ((*fastest_us as f64 * factor).round() as u64).max(1)
+                    }
+                    NodeSpeeds::List(list) if !list.is_empty() => {
+                        list[k as usize % list.len()].max(1)
+                    }
+                    NodeSpeeds::List(_) => 100,
+                },
+                ..NodeClock::default()
+            })
+            .collect();
+        let nodes = (0..config.render_nodes)
+            .map(|k| {
+                let (sizer, low_water) = match config.batching {
+                    Batching::Fixed { low_water, .. } => (None, low_water),
+                    Batching::Measured => {
+                        let sizer = BatchSizer::new(1);
+                        let low_water = sizer.low_water(None);
+                        (Some(sizer), low_water)
+                    }
+                };
+                let node = SimNode {
+                    worker: RenderWorker::new(grid.len() as u32, low_water),
+                    busy: false,
+                    sizer,
+                };
+                (RenderNodeId(k), node)
+            })
+            .collect();
+        SimWall {
+            coordinator,
+            nodes,
+            clocks,
+            displays,
+            presented: vec![Vec::new(); layout.display_count() as usize],
+            corrupt: Vec::new(),
+            events: BinaryHeap::new(),
+            slab: Vec::new(),
+            free_slots: Vec::new(),
+            seq: 0,
+            now_us: 0,
+            base: Instant::now(),
+            net: Network::new(seed, config.latency_us, config.loss.clamp(0.0, 1.0)),
+            kills: Vec::new(),
+            batch: match config.batching {
+                Batching::Fixed { batch, .. } => batch.max(1),
+                Batching::Measured => 1,
+            },
+            frames: 0,
+            span: (None, None),
+            last_present_us: 0,
+            processed: 0,
+            lost_with_sender: 0,
+            late_tiles: 0,
+            late_from_live: 0,
+            grid,
+            pixel_grid,
+        }
+    }
+
+    /// Render node `node` dies shortly after frame `frame` starts, with tiles of it in hand.
+    pub fn kill_at(&mut self, node: RenderNodeId, frame: FrameId) {
+        self.kills.push((node, frame));
+    }
+
+    /// Frames presented by each display, in order.
+    pub fn presented(&self, display: DisplayId) -> &[FrameId] {
+        &self.presented[display.0 as usize]
+    }
+
+    pub fn corrupt_frames(&self) -> &[(DisplayId, FrameId)] {
+        &self.corrupt
+    }
+
+    pub fn live_render_nodes(&self) -> usize {
+        self.nodes.len()
+    }
+
+    pub fn virtual_time(&self) -> Duration {
+        Duration::from_micros(self.now_us)
+    }
+
+    /// Frames presented on every display: the length of the longest prefix `0..k` of frames
+    /// that every display presented in order.
+    pub fn frames_completed(&self) -> u64 {
+        self.presented
+            .iter()
+            .map(|shown| {
+                shown
+                    .iter()
+                    .enumerate()
+                    .take_while(|(i, f)| f.0 == *i as u64)
+                    .count() as u64
+            })
+            .min()
+            .unwrap_or(0)
+    }
+
+    /// What the run measured so far.
+    pub fn report(&self) -> SimReport {
+        let start = self.span.0.unwrap_or(0);
+        let end = self.span.1.unwrap_or(self.now_us);
+        let fractions = busy_fractions(&self.clocks, start, end);
+        let spread = Spread::of(&fractions);
+        let mean = if fractions.is_empty() {
+            0.0
+        } else {
+            fractions.iter().sum::<f64>() / fractions.len() as f64
+        };
+        let frames_completed = self.frames_completed();
+        let elapsed_s = self.last_present_us.saturating_sub(start) as f64 * 1e-6;
+        SimReport {
+            render_nodes: self.clocks.len() as u32,
+            render_nodes_killed: self.clocks.iter().filter(|c| c.died_at.is_some()).count() as u32,
+            displays: self.displays.len() as u32,
+            tiles_per_frame: self.grid.len() as u32,
+            frames_requested: self.frames,
+            frames_completed,
+            efficiency: mean,
+            efficiency_min: spread.min,
+            busy_fraction: spread,
+            span_s: end.saturating_sub(start) as f64 * 1e-6,
+            elapsed_s,
+            fps: if elapsed_s > 0.0 {
+                frames_completed as f64 / elapsed_s
+            } else {
+                0.0
+            },
+            latency_us: self.net.latency_us(),
+            loss: self.net.loss(),
+            messages: self.net.messages,
+            retransmissions: self.net.retransmissions,
+            pixel_batches_lost_with_sender: self.lost_with_sender,
+            duplicate_tiles: self.displays.iter().map(FrameAssembler::duplicates).sum(),
+            late_tiles: self.late_tiles,
+            late_tiles_from_live_nodes: self.late_from_live,
+            corrupt_frames: self.corrupt.len() as u64,
+            events: self.processed,
+        }
+    }
+
+    fn now(&self) -> Instant {
+        self.base + Duration::from_micros(self.now_us)
+    }
+
+    fn schedule_at(&mut self, at: u64, event: Event) {
+        let slot = match self.free_slots.pop() {
+            Some(slot) => {
+                self.slab[slot] = Some(event);
+                slot
+            }
+            None => {
+                self.slab.push(Some(event));
+                self.slab.len() - 1
+            }
+        };
+        self.events.push(Reverse((at, self.seq, slot)));
+        self.seq += 1;
+    }
+
+    /// Sends a message over the network (see the module doc for latency, loss and order).
+    fn send(&mut self, event: Event) {
+        let stream = match &event {
+            Event::ToRender(n, _) => Stream::ToRender(n.0),
+            Event::FromRender(n, _) => Stream::FromRender(n.0),
+            Event::ToDisplay(d, _) => Stream::ToDisplay(d.0),
+            Event::FromDisplay(d, _) => Stream::FromDisplay(d.0),
+            _ => Stream::Own,
+        };
+        let at = self.net.deliver(self.now_us, stream).at;
+        self.schedule_at(at, event);
+    }
+
+    /// Runs until nothing is left to happen (the last `Present` delivered) or a bound on
+    /// simulated events is hit. Returns the number of frames presented.
+    pub fn run_frames(&mut self, frames: u64) -> u64 {
+        self.frames = frames;
+        self.coordinator.set_frame_limit(Some(frames));
+        let now = self.now();
+        let ids: Vec<RenderNodeId> = self.nodes.keys().copied().collect();
+        for id in ids {
+            self.coordinator.handle_render_joined(id, now);
+        }
+        self.coordinator.start(now);
+        self.pump();
+        let budget = 200 * frames * (self.grid.len() as u64 + 10) * (self.nodes.len() as u64 + 1);
+        while let Some(Reverse((at, _, slot))) = self.events.pop() {
+            self.processed += 1;
+            if self.processed > budget {
+                break;
+            }
+            self.now_us = at;
+            let event = self.slab[slot].take().expect("each event runs once");
+            self.free_slots.push(slot);
+            self.handle(event);
+            self.pump();
+        }
+        self.coordinator.presented()
+    }
+
+    fn handle(&mut self, event: Event) {
+        let now = self.now();
+        match event {
+            Event::Kill(node) => {
+                if self.nodes.remove(&node).is_some() {
+                    let clock = &mut self.clocks[node.0 as usize];
+                    if let Some(since) = clock.busy_since.take() {
+                        clock.busy_us += self.now_us - since;
+                    }
+                    clock.died_at = Some(self.now_us);
+                    self.coordinator.handle_render_left(node, now);
+                }
+            }
+            Event::FromRender(node, msg) => {
+                if !self.nodes.contains_key(&node) {
+                    return;
+                }
+                if let FromNode::TilesDone {
+                    frame,
+                    tiles,
+                    want_more,
+                } = msg
+                {
+                    self.coordinator
+                        .handle_tiles_done(node, frame, &tiles, want_more, now)
+                        .expect("render nodes only report their own tiles");
+                }
+            }
+            Event::FromDisplay(display, msg) => {
+                if let FromNode::FrameComplete { frame } = msg {
+                    self.coordinator
+                        .handle_frame_complete(display, frame, now)
+                        .expect("displays report frames in flight");
+                }
+            }
+            Event::ToRender(node, msg) => {
+                let Some(n) = self.nodes.get_mut(&node) else {
+                    return;
+                };
+                n.worker
+                    .handle_message(&msg, now)
+                    .expect("valid assignment");
+                self.start_rendering(node);
+            }
+            Event::ToDisplay(display, msg) => {
+                if let ToNode::Present { frame } = msg {
+                    let assembler = &mut self.displays[display.0 as usize];
+                    let shown = assembler
+                        .handle_present(frame)
+                        .expect("present only complete frames");
+                    if let Some(frame) = assembler.poll_complete() {
+                        self.send(Event::FromDisplay(
+                            display,
+                            FromNode::FrameComplete { frame },
+                        ));
+                    }
+                    let screen = self.pixel_grid.layout().screen(display).expect("display");
+                    if !self.frame_matches(screen, frame, &shown.rgb) {
+                        self.corrupt.push((display, frame));
+                    }
+                    self.presented[display.0 as usize].push(frame);
+                    self.last_present_us = self.now_us;
+                }
+            }
+            Event::Pixels {
+                from,
+                last_tx,
+                display,
+                frame,
+                tiles,
+            } => self.handle_pixels(from, last_tx, display, frame, &tiles),
+            Event::Rendered(node, frame, tiles) => {
+                let Some(n) = self.nodes.get_mut(&node) else {
+                    return;
+                };
+                n.busy = false;
+                let clock = &mut self.clocks[node.0 as usize];
+                if let Some(since) = clock.busy_since.take() {
+                    clock.busy_us += self.now_us - since;
+                    if let Some(sizer) = &mut n.sizer {
+                        sizer.record(tiles.len(), Duration::from_micros(self.now_us - since));
+                        n.worker
+                            .set_low_water(sizer.low_water(n.worker.round_trip()));
+                    }
+                }
+                // One pixel batch per display, as the real node batches its writes.
+                let mut arrived = self.now_us;
+                let mut rest = &tiles[..];
+                while let Some(first) = rest.first() {
+                    let display = self.grid.tile(*first).expect("tile").display;
+                    let n = rest
+                        .iter()
+                        .take_while(|t| self.grid.tile(**t).expect("tile").display == display)
+                        .count();
+                    let d = self.net.deliver(self.now_us, Stream::Own);
+                    arrived = arrived.max(d.at);
+                    self.schedule_at(
+                        d.at,
+                        Event::Pixels {
+                            from: node,
+                            last_tx: d.last_tx,
+                            display,
+                            frame,
+                            tiles: rest[..n].to_vec(),
+                        },
+                    );
+                    rest = &rest[n..];
+                }
+                // The node learns its pixels arrived from the displays' acknowledgements.
+                let ack = self.net.deliver(arrived, Stream::Own).at;
+                self.schedule_at(ack, Event::Delivered(node, frame, tiles));
+                self.start_rendering(node);
+            }
+            Event::Delivered(node, frame, tiles) => {
+                let Some(n) = self.nodes.get_mut(&node) else {
+                    return;
+                };
+                let report = n.worker.handle_delivered(frame, &tiles, now);
+                self.send(Event::FromRender(node, report));
+            }
+        }
+    }
+
+    fn handle_pixels(
+        &mut self,
+        from: RenderNodeId,
+        last_tx: u64,
+        display: DisplayId,
+        frame: FrameId,
+        tiles: &[TileId],
+    ) {
+        let alive = self.nodes.contains_key(&from);
+        if self.clocks[from.0 as usize]
+            .died_at
+            .is_some_and(|d| d < last_tx)
+        {
+            self.lost_with_sender += 1;
+            return;
+        }
+        for &tile in tiles {
+            // A re-rendered copy of a tile whose first copy completed the frame.
+            if frame < self.displays[display.0 as usize].next_present() {
+                self.late_tiles += 1;
+                if alive {
+                    self.late_from_live += 1;
+                }
+            }
+            let rgb = sim_pixels(&self.pixel_grid, frame, tile);
+            let assembler = &mut self.displays[display.0 as usize];
+            if let Err(e) = assembler.handle_tile(frame, tile, &rgb) {
+                panic!("display {} refused a tile: {e}", display.0);
+            }
+            if let Some(frame) = assembler.poll_complete() {
+                self.send(Event::FromDisplay(
+                    display,
+                    FromNode::FrameComplete { frame },
+                ));
+            }
+        }
+    }
+
+    fn start_rendering(&mut self, node: RenderNodeId) {
+        let now = self.now();
+        let Some(n) = self.nodes.get_mut(&node) else {
+            return;
+        };
+        if n.busy {
+            return;
+        }
+        let batch = n.sizer.as_ref().map_or(self.batch, BatchSizer::batch);
+        let request = n.worker.poll_request(now);
+        let Some((start, tiles)) = n.worker.next_batch(batch) else {
+            if let Some(r) = request {
+                self.send(Event::FromRender(node, r));
+            }
+            return;
+        };
+        n.busy = true;
+        let clock = &mut self.clocks[node.0 as usize];
+        clock.busy_since = Some(self.now_us);
+        let full = u64::from(self.grid.layout().tile_size()).pow(2).max(1);
+        let cost: u64 = tiles
+            .iter()
+            .map(|t| {
+                let pixels = self.grid.tile(*t).expect("tile").pixel_count() as u64;
+                (clock.tile_us * pixels).div_ceil(full)
+            })
+            .sum();
+        self.schedule_at(
+            self.now_us + cost,
+            Event::Rendered(node, start.frame, tiles),
+        );
+        if let Some(r) = request {
+            self.send(Event::FromRender(node, r));
+        }
+    }
+
+    fn pump(&mut self) {
+        while let Some(out) = self.coordinator.poll_output() {
+            match out {
+                Output::ToRender(node, msg) => self.send(Event::ToRender(node, msg)),
+                Output::ToDisplays(msg) => {
+                    for d in 0..self.displays.len() as u32 {
+                        self.send(Event::ToDisplay(DisplayId(d), msg.clone()));
+                    }
+                }
+                Output::FrameStarted(frame) => {
+                    if frame.0 == 0 {
+                        self.span.0 = Some(self.now_us);
+                    }
+                    let doomed: Vec<RenderNodeId> = self
+                        .kills
+                        .iter()
+                        .filter(|(_, f)| *f == frame)
+                        .map(|(n, _)| *n)
+                        .collect();
+                    for node in doomed {
+                        // Late enough that it holds tiles, early enough that they are unfinished.
+                        let at = self.now_us + self.net.latency_us() * 2 + 150;
+                        self.schedule_at(at, Event::Kill(node));
+                    }
+                }
+                Output::FrameRendered(frame) => {
+                    if frame.0 + 1 == self.frames {
+                        self.span.1 = Some(self.now_us);
+                    }
+                }
+                Output::FramePresented(_) | Output::Finished | Output::Stalled => {}
+            }
+        }
+    }
+
+    fn frame_matches(&self, screen: ScreenRect, frame: FrameId, rgb: &[u8]) -> bool {
+        self.pixel_grid.display_tiles(screen.id).iter().all(|t| {
+            let expected = sim_pixels(&self.pixel_grid, frame, t.id);
+            let row = t.width as usize * 3;
+            (0..t.height as usize).all(|r| {
+                let at = (((t.y - screen.y) as usize + r) * screen.width as usize
+                    + (t.x - screen.x) as usize)
+                    * 3;
+                rgb[at..at + row] == expected[r * row..(r + 1) * row]
+            })
+        })
+    }
+}

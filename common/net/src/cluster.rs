@@ -1,0 +1,187 @@
+//! The cluster's certificate authority and the nodes' identities.
+//!
+//! The master generates a CA on first start and keeps it in its cluster directory; every node
+//! (the master included) presents a certificate signed by that CA and accepts only peers that do
+//! the same, so a machine without a certificate from this CA cannot join or feed a display.
+//! `tessera-master issue-cert` writes a node's directory: `node.pem`, `node.key`, `ca.pem`.
+
+use rcgen::{
+    BasicConstraints, CertificateParams, DistinguishedName, DnType, ExtendedKeyUsagePurpose, IsCa,
+    Issuer, KeyPair, KeyUsagePurpose,
+};
+use rustls_pki_types::pem::PemObject;
+use rustls_pki_types::{CertificateDer, PrivateKeyDer};
+use std::path::{Path, PathBuf};
+
+/// The name every node certificate carries and every client checks. Nodes are identified by the
+/// CA, not by host names, so a wall works the same on IPs, names or loopback.
+pub const CLUSTER_SERVER_NAME: &str = "tessera.cluster";
+
+const CA_CERT: &str = "ca.pem";
+const CA_KEY: &str = "ca.key";
+const NODE_CERT: &str = "node.pem";
+const NODE_KEY: &str = "node.key";
+
+/// The cluster CA, as kept in the master's cluster directory.
+pub struct ClusterCa {
+    dir: PathBuf,
+    key: KeyPair,
+    cert_pem: String,
+}
+
+/// Why a certificate or key could not be made, read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum CertError {
+    #[error(
+        "cluster directory {dir} has only one of {CA_CERT} and {CA_KEY}; restore the other or remove both to start a new cluster"
+    )]
+    HalfCa { dir: PathBuf },
+    #[error(
+        "certificate directory {dir} does not exist (create it with `tessera-master issue-cert --name NODE --out {dir}`)"
+    )]
+    NoCertDir { dir: PathBuf },
+    #[error("cannot {what} {path}")]
+    Io {
+        what: &'static str,
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "cannot read {what} {path} (create node certificates with `tessera-master issue-cert`)"
+    )]
+    Pem {
+        what: &'static str,
+        path: PathBuf,
+        source: rustls_pki_types::pem::Error,
+    },
+    #[error("{path} is not a private key")]
+    BadKey { path: PathBuf, source: rcgen::Error },
+    #[error("cannot make a certificate")]
+    Make(#[from] rcgen::Error),
+}
+
+fn io<'a>(what: &'static str, path: &'a Path) -> impl FnOnce(std::io::Error) -> CertError + 'a {
+    move |source| CertError::Io {
+        what,
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn ca_params() -> Result<CertificateParams, CertError> {
+    let mut params = CertificateParams::new(Vec::<String>::new())?;
+    let mut dn = DistinguishedName::new();
+    dn.push(DnType::CommonName, "Tessera cluster CA");
+    params.distinguished_name = dn;
+    params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    params.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
+    Ok(params)
+}
+
+fn write_private(path: &Path, text: &str) -> Result<(), CertError> {
+    use std::io::Write;
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create(true).truncate(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.mode(0o600);
+    }
+    let mut file = options.open(path).map_err(io("write", path))?;
+    file.write_all(text.as_bytes()).map_err(io("write", path))?;
+    Ok(())
+}
+
+impl ClusterCa {
+    /// Opens the CA in `dir`, creating the directory and a new CA on first use.
+    pub fn open_or_create(dir: &Path) -> Result<ClusterCa, CertError> {
+        let (cert_path, key_path) = (dir.join(CA_CERT), dir.join(CA_KEY));
+        if cert_path.exists() != key_path.exists() {
+            return Err(CertError::HalfCa {
+                dir: dir.to_path_buf(),
+            });
+        }
+        if !cert_path.exists() {
+            std::fs::create_dir_all(dir).map_err(io("create cluster directory", dir))?;
+            let key = KeyPair::generate()?;
+            let cert = ca_params()?.self_signed(&key)?;
+            std::fs::write(&cert_path, cert.pem()).map_err(io("write", &cert_path))?;
+            write_private(&key_path, &key.serialize_pem())?;
+            tracing::info!("created a new cluster CA in {}", dir.display());
+        }
+        let key_pem = std::fs::read_to_string(&key_path).map_err(io("read", &key_path))?;
+        let key = KeyPair::from_pem(&key_pem).map_err(|source| CertError::BadKey {
+            path: key_path.clone(),
+            source,
+        })?;
+        let cert_pem = std::fs::read_to_string(&cert_path).map_err(io("read", &cert_path))?;
+        Ok(ClusterCa {
+            dir: dir.to_path_buf(),
+            key,
+            cert_pem,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Writes a node identity (`node.pem`, `node.key`, `ca.pem`) signed by this CA into `out`.
+    pub fn issue(&self, name: &str, out: &Path) -> Result<(), CertError> {
+        let issuer = Issuer::new(ca_params()?, &self.key);
+        let mut params = CertificateParams::new(vec![CLUSTER_SERVER_NAME.to_string()])?;
+        let mut dn = DistinguishedName::new();
+        dn.push(DnType::CommonName, name);
+        params.distinguished_name = dn;
+        params.extended_key_usages = vec![
+            ExtendedKeyUsagePurpose::ServerAuth,
+            ExtendedKeyUsagePurpose::ClientAuth,
+        ];
+        params.key_usages = vec![KeyUsagePurpose::DigitalSignature];
+        let key = KeyPair::generate()?;
+        let cert = params.signed_by(&key, &issuer)?;
+        std::fs::create_dir_all(out).map_err(io("create", out))?;
+        let (cert_path, ca_path) = (out.join(NODE_CERT), out.join(CA_CERT));
+        std::fs::write(&cert_path, cert.pem()).map_err(io("write", &cert_path))?;
+        write_private(&out.join(NODE_KEY), &key.serialize_pem())?;
+        std::fs::write(&ca_path, &self.cert_pem).map_err(io("write", &ca_path))?;
+        Ok(())
+    }
+}
+
+/// A node's certificate, key and the CA it trusts, loaded from a node directory.
+#[derive(Debug)]
+pub struct NodeIdentity {
+    pub cert: CertificateDer<'static>,
+    pub key: PrivateKeyDer<'static>,
+    pub ca: CertificateDer<'static>,
+}
+
+impl NodeIdentity {
+    pub fn load(dir: &Path) -> Result<NodeIdentity, CertError> {
+        if !dir.is_dir() {
+            return Err(CertError::NoCertDir {
+                dir: dir.to_path_buf(),
+            });
+        }
+        let read_cert = |name: &str| {
+            let path = dir.join(name);
+            CertificateDer::from_pem_file(&path).map_err(|source| CertError::Pem {
+                what: "certificate",
+                path,
+                source,
+            })
+        };
+        let key_path = dir.join(NODE_KEY);
+        let key = PrivateKeyDer::from_pem_file(&key_path).map_err(|source| CertError::Pem {
+            what: "private key",
+            path: key_path.clone(),
+            source,
+        })?;
+        Ok(NodeIdentity {
+            cert: read_cert(NODE_CERT)?,
+            key,
+            ca: read_cert(CA_CERT)?,
+        })
+    }
+}

@@ -1,0 +1,135 @@
+//! A node's link to its master, shared by render and display nodes: joining (connect, hello,
+//! welcome or refusal), receiving the master's messages with one notion of "the master is
+//! gone", and leaving (stats, finish, a bounded wait for the master to close).
+//!
+//! The messages' meaning stays with the nodes and their sans-IO state machines; this is the
+//! plumbing every node would otherwise write again.
+
+use crate::framed::{read_msg, spawn_reader, write_msg};
+use crate::{hostname, quic, NetError};
+use std::net::SocketAddr;
+use std::time::Duration;
+use tessera_wire::protocol::{
+    FromNode, Hello, NodeStats, RenderNodeId, Role, Session, ToNode, PROTOCOL_VERSION,
+};
+use tokio::sync::mpsc;
+
+/// How long a leaving node waits for the master to take its last message and close.
+pub const GOODBYE_WAIT: Duration = Duration::from_secs(10);
+
+/// Why a node lost, or never got, its place in the wall.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error(transparent)]
+    Net(#[from] NetError),
+    #[error("the master refused this node: {0}")]
+    Refused(String),
+    #[error("expected a welcome from the master, got {0}")]
+    NoWelcome(String),
+    #[error("the master closed the connection during the handshake")]
+    ClosedInHandshake,
+    #[error("the master ended the session without a shutdown")]
+    Ended,
+    #[error("lost the master: {0}")]
+    Lost(NetError),
+}
+
+/// What the master said when it took the node in.
+#[derive(Debug)]
+pub struct Welcome {
+    /// The node's id (render nodes; displays get a placeholder).
+    pub node: RenderNodeId,
+    pub session: Session,
+}
+
+/// The control stream to the master, once joined.
+pub struct MasterLink {
+    conn: quinn::Connection,
+    send: quinn::SendStream,
+    control: mpsc::Receiver<Result<Option<ToNode>, NetError>>,
+}
+
+impl MasterLink {
+    /// Connects `endpoint` to the master at `master`, says hello as `role` and waits for the
+    /// welcome (each step bounded: the connection by [`quic::CONNECT_TIMEOUT`], the answer by
+    /// the master's own handshake timeout, after which it closes the connection).
+    ///
+    /// # Errors
+    /// No master there, a refusal (its reason), or anything but a welcome.
+    pub async fn join(
+        endpoint: &quinn::Endpoint,
+        master: SocketAddr,
+        role: Role,
+    ) -> Result<(MasterLink, Welcome), LinkError> {
+        let conn = quic::connect(endpoint, master, "the master").await?;
+        let (mut send, mut recv) = conn
+            .open_bi()
+            .await
+            .map_err(|e| LinkError::Lost(NetError::StreamBroken(e.to_string())))?;
+        let hello = Hello {
+            version: PROTOCOL_VERSION,
+            role,
+            host: hostname(),
+        };
+        write_msg(&mut send, &FromNode::Hello(hello)).await?;
+        let welcome = match read_msg::<ToNode>(&mut recv).await? {
+            Some(ToNode::Welcome { node, session }) => Welcome { node, session },
+            Some(ToNode::Refused { reason }) => return Err(LinkError::Refused(reason)),
+            Some(other) => return Err(LinkError::NoWelcome(format!("{other:?}"))),
+            None => return Err(LinkError::ClosedInHandshake),
+        };
+        let link = MasterLink {
+            conn,
+            send,
+            control: spawn_reader::<ToNode>(recv),
+        };
+        Ok((link, welcome))
+    }
+
+    pub async fn send(&mut self, msg: &FromNode) -> Result<(), LinkError> {
+        write_msg(&mut self.send, msg)
+            .await
+            .map_err(LinkError::Lost)
+    }
+
+    /// The master's next message. Cancel-safe (it reads from a channel that a task of its own
+    /// fills), so driver loops can `select!` on it.
+    ///
+    /// # Errors
+    /// [`LinkError::Ended`] if the master closed the stream without a shutdown,
+    /// [`LinkError::Lost`] if the stream or connection broke or a message was malformed.
+    pub async fn recv(&mut self) -> Result<ToNode, LinkError> {
+        match self.control.recv().await {
+            Some(Ok(Some(msg))) => Ok(msg),
+            Some(Ok(None)) | None => Err(LinkError::Ended),
+            Some(Err(e)) => Err(LinkError::Lost(e)),
+        }
+    }
+
+    /// Tells the master this node cannot go on and waits, bounded, until the message is
+    /// acknowledged, so the master logs the reason rather than a lost connection.
+    pub async fn fail(mut self, message: String) {
+        let _ = write_msg(&mut self.send, &FromNode::Failed { message }).await;
+        let _ = self.send.finish();
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.send.stopped()).await;
+    }
+
+    /// Leaves after the master's shutdown: sends this node's stats, finishes the stream and
+    /// waits (at most [`GOODBYE_WAIT`]) for the master to close, which it does once it has
+    /// every node's stats.
+    pub async fn finish(mut self, stats: NodeStats) -> Result<(), LinkError> {
+        self.send(&FromNode::Stats(stats)).await?;
+        let _ = self.send.finish();
+        let _ = tokio::time::timeout(GOODBYE_WAIT, self.conn.closed()).await;
+        Ok(())
+    }
+}
+
+/// The tokio runtime a node's driver loop runs on: two workers, since the heavy work (ray
+/// tracing, PNG writing) runs on rayon or blocking threads and the loop only moves messages.
+pub fn node_runtime() -> std::io::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+}

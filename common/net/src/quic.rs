@@ -1,0 +1,145 @@
+//! QUIC endpoints with mutual TLS against the cluster CA (ring provider, TLS 1.3 only).
+
+use crate::cluster::{NodeIdentity, CLUSTER_SERVER_NAME};
+use crate::NetError;
+use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
+use rustls::server::WebPkiClientVerifier;
+use rustls::RootCertStore;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+use tessera_wire::protocol::ALPN;
+
+type Result<T, E = NetError> = std::result::Result<T, E>;
+
+fn provider() -> Arc<rustls::crypto::CryptoProvider> {
+    Arc::new(rustls::crypto::ring::default_provider())
+}
+
+fn roots(id: &NodeIdentity) -> Result<Arc<RootCertStore>> {
+    let mut roots = RootCertStore::empty();
+    roots.add(id.ca.clone()).map_err(NetError::BadCa)?;
+    Ok(Arc::new(roots))
+}
+
+/// The largest UDP payload a Tessera endpoint accepts and MTU discovery probes for: a 9000-byte
+/// jumbo frame less the IPv4 and UDP headers. Each QUIC packet costs about 40 bytes of header,
+/// AEAD tag and frame header, 2.6% of quinn's default 1452-byte ceiling and 0.45% of this.
+/// Probing above what a path carries is safe: a probe that is too big is lost (or refused by the
+/// kernel) and discovery settles on the largest size that got through, ~1452 bytes on a
+/// 1500-byte Ethernet. Loopback would carry 64 KiB, but the probes' padding costs more than the
+/// bigger packets save: ~0.9 MB per connection at each discovery, against ~0.08 MB up to here.
+pub const MAX_UDP_PAYLOAD: u16 = 8972;
+
+/// Socket buffers asked for (the kernel caps them at net.core.rmem_max / wmem_max). A display
+/// receives a frame's pixels from every render node at once; datagrams that overflow a small
+/// receive buffer are lost, resent, and, several large ones in a row, taken by quinn for an MTU
+/// black hole that drops the packet size to 1200 bytes.
+const SOCKET_BUFFER: usize = 16 << 20;
+
+/// Window sizes sized for pixel traffic: a 4K screen's frame is 25 MB, and a window much smaller
+/// than bandwidth × RTT caps throughput.
+fn transport() -> Arc<quinn::TransportConfig> {
+    let mut t = quinn::TransportConfig::default();
+    let mut mtu = quinn::MtuDiscoveryConfig::default();
+    // A burst of congestion losses also reads as a black hole; look again soon rather than
+    // send small packets for the default minute.
+    mtu.upper_bound(MAX_UDP_PAYLOAD)
+        .black_hole_cooldown(Duration::from_secs(5));
+    t.mtu_discovery_config(Some(mtu));
+    t.max_concurrent_uni_streams(4096u32.into())
+        .stream_receive_window((32u32 << 20).into())
+        .receive_window((256u32 << 20).into())
+        .send_window(256 << 20)
+        .keep_alive_interval(Some(Duration::from_secs(1)))
+        .max_idle_timeout(Some(Duration::from_secs(10).try_into().expect("10 s fits")));
+    Arc::new(t)
+}
+
+pub fn server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
+    let verifier = WebPkiClientVerifier::builder_with_provider(roots(id)?, provider())
+        .build()
+        .map_err(|e| NetError::Tls(format!("cannot build the client certificate verifier: {e}")))?;
+    let mut tls = rustls::ServerConfig::builder_with_provider(provider())
+        .with_protocol_versions(&[&rustls::version::TLS13])
+        .map_err(|e| NetError::Tls(e.to_string()))?
+        .with_client_cert_verifier(verifier)
+        .with_single_cert(vec![id.cert.clone()], id.key.clone_key())
+        .map_err(NetError::KeyMismatch)?;
+    tls.alpn_protocols = vec![ALPN.to_vec()];
+    let crypto = QuicServerConfig::try_from(tls).map_err(|e| NetError::Tls(e.to_string()))?;
+    let mut config = quinn::ServerConfig::with_crypto(Arc::new(crypto));
+    config.transport_config(transport());
+    Ok(config)
+}
+
+pub fn client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
+    let mut tls = rustls::ClientConfig::builder_with_provider(provider())
+        .with_protocol_versions(&[&rustls::version::TLS13])
+        .map_err(|e| NetError::Tls(e.to_string()))?
+        .with_root_certificates(roots(id)?)
+        .with_client_auth_cert(vec![id.cert.clone()], id.key.clone_key())
+        .map_err(NetError::KeyMismatch)?;
+    tls.alpn_protocols = vec![ALPN.to_vec()];
+    let crypto = QuicClientConfig::try_from(tls).map_err(|e| NetError::Tls(e.to_string()))?;
+    let mut config = quinn::ClientConfig::new(Arc::new(crypto));
+    config.transport_config(transport());
+    Ok(config)
+}
+
+/// An endpoint bound to `bind` that accepts cluster peers (if `accept`) and connects to them.
+pub fn endpoint(bind: SocketAddr, id: &NodeIdentity, accept: bool) -> Result<quinn::Endpoint> {
+    let server = if accept {
+        Some(server_config(id)?)
+    } else {
+        None
+    };
+    let socket =
+        std::net::UdpSocket::bind(bind).map_err(|source| NetError::Bind { addr: bind, source })?;
+    let sock = socket2::SockRef::from(&socket);
+    if let Err(e) = sock
+        .set_recv_buffer_size(SOCKET_BUFFER)
+        .and_then(|()| sock.set_send_buffer_size(SOCKET_BUFFER))
+    {
+        tracing::warn!("cannot enlarge the UDP socket buffers on {bind}: {e}");
+    }
+    tracing::debug!(
+        "UDP socket buffers on {bind}: receive {:?}, send {:?} bytes",
+        sock.recv_buffer_size(),
+        sock.send_buffer_size()
+    );
+    let runtime = quinn::default_runtime().ok_or(NetError::NoRuntime)?;
+    // The peer's MTU discovery stops at the max_udp_payload_size this endpoint advertises.
+    let mut config = quinn::EndpointConfig::default();
+    config
+        .max_udp_payload_size(MAX_UDP_PAYLOAD)
+        .expect("MAX_UDP_PAYLOAD is within QUIC's bounds");
+    let mut endpoint = quinn::Endpoint::new(config, server, socket, runtime)
+        .map_err(|source| NetError::Bind { addr: bind, source })?;
+    endpoint.set_default_client_config(client_config(id)?);
+    Ok(endpoint)
+}
+
+/// How long a connection attempt may take before it is given up.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Connects to a cluster peer, with a bounded wait.
+pub async fn connect(
+    endpoint: &quinn::Endpoint,
+    addr: SocketAddr,
+    what: &str,
+) -> Result<quinn::Connection> {
+    let failed = |reason: String| NetError::Connect {
+        what: what.to_string(),
+        addr,
+        reason,
+    };
+    let connecting = endpoint
+        .connect(addr, CLUSTER_SERVER_NAME)
+        .map_err(|e| failed(e.to_string()))?;
+    match tokio::time::timeout(CONNECT_TIMEOUT, connecting).await {
+        Ok(Ok(conn)) => Ok(conn),
+        Ok(Err(e)) => Err(failed(e.to_string())),
+        Err(_) => Err(failed(format!("no answer within {CONNECT_TIMEOUT:?}"))),
+    }
+}

@@ -1,0 +1,325 @@
+//! Tracing a frame's tiles: the scene prepared for tracing, what one frame is rendered with,
+//! and the parallel loop over 8×8 packets.
+//!
+//! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
+//! on whichever node renders it and the single-process reference equals the wall.
+
+use crate::accel::Accel;
+use crate::packet::{runs_by, PacketHit, RayPacket};
+use crate::pixel_rays::PixelRays;
+use crate::sampling::SampleStream;
+use crate::scene::{Light, Material, Scene};
+use crate::shade::{self, background, encode_srgb_ish, nearest_surface, Shader, SurfaceHit};
+use crate::shadow_packet;
+use crate::spheres::SphereAccel;
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use tessera_wire::camera::Camera;
+use tessera_wire::params::RenderParams;
+use tessera_wire::wall::Tile;
+
+/// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
+pub const PACKET: u32 = 8;
+
+/// A scene ready to trace: materials and lights from the scene, plus its BVH.
+pub struct PreparedScene {
+    pub accel: Accel,
+    /// Material index of each leaf slot of `accel`.
+    pub(crate) slot_material: Vec<u16>,
+    pub(crate) materials: Vec<Material>,
+    /// Whether any material is transparent: without, the blending path is never entered.
+    pub blends: bool,
+    pub(crate) lights: Vec<Light>,
+    /// Length of the scene's bounding-box diagonal: the scale of offsets and AO reach.
+    pub(crate) diagonal: f32,
+    /// Particles, if the scene has any.
+    pub spheres: Option<SphereAccel>,
+    /// Attribute values mapped to the two ends of the colour map.
+    pub(crate) attribute_range: (f32, f32),
+}
+
+impl PreparedScene {
+    pub fn new(scene: &Scene) -> Self {
+        Self::from_accel(scene, Accel::build(scene))
+    }
+
+    /// Uses an already built (e.g. cached) BVH of `scene`.
+    pub fn from_accel(scene: &Scene, accel: Accel) -> Self {
+        let slot_material = accel
+            .scene_index
+            .iter()
+            .map(|&i| scene.triangle_material[i as usize])
+            .collect();
+        let range = scene
+            .particles
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p.attribute), hi.max(p.attribute))
+            });
+        PreparedScene {
+            diagonal: scene.bounds().diagonal().length(),
+            accel,
+            slot_material,
+            materials: scene.materials.clone(),
+            blends: scene.has_transparency(),
+            lights: scene.lights.clone(),
+            spheres: SphereAccel::build(&scene.particles),
+            attribute_range: range,
+        }
+    }
+
+    /// No triangles and no particles: every pixel is the backdrop.
+    pub fn is_empty(&self) -> bool {
+        self.accel.triangles.is_empty() && self.spheres.is_none()
+    }
+
+    pub fn lights(&self) -> &[Light] {
+        &self.lights
+    }
+
+    pub(crate) fn spheres(&self) -> &SphereAccel {
+        self.spheres
+            .as_ref()
+            .expect("a sphere hit implies the scene has spheres")
+    }
+}
+
+/// What one frame is rendered with.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameView {
+    pub frame: u64,
+    pub rays: PixelRays,
+    pub params: RenderParams,
+}
+
+impl FrameView {
+    pub fn new(
+        frame: u64,
+        camera: &Camera,
+        params: RenderParams,
+        wall_width: u32,
+        wall_height: u32,
+    ) -> Self {
+        FrameView {
+            frame,
+            rays: PixelRays::new(camera, wall_width, wall_height),
+            params,
+        }
+    }
+}
+
+/// Rays traced, by kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RayCounts {
+    pub primary: u64,
+    pub shadow: u64,
+    pub ambient: u64,
+    /// Rays reflected by mirrors.
+    pub reflected: u64,
+    /// Rays continued through transparent surfaces (each one a blend).
+    pub transmitted: u64,
+}
+
+impl RayCounts {
+    pub fn total(&self) -> u64 {
+        self.primary + self.shadow + self.ambient + self.reflected + self.transmitted
+    }
+
+    fn add(self, other: RayCounts) -> RayCounts {
+        RayCounts {
+            primary: self.primary + other.primary,
+            shadow: self.shadow + other.shadow,
+            ambient: self.ambient + other.ambient,
+            reflected: self.reflected + other.reflected,
+            transmitted: self.transmitted + other.transmitted,
+        }
+    }
+}
+
+/// Renders `tiles` as RGB8, row-major per tile, on the current rayon pool. All packets of all
+/// tiles go into one parallel loop so that threads stay busy across tile boundaries.
+///
+/// Must not be called on a tokio worker thread: use `spawn_blocking`.
+pub fn render_tiles(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tiles: &[Tile],
+) -> (Vec<Vec<u8>>, RayCounts) {
+    render_tiles_with(scene, view, tiles, ShadowRays::Packets)
+}
+
+/// How primary hits trace their shadow rays; both give the same pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ShadowRays {
+    Packets,
+    #[cfg_attr(not(test), allow(dead_code))]
+    Single,
+}
+
+pub(crate) fn render_tiles_with(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tiles: &[Tile],
+    shadow_rays: ShadowRays,
+) -> (Vec<Vec<u8>>, RayCounts) {
+    if scene.is_empty() {
+        // Nothing to hit: every pixel is the one backdrop colour and no ray is traced. Encoding
+        // it per pixel cost the empty-scene wall (max-fps) a sixth of its CPU.
+        let rgb = encode_srgb_ish(background(Vec3::Z));
+        let images = tiles.iter().map(|t| rgb.repeat(t.pixel_count())).collect();
+        return (images, RayCounts::default());
+    }
+    let packets: Vec<(usize, u32, u32)> = tiles
+        .iter()
+        .enumerate()
+        .flat_map(|(i, t)| {
+            (0..t.height.div_ceil(PACKET)).flat_map(move |py| {
+                (0..t.width.div_ceil(PACKET)).map(move |px| (i, px * PACKET, py * PACKET))
+            })
+        })
+        .collect();
+    let traced: Vec<([u8; (PACKET * PACKET * 3) as usize], RayCounts)> = packets
+        .par_iter()
+        .map_init(
+            || scene.accel.new_stack(),
+            |stack, &(i, px, py)| {
+                trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, stack)
+            },
+        )
+        .collect();
+    let mut images: Vec<Vec<u8>> = tiles.iter().map(|t| vec![0; t.pixel_count() * 3]).collect();
+    let mut counts = RayCounts::default();
+    for (&(i, px, py), (pixels, c)) in packets.iter().zip(&traced) {
+        counts = counts.add(*c);
+        let tile = &tiles[i];
+        let w = PACKET.min(tile.width - px) as usize;
+        let h = PACKET.min(tile.height - py);
+        for row in 0..h {
+            let dst = (((py + row) * tile.width + px) * 3) as usize;
+            let src = (row * PACKET * 3) as usize;
+            images[i][dst..dst + w * 3].copy_from_slice(&pixels[src..src + w * 3]);
+        }
+    }
+    (images, counts)
+}
+
+/// Samples of supersampling and of ambient occlusion are drawn from one key space per pixel:
+/// sample `s` of the pixel's jitter has key `JITTER_KEYS + s`, ambient-occlusion ray `k` of
+/// supersample `s` has key `s · ao_samples + k`.
+const JITTER_KEYS: u32 = 1 << 31;
+
+/// Traces the packet whose top-left corner is `(px, py)` inside `tile`; returns 8×8 RGB8 pixels
+/// (pixels outside the tile left black) and the rays traced.
+fn trace_packet(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tile: &Tile,
+    (px, py): (u32, u32),
+    shadow_rays: ShadowRays,
+    stack: &mut Vec<u32>,
+) -> ([u8; (PACKET * PACKET * 3) as usize], RayCounts) {
+    let mut out = [0u8; (PACKET * PACKET * 3) as usize];
+    let (x0, y0) = (tile.x + px, tile.y + py);
+    let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
+    let mut counts = RayCounts::default();
+    let mut sum = [Vec3::ZERO; 64];
+    let spp = view.params.spp().max(1);
+    for s in 0..spp {
+        let sample = view.params.first_sample() + s;
+        let mut packet = if spp == 1 && view.params.first_sample() == 0 {
+            RayPacket::primary(&view.rays, x0, y0, w, h)
+        } else {
+            RayPacket::primary_jittered(&view.rays, x0, y0, w, h, |x, y| {
+                let mut stream = SampleStream::new(view.frame, x, y, JITTER_KEYS + sample);
+                (stream.next_f32(), stream.next_f32())
+            })
+        };
+        let c = shade_packet(
+            scene,
+            view,
+            &mut packet,
+            (x0, y0, w),
+            (sample, shadow_rays),
+            stack,
+            &mut sum,
+        );
+        counts = counts.add(c);
+    }
+    for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
+        let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
+        out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
+    }
+    (out, counts)
+}
+
+/// Traces `packet` (the rays of the block at `x0, y0`, `w` wide) and adds each ray's colour to
+/// `sum`.
+fn shade_packet(
+    scene: &PreparedScene,
+    view: &FrameView,
+    packet: &mut RayPacket,
+    (x0, y0, w): (u32, u32, u32),
+    (sample, shadow_rays): (u32, ShadowRays),
+    stack: &mut Vec<u32>,
+    sum: &mut [Vec3; 64],
+) -> RayCounts {
+    packet.clip(view.params.cuts());
+    let mut hits = [PacketHit::MISS; 64];
+    scene.accel.closest_hits(packet, &mut hits, stack);
+    let surfaces: [Option<SurfaceHit>; 64] = std::array::from_fn(|i| {
+        (i < packet.len()).then(|| {
+            let ray = (view.rays.eye, packet.direction(i));
+            let interval = (packet.t_min[i], packet.t_max[i]);
+            nearest_surface(scene, view, ray, interval, hits[i], stack)
+        })?
+    });
+    let mut shader = Shader {
+        scene,
+        view,
+        stack,
+        counts: RayCounts {
+            primary: packet.len() as u64,
+            ..RayCounts::default()
+        },
+        pixel: (x0, y0),
+        first_ao_key: sample * view.params.ao_samples(),
+        primary: None,
+    };
+    let packet_shadows = shadow_rays == ShadowRays::Packets;
+    let shadows =
+        (packet_shadows && view.params.shadows() && !scene.lights().is_empty()).then(|| {
+            let directions: [Vec3; 64] = std::array::from_fn(|i| packet.direction(i));
+            shadow_packet::primary_shadows(
+                scene,
+                view,
+                view.rays.eye,
+                &directions[..packet.len()],
+                &surfaces[..packet.len()],
+                shader.stack,
+            )
+        });
+    // Sub-packets of consecutive rays that hit the same material (or nothing) are shaded
+    // together, the material looked up once per run: ranges of the packet, not copies.
+    let keys: [Option<u16>; 64] =
+        std::array::from_fn(|i| surfaces[i].map(|s| s.material_key(scene)));
+    for (key, run) in runs_by(&keys[..packet.len()]) {
+        let material = key
+            .filter(|&k| k != shade::PARTICLE_KEY)
+            .map(|k| scene.materials[k as usize]);
+        for i in run {
+            let dir = packet.direction(i);
+            sum[i] += match surfaces[i] {
+                None => background(dir),
+                Some(hit) => {
+                    // Particles share one key but each has its own colour.
+                    let m = material.unwrap_or_else(|| scene.material_of(hit));
+                    shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
+                    shader.primary = shadows.and_then(|s| s[i]);
+                    shader.shade(view.rays.eye, dir, hit, &m, 0)
+                }
+            };
+        }
+    }
+    shader.counts
+}

@@ -1,0 +1,42 @@
+//! Tessera's renderer: scenes and their loaders, the BVH, 64-ray packets and shading. Render
+//! nodes and the master's reference render link it; display nodes never compile it.
+//!
+//! A frame is rendered by [`render_tiles`] from a [`PreparedScene`] (the scene and its BVH) and
+//! a [`FrameView`] (camera rays and [`tessera_wire::params::RenderParams`]). Every pixel is a
+//! pure function of those and the pixel, so any render node draws a tile byte for byte as the
+//! single-process reference ([`render_wall`]) does.
+//!
+//! It depends on `tessera-wire` for the state it renders with (camera, parameters, scene name,
+//! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);
+//! never on an async runtime, socket or command-line crate.
+
+// Packets are structures of arrays: a lane index addresses several arrays at once, which is
+// clearer as `for i in 0..n` than as zipped iterators.
+#![allow(clippy::needless_range_loop)]
+
+pub mod accel;
+pub mod accel_cache;
+pub mod accel_packet;
+pub mod aov;
+pub mod bench;
+mod frame;
+pub mod geometry;
+pub mod packet;
+mod pixel_rays;
+mod reference;
+pub mod sampling;
+pub mod scene;
+mod shade;
+mod shadow_packet;
+pub mod spheres;
+
+#[cfg(test)]
+mod render_tests;
+
+pub use frame::{render_tiles, FrameView, PreparedScene, RayCounts, PACKET};
+pub use pixel_rays::{orbit_of, PixelRays};
+pub use reference::render_wall;
+pub use shade::{
+    background, encode_srgb_ish, nearest_surface, offset_origin, surface, Shader, SurfaceHit,
+    MAX_DEPTH,
+};

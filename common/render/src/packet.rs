@@ -1,0 +1,205 @@
+//! 64-ray packets in structure-of-arrays layout, as in Manta.
+//!
+//! Properties the whole packet shares are flags (a common origin, normalized directions), so
+//! traversal can take the fast path they allow. Derived values (inverse directions) are
+//! computed once, on first use, and flagged. Shading splits a packet into sub-packets of
+//! consecutive rays with the same material: ranges of the packet, not copies.
+
+use crate::PixelRays;
+use glam::Vec3;
+use std::ops::Range;
+use tessera_wire::cut::CutPlanes;
+
+pub const PACKET_RAYS: usize = 64;
+
+/// All rays start at [`RayPacket::origin`].
+pub const COMMON_ORIGIN: u32 = 1;
+/// All directions have unit length.
+pub const NORMALIZED: u32 = 1 << 1;
+/// `inv` holds the inverse directions.
+pub const HAVE_INVERSE: u32 = 1 << 2;
+/// Some rays are limited to an interval other than `[0, ∞)` (cutting planes).
+pub const CLIPPED: u32 = 1 << 3;
+
+pub struct RayPacket {
+    len: usize,
+    flags: u32,
+    /// The shared origin when `COMMON_ORIGIN` is set.
+    pub origin: Vec3,
+    /// Per-ray origins (each equal to `origin` when `COMMON_ORIGIN` is set).
+    pub org: [[f32; PACKET_RAYS]; 3],
+    pub dir: [[f32; PACKET_RAYS]; 3],
+    inv: [[f32; PACKET_RAYS]; 3],
+    /// Per-ray interval searched for hits; `t_min > t_max` for a ray that can hit nothing.
+    pub t_min: [f32; PACKET_RAYS],
+    pub t_max: [f32; PACKET_RAYS],
+}
+
+impl RayPacket {
+    /// Primary rays of the `w × h ≤ 8 × 8` pixel block at `(x0, y0)`, row-major.
+    pub fn primary(rays: &PixelRays, x0: u32, y0: u32, w: u32, h: u32) -> Self {
+        Self::primary_jittered(rays, x0, y0, w, h, |_, _| (0.5, 0.5))
+    }
+
+    /// Primary rays through the points `jitter(x, y)` of each pixel of the block.
+    pub fn primary_jittered(
+        rays: &PixelRays,
+        x0: u32,
+        y0: u32,
+        w: u32,
+        h: u32,
+        mut jitter: impl FnMut(u32, u32) -> (f32, f32),
+    ) -> Self {
+        let mut p = RayPacket {
+            len: (w * h) as usize,
+            flags: COMMON_ORIGIN | NORMALIZED,
+            origin: rays.eye,
+            org: [
+                [rays.eye.x; PACKET_RAYS],
+                [rays.eye.y; PACKET_RAYS],
+                [rays.eye.z; PACKET_RAYS],
+            ],
+            dir: [[0.0; PACKET_RAYS]; 3],
+            inv: [[0.0; PACKET_RAYS]; 3],
+            t_min: [0.0; PACKET_RAYS],
+            t_max: [f32::INFINITY; PACKET_RAYS],
+        };
+        for i in 0..p.len {
+            let (x, y) = (x0 + i as u32 % w, y0 + i as u32 / w);
+            let (jx, jy) = jitter(x, y);
+            let d = rays.direction_at(x, y, jx, jy);
+            for axis in 0..3 {
+                p.dir[axis][i] = d[axis];
+            }
+        }
+        p
+    }
+
+    /// Rays with their own origins (shadow and ambient-occlusion packets).
+    pub fn from_rays(rays: impl IntoIterator<Item = (Vec3, Vec3)>) -> Self {
+        let mut p = RayPacket {
+            len: 0,
+            flags: 0,
+            origin: Vec3::ZERO,
+            org: [[0.0; PACKET_RAYS]; 3],
+            dir: [[0.0; PACKET_RAYS]; 3],
+            inv: [[0.0; PACKET_RAYS]; 3],
+            t_min: [0.0; PACKET_RAYS],
+            t_max: [f32::INFINITY; PACKET_RAYS],
+        };
+        for (o, d) in rays.into_iter().take(PACKET_RAYS) {
+            for axis in 0..3 {
+                p.org[axis][p.len] = o[axis];
+                p.dir[axis][p.len] = d[axis];
+            }
+            p.len += 1;
+        }
+        p
+    }
+
+    /// Limits every ray to the part of it that the cutting planes keep.
+    pub fn clip(&mut self, cuts: &CutPlanes) {
+        if cuts.is_empty() {
+            return;
+        }
+        for i in 0..self.len {
+            (self.t_min[i], self.t_max[i]) = cuts.interval(self.ray_origin(i), self.direction(i));
+        }
+        self.flags |= CLIPPED;
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag != 0
+    }
+
+    pub fn direction(&self, i: usize) -> Vec3 {
+        Vec3::new(self.dir[0][i], self.dir[1][i], self.dir[2][i])
+    }
+
+    pub fn ray_origin(&self, i: usize) -> Vec3 {
+        Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i])
+    }
+
+    /// Inverse directions, computed on first use.
+    pub fn inverse_directions(&mut self) -> &[[f32; PACKET_RAYS]; 3] {
+        if !self.has(HAVE_INVERSE) {
+            for axis in 0..3 {
+                for i in 0..PACKET_RAYS {
+                    self.inv[axis][i] = 1.0 / self.dir[axis][i];
+                }
+            }
+            self.flags |= HAVE_INVERSE;
+        }
+        &self.inv
+    }
+}
+
+/// The closest hit of one ray of a packet.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PacketHit {
+    pub t: f32,
+    slot: u32,
+}
+
+impl PacketHit {
+    pub const MISS: PacketHit = PacketHit {
+        t: f32::INFINITY,
+        slot: u32::MAX,
+    };
+
+    pub fn new(t: f32, slot: u32) -> Self {
+        PacketHit { t, slot }
+    }
+
+    /// Leaf slot of the triangle hit, if any.
+    pub fn slot(&self) -> Option<u32> {
+        (self.slot != u32::MAX).then_some(self.slot)
+    }
+}
+
+/// Splits `keys` into maximal runs of equal consecutive keys: the sub-packets of rays that share
+/// a material, as ranges into the packet (no allocation: it runs once per packet).
+pub fn runs_by<K: PartialEq + Copy>(keys: &[K]) -> impl Iterator<Item = (K, Range<usize>)> + '_ {
+    let mut start = 0;
+    std::iter::from_fn(move || {
+        let &key = keys.get(start)?;
+        let len = keys[start..].iter().take_while(|&&k| k == key).count();
+        let run = start..start + len;
+        start += len;
+        Some((key, run))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_wire::camera::Camera;
+
+    #[test]
+    fn primary_packets_share_origin_and_compute_inverses_once() {
+        let camera = Camera::new(Vec3::new(1.0, 2.0, 3.0), Vec3::ZERO, Vec3::Y, 60.0).unwrap();
+        let rays = PixelRays::new(&camera, 64, 48);
+        let mut p = RayPacket::primary(&rays, 8, 16, 8, 5);
+        assert_eq!(p.len(), 40);
+        assert!(p.has(COMMON_ORIGIN) && p.has(NORMALIZED) && !p.has(HAVE_INVERSE));
+        assert_eq!(p.direction(9), rays.direction(9, 17));
+        let inv_x = p.inverse_directions()[0][9];
+        assert!(p.has(HAVE_INVERSE));
+        assert_eq!(inv_x, 1.0 / rays.direction(9, 17).x);
+    }
+
+    #[test]
+    fn runs_split_by_material_without_gaps() {
+        let runs: Vec<_> = runs_by(&[2u16, 2, 5, 5, 5, 2, 7]).collect();
+        assert_eq!(runs, vec![(2, 0..2), (5, 2..5), (2, 5..6), (7, 6..7)]);
+        assert!(runs_by::<u16>(&[]).next().is_none());
+    }
+}

@@ -1,0 +1,98 @@
+//! Primary rays of the wall's camera: the map from virtual-image pixels to ray directions, and
+//! the default orbit around a scene.
+
+use crate::geometry::Bounds;
+use glam::Vec3;
+use tessera_wire::camera::{Camera, CameraError, CameraMode};
+
+/// The default orbit around a scene's bounds, with the given field of view. A scene with
+/// nothing in it (no finite bounds) is orbited around the origin at unit radius: there is
+/// nothing to frame, but the camera must still be a valid one.
+///
+/// # Errors
+/// As [`CameraMode::orbit`]: a bad field of view, or a scene too small for its distance from
+/// the origin to place a camera around at single precision.
+pub fn orbit_of(bounds: &Bounds, fov_y_deg: f32) -> Result<CameraMode, CameraError> {
+    let (center, diagonal) = (bounds.center(), bounds.diagonal().length());
+    if !(center.is_finite() && diagonal.is_finite()) {
+        return CameraMode::orbit(glam::Vec3::ZERO, 1.0, fov_y_deg);
+    }
+    CameraMode::orbit(center, (diagonal * 0.5).max(1e-6), fov_y_deg)
+}
+
+/// Maps virtual-image pixels to primary-ray directions.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelRays {
+    pub eye: Vec3,
+    forward: Vec3,
+    right: Vec3,
+    up: Vec3,
+    inv_width: f32,
+    inv_height: f32,
+}
+
+impl PixelRays {
+    /// The primary-ray generator of `camera` for an image of `width × height` pixels.
+    pub fn new(camera: &Camera, width: u32, height: u32) -> Self {
+        let forward = (camera.target() - camera.eye()).normalize();
+        let right = forward.cross(camera.up()).normalize();
+        let up = right.cross(forward);
+        let half_h = (camera.fov_y_deg().to_radians() * 0.5).tan();
+        let half_w = half_h * width as f32 / height as f32;
+        PixelRays {
+            eye: camera.eye(),
+            forward,
+            right: right * half_w,
+            up: up * half_h,
+            inv_width: 2.0 / width as f32,
+            inv_height: 2.0 / height as f32,
+        }
+    }
+
+    /// Normalized direction through the centre of pixel `(x, y)`.
+    #[inline(always)]
+    pub fn direction(&self, x: u32, y: u32) -> Vec3 {
+        self.direction_at(x, y, 0.5, 0.5)
+    }
+
+    /// Normalized direction through the point `(x + jx, y + jy)` of the image, `jx, jy` in
+    /// [0, 1): the sub-pixel samples of supersampling.
+    #[inline(always)]
+    pub fn direction_at(&self, x: u32, y: u32, jx: f32, jy: f32) -> Vec3 {
+        let sx = (x as f32 + jx) * self.inv_width - 1.0;
+        let sy = 1.0 - (y as f32 + jy) * self.inv_height;
+        (self.forward + self.right * sx + self.up * sy).normalize()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centre_pixel_looks_at_target_and_row_zero_is_top() {
+        let camera = Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 90.0).unwrap();
+        let rays = PixelRays::new(&camera, 3, 3);
+        assert!((rays.direction(1, 1) - Vec3::NEG_Z).length() < 1e-6);
+        assert!(rays.direction(1, 0).y > 0.0);
+        assert!(rays.direction(0, 1).x < 0.0);
+    }
+
+    #[test]
+    fn the_orbit_honours_its_field_of_view() {
+        let bounds = Bounds {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        };
+        let orbit = orbit_of(&bounds, 20.0).unwrap();
+        assert_eq!(orbit.camera_for_frame(7).fov_y_deg(), 20.0);
+        assert!(orbit_of(&bounds, 0.0).is_err());
+    }
+
+    #[test]
+    fn an_empty_scene_still_gets_a_valid_orbit() {
+        let empty = crate::scene::Scene::default().bounds();
+        let orbit = orbit_of(&empty, 45.0).unwrap();
+        assert!(orbit.camera_for_frame(0).eye().is_finite());
+    }
+}

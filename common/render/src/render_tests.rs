@@ -1,0 +1,391 @@
+//! Whole-image properties of the renderer: determinism, ray counts, particles, materials and
+//! cutting planes.
+
+use crate::frame::{render_tiles_with, ShadowRays};
+use crate::scene::{knot_scene, Scene};
+use crate::*;
+use glam::Vec3;
+use tessera_wire::camera::Camera;
+use tessera_wire::cut::CutPlanes;
+use tessera_wire::params::{RenderParams, RenderParamsSpec};
+use tessera_wire::wall::{TileGrid, WallLayout, WallSpec};
+
+#[test]
+fn a_tile_is_identical_alone_or_in_a_batch_and_on_any_thread_count() {
+    let scene = PreparedScene::new(&knot_scene(128, 16));
+    let wall = WallSpec::grid(2, 1, 96, 64).tile_size(32).build().unwrap();
+    let grid = TileGrid::new(wall);
+    let camera = orbit_of(&knot_scene(128, 16).bounds(), 45.0)
+        .unwrap()
+        .camera_for_frame(3);
+    let view = FrameView::new(
+        3,
+        &camera,
+        RenderParams::interactive(),
+        wall.width(),
+        wall.height(),
+    );
+    let (all, counts) = render_tiles(&scene, &view, grid.tiles());
+    assert!(counts.primary == wall.visible_pixels() && counts.shadow > 0);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    for (i, tile) in grid.tiles().iter().enumerate() {
+        let (alone, _) = one.install(|| render_tiles(&scene, &view, std::slice::from_ref(tile)));
+        assert_eq!(alone[0], all[i], "tile {i}");
+    }
+    // Something other than background was drawn.
+    let distinct: std::collections::HashSet<&[u8]> = all.iter().flat_map(|t| t.chunks(3)).collect();
+    assert!(distinct.len() > 20);
+}
+
+#[test]
+fn shadows_off_traces_no_shadow_rays() {
+    let scene = PreparedScene::new(&knot_scene(64, 8));
+    let wall = WallLayout::grid(1, 1, 40, 30).unwrap();
+    let grid = TileGrid::new(wall);
+    let camera = orbit_of(&knot_scene(64, 8).bounds(), 45.0)
+        .unwrap()
+        .camera_for_frame(0);
+    let view = FrameView::new(
+        0,
+        &camera,
+        RenderParamsSpec {
+            shadows: false,
+            ..RenderParamsSpec::INTERACTIVE
+        }
+        .build()
+        .unwrap(),
+        40,
+        30,
+    );
+    let (_, counts) = render_tiles(&scene, &view, grid.tiles());
+    assert_eq!(
+        counts,
+        RayCounts {
+            primary: 1200,
+            ..RayCounts::default()
+        }
+    );
+}
+
+#[test]
+fn a_scene_without_lights_traces_no_shadow_rays_and_ao_only_when_asked() {
+    let mut scene = knot_scene(64, 8);
+    scene.lights.clear();
+    let prepared = PreparedScene::new(&scene);
+    let wall = WallLayout::grid(1, 1, 40, 30).unwrap();
+    let grid = TileGrid::new(wall);
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(0);
+    for params in RenderParams::PRESETS {
+        let view = FrameView::new(0, &camera, params, 40, 30);
+        let (_, counts) = render_tiles(&prepared, &view, grid.tiles());
+        assert_eq!(counts.shadow, 0, "{params:?}");
+        assert_eq!(counts.ambient > 0, params.ao_samples() > 0, "{params:?}");
+    }
+}
+
+#[test]
+fn every_preset_is_deterministic_and_finite() {
+    let scene = knot_scene(96, 12);
+    let prepared = PreparedScene::new(&scene);
+    let wall = WallSpec::grid(1, 1, 48, 32).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall);
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(7);
+    for params in RenderParams::PRESETS {
+        let view = FrameView::new(7, &camera, params, 48, 32);
+        let (a, _) = render_tiles(&prepared, &view, grid.tiles());
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let (b, _) = one.install(|| render_tiles(&prepared, &view, grid.tiles()));
+        assert_eq!(a, b, "{params:?}");
+    }
+}
+
+#[test]
+fn particles_are_drawn_colour_mapped_and_cropped_and_only_they_get_a_sphere_bvh() {
+    use crate::scene::particles::{write_tpart, Particle};
+    assert!(PreparedScene::new(&knot_scene(32, 4)).spheres.is_none());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("p.tpart");
+    let particles: Vec<Particle> = (0..50)
+        .map(|i| Particle {
+            center: Vec3::new((i % 10) as f32, (i / 10) as f32, 0.0),
+            radius: 0.4,
+            attribute: i as f32,
+        })
+        .collect();
+    write_tpart(&path, &particles).unwrap();
+    let scene = Scene::load(&tessera_wire::scene_spec::SceneSpec::File(path)).unwrap();
+    assert_eq!(scene.particles.len(), 50);
+    let prepared = PreparedScene::new(&scene);
+    assert!(prepared.spheres.is_some() && prepared.accel.nodes.is_empty());
+    let wall = WallSpec::grid(1, 1, 64, 48).tile_size(32).build().unwrap();
+    let grid = TileGrid::new(wall);
+    let camera = Camera::new(
+        Vec3::new(4.5, 2.0, 14.0),
+        Vec3::new(4.5, 2.0, 0.0),
+        Vec3::Y,
+        50.0,
+    )
+    .unwrap();
+    let background_pixels = |params: RenderParams| {
+        let view = FrameView::new(0, &camera, params, 64, 48);
+        let (tiles, _) = render_tiles(&prepared, &view, grid.tiles());
+        let rays = PixelRays::new(&camera, 64, 48);
+        grid.tiles()
+            .iter()
+            .zip(&tiles)
+            .map(|(t, rgb)| {
+                (0..t.pixel_count())
+                    .filter(|&k| {
+                        let (x, y) = (t.x + k as u32 % t.width, t.y + k as u32 / t.width);
+                        rgb[k * 3..k * 3 + 3] == encode_srgb_ish(background(rays.direction(x, y)))
+                    })
+                    .count()
+            })
+            .sum::<usize>()
+    };
+    let all = background_pixels(RenderParams::interactive());
+    let none = background_pixels(
+        RenderParamsSpec {
+            crop: Some((1000.0, 2000.0)),
+            ..RenderParamsSpec::INTERACTIVE
+        }
+        .build()
+        .unwrap(),
+    );
+    let half = background_pixels(
+        RenderParamsSpec {
+            crop: Some((0.0, 24.5)),
+            ..RenderParamsSpec::INTERACTIVE
+        }
+        .build()
+        .unwrap(),
+    );
+    assert_eq!(
+        none,
+        64 * 48,
+        "everything cropped away leaves only background"
+    );
+    assert!(all < half && half < none, "{all} < {half} < {none}");
+}
+
+/// Renders the whole of a `w × h` one-screen wall.
+fn render_all(scene: &PreparedScene, view: &FrameView, w: u32, h: u32) -> (Vec<u8>, RayCounts) {
+    let grid = TileGrid::new(WallSpec::grid(1, 1, w, h).tile_size(16).build().unwrap());
+    let image = crate::render_wall(scene, view, &grid);
+    let (_, counts) = render_tiles(scene, view, grid.tiles());
+    (image.rgb, counts)
+}
+
+fn gallery_camera() -> Camera {
+    Camera::new(
+        Vec3::new(0.5, 1.0, 9.0),
+        Vec3::new(0.0, 0.0, -2.0),
+        Vec3::Y,
+        55.0,
+    )
+    .unwrap()
+}
+
+#[test]
+fn only_scenes_with_transparency_blend_and_only_mirrors_reflect() {
+    let knot = PreparedScene::new(&knot_scene(64, 8));
+    assert!(!knot.blends);
+    let camera = orbit_of(&knot_scene(64, 8).bounds(), 45.0)
+        .unwrap()
+        .camera_for_frame(2);
+    for params in RenderParams::PRESETS {
+        let view = FrameView::new(2, &camera, params, 48, 32);
+        let (_, counts) = render_all(&knot, &view, 48, 32);
+        assert_eq!((counts.transmitted, counts.reflected), (0, 0), "{params:?}");
+    }
+
+    let gallery = crate::scene::gallery_scene();
+    let prepared = PreparedScene::new(&gallery);
+    assert!(prepared.blends);
+    let view = FrameView::new(0, &gallery_camera(), RenderParams::interactive(), 64, 48);
+    let (image, counts) = render_all(&prepared, &view, 64, 48);
+    assert!(counts.transmitted > 0 && counts.reflected > 0, "{counts:?}");
+
+    // The glass and the mirror change the picture: made opaque and matte, it differs.
+    let mut matte = gallery.clone();
+    for m in &mut matte.materials {
+        *m = crate::scene::Material::lambert(m.albedo);
+    }
+    let matte = PreparedScene::new(&matte);
+    assert!(!matte.blends);
+    let (plain, counts) = render_all(&matte, &view, 64, 48);
+    assert_eq!((counts.transmitted, counts.reflected), (0, 0));
+    let differing = image.chunks(3).zip(plain.chunks(3)).filter(|(a, b)| a != b);
+    assert!(differing.count() > 64 * 48 / 10);
+}
+
+#[test]
+fn materials_render_the_same_on_any_thread_count() {
+    let prepared = PreparedScene::new(&crate::scene::gallery_scene());
+    for params in RenderParams::PRESETS {
+        let view = FrameView::new(5, &gallery_camera(), params, 40, 30);
+        let (a, _) = render_all(&prepared, &view, 40, 30);
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let (b, _) = one.install(|| render_all(&prepared, &view, 40, 30));
+        assert_eq!(a, b, "{params:?}");
+    }
+}
+
+#[test]
+fn cutting_planes_remove_what_they_cut_and_nothing_else() {
+    let scene = knot_scene(96, 12);
+    let prepared = PreparedScene::new(&scene);
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(4);
+    let grid = TileGrid::new(WallSpec::grid(1, 1, 64, 48).tile_size(16).build().unwrap());
+    let with_cuts = |planes: &[(Vec3, f32)]| {
+        RenderParamsSpec {
+            cuts: CutPlanes::new(planes).unwrap(),
+            ..RenderParams::final_frame().spec()
+        }
+        .build()
+        .unwrap()
+    };
+    let whole = FrameView::new(4, &camera, RenderParams::final_frame(), 64, 48);
+    let (uncut_image, _) = render_all(&prepared, &whole, 64, 48);
+    let uncut = crate::aov::primary_aovs(&prepared, &whole, &grid);
+
+    // A plane beyond the scene cuts nothing: the image is unchanged, bit for bit.
+    let far = FrameView::new(4, &camera, with_cuts(&[(Vec3::X, 1000.0)]), 64, 48);
+    assert_eq!(render_all(&prepared, &far, 64, 48).0, uncut_image);
+
+    // Cutting away the top half and the front: every visible point is kept, and the picture
+    // changes.
+    let planes = [(Vec3::Y, 0.0), (Vec3::new(0.3, 0.0, 1.0), 0.5)];
+    let params = with_cuts(&planes);
+    let view = FrameView::new(4, &camera, params, 64, 48);
+    let cut = crate::aov::primary_aovs(&prepared, &view, &grid);
+    let rays = PixelRays::new(&camera, 64, 48);
+    let tolerance = 1e-4 * scene.bounds().diagonal().length();
+    let mut changed = 0;
+    for (k, (&depth, &before)) in cut.depth.iter().zip(&uncut.depth).enumerate() {
+        if depth.is_finite() {
+            let p = rays.eye + rays.direction(k as u32 % 64, k as u32 / 64) * depth;
+            let outside = params
+                .cuts()
+                .planes()
+                .iter()
+                .map(|pl| pl.truncate().dot(p) - pl.w)
+                .fold(f32::NEG_INFINITY, f32::max);
+            assert!(outside <= tolerance, "pixel {k} shows a cut point {p}");
+        }
+        changed += usize::from(depth != before);
+    }
+    assert!(changed > 100, "only {changed} pixels changed");
+
+    // Cutting away everything leaves only the background.
+    let all = FrameView::new(4, &camera, with_cuts(&[(Vec3::Y, -100.0)]), 64, 48);
+    let (image, counts) = render_all(&prepared, &all, 64, 48);
+    assert_eq!(counts.shadow + counts.ambient, 0);
+    for (k, px) in image.chunks(3).enumerate() {
+        let dir = rays.direction(k as u32 % 64, k as u32 / 64);
+        assert_eq!(px, encode_srgb_ish(background(dir)));
+    }
+}
+
+#[test]
+fn supersampling_averages_jittered_samples_and_stays_deterministic() {
+    let scene = knot_scene(64, 8);
+    let prepared = PreparedScene::new(&scene);
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(1);
+    let with = |spp, first_sample| {
+        RenderParamsSpec {
+            spp,
+            first_sample,
+            ..RenderParamsSpec::INTERACTIVE
+        }
+        .build()
+        .unwrap()
+    };
+    let view = |p| FrameView::new(1, &camera, p, 48, 32);
+    let (one, c1) = render_all(&prepared, &view(with(1, 0)), 48, 32);
+    let (four, c4) = render_all(&prepared, &view(with(4, 0)), 48, 32);
+    assert_eq!(c4.primary, 4 * c1.primary);
+    // Edges get antialiased: some pixels change, most stay close.
+    let changed = one.iter().zip(&four).filter(|(a, b)| a != b).count();
+    assert!(changed > 0);
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let again = one_thread.install(|| render_all(&prepared, &view(with(4, 0)), 48, 32).0);
+    assert_eq!(four, again);
+    // A later progressive pass draws other samples.
+    let (later, _) = render_all(&prepared, &view(with(4, 4)), 48, 32);
+    assert_ne!(later, four);
+}
+
+#[test]
+fn an_empty_scene_traces_nothing() {
+    let prepared = PreparedScene::new(&Scene::default());
+    assert!(prepared.is_empty());
+    let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 40.0).unwrap();
+    let (image, counts) = render_all(
+        &prepared,
+        &FrameView::new(0, &camera, RenderParams::final_frame(), 20, 10),
+        20,
+        10,
+    );
+    assert_eq!(counts.total(), 0);
+    assert!(image.chunks(3).all(|p| p == &image[..3]));
+}
+
+#[test]
+fn shadow_packets_give_the_pixels_of_single_shadow_rays() {
+    use crate::scene::particles::Particle;
+    use crate::scene::Light;
+    use tessera_wire::scene_spec::SceneSpec;
+    // Mirrors and glass (their bounces trace single shadow rays), a point light, two
+    // directional lights, particles that cast shadows, and a cutting plane.
+    let mut scene = Scene::load(&SceneSpec::Gallery).unwrap();
+    scene.lights.push(Light::Directional {
+        towards: Vec3::new(0.3, 1.0, 0.4).normalize(),
+        intensity: 0.6,
+    });
+    scene.lights.push(Light::Directional {
+        towards: Vec3::new(-0.8, 0.5, 0.1).normalize(),
+        intensity: 0.3,
+    });
+    scene.particles = (0..12)
+        .map(|i| Particle {
+            center: Vec3::new(i as f32 * 0.5 - 3.0, 1.5, 0.5),
+            radius: 0.2,
+            attribute: i as f32,
+        })
+        .collect();
+    let prepared = PreparedScene::new(&scene);
+    assert!(prepared.spheres.is_some() && prepared.lights().len() >= 3);
+    let grid = TileGrid::new(WallSpec::grid(1, 1, 96, 64).tile_size(32).build().unwrap());
+    for cuts in [
+        CutPlanes::EMPTY,
+        CutPlanes::new(&[(Vec3::new(0.1, 1.0, 0.0), 1.2)]).unwrap(),
+    ] {
+        let params = RenderParamsSpec {
+            cuts,
+            ..RenderParamsSpec::INTERACTIVE
+        }
+        .build()
+        .unwrap();
+        let view = FrameView::new(0, &gallery_camera(), params, 96, 64);
+        let (packets, packet_counts) =
+            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Packets);
+        let (single, single_counts) =
+            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Single);
+        assert!(packet_counts.shadow > 1000, "{packet_counts:?}");
+        assert_eq!(packet_counts, single_counts);
+        assert_eq!(packets, single);
+    }
+}

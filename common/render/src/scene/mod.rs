@@ -1,0 +1,464 @@
+//! Scene description and loading: what the render nodes trace.
+//!
+//! A scene is a list of triangles with a material each, plus one directional light. It is
+//! named by a [`SceneSpec`] (a built-in procedural scene, or a mesh file) that travels to every
+//! render node, which loads it itself; the content hash in the session lets a node check that it
+//! loaded the same bytes as the master, since identical input is what makes tiles bit-identical
+//! on any node.
+
+mod files;
+pub mod gltf;
+pub mod particles;
+mod procedural;
+
+use crate::geometry::Bounds;
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use tessera_wire::scene_spec::SceneSpec;
+
+pub use files::load_mesh_file;
+pub use procedural::{gallery_scene, knot_scene};
+
+/// How a surface reflects and transmits light. One struct covers Lambert (the default), Phong,
+/// mirror and transparency, because real files mix them (an OBJ material can be glossy, partly
+/// mirroring and partly transparent at once); the renderer takes the cheap path for each part
+/// that is zero.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Material {
+    /// Diffuse (Lambert) colour.
+    pub albedo: Vec3,
+    /// Phong specular colour; zero for a purely diffuse surface.
+    pub specular: Vec3,
+    /// Phong exponent: larger is a smaller, sharper highlight.
+    pub shininess: f32,
+    /// Fraction of the light a perfect mirror reflects (0: none, 1: a perfect mirror).
+    pub mirror: f32,
+    /// 1 is opaque; below 1 the surface is blended with what lies behind it.
+    pub opacity: f32,
+}
+
+impl Material {
+    pub const fn lambert(albedo: Vec3) -> Self {
+        Material {
+            albedo,
+            specular: Vec3::ZERO,
+            shininess: 1.0,
+            mirror: 0.0,
+            opacity: 1.0,
+        }
+    }
+
+    pub const fn phong(albedo: Vec3, specular: Vec3, shininess: f32) -> Self {
+        Material {
+            specular,
+            shininess,
+            ..Self::lambert(albedo)
+        }
+    }
+
+    pub const fn mirror(albedo: Vec3, reflectance: f32) -> Self {
+        Material {
+            mirror: reflectance,
+            ..Self::lambert(albedo)
+        }
+    }
+
+    pub const fn transparent(albedo: Vec3, opacity: f32) -> Self {
+        Material {
+            opacity,
+            ..Self::lambert(albedo)
+        }
+    }
+
+    pub fn is_transparent(&self) -> bool {
+        self.opacity < 1.0
+    }
+
+    pub fn is_mirror(&self) -> bool {
+        self.mirror > 0.0
+    }
+
+    pub fn has_specular(&self) -> bool {
+        self.specular != Vec3::ZERO
+    }
+
+    /// Material values out of their meaningful ranges would give NaN or negative light.
+    fn check(&self) -> Result<(), String> {
+        let finite = self.albedo.is_finite()
+            && self.specular.is_finite()
+            && self.shininess.is_finite()
+            && self.mirror.is_finite()
+            && self.opacity.is_finite();
+        if !finite {
+            return Err("has a non-finite value".into());
+        }
+        if self.albedo.min_element() < 0.0 || self.specular.min_element() < 0.0 {
+            return Err("has a negative colour".into());
+        }
+        if self.shininess < 0.0 {
+            return Err(format!("has a negative shininess {}", self.shininess));
+        }
+        if !(0.0..=1.0).contains(&self.mirror) || !(0.0..=1.0).contains(&self.opacity) {
+            return Err(format!(
+                "has mirror {} or opacity {} outside 0..1",
+                self.mirror, self.opacity
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The scene as the renderer consumes it.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    pub positions: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Material index of each triangle.
+    pub triangle_material: Vec<u16>,
+    pub materials: Vec<Material>,
+    /// Names of the materials as the file gave them, for error messages (may be empty).
+    pub material_names: Vec<String>,
+    /// Lights; a scene without lights traces no shadow rays.
+    pub lights: Vec<Light>,
+    /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
+    pub particles: Vec<particles::Particle>,
+}
+
+/// A light source. Intensities are linear multipliers of the diffuse term.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Light {
+    /// Infinitely far: `towards` is the unit direction from the surface to the light.
+    Directional { towards: Vec3, intensity: f32 },
+    /// A point light; falls off with the square of the distance.
+    Point { position: Vec3, intensity: f32 },
+}
+
+/// Why a scene could not be loaded; every variant names the file and what is wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    #[error("scene file {path}: {message}")]
+    File { path: String, message: String },
+    #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf or .glb)")]
+    UnknownFormat { path: String },
+    #[error("scene {origin}: vertex {index} has a non-finite coordinate {value:?}")]
+    NonFinite {
+        origin: String,
+        index: usize,
+        value: [f32; 3],
+    },
+    #[error("scene {origin}: triangle {index} uses vertex {vertex}, but there are only {count}")]
+    IndexOutOfRange {
+        origin: String,
+        index: usize,
+        vertex: u32,
+        count: usize,
+    },
+    #[error(
+        "scene {origin}: triangle {index} uses material {material}, but there are only {count}"
+    )]
+    MaterialOutOfRange {
+        origin: String,
+        index: usize,
+        material: u16,
+        count: usize,
+    },
+    #[error("scene {origin}: material {index} ({name}) {why}")]
+    BadMaterial {
+        origin: String,
+        index: usize,
+        name: String,
+        why: String,
+    },
+    #[error("scene {origin}: contains no triangles")]
+    Empty { origin: String },
+    #[error("scene {origin}: {count} triangles is over the limit of {limit}")]
+    TooLarge {
+        origin: String,
+        count: usize,
+        limit: usize,
+    },
+}
+
+/// Largest triangle count accepted: indices are u32 and the BVH node count is about 2× this.
+pub const MAX_TRIANGLES: usize = 1 << 30;
+
+impl Scene {
+    /// Loads what `spec` names. Files are resolved relative to the working directory.
+    pub fn load(spec: &SceneSpec) -> Result<Scene, SceneError> {
+        let scene = match spec {
+            SceneSpec::Knot { segments, sides } => knot_scene(*segments, *sides),
+            SceneSpec::Gallery => procedural::gallery_scene(),
+            // Empty by design, so the check for something to draw does not apply.
+            SceneSpec::Empty => return Ok(Scene::default()),
+            SceneSpec::File(path) if particles::is_particle_file(path) => Scene {
+                particles: particles::load_particles(path)?,
+                lights: vec![default_light()],
+                ..Scene::default()
+            },
+            SceneSpec::File(path) => from_mesh(load_mesh_file(path)?, path),
+        };
+        scene.validate(&spec_origin(spec))?;
+        Ok(scene)
+    }
+
+    /// Checks what the renderer relies on: finite coordinates, indices in range, something to
+    /// draw. Loaders call it so that bad input fails at load, never as a NaN pixel later.
+    pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
+        if self.triangles.is_empty() && self.particles.is_empty() {
+            return Err(SceneError::Empty {
+                origin: origin.into(),
+            });
+        }
+        if self.triangles.len() > MAX_TRIANGLES {
+            return Err(SceneError::TooLarge {
+                origin: origin.into(),
+                count: self.triangles.len(),
+                limit: MAX_TRIANGLES,
+            });
+        }
+        if let Some((index, p)) = self
+            .positions
+            .iter()
+            .enumerate()
+            .find(|(_, p)| !p.is_finite())
+        {
+            return Err(SceneError::NonFinite {
+                origin: origin.into(),
+                index,
+                value: p.to_array(),
+            });
+        }
+        let count = self.positions.len();
+        for (index, tri) in self.triangles.iter().enumerate() {
+            if let Some(&vertex) = tri.iter().find(|&&v| v as usize >= count) {
+                return Err(SceneError::IndexOutOfRange {
+                    origin: origin.into(),
+                    index,
+                    vertex,
+                    count,
+                });
+            }
+        }
+        let materials = self.materials.len();
+        if self.triangle_material.len() != self.triangles.len() {
+            return Err(SceneError::File {
+                path: origin.into(),
+                message: format!(
+                    "{} triangles but {} material indices",
+                    self.triangles.len(),
+                    self.triangle_material.len()
+                ),
+            });
+        }
+        if let Some((index, &material)) = self
+            .triangle_material
+            .iter()
+            .enumerate()
+            .find(|(_, &m)| m as usize >= materials)
+        {
+            return Err(SceneError::MaterialOutOfRange {
+                origin: origin.into(),
+                index,
+                material,
+                count: materials,
+            });
+        }
+        for (index, m) in self.materials.iter().enumerate() {
+            m.check().map_err(|why| SceneError::BadMaterial {
+                origin: origin.into(),
+                index,
+                name: self
+                    .material_names
+                    .get(index)
+                    .cloned()
+                    .unwrap_or_else(|| format!("#{index}")),
+                why,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Whether any surface blends with what lies behind it: without, no transmission rays and
+    /// no blending are ever computed.
+    pub fn has_transparency(&self) -> bool {
+        self.materials.iter().any(Material::is_transparent)
+    }
+
+    /// Writes the scene's triangles as OBJ, so other renderers can load exactly the same mesh.
+    pub fn export_obj(&self, out: &Path) -> std::io::Result<()> {
+        use std::io::Write;
+        let mut w = std::io::BufWriter::new(std::fs::File::create(out)?);
+        for p in &self.positions {
+            writeln!(w, "v {} {} {}", p.x, p.y, p.z)?;
+        }
+        for t in &self.triangles {
+            writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
+        }
+        w.flush()
+    }
+
+    pub fn bounds(&self) -> Bounds {
+        let mut bounds = Bounds::EMPTY;
+        for tri in &self.triangles {
+            for &v in tri {
+                bounds.grow(self.positions[v as usize]);
+            }
+        }
+        for p in &self.particles {
+            bounds.grow(p.center - Vec3::splat(p.radius));
+            bounds.grow(p.center + Vec3::splat(p.radius));
+        }
+        bounds
+    }
+
+    /// A hash of everything that affects the picture, so nodes can check they agree.
+    pub fn content_hash(&self) -> [u8; 32] {
+        let mut hasher = blake3::Hasher::new();
+        hasher.update(bytemuck::cast_slice(&self.positions));
+        hasher.update(bytemuck::cast_slice(&self.triangles));
+        hasher.update(bytemuck::cast_slice(&self.triangle_material));
+        for m in &self.materials {
+            hasher.update(bytemuck::bytes_of(&m.albedo));
+            hasher.update(bytemuck::bytes_of(&m.specular));
+            hasher.update(bytemuck::bytes_of(&[m.shininess, m.mirror, m.opacity]));
+        }
+        for p in &self.particles {
+            hasher.update(bytemuck::bytes_of(&[
+                p.center.x,
+                p.center.y,
+                p.center.z,
+                p.radius,
+                p.attribute,
+            ]));
+        }
+        for light in &self.lights {
+            let (tag, v, i) = match *light {
+                Light::Directional { towards, intensity } => (0u8, towards, intensity),
+                Light::Point {
+                    position,
+                    intensity,
+                } => (1u8, position, intensity),
+            };
+            hasher.update(&[tag]);
+            hasher.update(bytemuck::bytes_of(&v));
+            hasher.update(&i.to_le_bytes());
+        }
+        *hasher.finalize().as_bytes()
+    }
+}
+
+fn spec_origin(spec: &SceneSpec) -> String {
+    match spec {
+        SceneSpec::Knot { .. } => "built-in knot".into(),
+        SceneSpec::Gallery => "built-in gallery".into(),
+        SceneSpec::Empty => "empty scene".into(),
+        SceneSpec::File(path) => path.display().to_string(),
+    }
+}
+
+/// Loader output: positions, triangles and the file's own materials, before the light is added.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    pub positions: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Material of each triangle; empty when the file has none (all get the neutral one).
+    pub triangle_material: Vec<u16>,
+    pub materials: Vec<Material>,
+    pub material_names: Vec<String>,
+}
+
+/// The colour of a mesh whose file gives none.
+pub const NEUTRAL: Material = Material::lambert(Vec3::new(0.8, 0.78, 0.74));
+
+/// A file mesh keeps its materials (or gets the neutral one) and gets a light from the upper
+/// front left.
+fn from_mesh(mesh: Mesh, _path: &Path) -> Scene {
+    let count = mesh.triangles.len();
+    let (triangle_material, materials, material_names) = if mesh.materials.is_empty() {
+        (vec![0; count], vec![NEUTRAL], vec!["neutral".into()])
+    } else {
+        (mesh.triangle_material, mesh.materials, mesh.material_names)
+    };
+    Scene {
+        positions: mesh.positions,
+        triangles: mesh.triangles,
+        triangle_material,
+        materials,
+        material_names,
+        lights: vec![default_light()],
+        particles: Vec::new(),
+    }
+}
+
+/// A sun from the upper front left.
+pub(crate) fn default_light() -> Light {
+    Light::Directional {
+        towards: Vec3::new(-0.45, 0.8, 0.4).normalize(),
+        intensity: 0.65,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_triangle() -> Scene {
+        from_mesh(
+            Mesh {
+                positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+                triangles: vec![[0, 1, 2]],
+                ..Mesh::default()
+            },
+            Path::new("t"),
+        )
+    }
+
+    #[test]
+    fn nan_and_inf_vertices_are_rejected_with_their_index() {
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let mut scene = one_triangle();
+            scene.positions[2].y = bad;
+            let err = scene.validate("m.obj").unwrap_err().to_string();
+            assert!(err.contains("m.obj") && err.contains("vertex 2"), "{err}");
+        }
+    }
+
+    #[test]
+    fn out_of_range_index_is_rejected() {
+        let mut scene = one_triangle();
+        scene.triangles[0][1] = 7;
+        let err = scene.validate("m.ply").unwrap_err().to_string();
+        assert!(
+            err.contains("triangle 0") && err.contains("vertex 7"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn bad_materials_are_rejected_with_their_name() {
+        let mut scene = one_triangle();
+        scene.materials[0].opacity = 1.5;
+        let err = scene.validate("m.obj").unwrap_err().to_string();
+        assert!(
+            err.contains("material 0 (neutral)") && err.contains("opacity"),
+            "{err}"
+        );
+        let mut scene = one_triangle();
+        scene.materials[0].specular.x = f32::NAN;
+        assert!(scene.validate("m.obj").is_err());
+        let mut scene = one_triangle();
+        scene.triangle_material[0] = 3;
+        let err = scene.validate("m.obj").unwrap_err().to_string();
+        assert!(err.contains("material 3"), "{err}");
+    }
+
+    #[test]
+    fn content_hash_sees_a_moved_vertex() {
+        let a = one_triangle();
+        let mut b = one_triangle();
+        b.positions[1].x += 1e-6;
+        assert_ne!(a.content_hash(), b.content_hash());
+        assert_eq!(a.content_hash(), one_triangle().content_hash());
+    }
+}

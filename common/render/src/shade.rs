@@ -1,0 +1,397 @@
+//! What a hit looks like: lights and shadows, ambient occlusion, Phong highlights, mirrors and
+//! transparency.
+//!
+//! Each part costs only where a material uses it: a material with no specular colour computes
+//! no highlight, a scene with no mirror traces no reflected ray, and a scene with no transparent
+//! material never enters the blending path (its [`PreparedScene::blends`] is false and the
+//! transmitted-ray counter stays at zero). Reflected and transmitted rays are single rays; their
+//! depth is bounded by [`MAX_DEPTH`].
+
+use crate::accel::Hit;
+use crate::geometry::{triangle_normal, Ray};
+use crate::packet::PacketHit;
+use crate::sampling::{cosine_direction, SampleStream};
+use crate::scene::{Light, Material};
+use crate::shadow_packet::PrimaryHit;
+use crate::spheres::colormap;
+use crate::{FrameView, PreparedScene, RayCounts};
+use glam::Vec3;
+use tessera_wire::cut::CutPlanes;
+
+/// Bounces of reflection and transmission (together) after the primary hit.
+pub const MAX_DEPTH: u32 = 6;
+
+/// Surface point and the normal facing the viewer for a hit.
+pub fn surface(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: Hit) -> (Vec3, Vec3) {
+    let tri = &scene.accel.triangles[hit.slot as usize];
+    let mut normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
+    if normal.dot(dir) > 0.0 {
+        normal = -normal;
+    }
+    (origin + dir * hit.t, normal)
+}
+
+/// Where secondary rays start: the hit point pushed off the surface along the normal, by a few
+/// hundred ULPs of each coordinate (Wächter and Binder, Ray Tracing Gems ch. 6). An ULP offset
+/// grows with the coordinates, so it neither causes acne far from the origin nor leaves a gap
+/// near it; close to the origin, where ULPs vanish, a step proportional to the scene's size
+/// takes over so that scenes at 1e-6 scale work too.
+pub fn offset_origin(point: Vec3, normal: Vec3, scene_diagonal: f32) -> Vec3 {
+    const INT_SCALE: f32 = 256.0;
+    let near_origin = scene_diagonal * (1.0 / 32.0);
+    let float_step = scene_diagonal * (1.0 / 65536.0);
+    let mut out = [0f32; 3];
+    for axis in 0..3 {
+        let p = point[axis];
+        let n = normal[axis];
+        out[axis] = if p.abs() < near_origin {
+            p + float_step * n
+        } else {
+            let ulps = (INT_SCALE * n) as i32;
+            let ulps = if p < 0.0 { -ulps } else { ulps };
+            f32::from_bits((p.to_bits() as i32).wrapping_add(ulps) as u32)
+        };
+    }
+    Vec3::from_array(out)
+}
+
+/// The shading key of particles: no scene has this many materials (loaders stop at 65535).
+pub const PARTICLE_KEY: u16 = u16::MAX;
+
+/// What a ray hit first.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SurfaceHit {
+    Triangle(Hit),
+    Sphere { t: f32, slot: u32 },
+}
+
+impl SurfaceHit {
+    pub fn t(&self) -> f32 {
+        match *self {
+            SurfaceHit::Triangle(h) => h.t,
+            SurfaceHit::Sphere { t, .. } => t,
+        }
+    }
+
+    /// Index of the primitive in the scene: triangles first, then particles.
+    pub fn scene_primitive(&self, scene: &PreparedScene) -> u64 {
+        match *self {
+            SurfaceHit::Triangle(h) => scene.accel.scene_index[h.slot as usize] as u64,
+            SurfaceHit::Sphere { slot, .. } => {
+                scene.accel.triangles.len() as u64
+                    + scene.spheres().scene_index[slot as usize] as u64
+            }
+        }
+    }
+
+    /// The material index that shading groups rays by: a triangle's own, or one past the
+    /// scene's materials for particles (whose colour comes from their attribute).
+    pub fn material_key(&self, scene: &PreparedScene) -> u16 {
+        match *self {
+            SurfaceHit::Triangle(h) => scene.slot_material[h.slot as usize],
+            SurfaceHit::Sphere { .. } => PARTICLE_KEY,
+        }
+    }
+}
+
+/// Combines a packet's triangle hit with the particles, when the scene has any; `interval` is
+/// the part of the ray the cutting planes keep. The sphere test's ray (a division per axis) is
+/// only set up when there are spheres.
+pub fn nearest_surface(
+    scene: &PreparedScene,
+    view: &FrameView,
+    (origin, dir): (Vec3, Vec3),
+    interval: (f32, f32),
+    triangle: PacketHit,
+    stack: &mut Vec<u32>,
+) -> Option<SurfaceHit> {
+    let mut nearest = triangle.slot().map(|slot| {
+        SurfaceHit::Triangle(Hit {
+            t: triangle.t,
+            slot,
+        })
+    });
+    if let Some(spheres) = &scene.spheres {
+        let t_max = triangle.t.min(interval.1);
+        if let Some((t, slot)) = spheres.closest_hit(
+            &Ray::new(origin, dir),
+            interval.0,
+            t_max,
+            view.params.crop(),
+            stack,
+        ) {
+            nearest = Some(SurfaceHit::Sphere { t, slot });
+        }
+    }
+    nearest
+}
+
+/// Shading of one pixel's rays: borrows the scene and the frame, counts the rays it traces.
+pub struct Shader<'a> {
+    pub scene: &'a PreparedScene,
+    pub view: &'a FrameView,
+    pub stack: &'a mut Vec<u32>,
+    pub counts: RayCounts,
+    /// The pixel whose samples (ambient occlusion) are drawn.
+    pub pixel: (u32, u32),
+    /// Key of the first ambient-occlusion sample (non-zero for later supersamples).
+    pub first_ao_key: u32,
+    /// The next primary hit to shade, as its shadow packet found it (which of the first 64
+    /// lights are blocked). Taken by that hit; other hits trace single shadow rays.
+    pub primary: Option<PrimaryHit>,
+}
+
+/// Surface point and the normal facing the viewer, for a triangle or particle hit.
+pub fn hit_frame(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: SurfaceHit) -> (Vec3, Vec3) {
+    match hit {
+        SurfaceHit::Triangle(h) => surface(scene, origin, dir, h),
+        SurfaceHit::Sphere { t, slot } => {
+            let s = &scene.spheres().spheres[slot as usize];
+            let p = origin + dir * t;
+            let mut n = ((p - s.center) / s.radius).normalize_or_zero();
+            if n.dot(dir) > 0.0 {
+                n = -n;
+            }
+            (p, n)
+        }
+    }
+}
+
+/// Direction towards `light` from `point`, how far the light is, and its intensity there.
+pub fn towards_light(light: &Light, point: Vec3) -> (Vec3, f32, f32) {
+    match *light {
+        Light::Directional { towards, intensity } => (towards, f32::INFINITY, intensity),
+        Light::Point {
+            position,
+            intensity,
+        } => {
+            let d = position - point;
+            let dist2 = d.length_squared();
+            (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2.max(1e-30))
+        }
+    }
+}
+
+/// Whether a shadow ray leaves towards the light at all: the light is in front of the surface.
+pub fn faces_light(normal: Vec3, towards: Vec3) -> Option<f32> {
+    let cos = normal.dot(towards);
+    (cos > 0.0 && cos.is_finite()).then_some(cos)
+}
+
+impl Shader<'_> {
+    fn cuts(&self) -> &CutPlanes {
+        self.view.params.cuts()
+    }
+
+    /// Colour seen along a secondary ray (reflected or transmitted) at bounce `depth`.
+    fn trace(&mut self, origin: Vec3, dir: Vec3, depth: u32) -> Vec3 {
+        let ray = Ray::new(origin, dir);
+        let interval = self.cuts().interval(origin, dir);
+        if interval.0 > interval.1 {
+            return background(dir);
+        }
+        let triangle = self
+            .scene
+            .accel
+            .closest_hit(&ray, interval.0, interval.1, self.stack)
+            .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
+        match nearest_surface(
+            self.scene,
+            self.view,
+            (origin, dir),
+            interval,
+            triangle,
+            self.stack,
+        ) {
+            None => background(dir),
+            Some(hit) => {
+                let material = self.scene.material_of(hit);
+                self.shade(origin, dir, hit, &material, depth)
+            }
+        }
+    }
+
+    /// Whether anything kept by the cutting planes (triangles, or particles within the crop
+    /// range) blocks the ray before `t_max`.
+    fn blocked(&mut self, ray: &Ray, t_max: f32) -> bool {
+        let (t_min, t_cut) = self.cuts().interval(ray.origin, ray.dir);
+        let t_max = t_max.min(t_cut);
+        if t_min > t_max {
+            return false;
+        }
+        let scene = self.scene;
+        scene.accel.occluded(ray, t_min, t_max, self.stack)
+            || scene
+                .spheres
+                .as_ref()
+                .is_some_and(|s| s.occluded(ray, t_min, t_max, self.view.params.crop(), self.stack))
+    }
+
+    /// Colour of `hit` seen from `origin` along `dir`, `material` being its material (a
+    /// particle's is its colour-mapped attribute).
+    pub fn shade(
+        &mut self,
+        origin: Vec3,
+        dir: Vec3,
+        hit: SurfaceHit,
+        material: &Material,
+        depth: u32,
+    ) -> Vec3 {
+        let known = if depth == 0 {
+            self.primary.take()
+        } else {
+            None
+        };
+        let (point, normal, start) = match known {
+            Some(p) => (p.point, p.normal, p.start),
+            None => {
+                let (point, normal) = hit_frame(self.scene, origin, dir, hit);
+                (
+                    point,
+                    normal,
+                    offset_origin(point, normal, self.scene.diagonal),
+                )
+            }
+        };
+        let mut color = self.local(
+            dir,
+            point,
+            normal,
+            start,
+            material,
+            known.map(|p| p.blocked),
+        );
+        if material.is_mirror() && depth < MAX_DEPTH {
+            self.counts.reflected += 1;
+            let reflected = dir - 2.0 * dir.dot(normal) * normal;
+            let seen = self.trace(start, reflected.normalize_or_zero(), depth + 1);
+            color = color * (1.0 - material.mirror) + seen * material.mirror;
+        }
+        if material.is_transparent() && depth < MAX_DEPTH {
+            self.counts.transmitted += 1;
+            let behind = offset_origin(point, -normal, self.scene.diagonal);
+            // Tinted glass: what lies behind is filtered by the surface's colour.
+            let tint = Vec3::ONE.lerp(material.albedo, material.opacity);
+            let seen = self.trace(behind, dir, depth + 1) * tint;
+            color = color * material.opacity + seen * (1.0 - material.opacity);
+        }
+        color
+    }
+
+    /// Light reflected at the surface itself: headlight, lights with shadows, ambient term and
+    /// Phong highlights.
+    fn local(
+        &mut self,
+        dir: Vec3,
+        point: Vec3,
+        normal: Vec3,
+        start: Vec3,
+        material: &Material,
+        known_shadows: Option<u64>,
+    ) -> Vec3 {
+        let headlight = (-normal.dot(dir)).max(0.0);
+        let glossy = material.has_specular();
+        let mut highlight = 0.0;
+        if glossy {
+            // The headlight sits at the eye, so its mirror direction makes the angle
+            // 2·cos²−1 with the view direction.
+            let r_dot_v = (2.0 * headlight * headlight - 1.0).max(0.0);
+            highlight += 0.35 * phong_lobe(r_dot_v, material.shininess);
+        }
+        let mut direct = 0.0;
+        for (k, light) in self.scene.lights().iter().enumerate() {
+            let (towards, reach, intensity) = towards_light(light, point);
+            let Some(cos) = faces_light(normal, towards) else {
+                continue;
+            };
+            if self.view.params.shadows() {
+                self.counts.shadow += 1;
+                let blocked = match known_shadows {
+                    Some(bits) if k < 64 => bits >> k & 1 == 1,
+                    _ => self.blocked(&Ray::new(start, towards), reach),
+                };
+                if blocked {
+                    continue;
+                }
+            }
+            direct += cos * intensity;
+            if glossy {
+                let mirrored = 2.0 * cos * normal - towards;
+                let r_dot_v = mirrored.dot(-dir).max(0.0);
+                highlight += intensity * phong_lobe(r_dot_v, material.shininess);
+            }
+        }
+        let ambient = if self.view.params.ao_samples() > 0 {
+            self.counts.ambient += self.view.params.ao_samples() as u64;
+            0.3 * self.ambient_visibility(start, normal)
+        } else {
+            0.1
+        };
+        let diffuse = material.albedo * (ambient + 0.35 * headlight + direct);
+        if glossy {
+            diffuse + material.specular * highlight
+        } else {
+            diffuse
+        }
+    }
+
+    /// Fraction of `ao_samples` cosine-weighted rays from `start` that escape within the AO
+    /// range.
+    pub fn ambient_visibility(&mut self, start: Vec3, normal: Vec3) -> f32 {
+        let n = self.view.params.ao_samples();
+        let reach = self.scene.diagonal * self.view.params.ao_range();
+        let mut open = 0;
+        for sample in 0..n {
+            let key = self.first_ao_key + sample;
+            let mut stream = SampleStream::new(self.view.frame, self.pixel.0, self.pixel.1, key);
+            let d = cosine_direction(normal, &mut stream);
+            if !self.blocked(&Ray::new(start, d), reach) {
+                open += 1;
+            }
+        }
+        open as f32 / n as f32
+    }
+}
+
+impl PreparedScene {
+    /// The material a hit is shaded with.
+    pub fn material_of(&self, hit: SurfaceHit) -> Material {
+        match hit {
+            SurfaceHit::Triangle(h) => self.materials[self.slot_material[h.slot as usize] as usize],
+            SurfaceHit::Sphere { slot, .. } => {
+                let s = &self.spheres().spheres[slot as usize];
+                let (lo, hi) = self.attribute_range;
+                let x = if hi > lo {
+                    (s.attribute - lo) / (hi - lo)
+                } else {
+                    0.5
+                };
+                Material::lambert(colormap(x))
+            }
+        }
+    }
+}
+
+/// `cos^shininess` with the exponent rounded to an integer: `powi` is a chain of multiplies,
+/// the same bits on every CPU, where `powf` comes from the C library, which may pick an FMA
+/// variant on some CPUs and not others.
+fn phong_lobe(cos: f32, shininess: f32) -> f32 {
+    cos.powi(shininess.round().clamp(1.0, 10_000.0) as i32)
+}
+
+pub fn background(dir: Vec3) -> Vec3 {
+    let t = 0.5 + 0.5 * dir.y;
+    Vec3::new(0.05, 0.06, 0.09).lerp(Vec3::new(0.32, 0.42, 0.62), t)
+}
+
+/// Linear to 8-bit with a gamma of 2 (a square root is exact in IEEE arithmetic, so it is the
+/// same on every CPU, unlike `powf`). Non-finite values come out black, never as garbage.
+pub fn encode_srgb_ish(color: Vec3) -> [u8; 3] {
+    color.to_array().map(|c| {
+        if c.is_finite() {
+            (c.clamp(0.0, 1.0).sqrt() * 255.0 + 0.5) as u8
+        } else {
+            0
+        }
+    })
+}

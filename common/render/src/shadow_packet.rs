@@ -1,0 +1,104 @@
+//! Shadow rays of a packet's primary hits, traced as packets: one packet per light, from every
+//! hit point that faces the light towards it.
+//!
+//! Hit points of one 8×8 block lie close together and their rays share a direction
+//! (directional light) or an end (point light), so they traverse the same few BVH nodes; as
+//! single rays they cost five times a primary ray. The answers are the very ones single rays
+//! give (same rays, same intervals, same triangle test; see `accel_packet`'s tests), so pixels
+//! do not change, only the time.
+
+use crate::geometry::Ray;
+use crate::packet::{RayPacket, PACKET_RAYS};
+use crate::shade::{faces_light, hit_frame, offset_origin, towards_light, SurfaceHit};
+use crate::{FrameView, PreparedScene};
+use glam::Vec3;
+use tessera_wire::cut::CutPlanes;
+
+/// Lights whose shadows are traced as packets; further lights use single rays.
+pub const PACKET_LIGHTS: usize = 64;
+
+/// A primary hit as the shadow packets saw it, handed on to shading so it is not worked out
+/// twice.
+#[derive(Clone, Copy, Debug)]
+pub struct PrimaryHit {
+    pub point: Vec3,
+    /// Facing the viewer.
+    pub normal: Vec3,
+    /// Where rays leaving the surface start (see [`offset_origin`]).
+    pub start: Vec3,
+    /// Bit k set when light k (of the first [`PACKET_LIGHTS`]) is blocked. A light the surface
+    /// faces away from has no shadow ray, and its bit is unused.
+    pub blocked: u64,
+}
+
+/// For each lane with a surface: its hit, with the lights that are blocked.
+pub fn primary_shadows(
+    scene: &PreparedScene,
+    view: &FrameView,
+    eye: Vec3,
+    directions: &[Vec3],
+    surfaces: &[Option<SurfaceHit>],
+    stack: &mut Vec<u32>,
+) -> [Option<PrimaryHit>; PACKET_RAYS] {
+    let mut hits: [Option<PrimaryHit>; PACKET_RAYS] = std::array::from_fn(|i| {
+        let hit = (*surfaces.get(i)?)?;
+        let (point, normal) = hit_frame(scene, eye, directions[i], hit);
+        Some(PrimaryHit {
+            point,
+            normal,
+            start: offset_origin(point, normal, scene.diagonal),
+            blocked: 0,
+        })
+    });
+    let cuts: &CutPlanes = view.params.cuts();
+    let mut lanes = [0usize; PACKET_RAYS];
+    for (k, light) in scene.lights().iter().enumerate().take(PACKET_LIGHTS) {
+        let mut count = 0;
+        let mut rays = [(Vec3::ZERO, Vec3::ZERO, 0.0f32); PACKET_RAYS];
+        for (i, hit) in hits.iter().enumerate() {
+            let Some(hit) = hit else {
+                continue;
+            };
+            let (towards, reach, _) = towards_light(light, hit.point);
+            if faces_light(hit.normal, towards).is_none() {
+                continue;
+            }
+            rays[count] = (hit.start, towards, reach);
+            lanes[count] = i;
+            count += 1;
+        }
+        if count == 0 {
+            continue;
+        }
+        let mut packet = RayPacket::from_rays(rays[..count].iter().map(|&(o, d, _)| (o, d)));
+        for (j, &(start, towards, reach)) in rays[..count].iter().enumerate() {
+            let (t_min, t_cut) = cuts.interval(start, towards);
+            packet.t_min[j] = t_min;
+            packet.t_max[j] = reach.min(t_cut);
+        }
+        let mut occluded = scene.accel.occluded_lanes(&mut packet, stack);
+        if let Some(spheres) = scene.spheres.as_ref() {
+            for (j, &(start, towards, _)) in rays[..count].iter().enumerate() {
+                let (t_min, t_max) = (packet.t_min[j], packet.t_max[j]);
+                if occluded >> j & 1 == 0
+                    && t_min <= t_max
+                    && spheres.occluded(
+                        &Ray::new(start, towards),
+                        t_min,
+                        t_max,
+                        view.params.crop(),
+                        stack,
+                    )
+                {
+                    occluded |= 1 << j;
+                }
+            }
+        }
+        for (j, &lane) in lanes[..count].iter().enumerate() {
+            if let (Some(hit), true) = (hits[lane].as_mut(), occluded >> j & 1 == 1) {
+                hit.blocked |= 1 << k;
+            }
+        }
+    }
+    hits
+}

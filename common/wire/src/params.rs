@@ -1,0 +1,282 @@
+//! Per-frame quality knobs, changed only at the frame barrier, and their bounds.
+//!
+//! Every knob that multiplies the rays of a pixel is bounded, so no setting, from the command
+//! line or the network, makes a frame run for ever: [`MAX_AO_SAMPLES`] and [`MAX_SPP`] each,
+//! and their product within [`MAX_RAYS_PER_PIXEL`].
+
+use crate::cut::CutPlanes;
+use serde::{Deserialize, Serialize};
+
+/// Most ambient-occlusion rays per hit. 256 is already a converged reference.
+pub const MAX_AO_SAMPLES: u32 = 1024;
+/// Most samples per pixel in one frame.
+pub const MAX_SPP: u32 = 4096;
+/// Most rays a pixel may ask for in one frame: samples × (1 + ambient-occlusion rays).
+pub const MAX_RAYS_PER_PIXEL: u64 = 1 << 18;
+/// Sample indices (progressive passes) stay below this, so that the random keys of every
+/// sample and ambient-occlusion ray (`sample · ao_samples + k`, below 2³⁰) never wrap.
+pub const MAX_SAMPLE_INDEX: u32 = 1 << 20;
+
+/// The knobs of one frame; made by [`RenderParamsSpec::build`], which checks them.
+///
+/// # Examples
+///
+/// ```
+/// use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec};
+///
+/// let params = RenderParamsSpec { ao_samples: 8, ..RenderParamsSpec::INTERACTIVE }.build()?;
+/// assert_eq!(params.ao_samples(), 8);
+/// assert!(params.shadows());
+/// let err = RenderParamsSpec { ao_samples: 4_000_000_000, ..RenderParamsSpec::INTERACTIVE }
+///     .build()
+///     .unwrap_err();
+/// assert!(err.to_string().contains("4000000000"));
+/// # Ok::<(), ParamsError>(())
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(into = "RenderParamsSpec")]
+pub struct RenderParams(RenderParamsSpec);
+
+/// The fields of [`RenderParams`], unchecked.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderParamsSpec {
+    /// Trace shadow rays towards the lights.
+    pub shadows: bool,
+    /// Ambient-occlusion rays per hit (0: none traced).
+    pub ao_samples: u32,
+    /// Reach of ambient-occlusion rays, as a fraction of the scene's bounding-box diagonal.
+    pub ao_range: f32,
+    /// Only particles whose attribute lies in this range are drawn (and cast shadows).
+    pub crop: Option<(f32, f32)>,
+    /// Half-spaces removed from the scene.
+    pub cuts: CutPlanes,
+    /// Samples per pixel: 1 traces the pixel centre; more average jittered sub-pixel samples.
+    pub spp: u32,
+    /// Index of the first sample, so that successive progressive passes draw new samples.
+    pub first_sample: u32,
+}
+
+/// Why render parameters were refused.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ParamsError {
+    #[error("{0} ambient-occlusion rays per hit is more than the {MAX_AO_SAMPLES} supported")]
+    TooManyAoSamples(u32),
+    #[error("{0} samples per pixel: must be from 1 to {MAX_SPP}")]
+    BadSpp(u32),
+    #[error(
+        "{spp} samples per pixel with {ao} ambient-occlusion rays each is {rays} rays per pixel, more than the {MAX_RAYS_PER_PIXEL} supported; lower --spp or --ao"
+    )]
+    TooManyRays { spp: u32, ao: u32, rays: u64 },
+    #[error("samples {first}..{end} go past sample index {MAX_SAMPLE_INDEX}")]
+    SampleIndex { first: u32, end: u64 },
+    #[error("ambient-occlusion range {0} must be finite and above 0")]
+    BadAoRange(f32),
+    #[error("particle crop {0}..{1} must be finite with LO <= HI")]
+    BadCrop(f32, f32),
+}
+
+impl RenderParamsSpec {
+    /// What the interactive wall renders by default: shadows, no ambient occlusion.
+    pub const INTERACTIVE: RenderParamsSpec = RenderParamsSpec {
+        shadows: true,
+        ao_samples: 0,
+        ao_range: 0.1,
+        crop: None,
+        cuts: CutPlanes::EMPTY,
+        spp: 1,
+        first_sample: 0,
+    };
+
+    /// Checks every knob.
+    ///
+    /// # Errors
+    /// A knob out of its bounds (see the module documentation).
+    pub fn build(self) -> Result<RenderParams, ParamsError> {
+        if self.ao_samples > MAX_AO_SAMPLES {
+            return Err(ParamsError::TooManyAoSamples(self.ao_samples));
+        }
+        if !(1..=MAX_SPP).contains(&self.spp) {
+            return Err(ParamsError::BadSpp(self.spp));
+        }
+        let rays = self.spp as u64 * (1 + self.ao_samples as u64);
+        if rays > MAX_RAYS_PER_PIXEL {
+            return Err(ParamsError::TooManyRays {
+                spp: self.spp,
+                ao: self.ao_samples,
+                rays,
+            });
+        }
+        let end = self.first_sample as u64 + self.spp as u64;
+        if end > MAX_SAMPLE_INDEX as u64 {
+            return Err(ParamsError::SampleIndex {
+                first: self.first_sample,
+                end,
+            });
+        }
+        if !(self.ao_range.is_finite() && self.ao_range > 0.0) {
+            return Err(ParamsError::BadAoRange(self.ao_range));
+        }
+        if let Some((lo, hi)) = self.crop {
+            if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                return Err(ParamsError::BadCrop(lo, hi));
+            }
+        }
+        Ok(RenderParams(self))
+    }
+}
+
+impl TryFrom<RenderParamsSpec> for RenderParams {
+    type Error = ParamsError;
+
+    fn try_from(spec: RenderParamsSpec) -> Result<Self, ParamsError> {
+        spec.build()
+    }
+}
+
+impl From<RenderParams> for RenderParamsSpec {
+    fn from(params: RenderParams) -> Self {
+        params.0
+    }
+}
+
+impl<'de> Deserialize<'de> for RenderParams {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, RenderParamsSpec, Self>(d)
+    }
+}
+
+impl RenderParams {
+    /// What the interactive wall renders by default: shadows, no ambient occlusion.
+    pub const fn interactive() -> Self {
+        RenderParams(RenderParamsSpec::INTERACTIVE)
+    }
+
+    /// A still worth waiting for: shadows and 16 ambient-occlusion rays per hit.
+    pub const fn final_frame() -> Self {
+        RenderParams(RenderParamsSpec {
+            ao_samples: 16,
+            ..RenderParamsSpec::INTERACTIVE
+        })
+    }
+
+    /// Every preset, for tests that must hold for all of them.
+    pub const PRESETS: [RenderParams; 2] = [Self::interactive(), Self::final_frame()];
+
+    /// The knobs as plain fields, to change some and [`RenderParamsSpec::build`] again.
+    pub const fn spec(&self) -> RenderParamsSpec {
+        self.0
+    }
+
+    #[inline]
+    pub const fn shadows(&self) -> bool {
+        self.0.shadows
+    }
+
+    #[inline]
+    pub const fn ao_samples(&self) -> u32 {
+        self.0.ao_samples
+    }
+
+    #[inline]
+    pub const fn ao_range(&self) -> f32 {
+        self.0.ao_range
+    }
+
+    #[inline]
+    pub const fn crop(&self) -> Option<(f32, f32)> {
+        self.0.crop
+    }
+
+    #[inline]
+    pub const fn cuts(&self) -> &CutPlanes {
+        &self.0.cuts
+    }
+
+    #[inline]
+    pub const fn spp(&self) -> u32 {
+        self.0.spp
+    }
+
+    #[inline]
+    pub const fn first_sample(&self) -> u32 {
+        self.0.first_sample
+    }
+}
+
+impl Default for RenderParams {
+    fn default() -> Self {
+        Self::interactive()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with(change: impl FnOnce(&mut RenderParamsSpec)) -> Result<RenderParams, ParamsError> {
+        let mut spec = RenderParamsSpec::INTERACTIVE;
+        change(&mut spec);
+        spec.build()
+    }
+
+    #[test]
+    fn presets_are_valid() {
+        for preset in RenderParams::PRESETS {
+            assert_eq!(preset.spec().build(), Ok(preset));
+        }
+    }
+
+    #[test]
+    fn four_billion_ao_rays_are_refused_rather_than_run_for_ever() {
+        let err = with(|s| s.ao_samples = 4_000_000_000).unwrap_err();
+        assert_eq!(err, ParamsError::TooManyAoSamples(4_000_000_000));
+        assert!(with(|s| s.ao_samples = MAX_AO_SAMPLES).is_ok());
+    }
+
+    #[test]
+    fn samples_per_pixel_are_bounded_alone_and_with_ao() {
+        assert!(matches!(with(|s| s.spp = 0), Err(ParamsError::BadSpp(0))));
+        assert!(with(|s| s.spp = MAX_SPP + 1).is_err());
+        assert!(with(|s| s.spp = MAX_SPP).is_ok());
+        let err = with(|s| {
+            s.spp = MAX_SPP;
+            s.ao_samples = MAX_AO_SAMPLES;
+        })
+        .unwrap_err();
+        assert!(matches!(err, ParamsError::TooManyRays { .. }), "{err}");
+        // The error-vs-time reference (256 AO rays, 64 samples) stays allowed.
+        assert!(with(|s| {
+            s.spp = 64;
+            s.ao_samples = 256;
+        })
+        .is_ok());
+    }
+
+    #[test]
+    fn sample_keys_cannot_wrap() {
+        assert!(with(|s| s.first_sample = u32::MAX).is_err());
+        assert!(with(|s| s.first_sample = MAX_SAMPLE_INDEX - 1).is_ok());
+    }
+
+    #[test]
+    fn ranges_must_be_finite() {
+        assert!(with(|s| s.ao_range = f32::NAN).is_err());
+        assert!(with(|s| s.ao_range = 0.0).is_err());
+        assert!(with(|s| s.crop = Some((2.0, 1.0))).is_err());
+        assert!(with(|s| s.crop = Some((f32::NEG_INFINITY, 1.0))).is_err());
+    }
+
+    #[test]
+    fn deserializing_checks_the_knobs() {
+        let bad = RenderParamsSpec {
+            ao_samples: 4_000_000_000,
+            ..RenderParamsSpec::INTERACTIVE
+        };
+        let bytes = postcard::to_allocvec(&bad).unwrap();
+        let err = crate::protocol::codec::decode::<RenderParams>(&bytes).unwrap_err();
+        assert!(err.to_string().contains("4000000000"), "{err}");
+        let good = RenderParams::final_frame();
+        let bytes = postcard::to_allocvec(&good).unwrap();
+        assert_eq!(postcard::from_bytes::<RenderParams>(&bytes).unwrap(), good);
+    }
+}

@@ -1,0 +1,275 @@
+//! Control-message framing: a 4-byte little-endian length, then a postcard body.
+//!
+//! This is the only place that knows the codec, so replacing postcard touches one file.
+
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+/// Largest control message body accepted. A session with a few thousand displays fits easily;
+/// anything bigger is a bug or an attack.
+pub const MAX_CONTROL_BODY: usize = 1 << 20;
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum CodecError {
+    #[error("control message of {len} bytes exceeds the {limit}-byte limit")]
+    TooLarge { len: usize, limit: usize },
+    #[error("empty control message")]
+    Empty,
+    #[error("malformed control message: {0}")]
+    Malformed(String),
+    #[error("control message has {0} trailing bytes")]
+    Trailing(usize),
+    #[error("invalid control message: {0}")]
+    Invalid(String),
+}
+
+/// Encodes `msg` as one frame (length prefix included).
+///
+/// # Errors
+/// [`CodecError::TooLarge`] if the body would be over [`MAX_CONTROL_BODY`], which the peer
+/// would refuse; the types that travel are bounded so that this does not happen, but a sender
+/// gets an error to report rather than a frame nobody reads.
+pub fn encode<T: Serialize>(msg: &T) -> Result<Vec<u8>, CodecError> {
+    let mut frame =
+        postcard::to_extend(msg, vec![0u8; 4]).map_err(|e| CodecError::Malformed(e.to_string()))?;
+    let len = frame.len() - 4;
+    if len > MAX_CONTROL_BODY {
+        return Err(CodecError::TooLarge {
+            len,
+            limit: MAX_CONTROL_BODY,
+        });
+    }
+    frame[..4].copy_from_slice(&(len as u32).to_le_bytes());
+    Ok(frame)
+}
+
+/// Reads the body length from a frame's prefix, refusing absurd sizes before any allocation.
+pub fn body_len(prefix: [u8; 4]) -> Result<usize, CodecError> {
+    let len = u32::from_le_bytes(prefix) as usize;
+    if len == 0 {
+        return Err(CodecError::Empty);
+    }
+    if len > MAX_CONTROL_BODY {
+        return Err(CodecError::TooLarge {
+            len,
+            limit: MAX_CONTROL_BODY,
+        });
+    }
+    Ok(len)
+}
+
+/// Decodes a frame body; every byte must be used.
+pub fn decode<T: DeserializeOwned>(body: &[u8]) -> Result<T, CodecError> {
+    if body.len() > MAX_CONTROL_BODY {
+        return Err(CodecError::TooLarge {
+            len: body.len(),
+            limit: MAX_CONTROL_BODY,
+        });
+    }
+    crate::checked::clear();
+    let (msg, rest) = postcard::take_from_bytes(body).map_err(|e| {
+        // A value that parsed but broke an invariant says which; anything else is garbage.
+        crate::checked::take_refusal()
+            .map_or_else(|| CodecError::Malformed(e.to_string()), CodecError::Invalid)
+    })?;
+    if !rest.is_empty() {
+        return Err(CodecError::Trailing(rest.len()));
+    }
+    Ok(msg)
+}
+
+/// Decodes one whole frame (prefix and body) from a buffer, for tests and in-memory transports.
+pub fn decode_frame<T: DeserializeOwned>(frame: &[u8]) -> Result<T, CodecError> {
+    let prefix: [u8; 4] = frame
+        .get(..4)
+        .and_then(|p| p.try_into().ok())
+        .ok_or_else(|| CodecError::Malformed("frame shorter than its length prefix".into()))?;
+    let len = body_len(prefix)?;
+    let body = &frame[4..];
+    if body.len() != len {
+        return Err(CodecError::Malformed(format!(
+            "frame says {len} bytes but carries {}",
+            body.len()
+        )));
+    }
+    decode(body)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Camera;
+    use crate::params::{RenderParams, RenderParamsSpec};
+    use crate::protocol::*;
+    use crate::wall::{DisplayId, WallSpec};
+    use glam::Vec3;
+    use proptest::prelude::*;
+
+    fn samples() -> Vec<FromNode> {
+        vec![
+            FromNode::Hello(Hello {
+                version: PROTOCOL_VERSION,
+                role: Role::Display {
+                    display: DisplayId(3),
+                    pixel_addr: "127.0.0.1:4000".parse().unwrap(),
+                },
+                host: "wall-3".into(),
+            }),
+            FromNode::TilesDone {
+                frame: FrameId(9),
+                tiles: vec![TileRange::new(4, 90).unwrap()],
+                want_more: true,
+            },
+            FromNode::Stats(NodeStats::Render(RenderStats {
+                tiles: 5,
+                rays: 1 << 40,
+                busy_s: 1.5,
+                elapsed_s: 2.0,
+            })),
+        ]
+    }
+
+    fn to_node_samples() -> Vec<ToNode> {
+        vec![
+            ToNode::Welcome {
+                node: RenderNodeId(2),
+                session: Session::new(SessionSpec {
+                    wall: WallSpec::grid(2, 2, 480, 270).bezel(16).build().unwrap(),
+                    scene: crate::scene_spec::SceneSpec::default(),
+                    scene_hash: [7; 32],
+                    displays: vec![DisplayEndpoint {
+                        display: DisplayId(0),
+                        addr: "[::1]:9".parse().unwrap(),
+                    }],
+                    save_frame: Some(FrameId(3)),
+                    compression: crate::protocol::pixels::Compression::Lz4,
+                })
+                .unwrap(),
+            },
+            ToNode::FrameStart(FrameStart {
+                frame: FrameId(1),
+                camera: Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
+                params: RenderParams::interactive(),
+            }),
+            ToNode::Present {
+                frame: FrameId(u64::MAX),
+            },
+        ]
+    }
+
+    #[test]
+    fn messages_round_trip() {
+        for msg in samples() {
+            assert_eq!(
+                decode_frame::<FromNode>(&encode(&msg).unwrap()).unwrap(),
+                msg
+            );
+        }
+        for msg in to_node_samples() {
+            assert_eq!(decode_frame::<ToNode>(&encode(&msg).unwrap()).unwrap(), msg);
+        }
+    }
+
+    #[test]
+    fn truncated_frames_are_errors() {
+        for msg in to_node_samples() {
+            let frame = encode(&msg).unwrap();
+            for cut in 0..frame.len() {
+                assert!(
+                    decode_frame::<ToNode>(&frame[..cut]).is_err(),
+                    "cut at {cut}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn oversized_frames_are_refused_before_reading_the_body() {
+        let prefix = ((MAX_CONTROL_BODY + 1) as u32).to_le_bytes();
+        assert!(matches!(body_len(prefix), Err(CodecError::TooLarge { .. })));
+        assert_eq!(
+            body_len(u32::MAX.to_le_bytes()),
+            Err(CodecError::TooLarge {
+                len: u32::MAX as usize,
+                limit: MAX_CONTROL_BODY
+            })
+        );
+        assert_eq!(body_len([0; 4]), Err(CodecError::Empty));
+    }
+
+    #[test]
+    fn trailing_bytes_are_refused() {
+        let mut frame = encode(&ToNode::Shutdown).unwrap();
+        frame.push(0);
+        let len = (frame.len() - 4) as u32;
+        frame[..4].copy_from_slice(&len.to_le_bytes());
+        assert!(matches!(
+            decode_frame::<ToNode>(&frame),
+            Err(CodecError::Trailing(1))
+        ));
+    }
+
+    #[test]
+    fn a_message_over_the_limit_is_an_error_not_a_panic() {
+        let huge = FromNode::Failed {
+            message: "x".repeat(MAX_CONTROL_BODY + 1),
+        };
+        assert!(matches!(encode(&huge), Err(CodecError::TooLarge { .. })));
+    }
+
+    #[test]
+    fn a_frame_start_claiming_five_cut_planes_is_refused_by_name() {
+        // The planes travel as a list; a peer can claim five even though we never send them.
+        #[derive(serde::Serialize)]
+        struct RawParams {
+            shadows: bool,
+            ao_samples: u32,
+            ao_range: f32,
+            crop: Option<(f32, f32)>,
+            cuts: Vec<[f32; 4]>,
+            spp: u32,
+            first_sample: u32,
+        }
+        #[derive(serde::Serialize)]
+        enum RawToNode {
+            _Welcome,
+            _Refused,
+            FrameStart(FrameId, Camera, RawParams),
+        }
+        let i = RenderParamsSpec::INTERACTIVE;
+        let msg = RawToNode::FrameStart(
+            FrameId(1),
+            Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
+            RawParams {
+                shadows: i.shadows,
+                ao_samples: i.ao_samples,
+                ao_range: i.ao_range,
+                crop: i.crop,
+                cuts: vec![[1.0, 0.0, 0.0, 0.0]; 5],
+                spp: i.spp,
+                first_sample: i.first_sample,
+            },
+        );
+        let err = decode_frame::<ToNode>(&encode(&msg).unwrap()).unwrap_err();
+        assert!(
+            matches!(&err, CodecError::Invalid(why) if why.contains("at most 4 cutting planes")),
+            "{err}"
+        );
+    }
+
+    proptest! {
+        #[test]
+        fn random_bodies_never_panic(body in proptest::collection::vec(any::<u8>(), 0..512)) {
+            let _ = decode::<ToNode>(&body);
+            let _ = decode::<FromNode>(&body);
+        }
+
+        #[test]
+        fn corrupted_messages_never_panic(index in 0usize..64, byte in any::<u8>(), which in 0usize..3) {
+            let mut frame = encode(&to_node_samples()[which]).unwrap();
+            let i = 4 + index % (frame.len() - 4);
+            frame[i] = byte;
+            let _ = decode_frame::<ToNode>(&frame);
+        }
+    }
+}

@@ -1,0 +1,543 @@
+//! Every message on the wire.
+//!
+//! Control messages are postcard-encoded enums in length-prefixed frames ([`codec`]) on one
+//! bidirectional QUIC stream per node–master connection. Pixels travel separately, render node to
+//! display node, as RGB8 (raw or LZ4 per tile) with one small header per tile ([`pixels`]), one
+//! unidirectional stream per (frame, batch of tiles, display). Every decoder has a size limit and returns an error on
+//! malformed input; semantic checks (is this tile mine? is this frame in flight?) are done by the
+//! state machine that consumes the message.
+
+pub mod codec;
+pub mod pixels;
+
+use crate::camera::Camera;
+use crate::params::RenderParams;
+use crate::scene_spec::SceneSpec;
+use crate::wall::{DisplayId, TileId, WallLayout};
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+
+/// Bumped on any incompatible change of a message or of the pixel stream format.
+pub const PROTOCOL_VERSION: u32 = 3;
+
+/// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
+pub const ALPN: &[u8] = b"tessera/1";
+
+/// A frame number; frames are numbered from 0 in the order they are presented.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub struct FrameId(pub u64);
+
+/// Identifies a render node within one run, assigned by the master in join order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub struct RenderNodeId(pub u32);
+
+/// Most rendering threads a render node may claim.
+pub const MAX_CORES: u32 = 1 << 16;
+/// Longest host name in a hello (Linux's `HOST_NAME_MAX` is 64; DNS names go to 253).
+pub const MAX_HOST_BYTES: usize = 255;
+
+/// What a connecting node is.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Role {
+    Render {
+        /// Threads the node renders with, 1 to [`MAX_CORES`].
+        cores: u32,
+    },
+    Display {
+        display: DisplayId,
+        /// Where render nodes reach this display. An unspecified IP (0.0.0.0 / ::) means
+        /// "the address the master sees me connect from".
+        pixel_addr: SocketAddr,
+    },
+}
+
+/// The first message on every control stream. Its host name and core count are checked on
+/// arrival ([`Hello::check`]), since the master prints one and sizes work by the other.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Hello {
+    pub version: u32,
+    pub role: Role,
+    /// Host name, for log lines and reports.
+    pub host: String,
+}
+
+#[derive(Deserialize)]
+struct HelloRaw {
+    version: u32,
+    role: Role,
+    host: String,
+}
+
+impl Hello {
+    /// Checks what the master relies on.
+    ///
+    /// # Errors
+    /// A host name over [`MAX_HOST_BYTES`] or with control characters, a render node with no
+    /// cores or more than [`MAX_CORES`].
+    pub fn check(&self) -> Result<(), ProtocolError> {
+        if self.host.len() > MAX_HOST_BYTES || self.host.chars().any(char::is_control) {
+            return Err(ProtocolError::BadHost(self.host.chars().take(64).collect()));
+        }
+        if let Role::Render { cores } = self.role {
+            if !(1..=MAX_CORES).contains(&cores) {
+                return Err(ProtocolError::BadCores(cores));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl TryFrom<HelloRaw> for Hello {
+    type Error = ProtocolError;
+
+    fn try_from(raw: HelloRaw) -> Result<Self, ProtocolError> {
+        let hello = Hello {
+            version: raw.version,
+            role: raw.role,
+            host: raw.host,
+        };
+        hello.check()?;
+        Ok(hello)
+    }
+}
+
+impl<'de> Deserialize<'de> for Hello {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, HelloRaw, Self>(d)
+    }
+}
+
+/// A message whose fields break an invariant of the protocol.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ProtocolError {
+    #[error("host name {0:?} is too long or holds control characters")]
+    BadHost(String),
+    #[error("a render node claims {0} cores; 1 to {MAX_CORES} are allowed")]
+    BadCores(u32),
+    #[error("tile range {start}..{end} ends before it starts")]
+    BackwardRange { start: u32, end: u32 },
+    #[error("session lists display {display}, but the wall has {count} displays")]
+    UnknownDisplay { display: u32, count: u32 },
+    #[error("session lists display {0} twice")]
+    DuplicateDisplay(u32),
+    #[error("stats field {field} is {value}, not a finite number of seconds")]
+    BadSeconds { field: &'static str, value: f64 },
+}
+
+/// Where a display node accepts pixels.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DisplayEndpoint {
+    pub display: DisplayId,
+    pub addr: SocketAddr,
+}
+
+/// Everything a node needs to take part in a run, sent once after the handshake.
+///
+/// Its wall and scene are checked by their own types; [`Session::new`] (and deserializing)
+/// also checks that the displays it lists are the wall's, each at most once. With at most
+/// [`crate::wall::MAX_DISPLAYS`] displays and a path of at most
+/// [`crate::scene_spec::MAX_PATH_BYTES`], a session is always far below the control codec's
+/// size limit.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(into = "SessionSpec")]
+pub struct Session(SessionSpec);
+
+/// The fields of a [`Session`], unchecked.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SessionSpec {
+    pub wall: WallLayout,
+    pub scene: SceneSpec,
+    /// Content hash of the scene as the master loaded it; a render node that loads different
+    /// bytes would render different pixels, so it refuses to join.
+    pub scene_hash: [u8; 32],
+    pub displays: Vec<DisplayEndpoint>,
+    /// Frame whose pixels the displays save as PNG, if any.
+    pub save_frame: Option<FrameId>,
+    /// How render nodes pack tiles' pixels; displays refuse streams packed otherwise.
+    pub compression: pixels::Compression,
+}
+
+impl Session {
+    /// # Errors
+    /// A display the wall does not have, or one listed twice.
+    pub fn new(spec: SessionSpec) -> Result<Self, ProtocolError> {
+        let count = spec.wall.display_count();
+        let mut seen = std::collections::BTreeSet::new();
+        for d in &spec.displays {
+            if d.display.0 >= count {
+                return Err(ProtocolError::UnknownDisplay {
+                    display: d.display.0,
+                    count,
+                });
+            }
+            if !seen.insert(d.display) {
+                return Err(ProtocolError::DuplicateDisplay(d.display.0));
+            }
+        }
+        Ok(Session(spec))
+    }
+
+    pub fn wall(&self) -> &WallLayout {
+        &self.0.wall
+    }
+
+    pub fn scene(&self) -> &SceneSpec {
+        &self.0.scene
+    }
+
+    pub fn scene_hash(&self) -> [u8; 32] {
+        self.0.scene_hash
+    }
+
+    pub fn displays(&self) -> &[DisplayEndpoint] {
+        &self.0.displays
+    }
+
+    pub fn save_frame(&self) -> Option<FrameId> {
+        self.0.save_frame
+    }
+
+    pub fn compression(&self) -> pixels::Compression {
+        self.0.compression
+    }
+}
+
+impl TryFrom<SessionSpec> for Session {
+    type Error = ProtocolError;
+
+    fn try_from(spec: SessionSpec) -> Result<Self, ProtocolError> {
+        Session::new(spec)
+    }
+}
+
+impl From<Session> for SessionSpec {
+    fn from(session: Session) -> Self {
+        session.0
+    }
+}
+
+impl<'de> Deserialize<'de> for Session {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, SessionSpec, Self>(d)
+    }
+}
+
+/// Broadcast at the frame barrier: the state every node renders frame `frame` with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameStart {
+    pub frame: FrameId,
+    pub camera: Camera,
+    pub params: RenderParams,
+}
+
+/// Tiles `start..end` (ids). Assignments are mostly contiguous, so ranges keep them small.
+/// `start <= end` always; whether the tiles exist is for the receiver, who knows the wall.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct TileRange {
+    start: u32,
+    end: u32,
+}
+
+#[derive(Deserialize)]
+struct TileRangeRaw {
+    start: u32,
+    end: u32,
+}
+
+impl TryFrom<TileRangeRaw> for TileRange {
+    type Error = ProtocolError;
+
+    fn try_from(raw: TileRangeRaw) -> Result<Self, ProtocolError> {
+        TileRange::new(raw.start, raw.end)
+    }
+}
+
+impl<'de> Deserialize<'de> for TileRange {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, TileRangeRaw, Self>(d)
+    }
+}
+
+impl TileRange {
+    /// # Errors
+    /// `end < start`.
+    pub fn new(start: u32, end: u32) -> Result<Self, ProtocolError> {
+        if end < start {
+            return Err(ProtocolError::BackwardRange { start, end });
+        }
+        Ok(TileRange { start, end })
+    }
+
+    /// The single tile `tile`.
+    pub fn one(tile: TileId) -> Self {
+        TileRange {
+            start: tile.0,
+            end: tile.0.saturating_add(1),
+        }
+    }
+
+    pub fn start(self) -> u32 {
+        self.start
+    }
+
+    pub fn end(self) -> u32 {
+        self.end
+    }
+
+    pub fn tiles(self) -> impl Iterator<Item = TileId> {
+        (self.start..self.end).map(TileId)
+    }
+
+    pub fn len(self) -> usize {
+        self.end.saturating_sub(self.start) as usize
+    }
+
+    pub fn is_empty(self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Compresses a sorted-or-not list of tile ids into ranges of consecutive ids.
+pub fn to_ranges(tiles: impl IntoIterator<Item = TileId>) -> Vec<TileRange> {
+    let mut ranges: Vec<TileRange> = Vec::new();
+    for TileId(t) in tiles {
+        match ranges.last_mut() {
+            Some(r) if r.end == t => r.end += 1,
+            _ => ranges.push(TileRange::one(TileId(t))),
+        }
+    }
+    ranges
+}
+
+/// Master → node.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ToNode {
+    Welcome {
+        node: RenderNodeId,
+        session: Session,
+    },
+    Refused {
+        reason: String,
+    },
+    FrameStart(FrameStart),
+    /// Tiles of `frame` for a render node to render; empty means "nothing left for now".
+    Assign {
+        frame: FrameId,
+        tiles: Vec<TileRange>,
+    },
+    /// The swap barrier: every display shows `frame` now.
+    Present {
+        frame: FrameId,
+    },
+    /// The swap barrier with a deadline: show `frame` when this display's clock (ns since the
+    /// Unix epoch) reads `clock_ns`, or at once if that has passed. Every display waking at
+    /// the same instant, rather than whenever the message arrives, is what keeps them in step.
+    PresentAt {
+        frame: FrameId,
+        clock_ns: u64,
+    },
+    /// The run is over: send your stats and close.
+    Shutdown,
+    /// Clock probe: a display answers at once with [`FromNode::Pong`], so the master can map
+    /// the display's clock onto its own (NTP-style, keeping the fastest round trip).
+    Ping {
+        seq: u32,
+    },
+}
+
+/// Node → master.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum FromNode {
+    Hello(Hello),
+    /// Scene loaded, displays reached: the node can take frames.
+    Ready,
+    /// These tiles reached their displays. With `want_more` the node asks for another batch.
+    TilesDone {
+        frame: FrameId,
+        tiles: Vec<TileRange>,
+        want_more: bool,
+    },
+    /// A display has every tile of `frame`.
+    FrameComplete {
+        frame: FrameId,
+    },
+    /// A display showed `frame`, at `clock_ns` on its own clock (ns since the Unix epoch).
+    Presented {
+        frame: FrameId,
+        clock_ns: u64,
+    },
+    /// Answer to [`ToNode::Ping`]: the display's clock when it answered.
+    Pong {
+        seq: u32,
+        clock_ns: u64,
+    },
+    Stats(NodeStats),
+    /// The node cannot go on; the master logs this and treats the node as gone.
+    Failed {
+        message: String,
+    },
+}
+
+/// Measured by a node, reported at shutdown.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum NodeStats {
+    Render(RenderStats),
+    Display(DisplayStats),
+}
+
+/// A render node's figures. Seconds are checked on arrival (finite, not negative), since the
+/// master divides by them for the report.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct RenderStats {
+    pub tiles: u64,
+    pub rays: u64,
+    /// Seconds spent rendering (wall clock of render calls).
+    pub busy_s: f64,
+    /// Seconds from the first frame start to shutdown.
+    pub elapsed_s: f64,
+}
+
+#[derive(Deserialize)]
+struct RenderStatsRaw {
+    tiles: u64,
+    rays: u64,
+    busy_s: f64,
+    elapsed_s: f64,
+}
+
+impl TryFrom<RenderStatsRaw> for RenderStats {
+    type Error = ProtocolError;
+
+    fn try_from(raw: RenderStatsRaw) -> Result<Self, ProtocolError> {
+        for (field, value) in [("busy_s", raw.busy_s), ("elapsed_s", raw.elapsed_s)] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(ProtocolError::BadSeconds { field, value });
+            }
+        }
+        Ok(RenderStats {
+            tiles: raw.tiles,
+            rays: raw.rays,
+            busy_s: raw.busy_s,
+            elapsed_s: raw.elapsed_s,
+        })
+    }
+}
+
+impl<'de> Deserialize<'de> for RenderStats {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, RenderStatsRaw, Self>(d)
+    }
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DisplayStats {
+    pub pixels_owned: u64,
+    /// Pixel bytes received, as unpacked (3 per pixel, whatever the compression; tile headers
+    /// excluded).
+    pub pixel_bytes_received: u64,
+    /// UDP payload bytes received on render-node connections, as quinn counts them: every
+    /// datagram's QUIC packet headers, AEAD tags, frames (handshake, ACKs, retransmissions
+    /// included), but not the IP and UDP headers.
+    pub wire_bytes_received: u64,
+    /// Application bytes of pixel streams as sent (stream and tile headers included, tiles
+    /// compressed if the run compresses).
+    pub stream_bytes_received: u64,
+    pub frames_presented: u64,
+    pub duplicate_tiles: u64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_merge_consecutive_ids() {
+        let r = to_ranges([1, 2, 3, 7, 8, 10].map(TileId));
+        assert_eq!(
+            r,
+            vec![
+                TileRange { start: 1, end: 4 },
+                TileRange { start: 7, end: 9 },
+                TileRange { start: 10, end: 11 }
+            ]
+        );
+        let back: Vec<u32> = r.iter().flat_map(|r| r.tiles()).map(|t| t.0).collect();
+        assert_eq!(back, vec![1, 2, 3, 7, 8, 10]);
+    }
+
+    fn decode_err<T: serde::de::DeserializeOwned + std::fmt::Debug>(
+        raw: &impl Serialize,
+    ) -> String {
+        let bytes = postcard::to_allocvec(raw).unwrap();
+        codec::decode::<T>(&bytes).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn backward_tile_ranges_from_the_wire_are_refused() {
+        #[derive(Serialize)]
+        struct Raw(u32, u32);
+        let err = decode_err::<TileRange>(&Raw(9, 3));
+        assert!(err.contains("9..3"), "{err}");
+        assert!(TileRange::new(3, 3).unwrap().is_empty());
+    }
+
+    #[test]
+    fn a_session_naming_displays_the_wall_lacks_is_refused() {
+        let wall = WallLayout::grid(2, 1, 64, 64).unwrap();
+        let endpoint = |d| DisplayEndpoint {
+            display: DisplayId(d),
+            addr: "127.0.0.1:9".parse().unwrap(),
+        };
+        let spec = |displays| SessionSpec {
+            wall,
+            scene: SceneSpec::Gallery,
+            scene_hash: [0; 32],
+            displays,
+            save_frame: None,
+            compression: pixels::Compression::None,
+        };
+        assert!(Session::new(spec(vec![endpoint(0), endpoint(1)])).is_ok());
+        assert_eq!(
+            Session::new(spec(vec![endpoint(2)])),
+            Err(ProtocolError::UnknownDisplay {
+                display: 2,
+                count: 2
+            })
+        );
+        assert_eq!(
+            Session::new(spec(vec![endpoint(1), endpoint(1)])),
+            Err(ProtocolError::DuplicateDisplay(1))
+        );
+        let err = decode_err::<Session>(&spec(vec![endpoint(5)]));
+        assert!(err.contains("display 5"), "{err}");
+    }
+
+    #[test]
+    fn a_hello_with_absurd_fields_is_refused() {
+        let hello = |role, host: &str| HelloRaw2 {
+            version: PROTOCOL_VERSION,
+            role,
+            host: host.to_string(),
+        };
+        #[derive(Serialize)]
+        struct HelloRaw2 {
+            version: u32,
+            role: Role,
+            host: String,
+        }
+        let err = decode_err::<Hello>(&hello(Role::Render { cores: 0 }, "a"));
+        assert!(err.contains("0 cores"), "{err}");
+        let err = decode_err::<Hello>(&hello(Role::Render { cores: 1 }, &"h".repeat(300)));
+        assert!(err.contains("host name"), "{err}");
+        let err = decode_err::<Hello>(&hello(Role::Render { cores: 1 }, "evil\u{1b}[2J"));
+        assert!(err.contains("host name"), "{err}");
+    }
+
+    #[test]
+    fn stats_with_nan_seconds_are_refused() {
+        #[derive(Serialize)]
+        struct Raw(u64, u64, f64, f64);
+        let err = decode_err::<RenderStats>(&Raw(1, 2, f64::NAN, 1.0));
+        assert!(err.contains("busy_s"), "{err}");
+    }
+}

@@ -1,0 +1,159 @@
+//! The flags of the master's subcommands, and what a wall run is configured with.
+
+use crate::server::RunConfig;
+use anyhow::{bail, Context, Result};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+use tessera_cli::{CompressArg, QualityArgs, SceneArgs, WallArgs};
+use tessera_render::orbit_of;
+use tessera_render::scene::Scene;
+use tessera_wire::protocol::FrameId;
+
+/// Most render nodes `local` starts on one machine.
+pub const MAX_LOCAL_RENDER_NODES: u32 = 256;
+
+#[derive(clap::Args, Clone)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub wall: WallArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Frames to render (serve: 0 runs until Ctrl-C).
+    #[arg(long, default_value_t = 60)]
+    pub frames: u64,
+    /// Directory for report.json (and PNGs with --save-frame).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Each display saves frame K as DIR/display-<id>.png; the master writes DIR/wall.png.
+    #[arg(long, requires = "out")]
+    pub save_frame: Option<u64>,
+    #[command(flatten)]
+    pub quality: QualityArgs,
+    /// How long to wait for all nodes to join, in seconds (1 to 86400).
+    #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub join_timeout: u64,
+    /// Displays present this many ms after the frame barrier, all at the same instant by
+    /// their clocks (0: each presents when the message arrives, which lets them drift apart
+    /// by however late each is scheduled).
+    #[arg(long, default_value_t = 2.0)]
+    pub present_margin_ms: f64,
+    /// How render nodes pack each tile for its display: `lz4` trades render-node and display
+    /// CPU for fewer bytes where the link, not rendering, limits the frame rate.
+    #[arg(long, value_enum, default_value_t = CompressArg::None)]
+    pub compress: CompressArg,
+}
+
+#[derive(clap::Args, Clone)]
+pub struct LocalArgs {
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Render node processes to start (1 to 256).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=MAX_LOCAL_RENDER_NODES as i64))]
+    pub render_nodes: u32,
+    /// Threads per render node (default: this machine's cores shared among the render nodes).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=tessera_render_node::MAX_THREADS as i64))]
+    pub threads: Option<u32>,
+    /// Show each display in a window (needs a display server); otherwise headless.
+    #[arg(long)]
+    pub window: bool,
+    /// With --window, keep the last frame on screen this many seconds before closing (0 to
+    /// 3600).
+    #[arg(long, default_value_t = 0.0, value_parser = tessera_display_node::parse_linger)]
+    pub linger: f64,
+}
+
+#[derive(clap::Args)]
+pub struct ServeArgs {
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Address to listen on for nodes.
+    #[arg(long, default_value = "0.0.0.0:7400")]
+    pub listen: SocketAddr,
+    /// Render nodes to wait for before the first frame (more may join later).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub render_nodes: u32,
+    /// Cluster directory: the CA (created on first start) and the master's certificate.
+    #[arg(long, default_value = "tessera-cluster")]
+    pub cluster_dir: PathBuf,
+}
+
+#[derive(clap::Args)]
+pub struct RenderArgs {
+    #[command(flatten)]
+    pub wall: WallArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Frame number (selects the orbit camera's position).
+    #[arg(long, default_value_t = 0)]
+    pub frame: u64,
+    /// Output directory; wall.png is written there.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub quality: QualityArgs,
+    /// Also write an output value per pixel: `depth` → DIR/depth.pfm (distance along the ray,
+    /// +inf for none), `prim` → DIR/prim.pfm (triangle index, -1 for none). Repeatable.
+    #[arg(long, value_enum)]
+    pub aov: Vec<Aov>,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Aov {
+    Depth,
+    Prim,
+}
+
+#[derive(clap::Args)]
+pub struct IssueCertArgs {
+    /// Cluster directory holding the CA (created if missing).
+    #[arg(long, default_value = "tessera-cluster")]
+    pub cluster_dir: PathBuf,
+    /// Name of the node (appears in its certificate and the master's logs).
+    #[arg(long)]
+    pub name: String,
+    /// Directory to write node.pem, node.key and ca.pem into; give it to the node's --cert-dir.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
+pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
+    // Every flag is checked before the scene, which can take long to load.
+    let wall = run.wall.layout()?;
+    let spec = run.scene.spec()?;
+    let params = run.quality.params()?;
+    let scene = Scene::load(&spec)?;
+    if let Some(dir) = &run.out {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create --out {}", dir.display()))?;
+    }
+    if let Some(k) = run.save_frame {
+        if run.frames != 0 && k >= run.frames {
+            bail!(
+                "--save-frame {k} is not one of the {} frames (0..{})",
+                run.frames,
+                run.frames
+            );
+        }
+    }
+    Ok(RunConfig {
+        wall,
+        camera: run
+            .scene
+            .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?,
+        scene_hash: scene.content_hash(),
+        scene: spec,
+        params,
+        frames: (run.frames > 0).then_some(run.frames),
+        render_nodes,
+        save_frame: run.save_frame.map(FrameId),
+        compression: run.compress.into(),
+        join_timeout: Duration::from_secs(run.join_timeout),
+        show_progress,
+        present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
+            .ok()
+            .filter(|m| *m <= Duration::from_secs(1))
+            .context("--present-margin-ms must be between 0 and 1000")?,
+    })
+}

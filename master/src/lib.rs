@@ -1,0 +1,103 @@
+//! The master: balances the wall's work over the render nodes, runs the frame barrier, and
+//! launches a whole local wall, serves one over several hosts, renders the single-process
+//! reference image, runs measurement experiments and simulates walls.
+//!
+//! A library with a thin binary (`tessera-master`). The binary also runs the node roles
+//! (`tessera-master render-node ...`, `tessera-master display-node ...`, the very code of
+//! `tessera-render-node` and `tessera-display-node`), so a local wall needs nothing but the
+//! master's executable. The driver loop ([`server`]) wraps the sans-IO
+//! [`tessera_core::balance::Coordinator`].
+
+mod args;
+mod bench;
+mod launcher;
+mod peers;
+mod reference;
+mod report;
+mod server;
+mod simulate;
+mod timing;
+mod wall_run;
+
+use anyhow::Result;
+use clap::Subcommand;
+use std::process::ExitCode;
+use tessera_net::cluster::ClusterCa;
+
+/// Tessera's master: hands image tiles to render nodes over QUIC and makes every display
+/// present each frame at the same moment.
+#[derive(clap::Parser)]
+#[command(version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a whole wall on this machine: display and render nodes as processes on 127.0.0.1.
+    Local(args::LocalArgs),
+    /// Wait for the wall's nodes on an address and run it (a real wall over several hosts).
+    Serve(args::ServeArgs),
+    /// Render one frame of the wall in this process, no network: the reference image.
+    Render(args::RenderArgs),
+    /// Run a measurement experiment on a local wall: max-fps, latency, scaling or
+    /// error-vs-time; writes report.json, a CSV and an SVG plot into --out DIR.
+    Bench(bench::BenchArgs),
+    /// Write a node certificate signed by the cluster CA (creating the CA on first use).
+    IssueCert(args::IssueCertArgs),
+    /// Simulate a wall in this process on a virtual clock (the real load balancer and frame
+    /// barrier, virtual nodes and network): prints balance efficiency and frames completed.
+    Simulate(simulate::SimulateArgs),
+    /// Run as a render node, exactly as `tessera-render-node` does (see its --help): one
+    /// executable can serve every host of a wall.
+    RenderNode(tessera_render_node::Cli),
+    /// Run as a display node, exactly as `tessera-display-node` does (see its --help).
+    DisplayNode(tessera_display_node::Cli),
+}
+
+/// Runs what `cli` asks and turns the outcome into the process's exit code, printing the
+/// error (with its causes) if there is one.
+pub fn main(cli: Cli) -> ExitCode {
+    match cli.command {
+        // The node roles print their own errors, named as their own binaries do.
+        Command::RenderNode(node) => return tessera_render_node::main(node),
+        Command::DisplayNode(node) => return tessera_display_node::main(node),
+        _ => {}
+    }
+    match run(cli.command) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("tessera-master: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(command: Command) -> Result<ExitCode> {
+    match command {
+        Command::Render(args) => reference::render_reference(args).map(|()| ExitCode::SUCCESS),
+        Command::IssueCert(args) => {
+            let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
+            ca.issue(&args.name, &args.out)?;
+            println!(
+                "wrote the certificate of `{}` to {} (give it to the node with --cert-dir)",
+                args.name,
+                args.out.display()
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Local(args) => runtime()?.block_on(wall_run::local(args)),
+        Command::Serve(args) => runtime()?.block_on(wall_run::serve(args)),
+        Command::Simulate(args) => simulate::simulate(args),
+        Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
+        Command::RenderNode(node) => tessera_render_node::run(node).map(|()| ExitCode::SUCCESS),
+        Command::DisplayNode(node) => tessera_display_node::run(node).map(|()| ExitCode::SUCCESS),
+    }
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
+}

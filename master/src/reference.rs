@@ -1,0 +1,53 @@
+//! `tessera-master render`: one frame of the wall in this process, no network, the reference
+//! that the wall must equal pixel for pixel, with optional per-pixel outputs (AOVs).
+
+use crate::args::{Aov, RenderArgs};
+use anyhow::{Context, Result};
+use std::time::Instant;
+use tessera_render::aov::{primary_aovs, write_pfm};
+use tessera_render::scene::Scene;
+use tessera_render::{orbit_of, render_wall, FrameView, PreparedScene};
+use tessera_wire::wall::TileGrid;
+
+pub fn render_reference(args: RenderArgs) -> Result<()> {
+    let wall = args.wall.layout()?;
+    let params = args.quality.params()?;
+    let scene = Scene::load(&args.scene.spec()?)?;
+    let camera = args
+        .scene
+        .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?
+        .camera_for_frame(args.frame);
+    let t0 = Instant::now();
+    let prepared = PreparedScene::new(&scene);
+    let built = t0.elapsed();
+    let view = FrameView::new(args.frame, &camera, params, wall.width(), wall.height());
+    let image = render_wall(&prepared, &view, &TileGrid::new(wall));
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create --out {}", args.out.display()))?;
+    let path = args.out.join("wall.png");
+    image.save_png(&path)?;
+    if !args.aov.is_empty() {
+        let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall));
+        for aov in &args.aov {
+            let (name, values) = match aov {
+                Aov::Depth => ("depth.pfm", &aovs.depth),
+                Aov::Prim => ("prim.pfm", &aovs.prim),
+            };
+            let p = args.out.join(name);
+            write_pfm(&p, aovs.width, aovs.height, values)
+                .with_context(|| format!("cannot write {}", p.display()))?;
+            eprintln!("wrote {}", p.display());
+        }
+    }
+    eprintln!(
+        "rendered frame {} of a {}x{} wall ({} triangles): BVH {:.2} s, render {:.2} s; wrote {}",
+        args.frame,
+        wall.width(),
+        wall.height(),
+        scene.triangles.len(),
+        built.as_secs_f64(),
+        (t0.elapsed() - built).as_secs_f64(),
+        path.display()
+    );
+    Ok(())
+}

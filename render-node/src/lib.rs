@@ -1,0 +1,126 @@
+//! The render node: joins a master, ray-traces the tiles it is given on every core, and sends
+//! each finished tile straight to the display that owns it.
+//!
+//! A library with a thin binary, so that `tessera-master` can run the same node from its own
+//! executable (`tessera-master render-node ...`, what `local` starts) and the installed
+//! `tessera-render-node` stays for render hosts. The driver loop ([`node`]) wraps the sans-IO
+//! [`tessera_core::worker::RenderWorker`]; the link to the master is `tessera_net::link`.
+
+mod bench;
+mod node;
+mod pixels_out;
+
+use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use tessera_render::scene::Scene;
+use tessera_wire::scene_spec::SceneSpec;
+
+/// Most rendering threads a node may be asked for.
+pub const MAX_THREADS: usize = 1024;
+
+/// Tessera render node: renders the tiles a master assigns and sends them to the displays.
+///
+/// Without a subcommand it joins a master (`--master HOST:PORT --cert-dir DIR`).
+#[derive(clap::Parser, Debug)]
+#[command(version, about, long_about = None, args_conflicts_with_subcommands = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Option<Tool>,
+    /// The master's address, HOST:PORT.
+    #[arg(long)]
+    master: Option<String>,
+    /// This node's certificate directory (node.pem, node.key, ca.pem) from `tessera-master issue-cert`.
+    #[arg(long)]
+    cert_dir: Option<PathBuf>,
+    /// Rendering threads (default: all cores; at most 1024).
+    #[arg(long, value_parser = parse_threads)]
+    threads: Option<usize>,
+    /// Directory of cached BVHs, keyed by scene content (default: ~/.cache/tessera/bvh).
+    #[arg(long)]
+    bvh_cache: Option<PathBuf>,
+    /// Always build the BVH; neither read nor write the cache.
+    #[arg(long)]
+    no_bvh_cache: bool,
+}
+
+fn parse_threads(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(n) if (1..=MAX_THREADS).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "`{text}` is not a thread count from 1 to {MAX_THREADS}"
+        )),
+    }
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum Tool {
+    /// Measure Mrays/s of primary, shadow and ambient-occlusion rays on one image.
+    Bench(bench::BenchArgs),
+    /// Write a scene's triangles as OBJ (to feed the same mesh to another renderer).
+    ExportObj {
+        /// `builtin`, `knot:SEGMENTS:SIDES` or a mesh path.
+        #[arg(long)]
+        scene: String,
+        /// The OBJ file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// Runs what `cli` asks and turns the outcome into the process's exit code, printing the
+/// error (with its causes) if there is one.
+pub fn main(cli: Cli) -> ExitCode {
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("tessera-render-node: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs what `cli` asks: join a master, or one of the tools.
+///
+/// # Errors
+/// Bad flags or input, a master that cannot be reached or refuses the node, a lost master.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Some(Tool::Bench(args)) => bench::run(args),
+        Some(Tool::ExportObj { scene, out }) => export_obj(&scene, &out),
+        None => {
+            let (Some(master), Some(cert_dir)) = (cli.master, cli.cert_dir) else {
+                bail!("to join a wall give --master HOST:PORT and --cert-dir DIR (see --help)");
+            };
+            let options = node::Options {
+                master,
+                cert_dir,
+                threads: cli.threads,
+                bvh_cache: cache_dir(cli.bvh_cache, cli.no_bvh_cache),
+            };
+            tessera_net::link::node_runtime()?.block_on(node::run(options))
+        }
+    }
+}
+
+/// The BVH cache directory the flags ask for.
+fn cache_dir(dir: Option<PathBuf>, disabled: bool) -> Option<PathBuf> {
+    if disabled {
+        None
+    } else {
+        dir.or_else(tessera_render::accel_cache::default_cache_dir)
+    }
+}
+
+fn export_obj(scene: &str, out: &std::path::Path) -> Result<()> {
+    let scene = Scene::load(&SceneSpec::from_arg(scene)?)?;
+    scene
+        .export_obj(out)
+        .with_context(|| format!("cannot write {}", out.display()))?;
+    eprintln!(
+        "wrote {} ({} triangles)",
+        out.display(),
+        scene.triangles.len()
+    );
+    Ok(())
+}

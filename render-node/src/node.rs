@@ -1,0 +1,200 @@
+//! The render node's driver loop: the only place in the render node with sockets and
+//! `Instant::now()`. It feeds the sans-IO [`RenderWorker`] what the master says and what the
+//! render threads and display links report, and carries out what the worker decides.
+
+use crate::pixels_out::{send_pixels, Delivery};
+use anyhow::{bail, Context, Result};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tessera_core::worker::{BatchSizer, RenderWorker};
+use tessera_net::cluster::NodeIdentity;
+use tessera_net::link::MasterLink;
+use tessera_net::quic;
+use tessera_render::scene::Scene;
+use tessera_render::{render_tiles, FrameView, PreparedScene, RayCounts};
+use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, Session, ToNode};
+use tessera_wire::wall::{TileGrid, TileId};
+use tokio::sync::mpsc;
+
+/// What the node was started with.
+pub struct Options {
+    pub master: String,
+    pub cert_dir: PathBuf,
+    pub threads: Option<usize>,
+    pub bvh_cache: Option<PathBuf>,
+}
+
+/// A batch the render threads finished.
+struct Rendered {
+    frame: FrameId,
+    tiles: Vec<TileId>,
+    /// Each tile's payload, packed as the session's compression says.
+    payloads: Vec<Vec<u8>>,
+    rays: RayCounts,
+    /// Rendering alone.
+    took: Duration,
+    /// Rendering and packing: what sizes the next batch.
+    batch_took: Duration,
+}
+
+pub async fn run(options: Options) -> Result<()> {
+    let threads = options
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()?,
+    );
+    let identity = NodeIdentity::load(&options.cert_dir)?;
+    let master_addr = tessera_net::resolve(&options.master).await?;
+    let bind: SocketAddr = if master_addr.is_ipv6() {
+        "[::]:0"
+    } else {
+        "0.0.0.0:0"
+    }
+    .parse()?;
+    let endpoint = quic::endpoint(bind, &identity, false)?;
+    let role = Role::Render {
+        cores: threads as u32,
+    };
+    let (mut link, welcome) = MasterLink::join(&endpoint, master_addr, role)
+        .await
+        .context("is tessera-master running there? see --help")?;
+    let (node, session) = (welcome.node, welcome.session);
+    tracing::info!("render node {}: joined, loading the scene", node.0);
+    let prepared = match prepare(&session, pool.clone(), options.bvh_cache).await {
+        Ok(p) => p,
+        Err(e) => {
+            link.fail(format!("{e:#}")).await;
+            return Err(e);
+        }
+    };
+    let mut displays = BTreeMap::new();
+    for d in session.displays() {
+        let c = quic::connect(&endpoint, d.addr, &format!("display {}", d.display.0)).await?;
+        displays.insert(d.display, c);
+    }
+    link.send(&FromNode::Ready).await?;
+    tracing::info!(
+        "render node {}: ready ({} triangles, {threads} threads)",
+        node.0,
+        prepared.accel.triangles.len()
+    );
+
+    let grid = Arc::new(TileGrid::new(*session.wall()));
+    let compression = session.compression();
+    let prepared = Arc::new(prepared);
+    let mut sizer = BatchSizer::new(threads);
+    let mut worker = RenderWorker::new(grid.len() as u32, sizer.low_water(None));
+    let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Rendered>();
+    let (delivered_tx, mut delivered_rx) = mpsc::unbounded_channel::<Delivery>();
+    let mut rendering = false;
+    let mut stats = RenderStats::default();
+    let first_frame = Instant::now();
+    loop {
+        if !rendering {
+            if let Some((start, tiles)) = worker.next_batch(sizer.batch()) {
+                rendering = true;
+                let (prepared, grid, pool, done_tx) = (
+                    prepared.clone(),
+                    grid.clone(),
+                    pool.clone(),
+                    done_tx.clone(),
+                );
+                tokio::task::spawn_blocking(move || {
+                    let t0 = Instant::now();
+                    let view = FrameView::new(
+                        start.frame.0,
+                        &start.camera,
+                        start.params,
+                        grid.layout().width(),
+                        grid.layout().height(),
+                    );
+                    let geometry: Vec<_> = tiles
+                        .iter()
+                        .map(|t| {
+                            *grid
+                                .tile(*t)
+                                .expect("the worker checked every assigned tile")
+                        })
+                        .collect();
+                    let (pixels, rays) = pool.install(|| render_tiles(&prepared, &view, &geometry));
+                    // Rendering time alone, so rays/s does not depend on the compression.
+                    let took = t0.elapsed();
+                    let payloads = pool.install(|| {
+                        pixels
+                            .into_par_iter()
+                            .map(|rgb| compression.encode_tile(rgb))
+                            .collect()
+                    });
+                    let _ = done_tx.send(Rendered {
+                        frame: start.frame,
+                        tiles,
+                        payloads,
+                        rays,
+                        took,
+                        batch_took: t0.elapsed(),
+                    });
+                });
+            }
+            if let Some(request) = worker.poll_request(Instant::now()) {
+                link.send(&request).await?;
+            }
+        }
+        tokio::select! {
+            msg = link.recv() => match msg? {
+                ToNode::Shutdown => {
+                    stats.elapsed_s = first_frame.elapsed().as_secs_f64();
+                    let summary = format!("{} tiles, {} rays", stats.tiles, stats.rays);
+                    link.finish(NodeStats::Render(stats)).await?;
+                    tracing::info!("render node {}: done, {summary}", node.0);
+                    return Ok(());
+                }
+                msg => worker
+                    .handle_message(&msg, Instant::now())
+                    .context("the master broke the protocol")?,
+            },
+            Some(Rendered { frame, tiles, payloads, rays, took, batch_took }) = done_rx.recv() => {
+                rendering = false;
+                sizer.record(tiles.len(), batch_took);
+                worker.set_low_water(sizer.low_water(worker.round_trip()));
+                stats.tiles += tiles.len() as u64;
+                stats.rays += rays.total();
+                stats.busy_s += took.as_secs_f64();
+                send_pixels(&displays, &grid, frame, compression, tiles, payloads, delivered_tx.clone());
+            }
+            Some(delivery) = delivered_rx.recv() => match delivery {
+                Delivery::Delivered { frame, tiles } => {
+                    let report = worker.handle_delivered(frame, &tiles, Instant::now());
+                    link.send(&report).await?;
+                }
+                Delivery::Failed(e) => bail!("cannot deliver pixels: {e}"),
+            },
+        }
+    }
+}
+
+async fn prepare(
+    session: &Session,
+    pool: Arc<rayon::ThreadPool>,
+    bvh_cache: Option<PathBuf>,
+) -> Result<PreparedScene> {
+    let spec = session.scene().clone();
+    let expected = session.scene_hash();
+    tokio::task::spawn_blocking(move || {
+        let scene = Scene::load(&spec)?;
+        if scene.content_hash() != expected {
+            bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
+        }
+        let t0 = Instant::now();
+        let (accel, source) = pool.install(|| tessera_render::accel_cache::load_or_build(&scene, bvh_cache.as_deref()));
+        tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
+        Ok(PreparedScene::from_accel(&scene, accel))
+    })
+    .await?
+}
