@@ -1,9 +1,11 @@
 //! Helpers for Tessera's end-to-end tests: find the built binaries, run them with a time bound,
 //! and never leave a process behind.
 
-use std::io::Read;
+use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Path of a workspace binary built next to the test executable.
@@ -24,10 +26,49 @@ pub fn bin(name: &str) -> PathBuf {
     path
 }
 
+/// Everything a child printed on one stream so far, collected by a thread of its own so that
+/// a chatty child never blocks on a full pipe and a test can wait for a line to appear.
+#[derive(Clone, Default)]
+struct Captured {
+    text: Arc<Mutex<String>>,
+    /// Set once the stream reached its end (every writer closed it).
+    done: Arc<AtomicBool>,
+}
+
+impl Captured {
+    fn collect(stream: impl Read + Send + 'static) -> Captured {
+        let captured = Captured::default();
+        let (text, done) = (captured.text.clone(), captured.done.clone());
+        std::thread::spawn(move || {
+            let mut lines = BufReader::new(stream);
+            let mut line = String::new();
+            while lines.read_line(&mut line).is_ok_and(|n| n > 0) {
+                text.lock().expect("capture lock").push_str(&line);
+                line.clear();
+            }
+            done.store(true, Ordering::SeqCst);
+        });
+        captured
+    }
+
+    fn snapshot(&self) -> String {
+        self.text.lock().expect("capture lock").clone()
+    }
+
+    /// The whole text once the stream has ended, or what there is after `limit` (a grandchild
+    /// that outlived its parent can hold the pipe open).
+    fn finish(&self, limit: Duration) -> String {
+        wait_for(limit, || self.done.load(Ordering::SeqCst));
+        self.snapshot()
+    }
+}
+
 /// A child process that is killed and reaped when dropped, whatever the test does.
 pub struct Proc {
     child: Option<Child>,
     pub name: String,
+    stdout: Captured,
+    stderr: Captured,
 }
 
 impl Proc {
@@ -39,9 +80,18 @@ impl Proc {
         Self::start_program(&bin(name), name, args, env)
     }
 
+    /// Starts `program` in the working directory `dir`.
+    pub fn start_in(program: &Path, dir: &Path, args: &[&str]) -> Proc {
+        let name = program.display().to_string();
+        Self::spawn(Command::new(program).current_dir(dir), &name, args, &[])
+    }
+
     /// Starts any program (a script, say), not only a workspace binary.
     pub fn start_program(program: &Path, name: &str, args: &[&str], env: &[(&str, &str)]) -> Proc {
-        let mut cmd = Command::new(program);
+        Self::spawn(&mut Command::new(program), name, args, env)
+    }
+
+    fn spawn(cmd: &mut Command, name: &str, args: &[&str], env: &[(&str, &str)]) -> Proc {
         cmd.args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -49,12 +99,16 @@ impl Proc {
         for (k, v) in env {
             cmd.env(k, v);
         }
-        let child = cmd
+        let mut child = cmd
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        let stdout = Captured::collect(child.stdout.take().expect("piped stdout"));
+        let stderr = Captured::collect(child.stderr.take().expect("piped stderr"));
         Proc {
             child: Some(child),
             name: name.to_string(),
+            stdout,
+            stderr,
         }
     }
 
@@ -84,15 +138,43 @@ impl Proc {
         }
     }
 
+    /// Waits, at most `limit`, for a line of the process's stderr that contains `needle`, and
+    /// returns it. Fails the test (with everything printed so far) if the process exits first
+    /// or the time runs out: the event a test waits for, never a guess of how long it takes.
+    pub fn wait_for_stderr(&self, needle: &str, limit: Duration) -> String {
+        let find = || {
+            self.stderr
+                .snapshot()
+                .lines()
+                .find(|l| l.contains(needle))
+                .map(str::to_string)
+        };
+        let deadline = Instant::now() + limit;
+        while Instant::now() < deadline {
+            if let Some(line) = find() {
+                return line;
+            }
+            if self.has_exited() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        find().unwrap_or_else(|| {
+            panic!(
+                "{} printed no line with {needle:?} within {limit:?} (exited: {})\nstderr:\n{}",
+                self.name,
+                self.has_exited(),
+                self.stderr.snapshot()
+            )
+        })
+    }
+
     /// Kills the process and panics with `why` and everything it printed.
     pub fn fail(mut self, why: &str) -> ! {
         let mut child = self.child.take().expect("running");
         let _ = child.kill();
         let _ = child.wait();
-        let mut stderr = String::new();
-        if let Some(mut e) = child.stderr.take() {
-            let _ = e.read_to_string(&mut stderr);
-        }
+        let stderr = self.stderr.finish(Duration::from_secs(5));
         panic!("{why}\n{} stderr:\n{stderr}", self.name);
     }
 
@@ -111,14 +193,8 @@ impl Proc {
             }
             std::thread::sleep(Duration::from_millis(20));
         };
-        let mut stdout = String::new();
-        let mut stderr = String::new();
-        if let Some(mut o) = child.stdout.take() {
-            let _ = o.read_to_string(&mut stdout);
-        }
-        if let Some(mut e) = child.stderr.take() {
-            let _ = e.read_to_string(&mut stderr);
-        }
+        let stdout = self.stdout.finish(Duration::from_secs(5));
+        let stderr = self.stderr.finish(Duration::from_secs(5));
         match status {
             Some(status) => Output {
                 status,
@@ -157,6 +233,36 @@ impl Output {
             self.stderr
         );
     }
+
+    /// The process failed (non-zero exit, not killed by a signal such as a panic's abort) and
+    /// said something containing every one of `words` on stderr.
+    pub fn assert_refused(&self, what: &str, words: &[&str]) {
+        assert!(
+            !self.status.success() && self.status.code().is_some(),
+            "{what}: expected a clean refusal, got {}\nstderr:\n{}",
+            self.status,
+            self.stderr
+        );
+        assert!(
+            !self.stderr.contains("panicked"),
+            "{what}: panicked\n{}",
+            self.stderr
+        );
+        for word in words {
+            assert!(
+                self.stderr.contains(word),
+                "{what}: stderr does not name {word:?}\n{}",
+                self.stderr
+            );
+        }
+    }
+}
+
+/// Says, where the person running the tests sees it, that a test skipped and why: the test
+/// harness keeps a passing test's `eprintln!` to itself, so this writes to stderr directly.
+pub fn skip(test: &str, why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {why}");
 }
 
 /// Runs a binary to completion within `limit`.

@@ -2,7 +2,7 @@
 //! CSV and SVG with the figures the issue names. Figures are checked for sense, never for speed.
 
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tessera_tests::{read_json, run};
 
 const LIMIT: Duration = Duration::from_secs(300);
@@ -42,11 +42,20 @@ fn non_negative(v: &serde_json::Value) -> f64 {
 #[test]
 fn latency_reports_percentiles_of_latency_and_skew() {
     let dir = tempfile::tempdir().unwrap();
+    let started = Instant::now();
     let r = bench(
         "latency",
-        &["--frames", "30", "--scene", "knot:32:4"],
+        &[
+            "--frames",
+            "30",
+            "--scene",
+            "knot:32:4",
+            "--present-margin-ms",
+            "5",
+        ],
         dir.path(),
     );
+    let elapsed_ms = started.elapsed().as_secs_f64() * 1000.0;
     // Skew may be exactly zero: displays on one host spin to the same deadline and can stamp
     // their presents within the same nanosecond. Latency never can.
     for (key, check) in [
@@ -57,7 +66,21 @@ fn latency_reports_percentiles_of_latency_and_skew() {
         let (p50, p99, max) = (check(&p["p50"]), check(&p["p99"]), check(&p["max"]));
         assert!(p50 <= p99 && p99 <= max, "{key}: {p}");
     }
-    assert!(r["skew_ms"]["max"].as_f64().unwrap() <= r["latency_ms"]["max"].as_f64().unwrap());
+    // Facts the displays' clocks measure, not the report's arithmetic: every display waits for
+    // the present deadline, 5 ms after the barrier that started the frame, so no frame reaches
+    // every screen sooner; and none takes longer than the whole run as this test timed it.
+    let latency = &r["latency_ms"];
+    for key in ["p50", "max"] {
+        let ms = latency[key].as_f64().unwrap();
+        assert!(
+            ms >= 5.0,
+            "latency {key} {ms} ms is below the 5 ms present margin"
+        );
+        assert!(
+            ms < elapsed_ms,
+            "latency {key} {ms} ms exceeds the run's {elapsed_ms} ms"
+        );
+    }
     positive(&r["frame_period_ms"]);
     assert_eq!(r["frames_measured"], 30);
     let csv = std::fs::read_to_string(dir.path().join("latency.csv")).unwrap();
@@ -67,6 +90,7 @@ fn latency_reports_percentiles_of_latency_and_skew() {
 #[test]
 fn max_fps_compares_the_wall_with_a_measured_bulk_transfer() {
     let dir = tempfile::tempdir().unwrap();
+    let started = Instant::now();
     let r = bench(
         "max-fps",
         &[
@@ -79,9 +103,20 @@ fn max_fps_compares_the_wall_with_a_measured_bulk_transfer() {
         ],
         dir.path(),
     );
+    let elapsed = started.elapsed().as_secs_f64();
     let fps = positive(&r["fps"]);
-    let limit = positive(&r["transport_limit_fps"]);
-    assert!((r["ratio"].as_f64().unwrap() - fps / limit).abs() < 1e-9);
+    positive(&r["transport_limit_fps"]);
+    positive(&r["ratio"]);
+    // Timed here, independently of the bench: the best run's 30 frames took no longer than
+    // the whole experiment, and the experiment lasted at least its half-second bulk transfer.
+    assert!(
+        fps >= 30.0 / elapsed,
+        "{fps} fps, but 30 frames ran within {elapsed} s"
+    );
+    assert!(
+        elapsed >= 0.5,
+        "the bulk transfer alone takes 0.5 s; all took {elapsed} s"
+    );
     // Both node counts, raw and with lz4; the flat backdrop compresses to a fraction.
     assert_eq!(r["runs"].as_array().unwrap().len(), 4);
     positive(&r["lz4"]["fps"]);

@@ -277,17 +277,31 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
     let master = Proc::start(
         "tessera-master",
         &[
-            "local", "--wall", "2x1", "--screen", "160x90", "--frames", "100000", "--out", &out_s,
+            "local",
+            "--wall",
+            "2x1",
+            "--screen",
+            "160x90",
+            "--frames",
+            "100000",
+            "--save-frame",
+            "2",
+            "--out",
+            &out_s,
         ],
     );
-    // Displays get --out, so their command lines name the directory.
+    // Frames are flowing once a display has saved frame 2: that is the moment to interrupt.
+    let saved = out.join("display-1.png");
     assert!(
-        wait_for(Duration::from_secs(60), || processes_mentioning(&out_s)
-            .len()
-            >= 3),
-        "nodes never started"
+        wait_for(Duration::from_secs(60), || saved.exists()
+            || master.has_exited()),
+        "the wall never presented frame 2"
     );
-    std::thread::sleep(Duration::from_millis(1500));
+    assert!(!master.has_exited(), "the master exited on its own");
+    assert!(
+        processes_mentioning(&out_s).len() >= 2,
+        "the displays run with --out {out_s}"
+    );
     master.signal(libc::SIGINT);
     let o = master.wait(Duration::from_secs(60));
     assert_eq!(o.status.code(), Some(130), "stderr:\n{}", o.stderr);
@@ -299,7 +313,18 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
         processes_mentioning(&out_s)
     );
     let report = read_json(&out.join("report.json"));
-    assert!(report["frames"].as_u64().unwrap() >= 1);
+    // Frame 2 was on screen before the interrupt, so at least frames 0..=2 were presented.
+    assert!(report["frames"].as_u64().unwrap() >= 3, "{report}");
+}
+
+/// The pid of the process whose command line holds every one of `words`.
+fn process_with(words: &[&str]) -> Option<u32> {
+    processes_mentioning(words[0]).into_iter().find(|p| {
+        std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
+            let line = String::from_utf8_lossy(&c).replace('\0', " ");
+            words.iter().all(|w| line.contains(w))
+        })
+    })
 }
 
 #[test]
@@ -310,32 +335,36 @@ fn a_dead_display_stops_the_wall_with_an_error_and_no_orphans() {
     let master = Proc::start(
         "tessera-master",
         &[
-            "local", "--wall", "2x1", "--screen", "160x90", "--frames", "100000", "--out", &out_s,
+            "local",
+            "--wall",
+            "2x1",
+            "--screen",
+            "160x90",
+            "--frames",
+            "100000",
+            "--save-frame",
+            "2",
+            "--out",
+            &out_s,
         ],
     );
-    assert!(wait_for(Duration::from_secs(60), || processes_mentioning(
-        "--display 1 "
-    )
-    .iter()
-    .any(|p| {
-        std::fs::read(format!("/proc/{p}/cmdline"))
-            .is_ok_and(|c| String::from_utf8_lossy(&c).contains(&out_s))
-    })));
-    std::thread::sleep(Duration::from_millis(1000));
-    let victim = processes_mentioning(&out_s)
-        .into_iter()
-        .find(|p| {
-            std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
-                String::from_utf8_lossy(&c)
-                    .replace('\0', " ")
-                    .contains("--display 1 ")
-            })
-        })
-        .expect("display 1 is running");
+    // Kill display 1 while frames flow: after it saved frame 2.
+    let saved = out.join("display-1.png");
+    assert!(
+        wait_for(Duration::from_secs(60), || saved.exists()
+            || master.has_exited()),
+        "the wall never presented frame 2"
+    );
+    let victim = process_with(&[&out_s, "--display 1 "]).expect("display 1 is running");
     unsafe { libc::kill(victim as i32, libc::SIGKILL) };
     let o = master.wait(Duration::from_secs(60));
-    assert!(!o.status.success());
-    assert!(o.stderr.contains("display"), "{}", o.stderr);
+    o.assert_refused("a wall that lost a display", &["display"]);
+    // Named whichever notices first: the launcher (the child died) or the link (it closed).
+    assert!(
+        o.stderr.contains("display node 1 exited") || o.stderr.contains("display 1 ("),
+        "{}",
+        o.stderr
+    );
     assert!(
         wait_for(Duration::from_secs(5), || processes_mentioning(&out_s)
             .is_empty()),

@@ -91,7 +91,7 @@ fn wall_across_network_namespaces() {
             if under_ci() && reason.contains("not found") {
                 panic!("CI=true but netns-wall.sh cannot run: {reason}");
             }
-            println!("skipping: {reason}");
+            skip("wall_across_network_namespaces", reason);
             return;
         }
         other => panic!(
@@ -171,7 +171,7 @@ fn wall_across_network_namespaces() {
         assert_eq!(report["frames"].as_u64(), Some(frames));
     } else {
         // Asked for a delay it cannot add, the script refuses plainly instead of running without.
-        println!("not testing a run with --delay: {netem}");
+        skip("wall_across_network_namespaces (the --delay run)", &netem);
         assert_eq!(o.status.code(), Some(77), "{}", o.stderr);
         assert!(o.stderr.contains("netem"), "{}", o.stderr);
         assert!(!out.join("report.json").exists());

@@ -9,14 +9,6 @@ use tessera_net::quic;
 use tessera_tests::*;
 use tessera_wire::protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 fn issue(cluster: &Path, name: &str) -> String {
     let out = cluster.join(name);
     run(
@@ -114,8 +106,6 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
     let cluster = dir.path().join("cluster");
     let foreign = dir.path().join("foreign-cluster");
     let out = dir.path().join("serve-out");
-    let port = free_udp_port();
-    let addr = format!("127.0.0.1:{port}");
     let (d0, d1, r0, r1) = (
         issue(&cluster, "display-0"),
         issue(&cluster, "display-1"),
@@ -132,7 +122,8 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
     let mut args = vec![
         "serve",
         "--listen",
-        &addr,
+        // Port 0: the kernel picks a free port, and the master says which.
+        "127.0.0.1:0",
         "--cluster-dir",
         cluster.to_str().unwrap(),
         "--render-nodes",
@@ -148,7 +139,12 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
         out.to_str().unwrap(),
     ]);
     let master = Proc::start("tessera-master", &args);
-    std::thread::sleep(Duration::from_millis(500));
+    let listening = master.wait_for_stderr("listening on", Duration::from_secs(60));
+    let addr = listening
+        .rsplit(' ')
+        .next()
+        .expect("an address at the end of the line")
+        .to_string();
 
     let rt = tokio::runtime::Runtime::new().unwrap();
     let seen = rt.block_on(knock(addr.parse().unwrap(), &cluster, &foreign));
@@ -231,7 +227,11 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
     );
     victim.signal(libc::SIGKILL);
     drop(victim);
-    std::thread::sleep(Duration::from_millis(1500));
+    // The master noticed the death and gave its tiles away: now interrupt.
+    master.wait_for_stderr(
+        "its tiles go to the other render nodes",
+        Duration::from_secs(60),
+    );
     master.signal(libc::SIGINT);
     let o = master.wait(Duration::from_secs(60));
     assert_eq!(o.status.code(), Some(130), "{}", o.stderr);

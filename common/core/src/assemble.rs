@@ -46,6 +46,34 @@ pub struct PresentedFrame {
     pub rgb: Vec<u8>,
 }
 
+/// One display's frames under assembly, and the swap barrier's side of presenting them.
+///
+/// # Examples
+///
+/// ```
+/// use tessera_core::assemble::{AssembleError, FrameAssembler};
+/// use tessera_wire::protocol::FrameId;
+/// use tessera_wire::wall::{DisplayId, TileGrid, WallSpec};
+///
+/// // Two 32×16 screens in 16-pixel tiles: display 1 owns tiles 2 and 3.
+/// let wall = WallSpec::grid(2, 1, 32, 16).tile_size(16).build().unwrap();
+/// let grid = TileGrid::new(wall);
+/// let mut display = FrameAssembler::new(&grid, wall.screen(DisplayId(1)).unwrap());
+/// let tile = |id: usize| &grid.tiles()[id];
+/// let pixels = vec![200u8; 16 * 16 * 3];
+///
+/// // A tile of another display is refused before a pixel is read.
+/// assert_eq!(display.handle_tile(FrameId(0), tile(0).id, &pixels), Err(AssembleError::NotMine(0)));
+/// assert_eq!(display.handle_tile(FrameId(0), tile(2).id, &pixels), Ok(None));
+/// // The last tile completes the frame; the master hears of it once.
+/// assert_eq!(display.handle_tile(FrameId(0), tile(3).id, &pixels), Ok(Some(FrameId(0))));
+/// assert_eq!(display.poll_complete(), Some(FrameId(0)));
+/// assert_eq!(display.poll_complete(), None);
+/// // It is shown only when the master says so.
+/// let shown = display.handle_present(FrameId(0))?;
+/// assert_eq!((shown.width, shown.height, shown.rgb.len()), (32, 16, 32 * 16 * 3));
+/// # Ok::<(), AssembleError>(())
+/// ```
 pub struct FrameAssembler {
     screen: ScreenRect,
     tiles: Vec<Tile>,

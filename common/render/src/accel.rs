@@ -37,6 +37,36 @@ pub struct Hit {
     pub slot: u32,
 }
 
+/// The scene's bounding volume hierarchy: obvhs builds it, and it is flattened here into
+/// depth-first nodes with the triangles copied in leaf order, so traversal reads memory in the
+/// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`]; 8×8
+/// packets use the packet traversal in `accel_packet`.
+///
+/// # Examples
+///
+/// ```
+/// use glam::Vec3;
+/// use tessera_render::accel::Accel;
+/// use tessera_render::geometry::Ray;
+/// use tessera_render::scene::knot_scene;
+///
+/// let scene = knot_scene(64, 8);
+/// let bvh = Accel::build(&scene);
+/// assert_eq!(bvh.triangles.len(), scene.triangles.len());
+///
+/// // A ray from above the scene, straight down at its centre, hits something...
+/// let bounds = scene.bounds();
+/// let top = Vec3::new(bounds.center().x, bounds.max.y + 1.0, bounds.center().z);
+/// let mut stack = bvh.new_stack();
+/// let down = Ray::new(top, Vec3::NEG_Y);
+/// let hit = bvh.closest_hit(&down, 0.0, f32::INFINITY, &mut stack).expect("the floor at least");
+/// // ...that a shadow ray towards it finds too, and the triangle is the scene's own.
+/// assert!(bvh.occluded(&down, 0.0, hit.t + 1e-3, &mut stack));
+/// assert!((bvh.scene_index[hit.slot as usize] as usize) < scene.triangles.len());
+/// // Looking up into the sky, nothing.
+/// let up = Ray::new(top, Vec3::Y);
+/// assert!(bvh.closest_hit(&up, 0.0, f32::INFINITY, &mut stack).is_none());
+/// ```
 pub struct Accel {
     pub nodes: Vec<BvhNode>,
     pub triangles: Vec<LeafTriangle>,

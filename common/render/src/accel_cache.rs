@@ -1,17 +1,21 @@
 //! The built BVH on disk, keyed by the scene's content hash, so a second start of a render node
 //! (or the next benchmark run) skips the build.
 //!
-//! The file is the raw node and triangle arrays behind a small header; anything that does not
-//! check out (wrong magic, version, sizes, indices) is treated as absent and rebuilt.
+//! The file is the raw node and triangle arrays behind a small header that ends in a BLAKE3
+//! hash of everything after it; anything that does not check out (wrong magic, version, sizes,
+//! hash, indices) is treated as absent and rebuilt. The hash is what catches damage that the
+//! other checks cannot: a flipped bit in a bounding box or a vertex is still a well-formed
+//! file, and trusting it would render wrong pixels on one node only.
 
 use crate::accel::{Accel, BvhNode, LeafTriangle};
 use crate::scene::Scene;
 use std::path::{Path, PathBuf};
 
 const MAGIC: [u8; 4] = *b"TBVH";
-/// Bumped whenever the node layout or the build changes.
-const FORMAT: u32 = 1;
-const HEADER: usize = 4 + 4 + 8 * 3;
+/// Bumped whenever the node layout, the build or the file layout changes (2: payload hash).
+const FORMAT: u32 = 2;
+/// Magic, format, three counts, then the payload's hash.
+const HEADER: usize = 4 + 4 + 8 * 3 + 32;
 
 /// Where cached BVHs go unless told otherwise: `$XDG_CACHE_HOME/tessera/bvh` or
 /// `~/.cache/tessera/bvh`.
@@ -46,8 +50,11 @@ pub fn load_or_build(scene: &Scene, dir: Option<&Path>) -> (Accel, Source) {
     let path = cache_path(dir, scene);
     if let Ok(bytes) = std::fs::read(&path) {
         match decode(&bytes, scene.triangles.len()) {
-            Some(accel) => return (accel, Source::Cached),
-            None => tracing::warn!("ignoring the damaged BVH cache {}", path.display()),
+            Ok(accel) => return (accel, Source::Cached),
+            Err(why) => tracing::warn!(
+                "ignoring the BVH cache {} ({why}); building it again",
+                path.display()
+            ),
         }
     }
     let accel = Accel::build(scene);
@@ -66,33 +73,58 @@ fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
     bytes.extend((accel.nodes.len() as u64).to_le_bytes());
     bytes.extend((accel.triangles.len() as u64).to_le_bytes());
     bytes.extend((accel.max_depth() as u64).to_le_bytes());
+    bytes.extend([0u8; 32]);
     bytes.extend_from_slice(bytemuck::cast_slice(&accel.nodes));
     bytes.extend_from_slice(bytemuck::cast_slice(&accel.triangles));
     bytes.extend_from_slice(bytemuck::cast_slice(&accel.scene_index));
+    let hash = blake3::hash(&bytes[HEADER..]);
+    bytes[HEADER - 32..HEADER].copy_from_slice(hash.as_bytes());
     // Write then rename, so a crash or a concurrent node never leaves a half file in place.
     let tmp = path.with_extension(format!("tmp{}", std::process::id()));
     std::fs::write(&tmp, &bytes)?;
     std::fs::rename(&tmp, path)
 }
 
-fn decode(bytes: &[u8], triangles: usize) -> Option<Accel> {
+/// Why a cache file was not used.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+enum Damage {
+    #[error("not a BVH cache of this format")]
+    Format,
+    #[error("made for a scene of another size")]
+    OtherScene,
+    #[error("its length does not match its counts")]
+    Length,
+    #[error("its content does not match its checksum")]
+    Checksum,
+    #[error("an index is out of range")]
+    Index,
+}
+
+fn decode(bytes: &[u8], triangles: usize) -> Result<Accel, Damage> {
     if bytes.len() < HEADER || bytes[..4] != MAGIC {
-        return None;
+        return Err(Damage::Format);
     }
     let u32_at = |i: usize| u32::from_le_bytes(bytes[i..i + 4].try_into().expect("4 bytes"));
     let u64_at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().expect("8 bytes"));
     if u32_at(4) != FORMAT {
-        return None;
+        return Err(Damage::Format);
     }
     let (nodes, tris, depth) = (u64_at(8) as usize, u64_at(16) as usize, u64_at(24) as usize);
     if tris != triangles {
-        return None;
+        return Err(Damage::OtherScene);
     }
-    let node_bytes = nodes.checked_mul(std::mem::size_of::<BvhNode>())?;
-    let tri_bytes = tris.checked_mul(std::mem::size_of::<LeafTriangle>())?;
-    let index_bytes = tris.checked_mul(4)?;
-    if bytes.len() != HEADER + node_bytes + tri_bytes + index_bytes {
-        return None;
+    let sizes = nodes
+        .checked_mul(std::mem::size_of::<BvhNode>())
+        .zip(tris.checked_mul(std::mem::size_of::<LeafTriangle>()))
+        .zip(tris.checked_mul(4));
+    let Some(((node_bytes, tri_bytes), index_bytes)) = sizes else {
+        return Err(Damage::Length);
+    };
+    if Some(bytes.len()) != HEADER.checked_add(node_bytes + tri_bytes + index_bytes) {
+        return Err(Damage::Length);
+    }
+    if blake3::hash(&bytes[HEADER..]).as_bytes()[..] != bytes[HEADER - 32..HEADER] {
+        return Err(Damage::Checksum);
     }
     let mut at = HEADER;
     let mut take = |n: usize| {
@@ -114,9 +146,9 @@ fn decode(bytes: &[u8], triangles: usize) -> Option<Accel> {
         }
     });
     if !nodes_ok || scene_index.iter().any(|&i| i as usize >= triangles) {
-        return None;
+        return Err(Damage::Index);
     }
-    Some(Accel::from_parts(nodes, leaf, scene_index, depth))
+    Ok(Accel::from_parts(nodes, leaf, scene_index, depth))
 }
 
 #[cfg(test)]
@@ -160,5 +192,34 @@ mod tests {
         let (accel, source) = load_or_build(&scene, Some(dir.path()));
         assert_eq!(source, Source::Built);
         assert_eq!(accel.triangles.len(), scene.triangles.len());
+    }
+
+    #[test]
+    fn a_cache_whose_content_does_not_match_its_checksum_is_rebuilt() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = knot_scene(64, 8);
+        let (built, _) = load_or_build(&scene, Some(dir.path()));
+        let path = cache_path(dir.path(), &scene);
+        let good = std::fs::read(&path).unwrap();
+        assert!(decode(&good, scene.triangles.len()).is_ok());
+
+        // One low mantissa bit of the root's bounding box: a well-formed file with every
+        // index in range, which the checks before the checksum accepted and rendered from.
+        let mut flipped = good.clone();
+        flipped[HEADER] ^= 0x01;
+        assert_eq!(
+            decode(&flipped, scene.triangles.len()).err(),
+            Some(Damage::Checksum)
+        );
+        std::fs::write(&path, &flipped).unwrap();
+        let (rebuilt, source) = load_or_build(&scene, Some(dir.path()));
+        assert_eq!(source, Source::Built);
+        assert_eq!(
+            bytemuck::cast_slice::<_, u8>(&rebuilt.nodes),
+            bytemuck::cast_slice::<_, u8>(&built.nodes)
+        );
+        // ...and the rebuild replaced the damaged file.
+        assert_eq!(std::fs::read(&path).unwrap(), good);
+        assert_eq!(load_or_build(&scene, Some(dir.path())).1, Source::Cached);
     }
 }

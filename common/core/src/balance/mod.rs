@@ -97,6 +97,56 @@ struct RenderNode {
     waiting: bool,
 }
 
+/// The master's load balancer and frame barrier, as a state machine: inputs are `handle_*`
+/// calls (each with `now`), outputs are drained with [`Coordinator::poll_output`] after every
+/// input, in order.
+///
+/// # Examples
+///
+/// One frame of a one-display wall, with one render node, and no socket in sight:
+///
+/// ```
+/// use std::time::Instant;
+/// use glam::Vec3;
+/// use tessera_core::balance::{BalanceConfig, Coordinator, Output};
+/// use tessera_wire::camera::{Camera, CameraMode};
+/// use tessera_wire::params::RenderParams;
+/// use tessera_wire::protocol::{FrameId, RenderNodeId, ToNode};
+/// use tessera_wire::wall::DisplayId;
+///
+/// let camera = CameraMode::fixed(Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap());
+/// let now = Instant::now();
+/// // 8 tiles on 1 display, a run of 1 frame.
+/// let mut c = Coordinator::new(8, 1, camera, RenderParams::interactive(), Some(1),
+///                              BalanceConfig::default());
+/// let node = RenderNodeId(0);
+/// c.handle_render_joined(node, now);
+/// c.start(now);
+///
+/// // The frame starts: a FrameStart for everyone, then the node's static share.
+/// let mut assigned = Vec::new();
+/// while let Some(out) = c.poll_output() {
+///     if let Output::ToRender(_, ToNode::Assign { tiles, .. }) = out {
+///         assigned.extend(tiles);
+///     }
+/// }
+/// // The node renders its share and asks for the rest, until the pool is empty.
+/// while !assigned.is_empty() {
+///     c.handle_tiles_done(node, FrameId(0), &assigned, true, now).unwrap();
+///     assigned.clear();
+///     while let Some(out) = c.poll_output() {
+///         if let Output::ToRender(_, ToNode::Assign { tiles, .. }) = out {
+///             assigned.extend(tiles);
+///         }
+///     }
+/// }
+/// // The display has every tile: the swap barrier tells every display to present.
+/// c.handle_frame_complete(DisplayId(0), FrameId(0), now).unwrap();
+/// let outputs: Vec<Output> = std::iter::from_fn(|| c.poll_output()).collect();
+/// assert!(outputs.contains(&Output::ToDisplays(ToNode::Present { frame: FrameId(0) })));
+/// assert!(outputs.contains(&Output::Finished));
+/// assert_eq!(c.presented(), 1);
+/// ```
 pub struct Coordinator {
     tile_count: u32,
     display_count: u32,

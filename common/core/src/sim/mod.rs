@@ -168,6 +168,32 @@ struct SimNode {
     sizer: Option<BatchSizer>,
 }
 
+/// A whole wall in one process on a virtual clock: the real [`Coordinator`],
+/// [`RenderWorker`]s and [`FrameAssembler`]s, exchanging the real messages over a simulated
+/// network (see the module documentation for the model).
+///
+/// # Examples
+///
+/// Sixty-four render nodes and eight displays, one node dying in frame 3, 1 % loss: every frame
+/// is still presented on every display, exactly as rendered.
+///
+/// ```
+/// use tessera_core::sim::{SimConfig, SimWall};
+/// use tessera_wire::protocol::{FrameId, RenderNodeId};
+/// use tessera_wire::wall::{DisplayId, WallSpec};
+///
+/// let wall = WallSpec::grid(4, 2, 256, 144).tile_size(32).build().unwrap();
+/// let config = SimConfig { loss: 0.01, ..SimConfig::new(64) };
+/// let mut sim = SimWall::with_config(7, wall, &config);
+/// sim.kill_at(RenderNodeId(17), FrameId(3));
+/// assert_eq!(sim.run_frames(10), 10);
+/// let all: Vec<FrameId> = (0..10).map(FrameId).collect();
+/// for d in 0..8 {
+///     assert_eq!(sim.presented(DisplayId(d)), &all[..]);
+/// }
+/// assert!(sim.corrupt_frames().is_empty());
+/// assert_eq!(sim.live_render_nodes(), 63);
+/// ```
 pub struct SimWall {
     grid: TileGrid,
     /// The grid the displays assemble: `grid` itself, or its one-pixel-per-tile thumbnail.
