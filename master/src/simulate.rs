@@ -121,21 +121,30 @@ struct Report<'a> {
     run_time_s: f64,
 }
 
+/// Bounds of the simulation's flags: far beyond any wall, yet small enough that the virtual
+/// clock (µs in a u64) and the event budget cannot overflow.
+const MAX_RENDER_NODES: u32 = 100_000;
+const MAX_FRAMES: u64 = 1_000_000;
+/// Ten seconds, for latencies and per-tile times alike.
+const MAX_MICROS: u64 = 10_000_000;
+
 fn check(args: &SimulateArgs) -> Result<()> {
-    if args.render_nodes == 0 {
-        bail!("--render-nodes must be at least 1");
-    }
-    if args.displays == 0 {
-        bail!("--displays must be at least 1");
-    }
-    if args.frames == 0 {
-        bail!("--frames must be at least 1");
-    }
-    if args.tile_size == 0 {
-        bail!("--tile-size must be at least 1");
-    }
-    if args.tile_us == 0 {
-        bail!("--tile-us must be at least 1");
+    for (flag, value, min, max) in [
+        (
+            "--render-nodes",
+            args.render_nodes as u64,
+            1,
+            MAX_RENDER_NODES as u64,
+        ),
+        ("--displays", args.displays as u64, 1, u32::MAX as u64),
+        ("--frames", args.frames, 1, MAX_FRAMES),
+        ("--tile-size", args.tile_size as u64, 1, u32::MAX as u64),
+        ("--tile-us", args.tile_us, 1, MAX_MICROS),
+        ("--latency-us", args.latency_us, 0, MAX_MICROS),
+    ] {
+        if !(min..=max).contains(&value) {
+            bail!("{flag} {value} must be from {min} to {max}");
+        }
     }
     let mut killed = Vec::new();
     for k in &args.kills {

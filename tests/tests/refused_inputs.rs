@@ -317,3 +317,48 @@ fn an_assignment_of_tiles_the_wall_lacks_is_refused_by_the_render_node() {
     let lie = [frame, assign].concat();
     render_node_told(&lie).assert_refused("tiles 0..4000000 of a 1-tile wall", &["0..4000000"]);
 }
+
+#[test]
+fn simulated_times_and_counts_that_overflow_the_virtual_clock_are_refused() {
+    // Each of these overflowed a u64 inside the simulator: a panic, not an error.
+    for (flag, value) in [
+        ("--latency-us", "18446744073709551615"),
+        ("--tile-us", "18446744073709551615"),
+        ("--frames", "18446744073709551615"),
+    ] {
+        let o = run(
+            "tessera-master",
+            &[
+                "simulate",
+                "--render-nodes",
+                "2",
+                "--displays",
+                "1",
+                flag,
+                value,
+            ],
+            QUICK,
+        );
+        o.assert_refused(&format!("simulate {flag} {value}"), &[flag, value]);
+    }
+}
+
+#[test]
+fn a_bulk_transfer_of_infinite_or_nan_seconds_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for seconds in ["inf", "nan"] {
+        let o = run(
+            "tessera-master",
+            &[
+                "bench",
+                "max-fps",
+                "--transport-seconds",
+                seconds,
+                "--out",
+                dir.path().to_str().unwrap(),
+            ],
+            QUICK,
+        );
+        o.assert_refused("--transport-seconds", &[seconds, "seconds"]);
+    }
+}

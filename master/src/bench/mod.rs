@@ -43,7 +43,7 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     thread_counts: Vec<u32>,
     /// Seconds of the bulk transfer that measures the transport limit (max-fps).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = parse_transport_seconds)]
     transport_seconds: f64,
     /// error-vs-time: ambient-occlusion rays of the converged reference.
     #[arg(long, default_value_t = 256)]
@@ -51,6 +51,15 @@ pub struct BenchArgs {
     /// error-vs-time: samples per pixel of the converged reference.
     #[arg(long, default_value_t = 64)]
     reference_spp: u32,
+}
+
+fn parse_transport_seconds(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(s) if (0.1..=600.0).contains(&s) => Ok(s),
+        _ => Err(format!(
+            "`{text}` is not a number of seconds from 0.1 to 600"
+        )),
+    }
 }
 
 pub async fn bench(args: BenchArgs) -> Result<ExitCode> {

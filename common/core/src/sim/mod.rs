@@ -456,7 +456,10 @@ impl SimWall {
         }
         self.coordinator.start(now);
         self.pump();
-        let budget = 200 * frames * (self.grid.len() as u64 + 10) * (self.nodes.len() as u64 + 1);
+        let budget = 200u64
+            .saturating_mul(frames)
+            .saturating_mul(self.grid.len() as u64 + 10)
+            .saturating_mul(self.nodes.len() as u64 + 1);
         while let Some(Reverse((at, _, slot))) = self.events.pop() {
             self.processed += 1;
             if self.processed > budget {
