@@ -151,7 +151,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                 // A frame's state; the pixels say all a display needs of it so far.
                 ToNode::FrameStart(_) => {}
                 other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. }) => {
-                    anyhow::bail!("the master broke the protocol: it sent a display {other:?}")
+                    anyhow::bail!("the master broke the protocol: it sent a display a {} message", other.kind())
                 }
             },
             Some((frame, clock_ns)) = async { window_presents.as_mut()?.recv().await } => {

@@ -8,7 +8,14 @@ fn help_lists_subcommands_and_wall_flags() {
     let bin = env!("CARGO_BIN_EXE_tessera-master");
     let out = Command::new(bin).arg("--help").output().unwrap();
     let text = String::from_utf8(out.stdout).unwrap();
-    for word in ["local", "serve", "render", "issue-cert"] {
+    for word in [
+        "local",
+        "serve",
+        "render",
+        "issue-cert",
+        "render-node",
+        "display-node",
+    ] {
         assert!(text.contains(word), "{text}");
     }
     let out = Command::new(bin)

@@ -38,13 +38,7 @@ fn readme_demo_command_builds_the_master_binary_alone() {
     // `cargo run -p P` runs P's only binary: the master package must have exactly one, and it
     // must be the tessera-master that the next test runs.
     let metadata = std::process::Command::new(env!("CARGO"))
-        .args([
-            "metadata",
-            "--format-version",
-            "1",
-            "--no-deps",
-            "--offline",
-        ])
+        .args(["metadata", "--format-version", "1", "--no-deps"])
         .current_dir(workspace())
         .output()
         .expect("cargo metadata");

@@ -269,11 +269,10 @@ fn bad_inputs_fail_with_clear_errors() {
     assert!(o.stderr.contains("eye and target"), "{}", o.stderr);
 }
 
-#[test]
-fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("interrupted-run");
-    let out_s = out.to_str().unwrap().to_string();
+/// A 2x1 local wall of many frames writing into `out`, returned once frames are flowing: a
+/// display has saved frame 2 (an event to wait for, not a time to guess).
+fn flowing_wall(out: &std::path::Path) -> Proc {
+    let out_s = out.to_str().unwrap();
     let master = Proc::start(
         "tessera-master",
         &[
@@ -287,10 +286,9 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
             "--save-frame",
             "2",
             "--out",
-            &out_s,
+            out_s,
         ],
     );
-    // Frames are flowing once a display has saved frame 2: that is the moment to interrupt.
     let saved = out.join("display-1.png");
     assert!(
         wait_for(Duration::from_secs(60), || saved.exists()
@@ -298,6 +296,25 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
         "the wall never presented frame 2"
     );
     assert!(!master.has_exited(), "the master exited on its own");
+    master
+}
+
+/// The pid of the process whose command line holds every one of `words`.
+fn process_with(words: &[&str]) -> Option<u32> {
+    processes_mentioning(words[0]).into_iter().find(|p| {
+        std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
+            let line = String::from_utf8_lossy(&c).replace('\0', " ");
+            words.iter().all(|w| line.contains(w))
+        })
+    })
+}
+
+#[test]
+fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("interrupted-run");
+    let out_s = out.to_str().unwrap().to_string();
+    let master = flowing_wall(&out);
     assert!(
         processes_mentioning(&out_s).len() >= 2,
         "the displays run with --out {out_s}"
@@ -317,44 +334,12 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
     assert!(report["frames"].as_u64().unwrap() >= 3, "{report}");
 }
 
-/// The pid of the process whose command line holds every one of `words`.
-fn process_with(words: &[&str]) -> Option<u32> {
-    processes_mentioning(words[0]).into_iter().find(|p| {
-        std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
-            let line = String::from_utf8_lossy(&c).replace('\0', " ");
-            words.iter().all(|w| line.contains(w))
-        })
-    })
-}
-
 #[test]
 fn a_dead_display_stops_the_wall_with_an_error_and_no_orphans() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("display-dies");
     let out_s = out.to_str().unwrap().to_string();
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "local",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--frames",
-            "100000",
-            "--save-frame",
-            "2",
-            "--out",
-            &out_s,
-        ],
-    );
-    // Kill display 1 while frames flow: after it saved frame 2.
-    let saved = out.join("display-1.png");
-    assert!(
-        wait_for(Duration::from_secs(60), || saved.exists()
-            || master.has_exited()),
-        "the wall never presented frame 2"
-    );
+    let master = flowing_wall(&out);
     let victim = process_with(&[&out_s, "--display 1 "]).expect("display 1 is running");
     unsafe { libc::kill(victim as i32, libc::SIGKILL) };
     let o = master.wait(Duration::from_secs(60));

@@ -24,6 +24,10 @@ pub enum WorkerError {
     AssignBeforeStart(FrameId),
     #[error("the master assigned tiles {start}..{end}, but the wall has {tiles}")]
     NoSuchTiles { start: u32, end: u32, tiles: u32 },
+    #[error(
+        "the master sent a render node a {0} message, which only displays or the handshake take"
+    )]
+    NotForRenderNodes(&'static str),
 }
 
 /// A render node's queue of tiles, and when to ask the master for more.
@@ -174,7 +178,10 @@ impl RenderWorker {
                     .extend(tiles.iter().flat_map(|r| r.tiles()).map(|t| (*frame, t)));
                 self.queue.append(&mut later);
             }
-            _ => {}
+            // The driver handles the shutdown; the rest is for displays or the handshake,
+            // and a master that sends it to a render node is broken.
+            ToNode::Shutdown => {}
+            other => return Err(WorkerError::NotForRenderNodes(other.kind())),
         }
         Ok(())
     }
@@ -351,6 +358,17 @@ mod tests {
             w.handle_message(&assign(1, 0, 2), now()),
             Err(WorkerError::AssignBeforeStart(FrameId(1)))
         );
+    }
+
+    #[test]
+    fn messages_for_displays_are_refused_not_ignored() {
+        let mut w = RenderWorker::new(TILES, 4);
+        let present = ToNode::Present { frame: FrameId(0) };
+        assert_eq!(
+            w.handle_message(&present, now()),
+            Err(WorkerError::NotForRenderNodes("present"))
+        );
+        assert!(w.handle_message(&ToNode::Shutdown, now()).is_ok());
     }
 
     fn start(frame: u64) -> ToNode {

@@ -345,6 +345,22 @@ pub enum ToNode {
     },
 }
 
+impl ToNode {
+    /// The message's name, for log lines and errors that must not print its whole content.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ToNode::Welcome { .. } => "welcome",
+            ToNode::Refused { .. } => "refused",
+            ToNode::FrameStart(_) => "frame start",
+            ToNode::Assign { .. } => "assign",
+            ToNode::Present { .. } => "present",
+            ToNode::PresentAt { .. } => "present at",
+            ToNode::Shutdown => "shutdown",
+            ToNode::Ping { .. } => "ping",
+        }
+    }
+}
+
 /// Node → master.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum FromNode {
