@@ -148,8 +148,10 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     tracing::info!("display {}: done, {presented} frames presented", me.0);
                     return Ok(());
                 }
-                // A frame's state; the pixels say all a display needs of it so far.
-                ToNode::FrameStart(_) => {}
+                // The frame's state: every tile of the frame must have been rendered with it.
+                ToNode::FrameStart(start) => assembler
+                    .handle_frame_start(start.frame, start.state)
+                    .map_err(|e| anyhow::anyhow!("the master broke the frame barrier: {e}"))?,
                 other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. }) => {
                     anyhow::bail!("the master broke the protocol: it sent a display a {} message", other.kind())
                 }
@@ -158,7 +160,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                 link.send(&FromNode::Presented { frame: FrameId(frame), clock_ns }).await?;
             }
             Some(tile) = tiles.recv() => {
-                match assembler.handle_tile(tile.frame, tile.tile, &tile.rgb) {
+                match assembler.handle_tile(tile.frame, tile.state, tile.tile, &tile.rgb) {
                     Ok(Some(_)) => report_next_complete(&mut assembler, &mut link).await?,
                     Ok(None) => {}
                     Err(e) => {

@@ -9,11 +9,13 @@ use tessera_wire::protocol::pixels::{
     Compression, StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
 };
 use tessera_wire::protocol::FrameId;
+use tessera_wire::state::StateId;
 use tessera_wire::wall::{DisplayId, TileGrid, TileId};
 use tokio::sync::mpsc;
 
 pub struct IncomingTile {
     pub frame: FrameId,
+    pub state: StateId,
     pub tile: TileId,
     pub rgb: Vec<u8>,
     pub conn: quinn::Connection,
@@ -123,6 +125,7 @@ async fn read_stream(
             .fetch_add(expected as u64, Ordering::Relaxed);
         let incoming = IncomingTile {
             frame: header.frame,
+            state: header.state,
             tile: th.tile,
             rgb,
             conn: conn.clone(),

@@ -26,6 +26,8 @@ pub struct Report {
     pub timing: crate::timing::TimingSummary,
     pub elapsed_s: f64,
     pub render_nodes_lost: u32,
+    /// State changes (input events, control commands) the frame barrier applied.
+    pub changes_applied: u64,
 }
 
 #[derive(Serialize, Debug)]

@@ -71,6 +71,8 @@ struct Wall {
     presents: Vec<(FrameId, Instant)>,
     timing: Timing,
     lost_render_nodes: u32,
+    /// State changes the barrier applied.
+    changes_applied: u64,
     finished: bool,
     progress: Option<indicatif::ProgressBar>,
 }
@@ -117,6 +119,7 @@ pub async fn run_wall(
         presents: Vec::new(),
         timing: Timing::default(),
         lost_render_nodes: 0,
+        changes_applied: 0,
         finished: false,
         progress: None,
         cfg,
@@ -550,6 +553,7 @@ impl Wall {
                     }
                 }
                 Output::FrameRendered(_) => {}
+                Output::StateApplied { changes, .. } => self.changes_applied += changes,
                 Output::Finished => self.finished = true,
                 Output::Stalled => {
                     bail!("every render node is gone; the frames in flight cannot complete")
@@ -669,6 +673,7 @@ impl Wall {
             timing: self.timing.summary(self.cfg.wall.display_count()),
             elapsed_s: elapsed,
             render_nodes_lost: self.lost_render_nodes,
+            changes_applied: self.changes_applied,
         }
     }
 }

@@ -2,7 +2,7 @@
 //! `Instant::now()`. It feeds the sans-IO [`RenderWorker`] what the master says and what the
 //! render threads and display links report, and carries out what the worker decides.
 
-use crate::pixels_out::{send_pixels, Delivery};
+use crate::pixels_out::{send_pixels, Batch, Delivery};
 use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -16,7 +16,9 @@ use tessera_net::link::MasterLink;
 use tessera_net::quic;
 use tessera_render::scene::Scene;
 use tessera_render::{render_tiles, FrameView, PreparedScene, RayCounts};
+use tessera_wire::protocol::pixels::BatchSource;
 use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, Session, ToNode};
+use tessera_wire::state::StateId;
 use tessera_wire::wall::{TileGrid, TileId};
 use tokio::sync::mpsc;
 
@@ -31,6 +33,7 @@ pub struct Options {
 /// A batch the render threads finished.
 struct Rendered {
     frame: FrameId,
+    state: StateId,
     tiles: Vec<TileId>,
     /// Each tile's payload, packed as the session's compression says.
     payloads: Vec<Vec<u8>>,
@@ -108,13 +111,8 @@ pub async fn run(options: Options) -> Result<()> {
                 );
                 tokio::task::spawn_blocking(move || {
                     let t0 = Instant::now();
-                    let view = FrameView::new(
-                        start.frame.0,
-                        &start.camera,
-                        start.params,
-                        grid.layout().width(),
-                        grid.layout().height(),
-                    );
+                    let view =
+                        FrameView::of_start(&start, grid.layout().width(), grid.layout().height());
                     let geometry: Vec<_> = tiles
                         .iter()
                         .map(|t| {
@@ -134,6 +132,7 @@ pub async fn run(options: Options) -> Result<()> {
                     });
                     let _ = done_tx.send(Rendered {
                         frame: start.frame,
+                        state: start.state,
                         tiles,
                         payloads,
                         rays,
@@ -159,14 +158,19 @@ pub async fn run(options: Options) -> Result<()> {
                     .handle_message(&msg, Instant::now())
                     .context("the master broke the protocol")?,
             },
-            Some(Rendered { frame, tiles, payloads, rays, took, batch_took }) = done_rx.recv() => {
+            Some(Rendered { frame, state, tiles, payloads, rays, took, batch_took }) = done_rx.recv() => {
                 rendering = false;
                 sizer.record(tiles.len(), batch_took);
                 worker.set_low_water(sizer.low_water(worker.round_trip()));
                 stats.tiles += tiles.len() as u64;
                 stats.rays += rays.total();
                 stats.busy_s += took.as_secs_f64();
-                send_pixels(&displays, &grid, frame, compression, tiles, payloads, delivered_tx.clone());
+                let source = BatchSource {
+                    node,
+                    render_us: took.as_micros().min(u32::MAX as u128) as u32,
+                };
+                let batch = Batch { frame, state, source, tiles, payloads };
+                send_pixels(&displays, &grid, compression, batch, delivered_tx.clone());
             }
             Some(delivery) = delivered_rx.recv() => match delivery {
                 Delivery::Delivered { frame, tiles } => {

@@ -3,10 +3,20 @@
 //! stream, so tiles lost with a display connection are never counted as done.
 
 use std::collections::BTreeMap;
-use tessera_wire::protocol::pixels::{encode_batch, Compression};
+use tessera_wire::protocol::pixels::{encode_batch, BatchSource, Compression};
 use tessera_wire::protocol::FrameId;
+use tessera_wire::state::StateId;
 use tessera_wire::wall::{DisplayId, TileGrid, TileId};
 use tokio::sync::mpsc;
+
+/// A rendered batch of one frame's tiles, each tile's payload packed for the wire.
+pub struct Batch {
+    pub frame: FrameId,
+    pub state: StateId,
+    pub source: BatchSource,
+    pub tiles: Vec<TileId>,
+    pub payloads: Vec<Vec<u8>>,
+}
 
 /// How a batch's delivery ended.
 pub enum Delivery {
@@ -21,12 +31,17 @@ pub enum Delivery {
 pub fn send_pixels(
     displays: &BTreeMap<DisplayId, quinn::Connection>,
     grid: &TileGrid,
-    frame: FrameId,
     compression: Compression,
-    tiles: Vec<TileId>,
-    payloads: Vec<Vec<u8>>,
+    batch: Batch,
     done: mpsc::UnboundedSender<Delivery>,
 ) {
+    let Batch {
+        frame,
+        state,
+        source,
+        tiles,
+        payloads,
+    } = batch;
     let mut by_display: BTreeMap<DisplayId, Vec<usize>> = BTreeMap::new();
     for (i, t) in tiles.iter().enumerate() {
         let tile = grid
@@ -44,7 +59,8 @@ pub fn send_pixels(
             return;
         };
         let bytes = encode_batch(
-            frame,
+            (frame, state),
+            source,
             compression,
             indices.iter().map(|&i| (tiles[i], payloads[i].as_slice())),
         );

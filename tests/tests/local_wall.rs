@@ -2,6 +2,7 @@
 
 use std::time::Duration;
 use tessera_tests::*;
+use tessera_wire::protocol::pixels::{STREAM_HEADER_LEN, TILE_HEADER_LEN};
 
 // Ambient occlusion is on so the comparison covers random samples too: they are keyed on
 // (frame, pixel, sample), so any render node draws the same ones.
@@ -114,13 +115,17 @@ fn local_wall_equals_reference_and_each_display_gets_only_its_pixels() {
     assert_eq!(report["compression"], "none");
     assert!(report["fps"].as_f64().unwrap() > 0.0);
     for (stream, wire) in check_display_bytes(&report) {
-        // Raw tiles: the pixels, an 8-byte header per tile, a 24-byte header per stream (at
-        // least one stream per frame, at most one per tile).
-        let headers = 8 * TILES_PER_DISPLAY * FRAMES;
+        // Raw tiles: the pixels, a header per tile and one per stream (at least one stream
+        // per frame, at most one per tile).
+        let (tile_header, stream_header) = (TILE_HEADER_LEN as u64, STREAM_HEADER_LEN as u64);
+        let headers = tile_header * TILES_PER_DISPLAY * FRAMES;
         let pixels = OWNED * 3 * FRAMES;
-        assert!(stream >= pixels + headers + 24 * FRAMES, "{stream}");
         assert!(
-            stream <= pixels + headers + 24 * TILES_PER_DISPLAY * FRAMES,
+            stream >= pixels + headers + stream_header * FRAMES,
+            "{stream}"
+        );
+        assert!(
+            stream <= pixels + headers + stream_header * TILES_PER_DISPLAY * FRAMES,
             "{stream}"
         );
         assert!(wire > pixels, "wire bytes {wire} below pixel bytes");

@@ -13,6 +13,7 @@ use tessera_wire::camera::Camera;
 use tessera_wire::params::RenderParamsSpec;
 use tessera_wire::protocol::{codec, FrameId, FromNode, RenderNodeId, ToNode};
 use tessera_wire::scene_spec::SceneSpec;
+use tessera_wire::state::StateId;
 use tessera_wire::wall::WallSpec;
 
 /// A refusal comes at once: well before anything could have been rendered.
@@ -201,7 +202,7 @@ impl RawParams {
 enum RawToNode {
     _Welcome,
     _Refused,
-    FrameStart(FrameId, Camera, RawParams),
+    FrameStart(FrameId, StateId, Camera, RawParams, Option<()>),
 }
 
 fn certificates(dir: &Path) -> (NodeIdentity, String) {
@@ -281,7 +282,14 @@ fn frame_start(params: RawParams) -> Vec<u8> {
         45.0,
     )
     .unwrap();
-    codec::encode(&RawToNode::FrameStart(FrameId(0), camera, params)).unwrap()
+    codec::encode(&RawToNode::FrameStart(
+        FrameId(0),
+        StateId(0),
+        camera,
+        params,
+        None,
+    ))
+    .unwrap()
 }
 
 #[test]

@@ -5,9 +5,16 @@
 //! a wrong length, or a frame outside the window of frames in flight is an error, and the driver
 //! closes the offending connection. Up to [`FRAMES_AHEAD`] frames are assembled at once, so
 //! frame f+1 can arrive while f waits for the swap barrier.
+//!
+//! Every tile also says which wall state it was rendered with. A frame whose tiles disagree, or
+//! disagree with the state its `FrameStart` announced, is never presented: the tile that breaks
+//! the rule is refused, and presenting such a frame is an error. (Tiles travel from render
+//! nodes and may arrive before the display hears of the frame from the master, so the first
+//! tile's state is kept and checked again once the frame's state is known.)
 
 use std::collections::BTreeMap;
 use tessera_wire::protocol::FrameId;
+use tessera_wire::state::StateId;
 use tessera_wire::wall::{ScreenRect, Tile, TileGrid, TileId};
 
 /// Frames beyond the next one to present that may be under assembly.
@@ -29,12 +36,23 @@ pub enum AssembleError {
     TooFarAhead { frame: FrameId, next: FrameId },
     #[error("asked to present frame {0:?}, which is not complete")]
     Incomplete(FrameId),
+    #[error("tile {tile} of frame {frame:?} was rendered with state {got:?}, but the frame's is {expected:?}")]
+    WrongState {
+        frame: FrameId,
+        tile: u32,
+        got: StateId,
+        expected: StateId,
+    },
+    #[error("asked to present frame {0:?} before its frame start said its state")]
+    UnknownState(FrameId),
 }
 
 struct Partial {
     image: Vec<u8>,
     have: Vec<bool>,
     missing: usize,
+    /// The state of the frame's first tile; every other tile must have the same.
+    state: StateId,
 }
 
 /// A frame ready to show: the screen's pixels, RGB8, row-major.
@@ -53,6 +71,7 @@ pub struct PresentedFrame {
 /// ```
 /// use tessera_core::assemble::{AssembleError, FrameAssembler};
 /// use tessera_wire::protocol::FrameId;
+/// use tessera_wire::state::StateId;
 /// use tessera_wire::wall::{DisplayId, TileGrid, WallSpec};
 ///
 /// // Two 32×16 screens in 16-pixel tiles: display 1 owns tiles 2 and 3.
@@ -63,14 +82,16 @@ pub struct PresentedFrame {
 /// let pixels = vec![200u8; 16 * 16 * 3];
 ///
 /// // A tile of another display is refused before a pixel is read.
-/// assert_eq!(display.handle_tile(FrameId(0), tile(0).id, &pixels), Err(AssembleError::NotMine(0)));
-/// assert_eq!(display.handle_tile(FrameId(0), tile(2).id, &pixels), Ok(None));
+/// let (frame, state) = (FrameId(0), StateId(1));
+/// assert_eq!(display.handle_tile(frame, state, tile(0).id, &pixels), Err(AssembleError::NotMine(0)));
+/// assert_eq!(display.handle_tile(frame, state, tile(2).id, &pixels), Ok(None));
 /// // The last tile completes the frame; the master hears of it once.
-/// assert_eq!(display.handle_tile(FrameId(0), tile(3).id, &pixels), Ok(Some(FrameId(0))));
+/// assert_eq!(display.handle_tile(frame, state, tile(3).id, &pixels), Ok(Some(frame)));
 /// assert_eq!(display.poll_complete(), Some(FrameId(0)));
 /// assert_eq!(display.poll_complete(), None);
-/// // It is shown only when the master says so.
-/// let shown = display.handle_present(FrameId(0))?;
+/// // It is shown only when the master says so, and only as the state its frame start said.
+/// display.handle_frame_start(frame, state)?;
+/// let shown = display.handle_present(frame)?;
 /// assert_eq!((shown.width, shown.height, shown.rgb.len()), (32, 16, 32 * 16 * 3));
 /// # Ok::<(), AssembleError>(())
 /// ```
@@ -79,6 +100,8 @@ pub struct FrameAssembler {
     tiles: Vec<Tile>,
     first_tile: u32,
     frames: BTreeMap<FrameId, Partial>,
+    /// States announced by the frame starts of frames not yet presented.
+    states: BTreeMap<FrameId, StateId>,
     next_present: FrameId,
     duplicates: u64,
     /// The last frame [`FrameAssembler::poll_complete`] handed out.
@@ -94,6 +117,7 @@ impl FrameAssembler {
             tiles,
             first_tile,
             frames: BTreeMap::new(),
+            states: BTreeMap::new(),
             next_present: FrameId(0),
             duplicates: 0,
             reported_complete: None,
@@ -128,6 +152,29 @@ impl FrameAssembler {
             return Some(next);
         }
         None
+    }
+
+    /// The master announced `frame` with `state`. Tiles of another state are refused from now
+    /// on, and those already here are checked at the present.
+    ///
+    /// # Errors
+    /// A frame already presented, or further ahead than frames are assembled.
+    pub fn handle_frame_start(
+        &mut self,
+        frame: FrameId,
+        state: StateId,
+    ) -> Result<(), AssembleError> {
+        if frame < self.next_present {
+            return Err(AssembleError::Stale(frame));
+        }
+        if frame.0 >= self.next_present.0 + FRAMES_AHEAD {
+            return Err(AssembleError::TooFarAhead {
+                frame,
+                next: self.next_present,
+            });
+        }
+        self.states.insert(frame, state);
+        Ok(())
     }
 
     /// Checks a tile header before its pixels are read; returns the expected byte length.
@@ -178,6 +225,7 @@ impl FrameAssembler {
     pub fn handle_tile(
         &mut self,
         frame: FrameId,
+        state: StateId,
         tile: TileId,
         rgb: &[u8],
     ) -> Result<Option<FrameId>, AssembleError> {
@@ -188,6 +236,19 @@ impl FrameAssembler {
             }
             checked => checked?,
         };
+        let expected = self
+            .states
+            .get(&frame)
+            .copied()
+            .or_else(|| self.frames.get(&frame).map(|p| p.state));
+        if let Some(expected) = expected.filter(|&e| e != state) {
+            return Err(AssembleError::WrongState {
+                frame,
+                tile: tile.0,
+                got: state,
+                expected,
+            });
+        }
         let index = (tile.0 - self.first_tile) as usize;
         let t = self.tiles[index];
         let (sw, sh) = (self.screen.width as usize, self.screen.height as usize);
@@ -196,6 +257,7 @@ impl FrameAssembler {
             image: vec![0; sw * sh * 3],
             have: vec![false; tile_count],
             missing: tile_count,
+            state,
         });
         if partial.have[index] {
             self.duplicates += 1;
@@ -221,13 +283,28 @@ impl FrameAssembler {
         if frame < self.next_present {
             return Err(AssembleError::Stale(frame));
         }
-        match self.frames.get(&frame) {
-            Some(p) if p.missing == 0 => {}
+        let state = match self.frames.get(&frame) {
+            Some(p) if p.missing == 0 => p.state,
             _ => return Err(AssembleError::Incomplete(frame)),
+        };
+        match self.states.get(&frame) {
+            None => return Err(AssembleError::UnknownState(frame)),
+            Some(&expected) if expected != state => {
+                // Only the tiles that came before the frame start can disagree here; every
+                // tile after it was checked on arrival.
+                return Err(AssembleError::WrongState {
+                    frame,
+                    tile: self.first_tile,
+                    got: state,
+                    expected,
+                });
+            }
+            Some(_) => {}
         }
         let partial = self.frames.remove(&frame).expect("checked above");
         self.next_present = FrameId(frame.0 + 1);
         self.frames.retain(|f, _| *f > frame);
+        self.states.retain(|f, _| *f > frame);
         Ok(PresentedFrame {
             frame,
             width: self.screen.width,
@@ -249,8 +326,25 @@ mod tests {
             .build()
             .unwrap();
         let grid = TileGrid::new(wall);
-        let asm = FrameAssembler::new(&grid, wall.screen(DisplayId(1)).unwrap());
+        let mut asm = FrameAssembler::new(&grid, wall.screen(DisplayId(1)).unwrap());
+        for f in 0..FRAMES_AHEAD {
+            asm.handle_frame_start(FrameId(f), S).unwrap();
+        }
         (grid, asm)
+    }
+
+    /// The state every frame of these tests is announced with.
+    const S: StateId = StateId(5);
+
+    impl FrameAssembler {
+        fn handle_tile_s(
+            &mut self,
+            frame: FrameId,
+            tile: TileId,
+            rgb: &[u8],
+        ) -> Result<Option<FrameId>, AssembleError> {
+            self.handle_tile(frame, S, tile, rgb)
+        }
     }
 
     fn pixels(tile: &Tile, frame: u64) -> Vec<u8> {
@@ -264,7 +358,7 @@ mod tests {
         let (grid, mut asm) = setup();
         let mine = grid.display_tiles(DisplayId(1)).to_vec();
         for (i, t) in mine.iter().enumerate() {
-            let done = asm.handle_tile(FrameId(0), t.id, &pixels(t, 0)).unwrap();
+            let done = asm.handle_tile_s(FrameId(0), t.id, &pixels(t, 0)).unwrap();
             assert_eq!(done.is_some(), i + 1 == mine.len());
         }
         let shown = asm.handle_present(FrameId(0)).unwrap();
@@ -282,20 +376,20 @@ mod tests {
         let (grid, mut asm) = setup();
         let other = grid.display_tiles(DisplayId(0))[0];
         assert_eq!(
-            asm.handle_tile(FrameId(0), other.id, &pixels(&other, 0)),
+            asm.handle_tile_s(FrameId(0), other.id, &pixels(&other, 0)),
             Err(AssembleError::NotMine(other.id.0))
         );
         let t = grid.display_tiles(DisplayId(1))[0];
         assert!(matches!(
-            asm.handle_tile(FrameId(0), t.id, &[0; 5]),
+            asm.handle_tile_s(FrameId(0), t.id, &[0; 5]),
             Err(AssembleError::WrongLength { .. })
         ));
         assert!(matches!(
-            asm.handle_tile(FrameId(FRAMES_AHEAD), t.id, &pixels(&t, 0)),
+            asm.handle_tile_s(FrameId(FRAMES_AHEAD), t.id, &pixels(&t, 0)),
             Err(AssembleError::TooFarAhead { .. })
         ));
         assert_eq!(
-            asm.handle_tile(FrameId(0), TileId(u32::MAX), &[]),
+            asm.handle_tile_s(FrameId(0), TileId(u32::MAX), &[]),
             Err(AssembleError::NotMine(u32::MAX))
         );
         assert_eq!(
@@ -303,27 +397,30 @@ mod tests {
             AssembleError::Incomplete(FrameId(0))
         );
         for t in grid.display_tiles(DisplayId(1)) {
-            asm.handle_tile(FrameId(0), t.id, &pixels(t, 0)).unwrap();
+            asm.handle_tile_s(FrameId(0), t.id, &pixels(t, 0)).unwrap();
         }
         asm.handle_present(FrameId(0)).unwrap();
         // A late copy of a presented frame's tile is a duplicate, not a fault; garbage is.
-        assert_eq!(asm.handle_tile(FrameId(0), t.id, &pixels(&t, 0)), Ok(None));
+        assert_eq!(
+            asm.handle_tile_s(FrameId(0), t.id, &pixels(&t, 0)),
+            Ok(None)
+        );
         assert_eq!(asm.duplicates(), 1);
-        assert!(asm.handle_tile(FrameId(0), t.id, &[0; 5]).is_err());
+        assert!(asm.handle_tile_s(FrameId(0), t.id, &[0; 5]).is_err());
     }
 
     #[test]
     fn duplicates_are_counted_not_double_counted() {
         let (grid, mut asm) = setup();
         let mine = grid.display_tiles(DisplayId(1)).to_vec();
-        asm.handle_tile(FrameId(1), mine[0].id, &pixels(&mine[0], 1))
+        asm.handle_tile_s(FrameId(1), mine[0].id, &pixels(&mine[0], 1))
             .unwrap();
-        asm.handle_tile(FrameId(1), mine[0].id, &pixels(&mine[0], 1))
+        asm.handle_tile_s(FrameId(1), mine[0].id, &pixels(&mine[0], 1))
             .unwrap();
         assert_eq!(asm.duplicates(), 1);
         let mut completed = None;
         for t in &mine[1..] {
-            completed = asm.handle_tile(FrameId(1), t.id, &pixels(t, 1)).unwrap();
+            completed = asm.handle_tile_s(FrameId(1), t.id, &pixels(t, 1)).unwrap();
         }
         assert_eq!(completed, Some(FrameId(1)));
         assert!(asm.is_complete(FrameId(1)) && !asm.is_complete(FrameId(0)));
@@ -335,7 +432,7 @@ mod tests {
         let mine = grid.display_tiles(DisplayId(1)).to_vec();
         let fill = |asm: &mut FrameAssembler, frame: u64| {
             for t in &mine {
-                asm.handle_tile(FrameId(frame), t.id, &pixels(t, frame))
+                asm.handle_tile_s(FrameId(frame), t.id, &pixels(t, frame))
                     .unwrap();
             }
         };
@@ -347,5 +444,54 @@ mod tests {
         asm.handle_present(FrameId(0)).unwrap();
         assert_eq!(asm.poll_complete(), Some(FrameId(1)));
         assert_eq!(asm.poll_complete(), None);
+    }
+
+    #[test]
+    fn a_tile_of_another_state_than_its_frame_is_refused() {
+        let (grid, mut asm) = setup();
+        let mine = grid.display_tiles(DisplayId(1)).to_vec();
+        let stale = StateId(4);
+        assert_eq!(
+            asm.handle_tile(FrameId(0), stale, mine[0].id, &pixels(&mine[0], 0)),
+            Err(AssembleError::WrongState {
+                frame: FrameId(0),
+                tile: mine[0].id.0,
+                got: stale,
+                expected: S
+            })
+        );
+        assert!(!asm.is_complete(FrameId(0)));
+    }
+
+    #[test]
+    fn tiles_that_came_before_the_frame_start_are_checked_at_the_present() {
+        let wall = WallSpec::grid(1, 1, 16, 8).tile_size(8).build().unwrap();
+        let grid = TileGrid::new(wall);
+        let tiles = grid.display_tiles(DisplayId(0)).to_vec();
+        let mut asm = FrameAssembler::new(&grid, wall.screen(DisplayId(0)).unwrap());
+        // Both tiles of frame 0 arrive with state 1 before the master's frame start, which
+        // says state 2: the frame mixes nothing among its tiles, but it is not frame 0.
+        for t in &tiles {
+            asm.handle_tile(FrameId(0), StateId(1), t.id, &pixels(t, 0))
+                .unwrap();
+        }
+        assert_eq!(
+            asm.handle_present(FrameId(0)).unwrap_err(),
+            AssembleError::UnknownState(FrameId(0))
+        );
+        asm.handle_frame_start(FrameId(0), StateId(2)).unwrap();
+        assert!(matches!(
+            asm.handle_present(FrameId(0)),
+            Err(AssembleError::WrongState { .. })
+        ));
+        // Two tiles that disagree with each other never make a frame either.
+        let mut asm = FrameAssembler::new(&grid, wall.screen(DisplayId(0)).unwrap());
+        asm.handle_tile(FrameId(0), StateId(1), tiles[0].id, &pixels(&tiles[0], 0))
+            .unwrap();
+        assert!(matches!(
+            asm.handle_tile(FrameId(0), StateId(2), tiles[1].id, &pixels(&tiles[1], 0)),
+            Err(AssembleError::WrongState { .. })
+        ));
+        assert!(!asm.is_complete(FrameId(0)));
     }
 }

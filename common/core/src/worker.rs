@@ -41,12 +41,13 @@ pub enum WorkerError {
 /// use tessera_wire::camera::Camera;
 /// use tessera_wire::params::RenderParams;
 /// use tessera_wire::protocol::{FrameId, FrameStart, FromNode, TileRange, ToNode};
+/// use tessera_wire::state::StateId;
 ///
 /// let now = Instant::now();
 /// // A wall of 100 tiles; ask for more below 4 queued tiles.
 /// let mut worker = RenderWorker::new(100, 4);
 /// let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap();
-/// let start = FrameStart { frame: FrameId(0), camera, params: RenderParams::interactive() };
+/// let start = FrameStart::new(FrameId(0), StateId(0), camera, RenderParams::interactive());
 /// worker.handle_message(&ToNode::FrameStart(start), now)?;
 /// // The static share: tiles 0..6.
 /// let share = ToNode::Assign { frame: FrameId(0), tiles: vec![TileRange::new(0, 6).unwrap()] };
@@ -328,6 +329,7 @@ mod tests {
     use glam::Vec3;
     use tessera_wire::camera::Camera;
     use tessera_wire::params::RenderParams;
+    use tessera_wire::state::StateId;
 
     /// Tiles of the wall the tests' assignments come from.
     const TILES: u32 = 1000;
@@ -372,11 +374,12 @@ mod tests {
     }
 
     fn start(frame: u64) -> ToNode {
-        ToNode::FrameStart(FrameStart {
-            frame: FrameId(frame),
-            camera: Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap(),
-            params: RenderParams::interactive(),
-        })
+        ToNode::FrameStart(FrameStart::new(
+            FrameId(frame),
+            StateId(0),
+            Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap(),
+            RenderParams::interactive(),
+        ))
     }
 
     fn assign(frame: u64, start: u32, end: u32) -> ToNode {

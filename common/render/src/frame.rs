@@ -16,7 +16,9 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tessera_wire::camera::Camera;
+use tessera_wire::light::Lights;
 use tessera_wire::params::RenderParams;
+use tessera_wire::protocol::FrameStart;
 use tessera_wire::wall::Tile;
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
@@ -91,9 +93,12 @@ pub struct FrameView {
     pub frame: u64,
     pub rays: PixelRays,
     pub params: RenderParams,
+    /// Lights in place of the scene's own, if the frame's state has some.
+    pub lights: Option<Lights>,
 }
 
 impl FrameView {
+    /// Frame `frame` seen by `camera` with `params` and the scene's own lights.
     pub fn new(
         frame: u64,
         camera: &Camera,
@@ -105,6 +110,30 @@ impl FrameView {
             frame,
             rays: PixelRays::new(camera, wall_width, wall_height),
             params,
+            lights: None,
+        }
+    }
+
+    /// What a frame start says to render, on a wall of `wall_width × wall_height`.
+    pub fn of_start(start: &FrameStart, wall_width: u32, wall_height: u32) -> Self {
+        FrameView {
+            lights: start.lights,
+            ..Self::new(
+                start.frame.0,
+                &start.camera,
+                start.params,
+                wall_width,
+                wall_height,
+            )
+        }
+    }
+
+    /// The lights this frame is lit by: its state's, or else the scene's.
+    #[inline]
+    pub fn lights<'a>(&'a self, scene: &'a PreparedScene) -> &'a [Light] {
+        match &self.lights {
+            Some(lights) => lights.as_slice(),
+            None => &scene.lights,
         }
     }
 }
@@ -288,7 +317,7 @@ fn shade_packet(
     };
     let packet_shadows = shadow_rays == ShadowRays::Packets;
     let shadows =
-        (packet_shadows && view.params.shadows() && !scene.lights().is_empty()).then(|| {
+        (packet_shadows && view.params.shadows() && !view.lights(scene).is_empty()).then(|| {
             let directions: [Vec3; 64] = std::array::from_fn(|i| packet.direction(i));
             shadow_packet::primary_shadows(
                 scene,

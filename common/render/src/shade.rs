@@ -299,7 +299,7 @@ impl Shader<'_> {
             highlight += 0.35 * phong_lobe(r_dot_v, material.shininess);
         }
         let mut direct = 0.0;
-        for (k, light) in self.scene.lights().iter().enumerate() {
+        for (k, light) in self.view.lights(self.scene).iter().enumerate() {
             let (towards, reach, intensity) = towards_light(light, point);
             let Some(cos) = faces_light(normal, towards) else {
                 continue;

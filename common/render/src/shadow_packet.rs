@@ -52,7 +52,7 @@ pub fn primary_shadows(
     });
     let cuts: &CutPlanes = view.params.cuts();
     let mut lanes = [0usize; PACKET_RAYS];
-    for (k, light) in scene.lights().iter().enumerate().take(PACKET_LIGHTS) {
+    for (k, light) in view.lights(scene).iter().enumerate().take(PACKET_LIGHTS) {
         let mut count = 0;
         let mut rays = [(Vec3::ZERO, Vec3::ZERO, 0.0f32); PACKET_RAYS];
         for (i, hit) in hits.iter().enumerate() {

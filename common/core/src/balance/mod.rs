@@ -5,7 +5,8 @@
 //! every input. Its rules:
 //!
 //! * **Barrier.** State changes queued with [`Coordinator::queue_change`] are applied only when a
-//!   frame starts and travel in that frame's `FrameStart`. Frame f+1 starts once every tile of
+//!   frame starts and travel in that frame's `FrameStart`, under a new state id; however many
+//!   were queued between two barriers, they make one new state, and none is lost. Frame f+1 starts once every tile of
 //!   frame f has been handed out and frame f−1 is presented, so at most two frames are in
 //!   flight and rendering f+1 overlaps presenting f. Starting f+1 when f's pool runs dry
 //!   rather than when f's last tile is rendered keeps nodes busy over f's tail: the nodes that
@@ -28,8 +29,9 @@ use frames::InFlight;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Instant;
 use tessera_wire::camera::CameraMode;
-use tessera_wire::params::RenderParams;
+use tessera_wire::params::{ParamsError, RenderParams};
 use tessera_wire::protocol::{to_ranges, FrameId, FrameStart, RenderNodeId, TileRange, ToNode};
+use tessera_wire::state::{StateChange, StateId, WallState};
 use tessera_wire::wall::DisplayId;
 
 /// Tuning of the load balancer.
@@ -50,13 +52,6 @@ impl Default for BalanceConfig {
     }
 }
 
-/// A state change applied at the next frame barrier.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum StateChange {
-    Camera(CameraMode),
-    Params(RenderParams),
-}
-
 /// What the driver must do.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Output {
@@ -64,6 +59,15 @@ pub enum Output {
     /// Send to every display.
     ToDisplays(ToNode),
     FrameStarted(FrameId),
+    /// A new state takes effect with `frame`: the `changes` queued since the last barrier,
+    /// collapsed into one, with the entry stamps they were queued with (for input latency).
+    StateApplied {
+        frame: FrameId,
+        state: StateId,
+        wall: WallState,
+        changes: u64,
+        stamps: Vec<u64>,
+    },
     /// Every tile of the frame reached its display.
     FrameRendered(FrameId),
     /// `Present` was sent for this frame.
@@ -151,9 +155,14 @@ pub struct Coordinator {
     tile_count: u32,
     display_count: u32,
     config: BalanceConfig,
-    camera: CameraMode,
-    params: RenderParams,
-    pending: Vec<StateChange>,
+    /// The state frames start with now, and its id.
+    state: WallState,
+    state_id: StateId,
+    /// The state after every change queued since the last barrier.
+    next: WallState,
+    /// Changes folded into `next`, and the stamps they came with.
+    pending_changes: u64,
+    pending_stamps: Vec<u64>,
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
@@ -181,9 +190,19 @@ impl Coordinator {
             tile_count,
             display_count,
             config,
-            camera,
-            params,
-            pending: Vec::new(),
+            state: WallState {
+                camera,
+                params,
+                lights: None,
+            },
+            state_id: StateId(0),
+            next: WallState {
+                camera,
+                params,
+                lights: None,
+            },
+            pending_changes: 0,
+            pending_stamps: Vec::new(),
             frame_limit,
             running: false,
             nodes: BTreeMap::new(),
@@ -214,9 +233,28 @@ impl Coordinator {
 
     // ---- commands ----
 
-    /// Queues a state change for the next frame barrier.
-    pub fn queue_change(&mut self, change: StateChange) {
-        self.pending.push(change);
+    /// The state frames start with now, and its id.
+    pub fn state(&self) -> (StateId, WallState) {
+        (self.state_id, self.state)
+    }
+
+    /// The state the next barrier will apply: the current one with every queued change.
+    pub fn next_state(&self) -> WallState {
+        self.next
+    }
+
+    /// Queues a state change for the next frame barrier, checked against the state it will
+    /// apply to (the current one with every change queued before it). `stamp` is when the
+    /// change entered the wall (the driver's clock); it comes back in
+    /// [`Output::StateApplied`].
+    ///
+    /// # Errors
+    /// A combination that [`WallState::apply`] refuses; nothing is queued.
+    pub fn queue_change(&mut self, change: StateChange, stamp: u64) -> Result<(), ParamsError> {
+        self.next = self.next.apply(&change)?;
+        self.pending_changes += 1;
+        self.pending_stamps.push(stamp);
+        Ok(())
     }
 
     /// Allows frames to start (call once the expected nodes have joined).
@@ -400,18 +438,25 @@ impl Coordinator {
 
     fn try_start_frames(&mut self, _now: Instant) {
         while self.can_start_next() {
-            for change in self.pending.drain(..) {
-                match change {
-                    StateChange::Camera(mode) => self.camera = mode,
-                    StateChange::Params(params) => self.params = params,
-                }
-            }
             let frame = self.next_frame;
             self.next_frame = FrameId(frame.0 + 1);
+            if self.pending_changes > 0 {
+                self.state = self.next;
+                self.state_id = StateId(self.state_id.0 + 1);
+                self.outputs.push_back(Output::StateApplied {
+                    frame,
+                    state: self.state_id,
+                    wall: self.state,
+                    changes: std::mem::take(&mut self.pending_changes),
+                    stamps: std::mem::take(&mut self.pending_stamps),
+                });
+            }
             let start = FrameStart {
                 frame,
-                camera: self.camera.camera_for_frame(frame.0),
-                params: self.params,
+                state: self.state_id,
+                camera: self.state.camera.camera_for_frame(frame.0),
+                params: self.state.params,
+                lights: self.state.lights,
             };
             let mut state = InFlight::new(start, self.tile_count);
             self.outputs.push_back(Output::FrameStarted(frame));

@@ -3,6 +3,7 @@ use crate::sim::SimWall;
 use glam::Vec3;
 use tessera_wire::camera::Camera;
 use tessera_wire::protocol::{TileRange, ToNode};
+use tessera_wire::state::StateId;
 use tessera_wire::wall::WallSpec;
 
 fn coordinator(tiles: u32, displays: u32, frames: u64) -> Coordinator {
@@ -138,7 +139,17 @@ fn state_changes_wait_for_the_barrier() {
     c.start(now);
     let first = drain(&mut c);
     let moved = Camera::new(Vec3::new(5.0, 0.0, 0.0), Vec3::ZERO, Vec3::Y, 30.0).unwrap();
-    c.queue_change(StateChange::Camera(CameraMode::fixed(moved)));
+    c.queue_change(StateChange::Camera(CameraMode::fixed(moved)), 1)
+        .unwrap();
+    // Many changes before one barrier make one state, and none is lost.
+    for ao in 1..=999u32 {
+        c.queue_change(StateChange::AoSamples(ao % 7), 1 + ao as u64)
+            .unwrap();
+    }
+    // A change the budget refuses is refused now, at the caller, and queues nothing.
+    c.queue_change(StateChange::Spp(4096), 0).unwrap();
+    assert!(c.queue_change(StateChange::AoSamples(1024), 0).is_err());
+    c.queue_change(StateChange::Spp(1), 1001).unwrap();
     // Nothing is re-broadcast for the frame in flight.
     assert!(drain(&mut c).is_empty());
     let starts = |outs: &[Output]| -> Vec<FrameStart> {
@@ -159,6 +170,18 @@ fn state_changes_wait_for_the_barrier() {
         if let Some(next) = starts(&outs).first() {
             assert_eq!(next.frame, FrameId(1));
             assert_eq!(next.camera, moved);
+            assert_eq!(next.params.ao_samples(), 999 % 7);
+            assert_eq!(next.state, StateId(1));
+            let applied: Vec<_> = outs
+                .iter()
+                .filter_map(|o| match o {
+                    Output::StateApplied {
+                        changes, stamps, ..
+                    } => Some((*changes, stamps.len())),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(applied, [(1002, 1002)], "1002 changes, one state");
             return;
         }
     }

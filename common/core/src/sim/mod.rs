@@ -53,6 +53,7 @@ use std::time::{Duration, Instant};
 use tessera_wire::camera::{Camera, CameraMode};
 use tessera_wire::params::RenderParams;
 use tessera_wire::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
+use tessera_wire::state::{StateChange, StateId};
 use tessera_wire::wall::{
     DisplayId, ScreenRect, TileGrid, TileId, WallError, WallLayout, WallSpec,
 };
@@ -100,6 +101,9 @@ pub struct SimConfig {
     pub batching: Batching,
     pub pixels: PixelCheck,
     pub balance: BalanceConfig,
+    /// Queue a state change (samples per pixel, alternating) as every frame starts, so every
+    /// frame has a state of its own: what a person steering the wall does, at its worst.
+    pub change_every_frame: bool,
 }
 
 impl SimConfig {
@@ -112,6 +116,7 @@ impl SimConfig {
             batching: Batching::Measured,
             pixels: PixelCheck::Full,
             balance: BalanceConfig::default(),
+            change_every_frame: false,
         }
     }
 }
@@ -131,14 +136,15 @@ pub fn near_square_wall(displays: u32, width: u32, height: u32) -> Result<WallLa
     WallLayout::grid(displays.max(1) / rows, rows, width, height)
 }
 
-/// The deterministic pixel bytes of `tile` in `frame`.
-pub fn sim_pixels(grid: &TileGrid, frame: FrameId, tile: TileId) -> Vec<u8> {
+/// The deterministic pixel bytes of `tile` in `frame` rendered with `state`: a tile of
+/// another frame or state has other pixels, so the displays' images show any mix.
+pub fn sim_pixels(grid: &TileGrid, frame: FrameId, state: StateId, tile: TileId) -> Vec<u8> {
     let t = grid.tile(tile).expect("tile of the grid");
     (0..t.pixel_count() * 3)
         .map(|i| {
             (i as u64)
                 .wrapping_mul(31)
-                .wrapping_add(tile.0 as u64 * 7 + frame.0 * 13) as u8
+                .wrapping_add(tile.0 as u64 * 7 + frame.0 * 13 + state.0 * 101) as u8
         })
         .collect()
 }
@@ -154,9 +160,10 @@ enum Event {
         last_tx: u64,
         display: DisplayId,
         frame: FrameId,
+        state: StateId,
         tiles: Vec<TileId>,
     },
-    Rendered(RenderNodeId, FrameId, Vec<TileId>),
+    Rendered(RenderNodeId, FrameId, StateId, Vec<TileId>),
     Delivered(RenderNodeId, FrameId, Vec<TileId>),
     Kill(RenderNodeId),
 }
@@ -221,6 +228,10 @@ pub struct SimWall {
     lost_with_sender: u64,
     late_tiles: u64,
     late_from_live: u64,
+    change_every_frame: bool,
+    /// The state each started frame was announced with.
+    states: BTreeMap<FrameId, StateId>,
+    changes_applied: u64,
 }
 
 impl SimWall {
@@ -326,6 +337,9 @@ impl SimWall {
             lost_with_sender: 0,
             late_tiles: 0,
             late_from_live: 0,
+            change_every_frame: config.change_every_frame,
+            states: BTreeMap::new(),
+            changes_applied: 0,
             grid,
             pixel_grid,
         }
@@ -339,6 +353,16 @@ impl SimWall {
     /// Frames presented by each display, in order.
     pub fn presented(&self, display: DisplayId) -> &[FrameId] {
         &self.presented[display.0 as usize]
+    }
+
+    /// State changes the barrier applied (each a frame's worth when changing every frame).
+    pub fn changes_applied(&self) -> u64 {
+        self.changes_applied
+    }
+
+    /// The state each started frame was rendered with.
+    pub fn frame_states(&self) -> &BTreeMap<FrameId, StateId> {
+        &self.states
     }
 
     pub fn corrupt_frames(&self) -> &[(DisplayId, FrameId)] {
@@ -519,6 +543,12 @@ impl SimWall {
                 self.start_rendering(node);
             }
             Event::ToDisplay(display, msg) => {
+                if let ToNode::FrameStart(start) = msg {
+                    self.displays[display.0 as usize]
+                        .handle_frame_start(start.frame, start.state)
+                        .expect("the master starts at most two frames ahead");
+                    self.states.insert(start.frame, start.state);
+                }
                 if let ToNode::Present { frame } = msg {
                     let assembler = &mut self.displays[display.0 as usize];
                     let shown = assembler
@@ -531,7 +561,7 @@ impl SimWall {
                         ));
                     }
                     let screen = self.pixel_grid.layout().screen(display).expect("display");
-                    if !self.frame_matches(screen, frame, &shown.rgb) {
+                    if !self.frame_matches(screen, frame, self.states[&frame], &shown.rgb) {
                         self.corrupt.push((display, frame));
                     }
                     self.presented[display.0 as usize].push(frame);
@@ -543,9 +573,10 @@ impl SimWall {
                 last_tx,
                 display,
                 frame,
+                state,
                 tiles,
-            } => self.handle_pixels(from, last_tx, display, frame, &tiles),
-            Event::Rendered(node, frame, tiles) => {
+            } => self.handle_pixels(from, last_tx, display, (frame, state), &tiles),
+            Event::Rendered(node, frame, state, tiles) => {
                 let Some(n) = self.nodes.get_mut(&node) else {
                     return;
                 };
@@ -577,6 +608,7 @@ impl SimWall {
                             last_tx: d.last_tx,
                             display,
                             frame,
+                            state,
                             tiles: rest[..n].to_vec(),
                         },
                     );
@@ -602,7 +634,7 @@ impl SimWall {
         from: RenderNodeId,
         last_tx: u64,
         display: DisplayId,
-        frame: FrameId,
+        (frame, state): (FrameId, StateId),
         tiles: &[TileId],
     ) {
         let alive = self.nodes.contains_key(&from);
@@ -621,9 +653,9 @@ impl SimWall {
                     self.late_from_live += 1;
                 }
             }
-            let rgb = sim_pixels(&self.pixel_grid, frame, tile);
+            let rgb = sim_pixels(&self.pixel_grid, frame, state, tile);
             let assembler = &mut self.displays[display.0 as usize];
-            if let Err(e) = assembler.handle_tile(frame, tile, &rgb) {
+            if let Err(e) = assembler.handle_tile(frame, state, tile, &rgb) {
                 panic!("display {} refused a tile: {e}", display.0);
             }
             if let Some(frame) = assembler.poll_complete() {
@@ -664,7 +696,7 @@ impl SimWall {
             .sum();
         self.schedule_at(
             self.now_us + cost,
-            Event::Rendered(node, start.frame, tiles),
+            Event::Rendered(node, start.frame, start.state, tiles),
         );
         if let Some(r) = request {
             self.send(Event::FromRender(node, r));
@@ -684,6 +716,12 @@ impl SimWall {
                     if frame.0 == 0 {
                         self.span.0 = Some(self.now_us);
                     }
+                    if self.change_every_frame {
+                        let spp = 1 + (frame.0 % 2) as u32;
+                        self.coordinator
+                            .queue_change(StateChange::Spp(spp), self.now_us)
+                            .expect("1 or 2 samples per pixel are always allowed");
+                    }
                     let doomed: Vec<RenderNodeId> = self
                         .kills
                         .iter()
@@ -701,14 +739,21 @@ impl SimWall {
                         self.span.1 = Some(self.now_us);
                     }
                 }
+                Output::StateApplied { changes, .. } => self.changes_applied += changes,
                 Output::FramePresented(_) | Output::Finished | Output::Stalled => {}
             }
         }
     }
 
-    fn frame_matches(&self, screen: ScreenRect, frame: FrameId, rgb: &[u8]) -> bool {
+    fn frame_matches(
+        &self,
+        screen: ScreenRect,
+        frame: FrameId,
+        state: StateId,
+        rgb: &[u8],
+    ) -> bool {
         self.pixel_grid.display_tiles(screen.id).iter().all(|t| {
-            let expected = sim_pixels(&self.pixel_grid, frame, t.id);
+            let expected = sim_pixels(&self.pixel_grid, frame, state, t.id);
             let row = t.width as usize * 3;
             (0..t.height as usize).all(|r| {
                 let at = (((t.y - screen.y) as usize + r) * screen.width as usize

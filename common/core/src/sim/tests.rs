@@ -186,3 +186,30 @@ fn static_shares_follow_node_speed_so_a_tenfold_spread_still_balances() {
     assert_eq!(report.frames_completed, 30);
     assert!(report.efficiency > 0.95, "{report:?}");
 }
+
+#[test]
+fn a_wall_whose_state_changes_every_frame_never_presents_a_mixed_frame() {
+    // Every frame its own state, nodes dying and 2 % loss: tiles re-rendered after a death
+    // carry their frame's state, every display checks each tile against its frame's start,
+    // and the pixels (a function of frame, state and tile) show any mix as a corrupt frame.
+    let config = SimConfig {
+        change_every_frame: true,
+        ..lossy(0.02)
+    };
+    let sim = run(23, small_wall(), &config, &[(3, 2), (11, 5), (17, 8)], 12);
+    let all: Vec<FrameId> = (0..12).map(FrameId).collect();
+    for d in 0..8 {
+        assert_eq!(sim.presented(DisplayId(d)), &all[..], "display {d}");
+    }
+    assert!(
+        sim.corrupt_frames().is_empty(),
+        "{:?}",
+        sim.corrupt_frames()
+    );
+    let states: Vec<StateId> = all.iter().map(|f| sim.frame_states()[f]).collect();
+    assert!(
+        states.windows(2).all(|w| w[0] < w[1]),
+        "each frame a new state: {states:?}"
+    );
+    assert!(sim.changes_applied() >= 11);
+}

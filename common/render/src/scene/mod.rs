@@ -125,14 +125,7 @@ pub struct Scene {
     pub particles: Vec<particles::Particle>,
 }
 
-/// A light source. Intensities are linear multipliers of the diffuse term.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub enum Light {
-    /// Infinitely far: `towards` is the unit direction from the surface to the light.
-    Directional { towards: Vec3, intensity: f32 },
-    /// A point light; falls off with the square of the distance.
-    Point { position: Vec3, intensity: f32 },
-}
+pub use tessera_wire::light::Light;
 
 /// Why a scene could not be loaded; every variant names the file and what is wrong.
 #[derive(Debug, thiserror::Error)]

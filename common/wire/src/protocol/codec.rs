@@ -147,9 +147,16 @@ mod tests {
                 .unwrap(),
             },
             ToNode::FrameStart(FrameStart {
-                frame: FrameId(1),
-                camera: Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
-                params: RenderParams::interactive(),
+                lights: Some(
+                    crate::light::Lights::new(&[crate::light::Light::directional(Vec3::Y, 0.5)])
+                        .unwrap(),
+                ),
+                ..FrameStart::new(
+                    FrameId(1),
+                    crate::state::StateId(7),
+                    Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
+                    RenderParams::interactive(),
+                )
             }),
             ToNode::Present {
                 frame: FrameId(u64::MAX),
@@ -234,11 +241,18 @@ mod tests {
         enum RawToNode {
             _Welcome,
             _Refused,
-            FrameStart(FrameId, Camera, RawParams),
+            FrameStart(
+                FrameId,
+                crate::state::StateId,
+                Camera,
+                RawParams,
+                Option<()>,
+            ),
         }
         let i = RenderParamsSpec::INTERACTIVE;
         let msg = RawToNode::FrameStart(
             FrameId(1),
+            crate::state::StateId(1),
             Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
             RawParams {
                 shadows: i.shadows,
@@ -249,6 +263,7 @@ mod tests {
                 spp: i.spp,
                 first_sample: i.first_sample,
             },
+            None,
         );
         let err = decode_frame::<ToNode>(&encode(&msg).unwrap()).unwrap_err();
         assert!(

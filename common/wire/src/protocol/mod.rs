@@ -11,14 +11,16 @@ pub mod codec;
 pub mod pixels;
 
 use crate::camera::Camera;
+use crate::light::Lights;
 use crate::params::RenderParams;
 use crate::scene_spec::SceneSpec;
+use crate::state::StateId;
 use crate::wall::{DisplayId, TileId, WallLayout};
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 3;
+pub const PROTOCOL_VERSION: u32 = 4;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
@@ -28,7 +30,9 @@ pub const ALPN: &[u8] = b"tessera/1";
 pub struct FrameId(pub u64);
 
 /// Identifies a render node within one run, assigned by the master in join order.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
 pub struct RenderNodeId(pub u32);
 
 /// Most rendering threads a render node may claim.
@@ -226,8 +230,25 @@ impl<'de> Deserialize<'de> for Session {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FrameStart {
     pub frame: FrameId,
+    /// The wall state this frame renders; every pixel stream of the frame carries it.
+    pub state: StateId,
     pub camera: Camera,
     pub params: RenderParams,
+    /// Lights in place of the scene's own, if a control client set some.
+    pub lights: Option<Lights>,
+}
+
+impl FrameStart {
+    /// Frame `frame` of state `state` with the scene's own lights.
+    pub fn new(frame: FrameId, state: StateId, camera: Camera, params: RenderParams) -> Self {
+        FrameStart {
+            frame,
+            state,
+            camera,
+            params,
+            lights: None,
+        }
+    }
 }
 
 /// Tiles `start..end` (ids). Assignments are mostly contiguous, so ranges keep them small.
@@ -310,6 +331,10 @@ pub fn to_ranges(tiles: impl IntoIterator<Item = TileId>) -> Vec<TileRange> {
 }
 
 /// Master → node.
+// A frame start (with its light set) is the largest message; messages live one at a time on
+// their way to or from a stream, so boxing it would buy an allocation per frame and node and
+// save no memory that matters.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum ToNode {
     Welcome {

@@ -8,12 +8,13 @@
 //! (equal to the tile's pixel bytes: raw; shorter: LZ4), so a tile never grows on the wire and
 //! needs no flag of its own.
 
-use crate::protocol::FrameId;
+use crate::protocol::{FrameId, RenderNodeId};
+use crate::state::StateId;
 use crate::wall::TileId;
 use serde::{Deserialize, Serialize};
 
 pub const STREAM_MAGIC: [u8; 4] = *b"TSPX";
-pub const STREAM_HEADER_LEN: usize = 24;
+pub const STREAM_HEADER_LEN: usize = 40;
 pub const TILE_HEADER_LEN: usize = 8;
 
 /// Pixel formats; only RGB8 so far.
@@ -150,7 +151,20 @@ pub struct StreamHeader {
     pub format: PixelFormat,
     pub compression: Compression,
     pub frame: FrameId,
+    /// The wall state the tiles were rendered with (the frame start's).
+    pub state: StateId,
     pub tile_count: u32,
+    /// Who rendered the batch, and how long its tiles took, in microseconds: what a display
+    /// shows in its overlay, and nothing it trusts for anything else.
+    pub source: BatchSource,
+}
+
+/// Who rendered a batch of tiles, and in how long.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BatchSource {
+    pub node: RenderNodeId,
+    /// Rendering time of the whole batch, microseconds.
+    pub render_us: u32,
 }
 
 impl StreamHeader {
@@ -162,6 +176,10 @@ impl StreamHeader {
         out[8..16].copy_from_slice(&self.frame.0.to_le_bytes());
         out[16..20].copy_from_slice(&self.tile_count.to_le_bytes());
         out[20..22].copy_from_slice(&(self.compression as u16).to_le_bytes());
+        // 22..24 stay zero: alignment for the state id.
+        out[24..32].copy_from_slice(&self.state.0.to_le_bytes());
+        out[32..36].copy_from_slice(&self.source.node.0.to_le_bytes());
+        out[36..40].copy_from_slice(&self.source.render_us.to_le_bytes());
         out
     }
 
@@ -200,11 +218,19 @@ impl StreamHeader {
                 limit: max_tiles,
             });
         }
+        let u32_at = |i: usize| u32::from_le_bytes(bytes[i..i + 4].try_into().expect("4 bytes"));
         Ok(StreamHeader {
             format,
             compression,
             frame,
+            state: StateId(u64::from_le_bytes(
+                bytes[24..32].try_into().expect("8 bytes"),
+            )),
             tile_count,
+            source: BatchSource {
+                node: RenderNodeId(u32_at(32)),
+                render_us: u32_at(36),
+            },
         })
     }
 }
@@ -236,7 +262,8 @@ impl TileHeader {
 /// One stream's bytes: the header, then every tile's payload (from [`Compression::encode_tile`]
 /// with the same `compression`), in one buffer so it goes out in one write.
 pub fn encode_batch<'a>(
-    frame: FrameId,
+    (frame, state): (FrameId, StateId),
+    source: BatchSource,
     compression: Compression,
     tiles: impl ExactSizeIterator<Item = (TileId, &'a [u8])>,
 ) -> Vec<u8> {
@@ -244,7 +271,9 @@ pub fn encode_batch<'a>(
         format: PixelFormat::Rgb8,
         compression,
         frame,
+        state,
         tile_count: tiles.len() as u32,
+        source,
     };
     let mut out = header.encode().to_vec();
     for (tile, payload) in tiles {
@@ -271,7 +300,12 @@ mod tests {
             format: PixelFormat::Rgb8,
             compression: Compression::Lz4,
             frame: FrameId(77),
+            state: StateId(u64::MAX - 3),
             tile_count: 5,
+            source: BatchSource {
+                node: RenderNodeId(9),
+                render_us: 12_345,
+            },
         };
         assert_eq!(StreamHeader::decode(&h.encode(), 5), Ok(h));
         assert_eq!(
@@ -389,7 +423,8 @@ mod tests {
 
     proptest! {
         #[test]
-        fn random_headers_never_panic(bytes in proptest::array::uniform24(any::<u8>()), max in any::<u32>()) {
+        fn random_headers_never_panic(bytes in proptest::collection::vec(any::<u8>(), STREAM_HEADER_LEN), max in any::<u32>()) {
+            let bytes: [u8; STREAM_HEADER_LEN] = bytes.try_into().unwrap();
             let _ = StreamHeader::decode(&bytes, max);
         }
 
