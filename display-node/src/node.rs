@@ -92,6 +92,10 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     );
 
     let mut presented = 0u64;
+    // Drawn once the overlay is implemented in the presenter; kept so the toggle is not lost.
+    let mut _overlay = false;
+    // Frames a control client asked to keep, saved as they are presented.
+    let mut snapshots: Vec<FrameId> = Vec::new();
     loop {
         tokio::select! {
             // The master's messages first: a Present waiting behind a burst of tiles would let
@@ -107,7 +111,15 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     let shown = assembler.handle_present(frame).map_err(|e| anyhow::anyhow!("the master broke the swap barrier: {e}"))?;
                     presented += 1;
                     report_next_complete(&mut assembler, &mut link).await?;
-                    let saved = (session.save_frame() == Some(frame)).then(|| RgbImage { width: shown.width, height: shown.height, rgb: shown.rgb.clone() });
+                    let mut names = Vec::new();
+                    if session.save_frame() == Some(frame) {
+                        names.push(format!("display-{}.png", me.0));
+                    }
+                    if let Some(i) = snapshots.iter().position(|&f| f == frame) {
+                        snapshots.swap_remove(i);
+                        names.push(format!("display-{}-frame-{}.png", me.0, frame.0));
+                    }
+                    let saved = (!names.is_empty()).then(|| RgbImage { width: shown.width, height: shown.height, rgb: shown.rgb.clone() });
                     if let Some(at) = deadline {
                         // A precise wait (tokio's timer has 1 ms steps), kept off the async
                         // workers' queue so pixel intake goes on meanwhile.
@@ -121,8 +133,11 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                         link.send(&FromNode::Presented { frame, clock_ns }).await?;
                     }
                     if let (Some(image), Some(dir)) = (saved, &cli.out) {
-                        let path = dir.join(format!("display-{}.png", me.0));
-                        tokio::task::spawn_blocking(move || image.save_png(&path)).await??;
+                        let paths: Vec<_> = names.iter().map(|n| dir.join(n)).collect();
+                        tokio::task::spawn_blocking(move || {
+                            paths.iter().try_for_each(|path| image.save_png(path))
+                        })
+                        .await??;
                     }
                 }
                 ToNode::Ping { seq } => {
@@ -152,7 +167,9 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                 ToNode::FrameStart(start) => assembler
                     .handle_frame_start(start.frame, start.state)
                     .map_err(|e| anyhow::anyhow!("the master broke the frame barrier: {e}"))?,
-                other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. }) => {
+                ToNode::Overlay { on } => _overlay = on,
+                ToNode::SaveFrame { frame } => snapshots.push(frame),
+                other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. } | ToNode::ControlReply { .. }) => {
                     anyhow::bail!("the master broke the protocol: it sent a display a {} message", other.kind())
                 }
             },

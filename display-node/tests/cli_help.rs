@@ -26,7 +26,7 @@ fn help_names_display_window_and_master() {
 fn unreachable_master_is_an_error_not_a_hang() {
     let dir = std::env::temp_dir().join(format!("tessera-display-cli-{}", std::process::id()));
     let ca = tessera_net::cluster::ClusterCa::open_or_create(&dir.join("ca")).unwrap();
-    ca.issue("d", &dir.join("d")).unwrap();
+    ca.issue("d", &dir.join("d"), None).unwrap();
     let start = std::time::Instant::now();
     let out = Command::new(env!("CARGO_BIN_EXE_tessera-display-node"))
         .args([

@@ -42,6 +42,13 @@ pub struct RunArgs {
     /// CPU for fewer bytes where the link, not rendering, limits the frame rate.
     #[arg(long, value_enum, default_value_t = CompressArg::None)]
     pub compress: CompressArg,
+    /// Write what every frame is rendered with to FILE, a JSON line each time it changes
+    /// (camera, quality, cuts, lights): a session to replay or to render any frame of.
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
+    /// Drive the wall from a recorded session: each recorded state lands on its frame.
+    #[arg(long, value_name = "FILE")]
+    pub replay: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Clone)]
@@ -96,6 +103,10 @@ pub struct RenderArgs {
     /// +inf for none), `prim` → DIR/prim.pfm (triangle index, -1 for none). Repeatable.
     #[arg(long, value_enum)]
     pub aov: Vec<Aov>,
+    /// Render --frame K of a recorded session (`--record`): its camera, quality and lights
+    /// at that frame, in place of the camera and quality flags.
+    #[arg(long, value_name = "FILE")]
+    pub replay: Option<PathBuf>,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq, Debug)]
@@ -115,6 +126,33 @@ pub struct IssueCertArgs {
     /// Directory to write node.pem, node.key and ca.pem into; give it to the node's --cert-dir.
     #[arg(long)]
     pub out: PathBuf,
+    /// What the certificate lets its holder be: `render`, `display`, `control` (a control
+    /// client) or `master`; `node` is a render or display node (as certificates without a
+    /// role were). The master refuses a peer whose certificate does not name its role.
+    #[arg(long, value_enum, default_value_t = RoleArg::Node)]
+    pub role: RoleArg,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RoleArg {
+    Node,
+    Render,
+    Display,
+    Control,
+    Master,
+}
+
+impl RoleArg {
+    pub fn cert_role(self) -> Option<tessera_net::cluster::CertRole> {
+        use tessera_net::cluster::CertRole;
+        match self {
+            RoleArg::Node => None,
+            RoleArg::Render => Some(CertRole::Render),
+            RoleArg::Display => Some(CertRole::Display),
+            RoleArg::Control => Some(CertRole::Control),
+            RoleArg::Master => Some(CertRole::Master),
+        }
+    }
 }
 
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
@@ -137,8 +175,15 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
             );
         }
     }
+    let replay = run
+        .replay
+        .as_deref()
+        .map(crate::record::Session::load)
+        .transpose()?;
     Ok(RunConfig {
         wall,
+        record: run.record.clone(),
+        replay,
         camera: run
             .scene
             .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?,

@@ -10,8 +10,10 @@
 
 mod args;
 mod bench;
+mod control;
 mod launcher;
 mod peers;
+mod record;
 mod reference;
 mod report;
 mod server;
@@ -49,6 +51,9 @@ enum Command {
     /// Simulate a wall in this process on a virtual clock (the real load balancer and frame
     /// barrier, virtual nodes and network): prints balance efficiency and frames completed.
     Simulate(simulate::SimulateArgs),
+    /// Steer a running wall: camera, quality, cuts, crop, lights, saved views, overlay; query
+    /// its state and live figures (needs a certificate from `issue-cert --role control`).
+    Control(control::ControlArgs),
     /// Run as a render node, exactly as `tessera-render-node` does (see its --help): one
     /// executable can serve every host of a wall.
     RenderNode(tessera_render_node::Cli),
@@ -79,7 +84,7 @@ fn run(command: Command) -> Result<ExitCode> {
         Command::Render(args) => reference::render_reference(args).map(|()| ExitCode::SUCCESS),
         Command::IssueCert(args) => {
             let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
-            ca.issue(&args.name, &args.out)?;
+            ca.issue(&args.name, &args.out, args.role.cert_role())?;
             println!(
                 "wrote the certificate of `{}` to {} (give it to the node with --cert-dir)",
                 args.name,
@@ -91,6 +96,7 @@ fn run(command: Command) -> Result<ExitCode> {
         Command::Serve(args) => runtime()?.block_on(wall_run::serve(args)),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
+        Command::Control(args) => runtime()?.block_on(control::control(args)),
         Command::RenderNode(node) => tessera_render_node::run(node).map(|()| ExitCode::SUCCESS),
         Command::DisplayNode(node) => tessera_display_node::run(node).map(|()| ExitCode::SUCCESS),
     }

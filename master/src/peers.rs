@@ -10,12 +10,20 @@ use tokio::sync::mpsc;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct PeerId(pub u64);
 
+/// Messages queued for one peer's writer. Bounded: a peer that stops reading fills its queue
+/// and is closed, rather than growing the master's memory (a wall sends each node a few
+/// messages a frame, so a full queue is a peer that is gone or hostile, not a slow one).
+pub type PeerSender = mpsc::Sender<ToNode>;
+
+/// Messages one peer may have waiting before it counts as not reading.
+pub const PEER_QUEUE: usize = 4096;
+
 pub enum Event {
     Joined {
         peer: PeerId,
         hello: Hello,
         conn: quinn::Connection,
-        tx: mpsc::UnboundedSender<ToNode>,
+        tx: PeerSender,
     },
     Msg(PeerId, FromNode),
     Closed(PeerId, String),
@@ -76,7 +84,7 @@ pub async fn accept_peer(
         conn.close(1u32.into(), b"version mismatch");
         return;
     }
-    let (tx, mut rx) = mpsc::unbounded_channel::<ToNode>();
+    let (tx, mut rx) = mpsc::channel::<ToNode>(PEER_QUEUE);
     tokio::spawn(async move {
         while let Some(msg) = rx.recv().await {
             let refused = matches!(msg, ToNode::Refused { .. });

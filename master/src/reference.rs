@@ -12,15 +12,30 @@ use tessera_wire::wall::TileGrid;
 pub fn render_reference(args: RenderArgs) -> Result<()> {
     let wall = args.wall.layout()?;
     let params = args.quality.params()?;
+    let replayed = args
+        .replay
+        .as_deref()
+        .map(|path| crate::record::Session::load(path)?.state_at(args.frame))
+        .transpose()?;
     let scene = Scene::load(&args.scene.spec()?)?;
-    let camera = args
-        .scene
-        .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?
-        .camera_for_frame(args.frame);
+    let camera = match &replayed {
+        Some(state) => state.camera,
+        None => args
+            .scene
+            .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?,
+    }
+    .camera_for_frame(args.frame);
     let t0 = Instant::now();
     let prepared = PreparedScene::new(&scene);
     let built = t0.elapsed();
-    let view = FrameView::new(args.frame, &camera, params, wall.width(), wall.height());
+    let (w, h) = (wall.width(), wall.height());
+    let view = match replayed {
+        Some(state) => FrameView {
+            lights: state.lights,
+            ..FrameView::new(args.frame, &camera, state.params, w, h)
+        },
+        None => FrameView::new(args.frame, &camera, params, w, h),
+    };
     let image = render_wall(&prepared, &view, &TileGrid::new(wall));
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create --out {}", args.out.display()))?;

@@ -28,6 +28,8 @@ pub struct Report {
     pub render_nodes_lost: u32,
     /// State changes (input events, control commands) the frame barrier applied.
     pub changes_applied: u64,
+    /// Frames a control client had the displays save (`wall-frame-<K>.png`).
+    pub snapshots: Vec<u64>,
 }
 
 #[derive(Serialize, Debug)]

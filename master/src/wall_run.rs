@@ -12,7 +12,7 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
-use tessera_net::cluster::{ClusterCa, NodeIdentity};
+use tessera_net::cluster::{CertRole, ClusterCa, NodeIdentity};
 use tessera_wire::image::{compose_wall, RgbImage};
 use tessera_wire::wall::WallLayout;
 
@@ -68,14 +68,20 @@ pub async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun
         .prefix("tessera-local-")
         .tempdir()?;
     let ca = ClusterCa::open_or_create(&certs.path().join("ca"))?;
-    let cert_dir = |name: &str| -> Result<PathBuf> {
+    let cert_dir = |name: &str, role: CertRole| -> Result<PathBuf> {
         let dir = certs.path().join(name);
-        ca.issue(name, &dir)?;
+        ca.issue(name, &dir, Some(role))?;
         Ok(dir)
     };
-    let identity = NodeIdentity::load(&cert_dir("master")?)?;
+    let identity = NodeIdentity::load(&cert_dir("master", CertRole::Master)?)?;
     let endpoint = bind("127.0.0.1:0".parse()?, &identity)?;
     let master_addr = endpoint.local_addr()?.to_string();
+    // The control interface of this run: the same endpoint, with a certificate of its own.
+    let control_dir = cert_dir("control", CertRole::Control)?;
+    eprintln!(
+        "tessera-master: control with `tessera-master control --connect {master_addr} --cert-dir {}` (while the wall runs)",
+        control_dir.display()
+    );
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get() as u32);
     let threads = args.threads.unwrap_or((cores / args.render_nodes).max(1));
 
@@ -89,7 +95,7 @@ pub async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun
             "--display".into(),
             d.to_string(),
             "--cert-dir".into(),
-            cert_dir(&name)?.display().to_string(),
+            cert_dir(&name, CertRole::Display)?.display().to_string(),
             "--listen".into(),
             "127.0.0.1:0".into(),
         ];
@@ -109,7 +115,7 @@ pub async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun
             "--master".into(),
             master_addr.clone(),
             "--cert-dir".into(),
-            cert_dir(&name)?.display().to_string(),
+            cert_dir(&name, CertRole::Render)?.display().to_string(),
             "--threads".into(),
             threads.to_string(),
         ];
@@ -170,7 +176,14 @@ fn finish_run(
             .with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!("wrote {}", path.display());
         if run.save_frame.is_some() {
-            write_wall_png(dir, wall)?;
+            write_wall_png(dir, wall, "", "wall.png")?;
+        }
+        for frame in &report.snapshots {
+            // A snapshot of a frame the run never presented (it ended first) has no images.
+            if dir.join(format!("display-0-frame-{frame}.png")).exists() {
+                let suffix = format!("-frame-{frame}");
+                write_wall_png(dir, wall, &suffix, &format!("wall{suffix}.png"))?;
+            }
         }
     }
     if interrupted {
@@ -187,20 +200,20 @@ fn finish_run(
     Ok(ExitCode::SUCCESS)
 }
 
-/// `wall.png`: the displays' saved images put together, bezels black.
-fn write_wall_png(dir: &Path, wall: &WallLayout) -> Result<()> {
+/// `name`: the displays' saved images `display-<id><suffix>.png` put together, bezels black.
+fn write_wall_png(dir: &Path, wall: &WallLayout, suffix: &str, name: &str) -> Result<()> {
     let mut screens = Vec::new();
     for screen in wall.screens() {
-        let path = dir.join(format!("display-{}.png", screen.id.0));
+        let path = dir.join(format!("display-{}{suffix}.png", screen.id.0));
         if !path.exists() {
             bail!(
-                "{} is missing: wall.png can only be assembled where the displays' --out directory is shared",
+                "{} is missing: {name} can only be assembled where the displays' --out directory is shared",
                 path.display()
             );
         }
         screens.push((screen, RgbImage::load_png(&path)?));
     }
-    let path = dir.join("wall.png");
+    let path = dir.join(name);
     compose_wall(wall, &screens)?.save_png(&path)?;
     eprintln!("wrote {}", path.display());
     Ok(())
@@ -211,7 +224,7 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
     let master_dir = args.cluster_dir.join("master");
     if !master_dir.join("node.pem").exists() {
-        ca.issue("master", &master_dir)?;
+        ca.issue("master", &master_dir, Some(CertRole::Master))?;
     }
     let identity = NodeIdentity::load(&master_dir)?;
     let endpoint = bind(args.listen, &identity)?;

@@ -5,7 +5,7 @@
 use serde::Serialize;
 use std::path::Path;
 use std::time::Duration;
-use tessera_net::cluster::{ClusterCa, NodeIdentity};
+use tessera_net::cluster::{CertRole, ClusterCa, NodeIdentity};
 use tessera_net::framed::read_msg;
 use tessera_net::quic;
 use tessera_tests::*;
@@ -207,8 +207,10 @@ enum RawToNode {
 
 fn certificates(dir: &Path) -> (NodeIdentity, String) {
     let ca = ClusterCa::open_or_create(&dir.join("ca")).unwrap();
-    ca.issue("master", &dir.join("master")).unwrap();
-    ca.issue("render", &dir.join("render")).unwrap();
+    ca.issue("master", &dir.join("master"), Some(CertRole::Master))
+        .unwrap();
+    ca.issue("render", &dir.join("render"), Some(CertRole::Render))
+        .unwrap();
     let master = NodeIdentity::load(&dir.join("master")).unwrap();
     (master, dir.join("render").to_str().unwrap().to_string())
 }

@@ -115,7 +115,7 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
     issue(&cluster, "intruder");
     ClusterCa::open_or_create(&foreign)
         .unwrap()
-        .issue("stranger", &foreign.join("stranger"))
+        .issue("stranger", &foreign.join("stranger"), None)
         .unwrap();
 
     let wall = ["--wall", "2x1", "--screen", "320x180"];

@@ -230,7 +230,8 @@ impl From<CompressArg> for Compression {
     }
 }
 
-fn parse_plane(text: &str) -> Result<(Vec3, f32), BadValue> {
+/// Parses `NX,NY,NZ,D`: a plane's non-zero normal and its offset, all finite.
+pub fn parse_plane(text: &str) -> Result<(Vec3, f32), BadValue> {
     let numbers: Vec<&str> = text.split(',').collect();
     let [x, y, z, d] = numbers[..] else {
         return Err(bad(format!("`{text}` is not NX,NY,NZ,D (four numbers)")));
@@ -253,7 +254,8 @@ fn parse_plane(text: &str) -> Result<(Vec3, f32), BadValue> {
     Ok((normal, values[3]))
 }
 
-fn parse_range(text: &str) -> Result<(f32, f32), BadValue> {
+/// Parses `LO,HI`: finite numbers with LO <= HI.
+pub fn parse_range(text: &str) -> Result<(f32, f32), BadValue> {
     let (a, b) = text
         .split_once(',')
         .ok_or_else(|| format!("`{text}` is not LO,HI"))?;

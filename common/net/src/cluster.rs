@@ -17,6 +17,55 @@ use std::path::{Path, PathBuf};
 /// CA, not by host names, so a wall works the same on IPs, names or loopback.
 pub const CLUSTER_SERVER_NAME: &str = "tessera.cluster";
 
+/// What a certificate lets its holder be in the cluster. The role is a second subject name of
+/// the certificate (`control.role.tessera.cluster`), so it is signed by the CA like the rest:
+/// a holder cannot claim a role its certificate does not name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum CertRole {
+    Master,
+    Render,
+    Display,
+    /// An operator's or a script's control client.
+    Control,
+}
+
+impl CertRole {
+    pub const ALL: [CertRole; 4] = [
+        CertRole::Master,
+        CertRole::Render,
+        CertRole::Display,
+        CertRole::Control,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            CertRole::Master => "master",
+            CertRole::Render => "render",
+            CertRole::Display => "display",
+            CertRole::Control => "control",
+        }
+    }
+
+    fn subject_name(self) -> String {
+        format!("{}.role.{CLUSTER_SERVER_NAME}", self.name())
+    }
+}
+
+/// The roles a (verified) certificate names; empty for a certificate from before roles, which
+/// may be a render or a display node.
+pub fn cert_roles(cert: &CertificateDer<'_>) -> Vec<CertRole> {
+    let Ok(parsed) = webpki::EndEntityCert::try_from(cert) else {
+        return Vec::new();
+    };
+    CertRole::ALL
+        .into_iter()
+        .filter(|role| {
+            rustls_pki_types::ServerName::try_from(role.subject_name())
+                .is_ok_and(|name| parsed.verify_is_valid_for_subject_name(&name).is_ok())
+        })
+        .collect()
+}
+
 const CA_CERT: &str = "ca.pem";
 const CA_KEY: &str = "ca.key";
 const NODE_CERT: &str = "node.pem";
@@ -126,10 +175,13 @@ impl ClusterCa {
         &self.dir
     }
 
-    /// Writes a node identity (`node.pem`, `node.key`, `ca.pem`) signed by this CA into `out`.
-    pub fn issue(&self, name: &str, out: &Path) -> Result<(), CertError> {
+    /// Writes a node identity (`node.pem`, `node.key`, `ca.pem`) signed by this CA into `out`,
+    /// for the role `role` (`None`: a render or display node, as before roles existed).
+    pub fn issue(&self, name: &str, out: &Path, role: Option<CertRole>) -> Result<(), CertError> {
         let issuer = Issuer::new(ca_params()?, &self.key);
-        let mut params = CertificateParams::new(vec![CLUSTER_SERVER_NAME.to_string()])?;
+        let mut names = vec![CLUSTER_SERVER_NAME.to_string()];
+        names.extend(role.map(CertRole::subject_name));
+        let mut params = CertificateParams::new(names)?;
         let mut dn = DistinguishedName::new();
         dn.push(DnType::CommonName, name);
         params.distinguished_name = dn;
@@ -183,5 +235,25 @@ impl NodeIdentity {
             key,
             ca: read_cert(CA_CERT)?,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_certificate_names_the_role_it_was_issued_for_and_no_other() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca = ClusterCa::open_or_create(&dir.path().join("ca")).unwrap();
+        for role in CertRole::ALL {
+            let out = dir.path().join(role.name());
+            ca.issue(role.name(), &out, Some(role)).unwrap();
+            let id = NodeIdentity::load(&out).unwrap();
+            assert_eq!(cert_roles(&id.cert), vec![role]);
+        }
+        ca.issue("old", &dir.path().join("old"), None).unwrap();
+        let id = NodeIdentity::load(&dir.path().join("old")).unwrap();
+        assert!(cert_roles(&id.cert).is_empty());
     }
 }

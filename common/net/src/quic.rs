@@ -1,10 +1,11 @@
 //! QUIC endpoints with mutual TLS against the cluster CA (ring provider, TLS 1.3 only).
 
-use crate::cluster::{NodeIdentity, CLUSTER_SERVER_NAME};
+use crate::cluster::{cert_roles, CertRole, NodeIdentity, CLUSTER_SERVER_NAME};
 use crate::NetError;
 use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
 use rustls::server::WebPkiClientVerifier;
 use rustls::RootCertStore;
+use rustls_pki_types::CertificateDer;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
@@ -118,6 +119,15 @@ pub fn endpoint(bind: SocketAddr, id: &NodeIdentity, accept: bool) -> Result<qui
         .map_err(|source| NetError::Bind { addr: bind, source })?;
     endpoint.set_default_client_config(client_config(id)?);
     Ok(endpoint)
+}
+
+/// The roles the certificate a connected peer presented names (see [`cert_roles`]); empty if
+/// it presented none, which mutual TLS does not let happen.
+pub fn peer_roles(conn: &quinn::Connection) -> Vec<CertRole> {
+    conn.peer_identity()
+        .and_then(|id| id.downcast::<Vec<CertificateDer<'static>>>().ok())
+        .and_then(|certs| certs.first().map(|c| cert_roles(c)))
+        .unwrap_or_default()
 }
 
 /// How long a connection attempt may take before it is given up.

@@ -10,8 +10,10 @@
 
 pub mod camera;
 pub mod checked;
+pub mod control;
 pub mod cut;
 pub mod image;
+pub mod input;
 pub mod light;
 pub mod params;
 pub mod protocol;

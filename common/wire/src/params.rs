@@ -57,7 +57,7 @@ pub struct RenderParamsSpec {
 }
 
 /// Why render parameters were refused.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum ParamsError {
     #[error("{0} ambient-occlusion rays per hit is more than the {MAX_AO_SAMPLES} supported")]
     TooManyAoSamples(u32),

@@ -25,7 +25,7 @@ pub async fn bulk_throughput(links: u32, seconds: f64, stream_bytes: usize) -> R
     let ca = ClusterCa::open_or_create(&certs.path().join("ca"))?;
     let identity = |name: &str| -> Result<NodeIdentity> {
         let dir = certs.path().join(name);
-        ca.issue(name, &dir)?;
+        ca.issue(name, &dir, None)?;
         Ok(NodeIdentity::load(&dir)?)
     };
     let loopback: SocketAddr = "127.0.0.1:0".parse()?;

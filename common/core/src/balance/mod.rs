@@ -68,6 +68,11 @@ pub enum Output {
         changes: u64,
         stamps: Vec<u64>,
     },
+    /// A change scheduled for `frame` was refused by the state there.
+    Refused {
+        frame: FrameId,
+        error: ParamsError,
+    },
     /// Every tile of the frame reached its display.
     FrameRendered(FrameId),
     /// `Present` was sent for this frame.
@@ -87,6 +92,8 @@ pub enum BalanceError {
     UnknownDisplay(DisplayId),
     #[error("frame {0:?} has not started")]
     FutureFrame(FrameId),
+    #[error("frame {0:?} has already started")]
+    PastFrame(FrameId),
     #[error("tile {tile} of frame {frame:?} was not assigned to render node {node:?}")]
     NotAssigned {
         node: RenderNodeId,
@@ -163,6 +170,8 @@ pub struct Coordinator {
     /// Changes folded into `next`, and the stamps they came with.
     pending_changes: u64,
     pending_stamps: Vec<u64>,
+    /// Changes to apply at the barrier of a given frame (a replayed session).
+    scheduled: BTreeMap<FrameId, Vec<StateChange>>,
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
@@ -203,6 +212,7 @@ impl Coordinator {
             },
             pending_changes: 0,
             pending_stamps: Vec::new(),
+            scheduled: BTreeMap::new(),
             frame_limit,
             running: false,
             nodes: BTreeMap::new(),
@@ -221,6 +231,11 @@ impl Coordinator {
         self.nodes.keys().copied()
     }
 
+    /// The next frame to start.
+    pub fn next_frame(&self) -> FrameId {
+        self.next_frame
+    }
+
     /// Frames presented so far.
     pub fn presented(&self) -> u64 {
         self.next_present.0
@@ -236,6 +251,24 @@ impl Coordinator {
     /// The state frames start with now, and its id.
     pub fn state(&self) -> (StateId, WallState) {
         (self.state_id, self.state)
+    }
+
+    /// Applies `change` at the barrier of `frame` exactly, after the changes queued by then
+    /// (a replayed session: its states land on the frames they were recorded at).
+    ///
+    /// # Errors
+    /// A frame already started; a change that the state at that barrier refuses is skipped
+    /// there, with the others, and reported by [`Output::Refused`].
+    pub fn schedule_change(
+        &mut self,
+        frame: FrameId,
+        change: StateChange,
+    ) -> Result<(), BalanceError> {
+        if frame < self.next_frame {
+            return Err(BalanceError::PastFrame(frame));
+        }
+        self.scheduled.entry(frame).or_default().push(change);
+        Ok(())
     }
 
     /// The state the next barrier will apply: the current one with every queued change.
@@ -440,6 +473,11 @@ impl Coordinator {
         while self.can_start_next() {
             let frame = self.next_frame;
             self.next_frame = FrameId(frame.0 + 1);
+            for change in self.scheduled.remove(&frame).unwrap_or_default() {
+                if let Err(error) = self.queue_change(change, 0) {
+                    self.outputs.push_back(Output::Refused { frame, error });
+                }
+            }
             if self.pending_changes > 0 {
                 self.state = self.next;
                 self.state_id = StateId(self.state_id.0 + 1);

@@ -740,7 +740,10 @@ impl SimWall {
                     }
                 }
                 Output::StateApplied { changes, .. } => self.changes_applied += changes,
-                Output::FramePresented(_) | Output::Finished | Output::Stalled => {}
+                Output::FramePresented(_)
+                | Output::Finished
+                | Output::Stalled
+                | Output::Refused { .. } => {}
             }
         }
     }

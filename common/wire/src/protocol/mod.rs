@@ -11,6 +11,8 @@ pub mod codec;
 pub mod pixels;
 
 use crate::camera::Camera;
+use crate::control::{ControlReply, ControlRequest};
+use crate::input::InputEvent;
 use crate::light::Lights;
 use crate::params::RenderParams;
 use crate::scene_spec::SceneSpec;
@@ -53,6 +55,8 @@ pub enum Role {
         /// "the address the master sees me connect from".
         pixel_addr: SocketAddr,
     },
+    /// An operator's or a script's client of the control interface.
+    Control,
 }
 
 /// The first message on every control stream. Its host name and core count are checked on
@@ -368,6 +372,19 @@ pub enum ToNode {
     Ping {
         seq: u32,
     },
+    /// The answer to the control client's request `id`.
+    ControlReply {
+        id: u32,
+        reply: ControlReply,
+    },
+    /// Show or hide the overlay (displays).
+    Overlay {
+        on: bool,
+    },
+    /// Save `frame` as `display-<id>-frame-<K>.png` once it is presented (displays).
+    SaveFrame {
+        frame: FrameId,
+    },
 }
 
 impl ToNode {
@@ -382,6 +399,9 @@ impl ToNode {
             ToNode::PresentAt { .. } => "present at",
             ToNode::Shutdown => "shutdown",
             ToNode::Ping { .. } => "ping",
+            ToNode::ControlReply { .. } => "control reply",
+            ToNode::Overlay { .. } => "overlay",
+            ToNode::SaveFrame { .. } => "save frame",
         }
     }
 }
@@ -416,6 +436,18 @@ pub enum FromNode {
     /// The node cannot go on; the master logs this and treats the node as gone.
     Failed {
         message: String,
+    },
+    /// A control client's request `id`, made at `stamp_ns` (the master's clock as the client
+    /// maps it; 0 when unknown).
+    Control {
+        id: u32,
+        request: ControlRequest,
+        stamp_ns: u64,
+    },
+    /// A person's input at a display's window, at `clock_ns` on the display's clock.
+    Input {
+        event: InputEvent,
+        clock_ns: u64,
     },
 }
 

@@ -1,7 +1,13 @@
 //! The master's driver loop: accepts nodes, feeds the sans-IO [`Coordinator`] and carries out
 //! what it returns. This is the only place in the master with sockets and `Instant::now()`.
 
-use crate::peers::{accept_peer, Event, PeerId};
+mod control;
+mod join;
+mod messages;
+mod report_of;
+
+use crate::peers::{accept_peer, Event, PeerId, PeerSender};
+use crate::record::Recorder;
 use crate::report::{DisplayReport, Percentiles, RenderNodeReport, Report, WallReport};
 use crate::timing::{Timing, PINGS};
 use anyhow::{bail, Context, Result};
@@ -19,6 +25,7 @@ use tessera_wire::protocol::{
     DisplayEndpoint, FrameId, FromNode, NodeStats, RenderNodeId, Role, Session, SessionSpec, ToNode,
 };
 use tessera_wire::scene_spec::SceneSpec;
+use tessera_wire::state::{StateChange, WallState};
 use tessera_wire::wall::{DisplayId, TileGrid, WallLayout};
 use tokio::sync::mpsc;
 
@@ -42,17 +49,22 @@ pub struct RunConfig {
     /// Displays present this long after the master's barrier decision, all at the same
     /// instant; zero presents on arrival.
     pub present_margin: Duration,
+    /// Where to record the session, if anywhere.
+    pub record: Option<std::path::PathBuf>,
+    /// A recorded session to drive the wall from.
+    pub replay: Option<crate::record::Session>,
 }
 
 enum PeerRole {
     Render { node: RenderNodeId, cores: u32 },
     Display(DisplayId),
+    Control,
 }
 
 struct Peer {
     role: PeerRole,
     host: String,
-    tx: mpsc::UnboundedSender<ToNode>,
+    tx: PeerSender,
     conn: quinn::Connection,
     ready: bool,
     stats: Option<NodeStats>,
@@ -75,6 +87,10 @@ struct Wall {
     changes_applied: u64,
     finished: bool,
     progress: Option<indicatif::ProgressBar>,
+    live: control::Live,
+    recorder: Option<crate::record::Recorder>,
+    /// The state of the frames starting now (as the last `StateApplied` said).
+    frame_state: WallState,
 }
 
 /// Runs a whole wall on `endpoint` and returns its report. `started` is set once the first frame
@@ -100,7 +116,7 @@ pub async fn run_wall(
         })
     };
     let grid = TileGrid::new(cfg.wall);
-    let coordinator = Coordinator::new(
+    let mut coordinator = Coordinator::new(
         grid.len() as u32,
         cfg.wall.display_count(),
         cfg.camera,
@@ -108,6 +124,13 @@ pub async fn run_wall(
         cfg.frames,
         BalanceConfig::default(),
     );
+    if let Some(session) = &cfg.replay {
+        for line in &session.lines {
+            coordinator.schedule_change(FrameId(line.frame), StateChange::All(line.wall))?;
+        }
+    }
+    let recorder = cfg.record.as_deref().map(Recorder::create).transpose()?;
+    let frame_state = coordinator.state().1;
     let mut wall = Wall {
         coordinator,
         peers: HashMap::new(),
@@ -122,6 +145,9 @@ pub async fn run_wall(
         changes_applied: 0,
         finished: false,
         progress: None,
+        live: control::Live::default(),
+        recorder,
+        frame_state,
         cfg,
     };
     tracing::info!(
@@ -262,9 +288,21 @@ impl Wall {
     }
 
     fn send(&self, peer: PeerId, msg: ToNode) {
-        if let Some(p) = self.peers.get(&peer) {
-            // A closed channel means the peer is gone; its Closed event is on the way.
-            let _ = p.tx.send(msg);
+        let Some(p) = self.peers.get(&peer) else {
+            return;
+        };
+        match p.tx.try_send(msg) {
+            Ok(()) => {}
+            // The peer is gone; its Closed event is on the way.
+            Err(mpsc::error::TrySendError::Closed(_)) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                tracing::error!(
+                    "closing {}: it left {} messages unread",
+                    self.describe(peer),
+                    crate::peers::PEER_QUEUE
+                );
+                p.conn.close(4u32.into(), b"not reading");
+            }
         }
     }
 
@@ -275,142 +313,25 @@ impl Wall {
             .map(|(id, _)| *id)
     }
 
-    fn welcome_render(&self, peer: PeerId) {
-        if let Some(Peer {
-            role: PeerRole::Render { node, .. },
-            ..
-        }) = self.peers.get(&peer)
-        {
-            self.send(
-                peer,
-                ToNode::Welcome {
-                    node: *node,
-                    session: self.session(),
-                },
-            );
-        }
+    /// Sends a peer the session. Render nodes get it only once every display's address is
+    /// known; displays and control clients at once (their node id is a placeholder).
+    fn welcome(&self, peer: PeerId) {
+        let node = match self.peers.get(&peer).map(|p| &p.role) {
+            Some(PeerRole::Render { node, .. }) => *node,
+            Some(PeerRole::Display(_) | PeerRole::Control) => RenderNodeId(u32::MAX),
+            None => return,
+        };
+        self.send(
+            peer,
+            ToNode::Welcome {
+                node,
+                session: self.session(),
+            },
+        );
     }
 
     fn all_displays_known(&self) -> bool {
         self.display_endpoints.len() == self.cfg.wall.display_count() as usize
-    }
-
-    fn handle(&mut self, event: Event) -> Result<()> {
-        let now = Instant::now();
-        match event {
-            Event::Joined {
-                peer,
-                hello,
-                conn,
-                tx,
-            } => {
-                let remote = conn.remote_address();
-                match hello.role {
-                    Role::Display {
-                        display,
-                        pixel_addr,
-                    } => {
-                        if display.0 >= self.cfg.wall.display_count()
-                            || self.displays.contains_key(&display)
-                        {
-                            let reason = if display.0 >= self.cfg.wall.display_count() {
-                                format!(
-                                    "display {} does not exist on a {}-display wall",
-                                    display.0,
-                                    self.cfg.wall.display_count()
-                                )
-                            } else {
-                                format!("display {} has already joined", display.0)
-                            };
-                            tracing::warn!("refused {} from {remote}: {reason}", hello.host);
-                            let _ = tx.send(ToNode::Refused { reason });
-                            return Ok(());
-                        }
-                        let addr = if pixel_addr.ip().is_unspecified() {
-                            SocketAddr::new(remote.ip(), pixel_addr.port())
-                        } else {
-                            pixel_addr
-                        };
-                        let id = display.0;
-                        tracing::info!(
-                            "display {id} joined from {} ({remote}), pixels at {addr}",
-                            hello.host
-                        );
-                        if hello.host == tessera_net::hostname() {
-                            self.timing.same_host(display);
-                        }
-                        self.displays.insert(display, peer);
-                        self.display_endpoints.insert(display, addr);
-                        self.peers.insert(
-                            peer,
-                            Peer {
-                                role: PeerRole::Display(display),
-                                host: hello.host,
-                                tx,
-                                conn,
-                                ready: false,
-                                stats: None,
-                            },
-                        );
-                        self.send(
-                            peer,
-                            ToNode::Welcome {
-                                node: RenderNodeId(u32::MAX),
-                                session: self.session(),
-                            },
-                        );
-                        if self.all_displays_known() {
-                            let waiting: Vec<PeerId> = self
-                                .peers
-                                .iter()
-                                .filter(|(_, p)| {
-                                    matches!(p.role, PeerRole::Render { .. }) && !p.ready
-                                })
-                                .map(|(id, _)| *id)
-                                .collect();
-                            for p in waiting {
-                                self.welcome_render(p);
-                            }
-                        }
-                    }
-                    Role::Render { cores } => {
-                        let node = RenderNodeId(self.next_render_id);
-                        self.next_render_id += 1;
-                        tracing::info!(
-                            "render node {} joined from {} ({remote}), {cores} cores",
-                            node.0,
-                            hello.host
-                        );
-                        self.peers.insert(
-                            peer,
-                            Peer {
-                                role: PeerRole::Render { node, cores },
-                                host: hello.host,
-                                tx,
-                                conn,
-                                ready: false,
-                                stats: None,
-                            },
-                        );
-                        if self.all_displays_known() {
-                            self.welcome_render(peer);
-                        }
-                    }
-                }
-            }
-            Event::Msg(peer, msg) => {
-                if let Err(e) = self.handle_msg(peer, msg, now) {
-                    let who = self.describe(peer);
-                    tracing::error!("closing {who}: {e:#}");
-                    if let Some(p) = self.peers.get(&peer) {
-                        p.conn.close(2u32.into(), b"protocol violation");
-                    }
-                    self.drop_peer(peer, now, "protocol violation")?;
-                }
-            }
-            Event::Closed(peer, reason) => self.drop_peer(peer, now, &reason)?,
-        }
-        Ok(())
     }
 
     fn describe(&self, peer: PeerId) -> String {
@@ -419,104 +340,8 @@ impl Wall {
                 format!("render node {} ({host})", node.0)
             }
             Some((PeerRole::Display(d), host)) => format!("display {} ({host})", d.0),
+            Some((PeerRole::Control, host)) => format!("control client {} ({host})", peer.0),
             None => format!("peer {}", peer.0),
-        }
-    }
-
-    fn drop_peer(&mut self, peer: PeerId, now: Instant, reason: &str) -> Result<()> {
-        let who = self.describe(peer);
-        let Some(p) = self.peers.remove(&peer) else {
-            return Ok(());
-        };
-        if self.finished {
-            return Ok(());
-        }
-        match p.role {
-            PeerRole::Display(d) => {
-                self.displays.remove(&d);
-                self.display_endpoints.remove(&d);
-                bail!(
-                    "{who} disconnected ({reason}); a wall cannot go on without one of its screens"
-                );
-            }
-            PeerRole::Render { node, .. } => {
-                if p.ready && self.started.is_some() {
-                    self.lost_render_nodes += 1;
-                    tracing::error!(
-                        "{who} disconnected ({reason}); its tiles go to the other render nodes"
-                    );
-                } else {
-                    tracing::warn!("{who} left before the first frame ({reason})");
-                }
-                if p.ready {
-                    self.coordinator.handle_render_left(node, now);
-                }
-            }
-        }
-        Ok(())
-    }
-
-    fn handle_msg(&mut self, peer: PeerId, msg: FromNode, now: Instant) -> Result<()> {
-        let Some(p) = self.peers.get_mut(&peer) else {
-            return Ok(());
-        };
-        match (&p.role, msg) {
-            (_, FromNode::Stats(stats)) => p.stats = Some(stats),
-            (_, FromNode::Failed { message }) => {
-                bail!("it failed: {message}");
-            }
-            (_, FromNode::Hello(_)) => bail!("sent a second hello"),
-            (PeerRole::Render { node, .. }, FromNode::Ready) => {
-                let node = *node;
-                if !p.ready {
-                    p.ready = true;
-                    if self.started.is_some() {
-                        tracing::info!("render node {} joins the running wall", node.0);
-                    }
-                    self.coordinator.handle_render_joined(node, now);
-                }
-            }
-            (PeerRole::Display(d), FromNode::Ready) => {
-                let d = *d;
-                p.ready = true;
-                for seq in 0..PINGS {
-                    self.timing.ping_sent(d, seq, unix_ns());
-                    self.send(peer, ToNode::Ping { seq });
-                }
-            }
-            (
-                PeerRole::Render { node, .. },
-                FromNode::TilesDone {
-                    frame,
-                    tiles,
-                    want_more,
-                },
-            ) => {
-                let node = *node;
-                self.coordinator
-                    .handle_tiles_done(node, frame, &tiles, want_more, now)?;
-            }
-            (PeerRole::Display(d), FromNode::FrameComplete { frame }) => {
-                let d = *d;
-                self.coordinator.handle_frame_complete(d, frame, now)?;
-            }
-            (PeerRole::Display(_), msg @ (FromNode::Presented { .. } | FromNode::Pong { .. })) => {
-                self.note_timing(peer, &msg);
-            }
-            (_, other) => bail!("sent {other:?}, which its role never sends"),
-        }
-        Ok(())
-    }
-
-    /// Records a display's present stamp or clock probe answer.
-    fn note_timing(&mut self, peer: PeerId, msg: &FromNode) {
-        let Some(PeerRole::Display(d)) = self.peers.get(&peer).map(|p| &p.role) else {
-            return;
-        };
-        match *msg {
-            FromNode::Presented { frame, clock_ns } => self.timing.presented(*d, frame, clock_ns),
-            FromNode::Pong { seq, clock_ns } => self.timing.pong(*d, seq, clock_ns, unix_ns()),
-            _ => {}
         }
     }
 
@@ -538,6 +363,12 @@ impl Wall {
                     }
                 }
                 Output::ToDisplays(msg) => {
+                    if let ToNode::FrameStart(start) = msg {
+                        self.live.last_start = Some(start);
+                        if let Some(recorder) = &mut self.recorder {
+                            recorder.frame(&start, self.frame_state)?;
+                        }
+                    }
                     for peer in self.displays.values() {
                         self.send(*peer, msg.clone());
                     }
@@ -553,7 +384,16 @@ impl Wall {
                     }
                 }
                 Output::FrameRendered(_) => {}
-                Output::StateApplied { changes, .. } => self.changes_applied += changes,
+                Output::StateApplied { changes, wall, .. } => {
+                    self.changes_applied += changes;
+                    self.frame_state = wall;
+                }
+                Output::Refused { frame, error } => {
+                    tracing::warn!(
+                        "a change replayed at frame {} was refused: {error}",
+                        frame.0
+                    )
+                }
                 Output::Finished => self.finished = true,
                 Output::Stalled => {
                     bail!("every render node is gone; the frames in flight cannot complete")
@@ -569,7 +409,9 @@ impl Wall {
             self.send(*peer, ToNode::Shutdown);
         }
         let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
-        while self.peers.values().any(|p| p.stats.is_none()) {
+        // Nodes report their figures; control clients have none to give.
+        let waiting = |p: &Peer| p.stats.is_none() && !matches!(p.role, PeerRole::Control);
+        while self.peers.values().any(waiting) {
             let event = tokio::select! {
                 e = events.recv() => e,
                 _ = tokio::time::sleep_until(deadline) => {
@@ -592,88 +434,6 @@ impl Wall {
                 Some(_) => {}
                 None => break,
             }
-        }
-    }
-
-    fn report(&self) -> Report {
-        let start = self.started.unwrap_or_else(Instant::now);
-        let last = self.presents.last().map_or(start, |(_, t)| *t);
-        let elapsed = last.duration_since(start).as_secs_f64();
-        let mut previous = start;
-        let mut frame_ms = Vec::new();
-        let mut start_to_present = Vec::new();
-        for (frame, at) in &self.presents {
-            frame_ms.push(at.duration_since(previous).as_secs_f64() * 1000.0);
-            previous = *at;
-            if let Some(s) = self.frame_started.get(frame) {
-                start_to_present.push(at.duration_since(*s).as_secs_f64() * 1000.0);
-            }
-        }
-        let mut displays: Vec<DisplayReport> = self
-            .peers
-            .values()
-            .filter_map(|p| match (&p.role, &p.stats) {
-                (PeerRole::Display(d), Some(NodeStats::Display(s))) => {
-                    let owned = s.pixels_owned as f64 * 3.0 * s.frames_presented as f64;
-                    Some(DisplayReport {
-                        id: d.0,
-                        host: p.host.clone(),
-                        stats: s.clone(),
-                        wire_bytes_per_pixel_byte: if owned > 0.0 {
-                            s.wire_bytes_received as f64 / owned
-                        } else {
-                            0.0
-                        },
-                    })
-                }
-                _ => None,
-            })
-            .collect();
-        displays.sort_by_key(|d| d.id);
-        let mut render_nodes: Vec<RenderNodeReport> = self
-            .peers
-            .values()
-            .filter_map(|p| match (&p.role, &p.stats) {
-                (PeerRole::Render { node, cores }, Some(NodeStats::Render(s))) => {
-                    Some(RenderNodeReport {
-                        id: node.0,
-                        host: p.host.clone(),
-                        cores: *cores,
-                        stats: s.clone(),
-                        rays_per_s: if s.busy_s > 0.0 {
-                            s.rays as f64 / s.busy_s
-                        } else {
-                            0.0
-                        },
-                    })
-                }
-                _ => None,
-            })
-            .collect();
-        render_nodes.sort_by_key(|r| r.id);
-        let frames = self.presents.len() as u64;
-        Report {
-            frames,
-            compression: self.cfg.compression,
-            wall: WallReport::of(&self.cfg.wall),
-            displays,
-            render_nodes,
-            fps: if elapsed > 0.0 {
-                frames as f64 / elapsed
-            } else {
-                0.0
-            },
-            frame_ms: Percentiles::of_ms(&frame_ms),
-            start_to_present_ms: Percentiles::of_ms(&start_to_present),
-            frame_period_ms: if frames > 0 {
-                elapsed * 1000.0 / frames as f64
-            } else {
-                0.0
-            },
-            timing: self.timing.summary(self.cfg.wall.display_count()),
-            elapsed_s: elapsed,
-            render_nodes_lost: self.lost_render_nodes,
-            changes_applied: self.changes_applied,
         }
     }
 }

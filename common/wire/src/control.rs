@@ -1,0 +1,159 @@
+//! The control interface: what an operator's or a script's client asks a running wall, and
+//! what it answers. Requests travel in [`crate::protocol::FromNode::Control`], answers in
+//! [`crate::protocol::ToNode::ControlReply`], on the client's control stream to the master.
+//!
+//! Every value a request carries is checked by its type on arrival (cameras, cuts, lights),
+//! and a change is checked against the state it would make before it is queued, so a bad
+//! value comes back as [`ControlReply::Refused`] with the reason and the wall goes on.
+
+use crate::state::{StateChange, StateId, WallState};
+use serde::{Deserialize, Serialize};
+
+/// Longest name of a saved view.
+pub const MAX_VIEW_NAME: usize = 64;
+
+/// A saved view's name: 1 to [`MAX_VIEW_NAME`] letters, digits, `-`, `_` or `.`.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+pub struct ViewName(String);
+
+impl ViewName {
+    /// # Errors
+    /// An empty or over-long name, or one with other characters.
+    pub fn new(name: &str) -> Result<ViewName, ControlError> {
+        let ok = !name.is_empty()
+            && name.len() <= MAX_VIEW_NAME
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c));
+        if ok {
+            Ok(ViewName(name.to_string()))
+        } else {
+            Err(ControlError::BadViewName(name.chars().take(80).collect()))
+        }
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl TryFrom<String> for ViewName {
+    type Error = ControlError;
+
+    fn try_from(name: String) -> Result<Self, ControlError> {
+        ViewName::new(&name)
+    }
+}
+
+impl<'de> Deserialize<'de> for ViewName {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, String, Self>(d)
+    }
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ControlError {
+    #[error("view name {0:?} must be 1 to {MAX_VIEW_NAME} letters, digits, '-', '_' or '.'")]
+    BadViewName(String),
+}
+
+/// What a control client asks.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ControlRequest {
+    /// Queue changes for the next frame barrier, all or none: they are checked in order
+    /// against the state they build, and the first refusal refuses the lot.
+    Change(Vec<StateChange>),
+    /// The master's clock (ns since the Unix epoch), for the client to map its own onto it.
+    Clock,
+    /// The state frames render with now, and the one the next barrier applies.
+    State,
+    /// Live figures: frame rate, frame times, what each node has done.
+    Figures,
+    /// Keep the current camera under a name.
+    SaveView(ViewName),
+    /// Go back to a saved view (a change like any other).
+    GotoView(ViewName),
+    /// The names of the saved views.
+    Views,
+    /// Show or hide the displays' overlay (frame rate, who rendered each tile).
+    Overlay(bool),
+    /// Have every display save the next frame to start as `display-<id>-frame-<K>.png` in
+    /// its `--out` directory (the master puts them together as `wall-frame-<K>.png`).
+    Snapshot,
+}
+
+/// The master's answer to one request.
+// The state answer (two whole states) is the largest; answers live one at a time.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ControlReply {
+    /// Changes queued; they take effect at the next barrier.
+    Queued {
+        changes: u32,
+    },
+    Clock {
+        master_ns: u64,
+    },
+    State {
+        /// The last frame started.
+        frame: u64,
+        id: StateId,
+        current: WallState,
+        next: WallState,
+    },
+    Figures(LiveFigures),
+    Views(Vec<ViewName>),
+    /// The frame the displays will save.
+    Snapshot {
+        frame: u64,
+    },
+    /// Done, nothing to say.
+    Done,
+    /// Not done, and why.
+    Refused(String),
+}
+
+/// A running wall's figures, as the control interface reports them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LiveFigures {
+    pub frames_presented: u64,
+    /// Frames presented over the last second.
+    pub fps: f64,
+    /// The last frame's time between presents, and the mean over the last second.
+    pub frame_ms_last: f64,
+    pub frame_ms_mean: f64,
+    pub changes_applied: u64,
+    pub render_nodes: Vec<NodeFigures>,
+    pub displays: Vec<DisplayFigures>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct NodeFigures {
+    pub id: u32,
+    pub host: String,
+    pub cores: u32,
+    /// Tiles it reported rendered since it joined.
+    pub tiles: u64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DisplayFigures {
+    pub id: u32,
+    pub host: String,
+    pub frames_presented: u64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn view_names_are_checked_on_arrival() {
+        assert!(ViewName::new("front-1.2_a").is_ok());
+        for bad in ["", "a b", "../etc", &"x".repeat(65)] {
+            assert!(ViewName::new(bad).is_err(), "{bad:?}");
+        }
+        let bytes = postcard::to_allocvec(&"no spaces".to_string()).unwrap();
+        assert!(crate::protocol::codec::decode::<ViewName>(&bytes).is_err());
+    }
+}

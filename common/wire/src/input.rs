@@ -1,0 +1,122 @@
+//! A person's input at a display window, as it travels to the master: only what steering the
+//! wall needs, in units that do not depend on the window's size.
+
+use serde::{Deserialize, Serialize};
+
+/// The keys that do something on a wall.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Key {
+    /// Fly mode: forward, left, back, right, down, up.
+    W,
+    A,
+    S,
+    D,
+    Q,
+    E,
+    /// Switch between orbiting a pivot and flying.
+    F,
+    /// Back to the home view.
+    H,
+    /// Show or hide the overlay.
+    O,
+    /// Shadows on or off.
+    Digit1,
+    /// Ambient-occlusion rays per hit: 0 → 4 → 16 → 0.
+    Digit2,
+    /// Samples per pixel: 1 → 2 → 4 → 8 → 1.
+    Digit3,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Button {
+    Left,
+    Right,
+    Middle,
+}
+
+/// Largest movement one event may carry, in screen heights (or scroll lines).
+pub const MAX_MOVE: f32 = 100.0;
+
+/// One input event. Mouse movements are in heights of the screen they happened on, so a drag
+/// across one screen turns the view the same whatever its resolution.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub enum InputEvent {
+    Key {
+        key: Key,
+        pressed: bool,
+    },
+    /// The mouse moved by `(dx, dy)` with `button` held (x right, y down).
+    Drag {
+        button: Button,
+        dx: f32,
+        dy: f32,
+    },
+    /// The wheel turned by `lines` (positive: away from the user, zoom in).
+    Scroll {
+        lines: f32,
+    },
+}
+
+#[derive(Deserialize)]
+enum InputEventRaw {
+    Key { key: Key, pressed: bool },
+    Drag { button: Button, dx: f32, dy: f32 },
+    Scroll { lines: f32 },
+}
+
+/// An input event with a movement that is not a finite number within [`MAX_MOVE`].
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("input movement {0} is not a finite number within ±{MAX_MOVE}")]
+pub struct BadMove(pub f32);
+
+fn check_move(v: f32) -> Result<f32, BadMove> {
+    if v.is_finite() && v.abs() <= MAX_MOVE {
+        Ok(v)
+    } else {
+        Err(BadMove(v))
+    }
+}
+
+impl TryFrom<InputEventRaw> for InputEvent {
+    type Error = BadMove;
+
+    fn try_from(raw: InputEventRaw) -> Result<Self, BadMove> {
+        Ok(match raw {
+            InputEventRaw::Key { key, pressed } => InputEvent::Key { key, pressed },
+            InputEventRaw::Drag { button, dx, dy } => InputEvent::Drag {
+                button,
+                dx: check_move(dx)?,
+                dy: check_move(dy)?,
+            },
+            InputEventRaw::Scroll { lines } => InputEvent::Scroll {
+                lines: check_move(lines)?,
+            },
+        })
+    }
+}
+
+impl<'de> Deserialize<'de> for InputEvent {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, InputEventRaw, Self>(d)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn movements_are_checked_on_arrival() {
+        let ok = InputEvent::Drag {
+            button: Button::Left,
+            dx: 0.25,
+            dy: -0.1,
+        };
+        let bytes = postcard::to_allocvec(&ok).unwrap();
+        assert_eq!(postcard::from_bytes::<InputEvent>(&bytes).unwrap(), ok);
+        let bad = InputEvent::Scroll { lines: f32::NAN };
+        let bytes = postcard::to_allocvec(&bad).unwrap();
+        let err = crate::protocol::codec::decode::<InputEvent>(&bytes).unwrap_err();
+        assert!(err.to_string().contains("NaN"), "{err}");
+    }
+}

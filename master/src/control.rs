@@ -1,0 +1,383 @@
+//! `tessera-master control`: the control interface's client, for operators and scripts. It
+//! joins a running wall over QUIC with a control certificate (`issue-cert --role control`),
+//! maps its clock onto the master's so that each command's stamp is on the master's clock,
+//! sends its request and prints the answer (JSON for queries).
+
+use anyhow::{bail, Context, Result};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+use tessera_cli::{parse_plane, parse_range, parse_vec3};
+use tessera_net::cluster::NodeIdentity;
+use tessera_net::link::MasterLink;
+use tessera_wire::camera::{Camera, CameraMode};
+use tessera_wire::control::{ControlReply, ControlRequest, ViewName};
+use tessera_wire::cut::CutPlanes;
+use tessera_wire::light::{Light, Lights};
+use tessera_wire::protocol::{FromNode, Role, ToNode};
+use tessera_wire::state::StateChange;
+
+#[derive(clap::Args, Debug)]
+pub struct ControlArgs {
+    /// The master's address, HOST:PORT (`local` prints it when it starts).
+    #[arg(long)]
+    connect: String,
+    /// A control certificate's directory (`tessera-master issue-cert --role control`).
+    #[arg(long)]
+    cert_dir: PathBuf,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Subcommand, Debug, Clone)]
+pub enum Command {
+    /// Set the camera: --eye and --target (with --up and --fov), or --orbit.
+    Camera {
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "target")]
+        eye: Option<glam::Vec3>,
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "eye")]
+        target: Option<glam::Vec3>,
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        up: Option<glam::Vec3>,
+        /// Vertical field of view of the whole wall, degrees (keeps the others if alone).
+        #[arg(long)]
+        fov: Option<f32>,
+        /// Back to the orbit the wall started with.
+        #[arg(long, conflicts_with_all = ["eye", "target"])]
+        orbit: bool,
+    },
+    /// Set quality knobs; those not given stay as they are.
+    Quality {
+        #[arg(long, value_parser = parse_on_off)]
+        shadows: Option<bool>,
+        /// Ambient-occlusion rays per hit.
+        #[arg(long)]
+        ao: Option<u32>,
+        /// Samples per pixel.
+        #[arg(long)]
+        spp: Option<u32>,
+    },
+    /// Set the cutting planes (NX,NY,NZ,D, up to 4), or --clear them.
+    Cut {
+        #[arg(long = "plane", value_parser = parse_plane, allow_hyphen_values = true)]
+        planes: Vec<(glam::Vec3, f32)>,
+        #[arg(long, conflicts_with = "planes")]
+        clear: bool,
+    },
+    /// Draw only particles whose attribute is in LO,HI, or --off.
+    Crop {
+        #[arg(value_parser = parse_range, allow_hyphen_values = true, required_unless_present = "off")]
+        range: Option<(f32, f32)>,
+        #[arg(long)]
+        off: bool,
+    },
+    /// Replace the scene's lights (up to 8), or go back to them with --scene.
+    Lights {
+        /// A sun from direction X,Y,Z with intensity I: X,Y,Z,I.
+        #[arg(long, value_parser = parse_light_dir, allow_hyphen_values = true)]
+        directional: Vec<Light>,
+        /// A point light at X,Y,Z with intensity I: X,Y,Z,I.
+        #[arg(long, value_parser = parse_light_point, allow_hyphen_values = true)]
+        point: Vec<Light>,
+        #[arg(long, conflicts_with_all = ["directional", "point"])]
+        scene: bool,
+    },
+    /// Print the wall's state (now and after the next barrier) as JSON.
+    State,
+    /// Print live figures (fps, frame time, per node) as JSON.
+    Figures,
+    /// Keep the current camera as a named view.
+    SaveView { name: String },
+    /// Go back to a named view.
+    View { name: String },
+    /// List the saved views.
+    Views,
+    /// Show or hide the displays' overlay.
+    Overlay {
+        #[arg(value_parser = parse_on_off)]
+        on: bool,
+    },
+    /// Have the displays save the next frame; prints its number.
+    Snapshot,
+    /// Run control commands from FILE (`-`: standard input), one per line, as written after
+    /// `control ... ` on the command line; blank lines and lines starting with # are skipped.
+    Script { file: PathBuf },
+}
+
+fn parse_on_off(text: &str) -> Result<bool, String> {
+    match text {
+        "on" | "true" | "1" => Ok(true),
+        "off" | "false" | "0" => Ok(false),
+        _ => Err(format!("`{text}` is not on or off")),
+    }
+}
+
+fn parse_light(text: &str) -> Result<(glam::Vec3, f32), String> {
+    let (xyz, intensity) = parse_plane(text).map_err(|e| {
+        format!(
+            "{}; a light is X,Y,Z,INTENSITY",
+            e.to_string().replace("NX,NY,NZ,D", "X,Y,Z,I")
+        )
+    })?;
+    Ok((xyz, intensity))
+}
+
+fn parse_light_dir(text: &str) -> Result<Light, String> {
+    let (towards, intensity) = parse_light(text)?;
+    Ok(Light::directional(towards, intensity))
+}
+
+fn parse_light_point(text: &str) -> Result<Light, String> {
+    let (position, intensity) = parse_light(text)?;
+    Ok(Light::Point {
+        position,
+        intensity,
+    })
+}
+
+/// A control connection to a running wall.
+pub struct ControlClient {
+    link: MasterLink,
+    next_id: u32,
+    /// Master clock minus this host's clock, ns.
+    offset_ns: i64,
+    /// The orbit the wall started with, for `camera --orbit`.
+    home: Option<CameraMode>,
+}
+
+impl ControlClient {
+    /// Connects to the master at `master` with the control certificate in `cert_dir`, and
+    /// maps this host's clock onto the master's from the fastest of a few round trips.
+    pub async fn connect(master: &str, cert_dir: &std::path::Path) -> Result<ControlClient> {
+        let identity = NodeIdentity::load(cert_dir)?;
+        let addr = tessera_net::resolve(master).await?;
+        let bind: SocketAddr = if addr.is_ipv6() {
+            "[::]:0"
+        } else {
+            "0.0.0.0:0"
+        }
+        .parse()?;
+        let endpoint = tessera_net::quic::endpoint(bind, &identity, false)?;
+        let (link, _welcome) = MasterLink::join(&endpoint, addr, Role::Control)
+            .await
+            .context("is the wall running there? see --help")?;
+        let mut client = ControlClient {
+            link,
+            next_id: 0,
+            offset_ns: 0,
+            home: None,
+        };
+        client.sync_clock().await?;
+        if let ControlReply::State { current, .. } = client.ask(ControlRequest::State).await? {
+            client.home = current
+                .camera
+                .fixed_camera()
+                .is_none()
+                .then_some(current.camera);
+        }
+        Ok(client)
+    }
+
+    async fn sync_clock(&mut self) -> Result<()> {
+        let mut best: Option<(u64, i64)> = None;
+        for _ in 0..8 {
+            let sent = tessera_net::unix_ns();
+            let ControlReply::Clock { master_ns } = self.ask(ControlRequest::Clock).await? else {
+                bail!("the master answered a clock request with something else");
+            };
+            let back = tessera_net::unix_ns();
+            let rtt = back.saturating_sub(sent);
+            let offset = master_ns as i64 - (sent + rtt / 2) as i64;
+            if best.is_none_or(|(r, _)| rtt < r) {
+                best = Some((rtt, offset));
+            }
+        }
+        self.offset_ns = best.map_or(0, |(_, o)| o);
+        Ok(())
+    }
+
+    /// Sends one request, stamped now on the master's clock, and waits (bounded) for its answer.
+    pub async fn ask(&mut self, request: ControlRequest) -> Result<ControlReply> {
+        let id = self.next_id;
+        self.next_id = self.next_id.wrapping_add(1);
+        let stamp_ns = (tessera_net::unix_ns() as i64 + self.offset_ns).max(1) as u64;
+        self.link
+            .send(&FromNode::Control {
+                id,
+                request,
+                stamp_ns,
+            })
+            .await?;
+        let wait = async {
+            loop {
+                match self.link.recv().await? {
+                    ToNode::ControlReply { id: got, reply } if got == id => return Ok(reply),
+                    ToNode::ControlReply { .. } => {}
+                    ToNode::Shutdown => bail!("the wall shut down"),
+                    other => bail!(
+                        "the master sent a control client a {} message",
+                        other.kind()
+                    ),
+                }
+            }
+        };
+        tokio::time::timeout(Duration::from_secs(10), wait)
+            .await
+            .context("the master did not answer within 10 s")?
+    }
+
+    /// Turns a command into its request (reading the state where a change keeps what it does
+    /// not name) and asks it.
+    pub async fn run(&mut self, command: &Command) -> Result<ControlReply> {
+        let request = match command {
+            Command::Camera {
+                eye,
+                target,
+                up,
+                fov,
+                orbit,
+            } => ControlRequest::Change(vec![StateChange::Camera(
+                self.camera(*eye, *target, *up, *fov, *orbit).await?,
+            )]),
+            Command::Quality { shadows, ao, spp } => {
+                let mut changes = Vec::new();
+                changes.extend(shadows.map(StateChange::Shadows));
+                changes.extend(ao.map(StateChange::AoSamples));
+                changes.extend(spp.map(StateChange::Spp));
+                if changes.is_empty() {
+                    bail!("quality: give --shadows, --ao or --spp");
+                }
+                ControlRequest::Change(changes)
+            }
+            Command::Cut { planes, clear } => {
+                let planes: &[(glam::Vec3, f32)] = if *clear { &[] } else { planes };
+                ControlRequest::Change(vec![StateChange::Cuts(
+                    CutPlanes::new(planes).context("--plane")?,
+                )])
+            }
+            Command::Crop { range, off } => {
+                ControlRequest::Change(vec![StateChange::Crop(if *off { None } else { *range })])
+            }
+            Command::Lights {
+                directional,
+                point,
+                scene,
+            } => {
+                let lights: Vec<Light> = directional.iter().chain(point).copied().collect();
+                let set = if *scene {
+                    None
+                } else {
+                    Some(Lights::new(&lights).context("lights")?)
+                };
+                ControlRequest::Change(vec![StateChange::Lights(set)])
+            }
+            Command::State => ControlRequest::State,
+            Command::Figures => ControlRequest::Figures,
+            Command::SaveView { name } => ControlRequest::SaveView(ViewName::new(name)?),
+            Command::View { name } => ControlRequest::GotoView(ViewName::new(name)?),
+            Command::Views => ControlRequest::Views,
+            Command::Overlay { on } => ControlRequest::Overlay(*on),
+            Command::Snapshot => ControlRequest::Snapshot,
+            Command::Script { .. } => bail!("a script cannot run a script"),
+        };
+        self.ask(request).await
+    }
+
+    async fn camera(
+        &mut self,
+        eye: Option<glam::Vec3>,
+        target: Option<glam::Vec3>,
+        up: Option<glam::Vec3>,
+        fov: Option<f32>,
+        orbit: bool,
+    ) -> Result<CameraMode> {
+        if orbit {
+            return self
+                .home
+                .context("the wall started with a fixed camera: there is no orbit to go back to");
+        }
+        // What is not given is kept from the camera on the wall now.
+        let ControlReply::State { next, frame, .. } = self.ask(ControlRequest::State).await? else {
+            bail!("the master answered a state request with something else");
+        };
+        let now = next.camera.camera_for_frame(frame);
+        let camera = Camera::new(
+            eye.unwrap_or(now.eye()),
+            target.unwrap_or(now.target()),
+            up.unwrap_or(now.up()),
+            fov.unwrap_or(now.fov_y_deg()),
+        )
+        .context("camera")?;
+        Ok(CameraMode::fixed(camera))
+    }
+}
+
+/// Prints an answer: queries as JSON on stdout, refusals on stderr. Whether it was refused.
+fn print(reply: &ControlReply) -> Result<bool> {
+    match reply {
+        ControlReply::Refused(why) => {
+            eprintln!("tessera-master control: refused: {why}");
+            return Ok(true);
+        }
+        ControlReply::State { .. } | ControlReply::Figures(_) | ControlReply::Views(_) => {
+            println!("{}", serde_json::to_string_pretty(reply)?);
+        }
+        ControlReply::Snapshot { frame } => println!("{frame}"),
+        ControlReply::Queued { .. } | ControlReply::Done | ControlReply::Clock { .. } => {}
+    }
+    Ok(false)
+}
+
+/// The lines of a script, each parsed as a command.
+fn script(file: &std::path::Path) -> Result<Vec<Command>> {
+    use clap::Parser;
+    #[derive(clap::Parser)]
+    #[command(no_binary_name = true)]
+    struct Line {
+        #[command(subcommand)]
+        command: Command,
+    }
+    let text = if file == std::path::Path::new("-") {
+        std::io::read_to_string(std::io::stdin()).context("cannot read standard input")?
+    } else {
+        std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?
+    };
+    let mut commands = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let parsed = Line::try_parse_from(line.split_whitespace())
+            .map_err(|e| anyhow::anyhow!("{}:{}: {}", file.display(), n + 1, e.render()))?;
+        commands.push(parsed.command);
+    }
+    Ok(commands)
+}
+
+pub async fn control(args: ControlArgs) -> Result<ExitCode> {
+    // A script is read whole before connecting, so a typo on line 900 fails before line 1 runs.
+    let commands = match &args.command {
+        Command::Script { file } => script(file)?,
+        other => vec![other.clone()],
+    };
+    let mut client = ControlClient::connect(&args.connect, &args.cert_dir).await?;
+    let mut refused = 0;
+    for command in &commands {
+        if print(&client.run(command).await?)? {
+            refused += 1;
+        }
+    }
+    Ok(if refused == 0 {
+        ExitCode::SUCCESS
+    } else {
+        if commands.len() > 1 {
+            eprintln!(
+                "tessera-master control: {refused} of {} commands refused",
+                commands.len()
+            );
+        }
+        ExitCode::FAILURE
+    })
+}

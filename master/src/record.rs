@@ -1,0 +1,203 @@
+//! Sessions as files: `--record FILE` writes what every frame is rendered with, one JSON line
+//! each time it changes, and `--replay FILE` drives a wall from such a file, each state landing
+//! on the frame it was recorded at. `render --replay FILE --frame K` renders frame K of a
+//! recorded session in one process, which must equal what the wall showed: every interactive
+//! session is a regression test.
+//!
+//! A line is self-contained: the frame, the state's id on the recording wall, the camera mode
+//! (a fixed camera or the orbit, so frame K's camera follows from it), every quality knob, the
+//! cutting planes and the lights, and the concrete camera of that frame for a person to read.
+//! Lines are checked on reading as everything from outside is: a bad line is an error naming
+//! the file and the line.
+
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::Path;
+use tessera_wire::camera::Camera;
+use tessera_wire::protocol::FrameStart;
+use tessera_wire::state::{StateId, WallState};
+
+/// One line of a session file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Recorded {
+    pub frame: u64,
+    pub state: StateId,
+    /// Everything the frame renders with; what a replay applies.
+    pub wall: WallState,
+    /// The camera of `frame` itself (the orbit's position there), for reading; not replayed.
+    pub camera_at_frame: Camera,
+}
+
+/// Writes a session file as the wall runs.
+pub struct Recorder {
+    out: std::io::BufWriter<std::fs::File>,
+    last: Option<WallState>,
+    path: String,
+}
+
+impl Recorder {
+    pub fn create(path: &Path) -> Result<Recorder> {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create the --record file {}", path.display()))?;
+        Ok(Recorder {
+            out: std::io::BufWriter::new(file),
+            last: None,
+            path: path.display().to_string(),
+        })
+    }
+
+    /// Frame `start` begins with state `wall` (its mode, as the frame start holds only the
+    /// frame's camera): a line if anything it renders with differs from the line before.
+    pub fn frame(&mut self, start: &FrameStart, wall: WallState) -> Result<()> {
+        // The frame's own parameters, which refinement passes may have raised above the state's.
+        let wall = WallState {
+            params: start.params,
+            ..wall
+        };
+        if self.last == Some(wall) {
+            return Ok(());
+        }
+        self.last = Some(wall);
+        let line = Recorded {
+            frame: start.frame.0,
+            state: start.state,
+            wall,
+            camera_at_frame: start.camera,
+        };
+        serde_json::to_writer(&mut self.out, &line)?;
+        self.out.write_all(b"\n")?;
+        // Flushed line by line: a session cut short by a crash is still a session up to there.
+        self.out
+            .flush()
+            .with_context(|| format!("cannot write the --record file {}", self.path))
+    }
+}
+
+/// A session file, read and checked.
+#[derive(Clone, Debug)]
+pub struct Session {
+    pub lines: Vec<Recorded>,
+}
+
+impl Session {
+    pub fn load(path: &Path) -> Result<Session> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read the session file {}", path.display()))?;
+        let mut lines: Vec<Recorded> = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let recorded: Recorded = serde_json::from_str(line)
+                .with_context(|| format!("{}: line {}", path.display(), n + 1))?;
+            if let Some(last) = lines.last() {
+                if recorded.frame <= last.frame {
+                    bail!(
+                        "{}: line {}: frame {} does not come after frame {}",
+                        path.display(),
+                        n + 1,
+                        recorded.frame,
+                        last.frame
+                    );
+                }
+            }
+            lines.push(recorded);
+        }
+        if lines.is_empty() {
+            bail!("the session file {} records no frame", path.display());
+        }
+        Ok(Session { lines })
+    }
+
+    /// The state frame `frame` was rendered with: the last line at or before it.
+    pub fn state_at(&self, frame: u64) -> Result<WallState> {
+        self.lines
+            .iter()
+            .rev()
+            .find(|l| l.frame <= frame)
+            .map(|l| l.wall)
+            .with_context(|| {
+                format!(
+                    "the session starts at frame {}, after frame {frame}",
+                    self.lines[0].frame
+                )
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+    use tessera_wire::camera::CameraMode;
+    use tessera_wire::params::RenderParams;
+    use tessera_wire::protocol::FrameId;
+
+    fn start(frame: u64, state: u64, ao: u32) -> (FrameStart, WallState) {
+        let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap();
+        let params = tessera_wire::params::RenderParamsSpec {
+            ao_samples: ao,
+            ..RenderParams::interactive().spec()
+        }
+        .build()
+        .unwrap();
+        let wall = WallState {
+            camera: CameraMode::fixed(camera),
+            params,
+            lights: None,
+        };
+        (
+            FrameStart::new(FrameId(frame), StateId(state), camera, params),
+            wall,
+        )
+    }
+
+    #[test]
+    fn a_recorded_session_reads_back_and_answers_for_every_frame() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.jsonl");
+        let mut rec = Recorder::create(&path).unwrap();
+        for (frame, state, ao) in [(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 1, 4), (4, 1, 4)] {
+            let (s, w) = start(frame, state, ao);
+            rec.frame(&s, w).unwrap();
+        }
+        drop(rec);
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(
+            text.lines().count(),
+            2,
+            "a line per change, not per frame:\n{text}"
+        );
+        let session = Session::load(&path).unwrap();
+        assert_eq!(session.state_at(2).unwrap().params.ao_samples(), 0);
+        assert_eq!(session.state_at(3).unwrap().params.ao_samples(), 4);
+        assert_eq!(session.state_at(99).unwrap().params.ao_samples(), 4);
+    }
+
+    #[test]
+    fn bad_lines_are_errors_naming_the_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.jsonl");
+        let mut rec = Recorder::create(&path).unwrap();
+        let (s, w) = start(0, 0, 0);
+        rec.frame(&s, w).unwrap();
+        drop(rec);
+        let good = std::fs::read_to_string(&path).unwrap();
+        let bad = good.replace("\"ao_samples\":0", "\"ao_samples\":4000000000");
+        std::fs::write(
+            &path,
+            format!("{good}{}", bad.replace("\"frame\":0", "\"frame\":5")),
+        )
+        .unwrap();
+        let err = format!("{:#}", Session::load(&path).unwrap_err());
+        assert!(
+            err.contains("line 2") && err.contains("4000000000"),
+            "{err}"
+        );
+        std::fs::write(&path, format!("{good}{good}")).unwrap();
+        let err = format!("{:#}", Session::load(&path).unwrap_err());
+        assert!(err.contains("does not come after"), "{err}");
+    }
+}

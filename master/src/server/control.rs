@@ -1,0 +1,185 @@
+//! The control interface, master side: each request of a control client is answered at once
+//! from the driver's state, and a change is checked and queued for the next frame barrier.
+//! Nothing a client sends can block the loop: answers go through the peer's bounded queue, a
+//! client that does not read them is closed.
+
+use super::*;
+use std::collections::BTreeMap;
+use tessera_wire::control::{
+    ControlReply, ControlRequest, DisplayFigures, LiveFigures, NodeFigures, ViewName,
+};
+use tessera_wire::protocol::FrameStart;
+use tessera_wire::state::StateChange;
+
+/// What the driver keeps for the control interface and the displays' overlay.
+#[derive(Default)]
+pub(super) struct Live {
+    /// Saved views, by name.
+    views: BTreeMap<ViewName, CameraMode>,
+    /// Tiles each render node reported done since it joined.
+    pub(super) tiles: BTreeMap<RenderNodeId, u64>,
+    /// Presents each display reported.
+    pub(super) presented: BTreeMap<DisplayId, u64>,
+    /// The last frame started, whose camera a saved view keeps.
+    pub(super) last_start: Option<FrameStart>,
+    pub(super) overlay: bool,
+    /// Frames a control client asked the displays to save, for `wall-frame-<K>.png`.
+    pub(super) snapshots: Vec<FrameId>,
+}
+
+impl Wall {
+    pub(super) fn handle_control(
+        &mut self,
+        peer: PeerId,
+        id: u32,
+        request: ControlRequest,
+        stamp_ns: u64,
+    ) {
+        let reply = match self.answer(request, stamp_ns) {
+            Ok(reply) => reply,
+            Err(why) => ControlReply::Refused(why),
+        };
+        self.send(peer, ToNode::ControlReply { id, reply });
+    }
+
+    fn answer(&mut self, request: ControlRequest, stamp_ns: u64) -> Result<ControlReply, String> {
+        // A client that could not map its clock onto the master's says 0: stamp it on arrival.
+        let stamp = if stamp_ns == 0 { unix_ns() } else { stamp_ns };
+        Ok(match request {
+            ControlRequest::Change(changes) => self.queue_all(&changes, stamp)?,
+            ControlRequest::Clock => ControlReply::Clock {
+                master_ns: unix_ns(),
+            },
+            ControlRequest::State => {
+                let (id, current) = self.coordinator.state();
+                ControlReply::State {
+                    frame: self.live.last_start.map_or(0, |s| s.frame.0),
+                    id,
+                    current,
+                    next: self.coordinator.next_state(),
+                }
+            }
+            ControlRequest::Figures => ControlReply::Figures(self.figures()),
+            ControlRequest::SaveView(name) => {
+                let camera = self.current_camera();
+                self.live.views.insert(name, camera);
+                ControlReply::Done
+            }
+            ControlRequest::GotoView(name) => {
+                let camera = *self
+                    .live
+                    .views
+                    .get(&name)
+                    .ok_or_else(|| format!("there is no view named {}", name.as_str()))?;
+                self.queue_all(&[StateChange::Camera(camera)], stamp)?
+            }
+            ControlRequest::Views => ControlReply::Views(self.live.views.keys().cloned().collect()),
+            ControlRequest::Overlay(on) => {
+                self.live.overlay = on;
+                for peer in self.displays.values() {
+                    self.send(*peer, ToNode::Overlay { on });
+                }
+                ControlReply::Done
+            }
+            ControlRequest::Snapshot => {
+                let frame = self.coordinator.next_frame();
+                self.live.snapshots.push(frame);
+                for peer in self.displays.values() {
+                    self.send(*peer, ToNode::SaveFrame { frame });
+                }
+                ControlReply::Snapshot { frame: frame.0 }
+            }
+        })
+    }
+
+    /// Queues `changes` all or none: each is checked against the state the ones before it make.
+    pub(super) fn queue_all(
+        &mut self,
+        changes: &[StateChange],
+        stamp: u64,
+    ) -> Result<ControlReply, String> {
+        let mut next = self.coordinator.next_state();
+        for (i, change) in changes.iter().enumerate() {
+            next = next
+                .apply(change)
+                .map_err(|e| format!("change {} of {}: {e}", i + 1, changes.len()))?;
+        }
+        for change in changes {
+            self.coordinator
+                .queue_change(*change, stamp)
+                .map_err(|e| e.to_string())?;
+        }
+        Ok(ControlReply::Queued {
+            changes: changes.len() as u32,
+        })
+    }
+
+    /// The camera on the wall now, as a fixed camera: what a saved view keeps and where
+    /// steering starts from (an orbit frozen at its last frame).
+    pub(super) fn current_camera(&self) -> CameraMode {
+        let mode = self.coordinator.next_state().camera;
+        match (mode.fixed_camera(), self.live.last_start) {
+            (Some(_), _) | (None, None) => mode,
+            (None, Some(start)) => CameraMode::fixed(start.camera),
+        }
+    }
+
+    fn figures(&self) -> LiveFigures {
+        let now = Instant::now();
+        let recent: Vec<Instant> = self
+            .presents
+            .iter()
+            .rev()
+            .map(|(_, at)| *at)
+            .take_while(|at| now.duration_since(*at) <= Duration::from_secs(1))
+            .collect();
+        let gaps: Vec<f64> = self
+            .presents
+            .windows(2)
+            .rev()
+            .take(recent.len().max(1))
+            .map(|w| w[1].1.duration_since(w[0].1).as_secs_f64() * 1000.0)
+            .collect();
+        let mean = |v: &[f64]| {
+            if v.is_empty() {
+                0.0
+            } else {
+                v.iter().sum::<f64>() / v.len() as f64
+            }
+        };
+        let render_nodes = self
+            .peers
+            .values()
+            .filter_map(|p| match p.role {
+                PeerRole::Render { node, cores } => Some(NodeFigures {
+                    id: node.0,
+                    host: p.host.clone(),
+                    cores,
+                    tiles: self.live.tiles.get(&node).copied().unwrap_or(0),
+                }),
+                _ => None,
+            })
+            .collect();
+        let displays = self
+            .displays
+            .iter()
+            .map(|(d, peer)| DisplayFigures {
+                id: d.0,
+                host: self
+                    .peers
+                    .get(peer)
+                    .map_or_else(String::new, |p| p.host.clone()),
+                frames_presented: self.live.presented.get(d).copied().unwrap_or(0),
+            })
+            .collect();
+        LiveFigures {
+            frames_presented: self.presents.len() as u64,
+            fps: recent.len() as f64,
+            frame_ms_last: gaps.first().copied().unwrap_or(0.0),
+            frame_ms_mean: mean(&gaps),
+            changes_applied: self.changes_applied,
+            render_nodes,
+            displays,
+        }
+    }
+}

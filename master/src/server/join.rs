@@ -1,0 +1,208 @@
+//! Peers joining and leaving the wall: who they say they are, whether their certificate lets
+//! them be that, what the master answers, and what their departure costs the run.
+
+use super::*;
+use tessera_net::cluster::CertRole;
+use tessera_wire::protocol::Hello;
+
+/// Whether a certificate naming `roles` may join as `role`. Certificates from before roles
+/// (naming none) may be render or display nodes, never control clients.
+fn allowed(role: &Role, roles: &[CertRole]) -> bool {
+    let needed = match role {
+        Role::Render { .. } => CertRole::Render,
+        Role::Display { .. } => CertRole::Display,
+        Role::Control => CertRole::Control,
+    };
+    roles.contains(&needed) || (roles.is_empty() && needed != CertRole::Control)
+}
+
+impl Wall {
+    pub(super) fn handle(&mut self, event: Event) -> Result<()> {
+        let now = Instant::now();
+        match event {
+            Event::Joined {
+                peer,
+                hello,
+                conn,
+                tx,
+            } => self.join(peer, hello, conn, tx),
+            Event::Msg(peer, msg) => {
+                if let Err(e) = self.handle_msg(peer, msg, now) {
+                    let who = self.describe(peer);
+                    tracing::error!("closing {who}: {e:#}");
+                    if let Some(p) = self.peers.get(&peer) {
+                        p.conn.close(2u32.into(), b"protocol violation");
+                    }
+                    self.drop_peer(peer, now, "protocol violation")?;
+                }
+            }
+            Event::Closed(peer, reason) => self.drop_peer(peer, now, &reason)?,
+        }
+        Ok(())
+    }
+
+    fn join(&mut self, peer: PeerId, hello: Hello, conn: quinn::Connection, tx: PeerSender) {
+        let remote = conn.remote_address();
+        let roles = tessera_net::quic::peer_roles(&conn);
+        if !allowed(&hello.role, &roles) {
+            let named: Vec<&str> = roles.iter().map(|r| r.name()).collect();
+            let reason = format!(
+                "its certificate is for {}, not for joining as {}; issue one with `tessera-master issue-cert --role ...`",
+                if named.is_empty() { "a render or display node".to_string() } else { named.join(", ") },
+                role_name(&hello.role)
+            );
+            tracing::warn!("refused {} from {remote}: {reason}", hello.host);
+            let _ = tx.try_send(ToNode::Refused { reason });
+            return;
+        }
+        let host = hello.host;
+        let role = match hello.role {
+            Role::Display {
+                display,
+                pixel_addr,
+            } => match self.join_display(display, pixel_addr, &host, remote) {
+                Ok(()) => PeerRole::Display(display),
+                Err(reason) => {
+                    tracing::warn!("refused {host} from {remote}: {reason}");
+                    let _ = tx.try_send(ToNode::Refused { reason });
+                    return;
+                }
+            },
+            Role::Render { cores } => {
+                let node = RenderNodeId(self.next_render_id);
+                self.next_render_id += 1;
+                tracing::info!(
+                    "render node {} joined from {host} ({remote}), {cores} cores",
+                    node.0
+                );
+                PeerRole::Render { node, cores }
+            }
+            Role::Control => {
+                tracing::info!("control client joined from {host} ({remote})");
+                PeerRole::Control
+            }
+        };
+        let welcome_now = !matches!(role, PeerRole::Render { .. }) || self.all_displays_known();
+        let is_display = matches!(role, PeerRole::Display(_));
+        if let PeerRole::Display(display) = role {
+            self.displays.insert(display, peer);
+        }
+        self.peers.insert(
+            peer,
+            Peer {
+                role,
+                host,
+                tx,
+                conn,
+                ready: false,
+                stats: None,
+            },
+        );
+        if welcome_now {
+            self.welcome(peer);
+        }
+        if is_display && self.all_displays_known() {
+            // Render nodes that came first wait for every display's address.
+            let waiting: Vec<PeerId> = self
+                .peers
+                .iter()
+                .filter(|(_, p)| matches!(p.role, PeerRole::Render { .. }) && !p.ready)
+                .map(|(id, _)| *id)
+                .collect();
+            for p in waiting {
+                self.welcome(p);
+            }
+        }
+    }
+
+    /// Checks a display's claim and records where render nodes reach it.
+    fn join_display(
+        &mut self,
+        display: DisplayId,
+        pixel_addr: SocketAddr,
+        host: &str,
+        remote: SocketAddr,
+    ) -> Result<(), String> {
+        let count = self.cfg.wall.display_count();
+        if display.0 >= count {
+            return Err(format!(
+                "display {} does not exist on a {count}-display wall",
+                display.0
+            ));
+        }
+        if self.displays.contains_key(&display) {
+            return Err(format!("display {} has already joined", display.0));
+        }
+        let addr = if pixel_addr.ip().is_unspecified() {
+            SocketAddr::new(remote.ip(), pixel_addr.port())
+        } else {
+            pixel_addr
+        };
+        let id = display.0;
+        tracing::info!("display {id} joined from {host} ({remote}), pixels at {addr}");
+        if host == tessera_net::hostname() {
+            self.timing.same_host(display);
+        }
+        self.display_endpoints.insert(display, addr);
+        Ok(())
+    }
+
+    pub(super) fn drop_peer(&mut self, peer: PeerId, now: Instant, reason: &str) -> Result<()> {
+        let who = self.describe(peer);
+        let Some(p) = self.peers.remove(&peer) else {
+            return Ok(());
+        };
+        if self.finished {
+            return Ok(());
+        }
+        match p.role {
+            PeerRole::Display(d) => {
+                self.displays.remove(&d);
+                self.display_endpoints.remove(&d);
+                bail!(
+                    "{who} disconnected ({reason}); a wall cannot go on without one of its screens"
+                );
+            }
+            PeerRole::Render { node, .. } => {
+                if p.ready && self.started.is_some() {
+                    self.lost_render_nodes += 1;
+                    tracing::error!(
+                        "{who} disconnected ({reason}); its tiles go to the other render nodes"
+                    );
+                } else {
+                    tracing::warn!("{who} left before the first frame ({reason})");
+                }
+                if p.ready {
+                    self.coordinator.handle_render_left(node, now);
+                }
+            }
+            PeerRole::Control => tracing::info!("{who} left ({reason})"),
+        }
+        Ok(())
+    }
+}
+
+fn role_name(role: &Role) -> &'static str {
+    match role {
+        Role::Render { .. } => "a render node",
+        Role::Display { .. } => "a display",
+        Role::Control => "a control client",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_certificate_lets_its_holder_join_only_as_its_role() {
+        let render = Role::Render { cores: 1 };
+        assert!(allowed(&render, &[CertRole::Render]));
+        assert!(allowed(&render, &[]), "certificates from before roles");
+        assert!(!allowed(&render, &[CertRole::Control]));
+        assert!(allowed(&Role::Control, &[CertRole::Control]));
+        assert!(!allowed(&Role::Control, &[]));
+        assert!(!allowed(&Role::Control, &[CertRole::Render]));
+        assert!(!allowed(&Role::Control, &[CertRole::Master]));
+    }
+}

@@ -1,0 +1,242 @@
+//! The control interface on a running local wall: changes land at the next barrier on every
+//! display and equal the recorded session rendered in one process; bad values are refused and
+//! the wall goes on; a thousand changes from two controllers at once are all applied; only a
+//! control certificate may control.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use tessera_tests::*;
+
+const LIMIT: Duration = Duration::from_secs(120);
+
+/// A local 2x1 wall that runs until interrupted, recording its session, and the control
+/// command's `--connect ADDR --cert-dir DIR` that `local` prints.
+struct Wall {
+    master: Proc,
+    connect: Vec<String>,
+    out: PathBuf,
+    record: PathBuf,
+}
+
+fn start_wall(dir: &Path, extra: &[&str]) -> Wall {
+    let out = dir.join("out");
+    let record = dir.join("session.jsonl");
+    let mut args = vec![
+        "local",
+        "--wall",
+        "2x1",
+        "--screen",
+        "160x90",
+        "--bezel",
+        "8",
+        "--frames",
+        "0",
+        "--out",
+        out.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--save-frame",
+        "1",
+    ];
+    args.extend(extra);
+    let master = Proc::start("tessera-master", &args);
+    let line = master.wait_for_stderr("control with", LIMIT);
+    let command = line
+        .split('`')
+        .nth(1)
+        .expect("the command between backquotes");
+    let connect: Vec<String> = command
+        .split_whitespace()
+        .skip(2) // tessera-master control
+        .map(str::to_string)
+        .collect();
+    assert_eq!(connect[0], "--connect", "{line}");
+    // Steer a wall that is running: frames flow once frame 1 is on screen.
+    let shown = out.join("display-1.png");
+    assert!(
+        wait_for(LIMIT, || shown.exists() || master.has_exited()),
+        "the wall never started"
+    );
+    Wall {
+        master,
+        connect,
+        out,
+        record,
+    }
+}
+
+impl Wall {
+    fn control(&self, command: &[&str]) -> Output {
+        let mut args: Vec<&str> = vec!["control"];
+        args.extend(self.connect.iter().map(String::as_str));
+        args.extend(command);
+        run("tessera-master", &args, LIMIT)
+    }
+
+    /// Interrupts the wall and returns its report.
+    fn stop(self) -> serde_json::Value {
+        self.master.signal(libc::SIGINT);
+        let o = self.master.wait(LIMIT);
+        assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
+        read_json(&self.out.join("report.json"))
+    }
+}
+
+#[test]
+fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = start_wall(dir.path(), &[]);
+    for command in [
+        &[
+            "camera", "--eye", "3,2.5,6", "--target", "0,0.5,0", "--fov", "40",
+        ][..],
+        &["quality", "--ao", "2", "--shadows", "off"],
+        &["cut", "--plane", "0,0,1,0.5"],
+    ] {
+        wall.control(command).assert_success(&command.join(" "));
+    }
+    // Refused with the reason, and nothing of it applied.
+    let bad = wall.control(&["quality", "--ao", "5000"]);
+    bad.assert_refused("--ao 5000", &["5000", "1024"]);
+    let bad = wall.control(&["camera", "--eye", "0,0,0", "--target", "0,0,0"]);
+    bad.assert_refused("eye on target", &["eye and target"]);
+
+    // The next frame to start comes after the barrier that applies all of the above.
+    let snap = wall.control(&["snapshot"]);
+    snap.assert_success("snapshot");
+    let frame: u64 = snap.stdout.trim().parse().expect("a frame number");
+    for d in 0..2 {
+        let png = wall.out.join(format!("display-{d}-frame-{frame}.png"));
+        assert!(
+            wait_for(LIMIT, || png.exists()),
+            "display {d} never saved frame {frame}"
+        );
+    }
+    let state = wall.control(&["state"]);
+    state.assert_success("state");
+    assert!(
+        state.stdout.contains("\"ao_samples\": 2"),
+        "{}",
+        state.stdout
+    );
+    let (out, record) = (wall.out.clone(), wall.record.clone());
+    let report = wall.stop();
+    assert_eq!(
+        report["changes_applied"], 4,
+        "camera, ao, shadows, cut: {report}"
+    );
+
+    // The recorded state at that frame holds every change...
+    let session = std::fs::read_to_string(&record).unwrap();
+    let at_frame = session
+        .lines()
+        .rfind(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            v["frame"].as_u64().unwrap() <= frame
+        })
+        .expect("a recorded state at or before the snapshot");
+    let v: serde_json::Value = serde_json::from_str(at_frame).unwrap();
+    assert_eq!(v["wall"]["params"]["ao_samples"], 2, "{at_frame}");
+    assert_eq!(v["wall"]["params"]["shadows"], false, "{at_frame}");
+    assert_eq!(v["wall"]["params"]["cuts"].as_array().unwrap().len(), 1);
+    assert_eq!(v["camera_at_frame"]["fov_y_deg"], 40.0, "{at_frame}");
+    // ...and the wall showed exactly what rendering that frame of the session gives.
+    let reference = dir.path().join("reference");
+    let frame_arg = frame.to_string();
+    run(
+        "tessera-master",
+        &[
+            "render",
+            "--wall",
+            "2x1",
+            "--screen",
+            "160x90",
+            "--bezel",
+            "8",
+            "--replay",
+            record.to_str().unwrap(),
+            "--frame",
+            &frame_arg,
+            "--out",
+            reference.to_str().unwrap(),
+        ],
+        LIMIT,
+    )
+    .assert_success("render --replay");
+    let (w, h, shown) = load_rgb(&out.join(format!("wall-frame-{frame}.png")));
+    let (rw, rh, expected) = load_rgb(&reference.join("wall.png"));
+    assert_eq!((w, h), (rw, rh));
+    let differing = shown.iter().zip(&expected).filter(|(a, b)| a != b).count();
+    assert_eq!(
+        differing, 0,
+        "frame {frame} differs from the replayed render"
+    );
+}
+
+#[test]
+fn a_thousand_changes_from_two_controllers_at_once_are_all_applied() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = start_wall(dir.path(), &[]);
+    let script = |name: &str, eye_x: f32| {
+        let path = dir.path().join(name);
+        let mut text = String::new();
+        for i in 0..500 {
+            if i % 2 == 0 {
+                text.push_str(&format!("quality --ao {}\n", i % 5));
+            } else {
+                text.push_str(&format!(
+                    "camera --eye {},{},5 --target 0,0,0\n",
+                    eye_x,
+                    1.0 + i as f32 * 0.001
+                ));
+            }
+        }
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let (a, b) = (script("a.txt", 2.0), script("b.txt", -2.0));
+    let start = |path: &Path| {
+        let mut args: Vec<&str> = vec!["control"];
+        args.extend(wall.connect.iter().map(String::as_str));
+        args.extend(["script", path.to_str().unwrap()]);
+        Proc::start("tessera-master", &args)
+    };
+    let (pa, pb) = (start(&a), start(&b));
+    pa.wait(LIMIT).assert_success("controller a");
+    pb.wait(LIMIT).assert_success("controller b");
+    // Every change is applied by the next barrier; make sure one has passed.
+    let snap = wall.control(&["snapshot"]);
+    snap.assert_success("snapshot");
+    let frame: u64 = snap.stdout.trim().parse().unwrap();
+    let png = wall.out.join(format!("display-1-frame-{frame}.png"));
+    assert!(
+        wait_for(LIMIT, || png.exists()),
+        "frame {frame} never shown"
+    );
+    let report = wall.stop();
+    assert_eq!(report["changes_applied"], 1000, "{report}");
+}
+
+#[test]
+fn only_a_control_certificate_may_control() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = start_wall(dir.path(), &[]);
+    // The local wall's render-0 certificate sits beside the control one.
+    let cert_dir = Path::new(&wall.connect[3]).with_file_name("render-0");
+    let o = run(
+        "tessera-master",
+        &[
+            "control",
+            "--connect",
+            &wall.connect[1],
+            "--cert-dir",
+            cert_dir.to_str().unwrap(),
+            "state",
+        ],
+        LIMIT,
+    );
+    o.assert_refused("control with a render certificate", &["refused", "render"]);
+    // The wall is unharmed.
+    wall.control(&["figures"]).assert_success("figures");
+    wall.stop();
+}
