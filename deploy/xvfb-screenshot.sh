@@ -4,7 +4,8 @@
 #   deploy/xvfb-screenshot.sh install                   # as root; no-op if the tools are present
 #   deploy/xvfb-screenshot.sh grab "WINDOW TITLE" out.png
 #
-# Packages: xvfb (Xvfb), x11-utils (xwininfo), imagemagick (import, identify).
+# Packages: xvfb (Xvfb), x11-utils (xwininfo), imagemagick (import, identify), xdotool (input
+# sent to a window, for the tests that steer the wall from its windows).
 # `grab` uses $DISPLAY, finds the window by its exact title (WM_NAME) and captures the window
 # itself, not the root: that is the client area only (no WM frame), width x height of the window.
 # GRAB_TIMEOUT (seconds, default 10) is how long to wait for the window to appear and be mapped.
@@ -17,11 +18,12 @@ usage() {
     exit 2
 }
 
-PACKAGES=(xvfb x11-utils imagemagick)
+PACKAGES=(xvfb x11-utils imagemagick xdotool)
 
 cmd_install() {
     if command -v Xvfb >/dev/null && command -v xwininfo >/dev/null \
-        && command -v import >/dev/null && command -v identify >/dev/null; then
+        && command -v import >/dev/null && command -v identify >/dev/null \
+        && command -v xdotool >/dev/null; then
         echo "xvfb-screenshot: tools already installed"
         return 0
     fi
@@ -38,7 +40,7 @@ cmd_install() {
     done
     apt-get install -y --no-install-recommends "${PACKAGES[@]}" \
         || die "apt-get install ${PACKAGES[*]} failed"
-    for pkg in Xvfb xwininfo import identify; do
+    for pkg in Xvfb xwininfo import identify xdotool; do
         command -v "$pkg" >/dev/null || die "$pkg still missing after install"
     done
     echo "xvfb-screenshot: installed ${PACKAGES[*]}"

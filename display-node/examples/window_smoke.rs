@@ -4,15 +4,12 @@
 //! (P6), not PNG: display-node does not depend on `image`. Prints `presented 0` once the frame
 //! has been on screen for ~1 s, which is the moment to take a screenshot.
 
-#[path = "../src/window.rs"]
-mod window;
-
 use std::io::Write;
 use std::sync::mpsc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use window::{window_presenter, WindowCommand, WindowFrame};
+use tessera_display_node::window::{window_presenter, WindowCallbacks, WindowCommand, WindowFrame};
 
 const WIDTH: u32 = 320;
 const HEIGHT: u32 = 200;
@@ -63,16 +60,20 @@ fn main() -> anyhow::Result<()> {
     let (presented_tx, presented_rx) = mpsc::channel();
     let (sender, runner) = window_presenter(
         TITLE.to_owned(),
-        WIDTH,
-        HEIGHT,
-        Box::new(move |frame| {
-            let _ = presented_tx.send(frame);
-        }),
+        (WIDTH, HEIGHT),
+        Default::default(),
+        WindowCallbacks {
+            on_presented: Box::new(move |frame| {
+                let _ = presented_tx.send(frame);
+            }),
+            on_input: Box::new(|_| {}),
+        },
     )?;
     let frame = WindowFrame {
         frame: 0,
         width: WIDTH,
         height: HEIGHT,
+        overlay: None,
         rgb,
     };
     sender.send(WindowCommand::Show(frame));

@@ -8,17 +8,20 @@
 //! `tests/` checks that `tessera-render` is not in its dependency tree.
 
 mod node;
+pub mod overlay;
 mod pixels_in;
 mod present;
-mod window;
+pub mod window;
 
 use anyhow::{bail, Result};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
+use tessera_wire::input::InputEvent;
+use tessera_wire::window::WindowPlacement;
 use tokio::sync::mpsc;
-use window::{window_presenter, WindowSender};
+use window::{window_presenter, WindowCallbacks, WindowSender};
 
 /// Tessera display node: shows one screen of the wall.
 #[derive(clap::Parser, Clone, Debug)]
@@ -45,6 +48,17 @@ pub struct Cli {
     /// With --window, seconds to keep the last frame on screen after the run (0 to 3600).
     #[arg(long, default_value_t = 0.0, value_parser = parse_linger)]
     linger: f64,
+    /// With --window, where its top-left corner goes on the desktop, X,Y (default: the wall
+    /// file's placement, else the window manager's choice).
+    #[arg(long, value_parser = parse_position, allow_hyphen_values = true)]
+    window_pos: Option<(i32, i32)>,
+    /// With --window, its inner size WxH; the frame is scaled to it (default: the screen's
+    /// resolution, pixel for pixel).
+    #[arg(long, value_parser = parse_window_size)]
+    window_size: Option<(u32, u32)>,
+    /// With --window, borderless full screen on monitor N (0: the first), the frame scaled.
+    #[arg(long, num_args = 0..=1, default_missing_value = "0")]
+    fullscreen: Option<u32>,
     /// Directory for display-<id>.png when the master asks to save a frame.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -60,6 +74,33 @@ pub fn parse_linger(text: &str) -> Result<f64, String> {
         _ => Err(format!(
             "`{text}` is not a number of seconds from 0 to {MAX_LINGER_S}"
         )),
+    }
+}
+
+fn parse_position(text: &str) -> Result<(i32, i32), String> {
+    let bad = || format!("`{text}` is not X,Y (two whole numbers)");
+    let (x, y) = text.split_once(',').ok_or_else(bad)?;
+    Ok((
+        x.trim().parse().map_err(|_| bad())?,
+        y.trim().parse().map_err(|_| bad())?,
+    ))
+}
+
+fn parse_window_size(text: &str) -> Result<(u32, u32), String> {
+    tessera_wire::wall::parse_size(text).map_err(|e| e.to_string())
+}
+
+impl Cli {
+    /// The window's placement: these flags, else the session's (from the wall file).
+    fn placement(&self, from_session: Option<WindowPlacement>) -> Result<WindowPlacement> {
+        let base = from_session.unwrap_or_default();
+        let placement = WindowPlacement {
+            position: self.window_pos.or(base.position),
+            size: self.window_size.or(base.size),
+            fullscreen: self.fullscreen.or(base.fullscreen),
+        };
+        placement.check().map_err(anyhow::Error::msg)?;
+        Ok(placement)
     }
 }
 
@@ -96,13 +137,14 @@ static WALL_OVER: AtomicBool = AtomicBool::new(false);
 
 /// winit wants the main thread, so the network side runs on a thread of its own.
 fn run_with_window(cli: Cli) -> Result<()> {
-    // The window is sized once the master says how big a screen is, so the network side goes
-    // first and hands the size over.
-    let (size_tx, size_rx) = std::sync::mpsc::channel::<(u32, u32)>();
+    // The window is sized and placed once the master says how big a screen is and where the
+    // wall file puts it, so the network side goes first and hands that over.
+    let (size_tx, size_rx) = std::sync::mpsc::channel::<((u32, u32), WindowPlacement)>();
     let (sender_tx, sender_rx) = std::sync::mpsc::channel::<WindowSender>();
-    // Presents are stamped on the main thread right after softbuffer's present(), and the
-    // stamps travel to the network side, which reports them to the master.
+    // Presents are stamped on the main thread right after softbuffer's present(), and input as
+    // it happens; the stamps travel to the network side, which reports them to the master.
     let (presented_tx, presented_rx) = mpsc::unbounded_channel::<(u64, u64)>();
+    let (input_tx, input_rx) = mpsc::unbounded_channel::<(InputEvent, u64)>();
     let display = cli.display;
     let net = std::thread::spawn(move || -> Result<()> {
         let rt = tessera_net::link::node_runtime()?;
@@ -112,21 +154,27 @@ fn run_with_window(cli: Cli) -> Result<()> {
                 size: size_tx,
                 sender: sender_rx,
                 presents: presented_rx,
+                inputs: input_rx,
             }),
         ))
     });
-    let Ok((width, height)) = size_rx.recv() else {
+    let Ok((size, placement)) = size_rx.recv() else {
         return net
             .join()
             .map_err(|_| anyhow::anyhow!("network thread panicked"))?;
     };
     let (sender, runner) = window_presenter(
         format!("Tessera display {display}"),
-        width,
-        height,
-        Box::new(move |frame| {
-            let _ = presented_tx.send((frame, tessera_net::unix_ns()));
-        }),
+        size,
+        placement,
+        WindowCallbacks {
+            on_presented: Box::new(move |frame| {
+                let _ = presented_tx.send((frame, tessera_net::unix_ns()));
+            }),
+            on_input: Box::new(move |event| {
+                let _ = input_tx.send((event, tessera_net::unix_ns()));
+            }),
+        },
     )?;
     let _ = sender_tx.send(sender);
     let shown = runner.run();

@@ -6,7 +6,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use tessera_wire::protocol::pixels::{
-    Compression, StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
+    BatchSource, Compression, StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
 };
 use tessera_wire::protocol::FrameId;
 use tessera_wire::state::StateId;
@@ -16,6 +16,8 @@ use tokio::sync::mpsc;
 pub struct IncomingTile {
     pub frame: FrameId,
     pub state: StateId,
+    /// Who rendered it, and how long a tile of its batch took.
+    pub source: BatchSource,
     pub tile: TileId,
     pub rgb: Vec<u8>,
     pub conn: quinn::Connection,
@@ -126,6 +128,7 @@ async fn read_stream(
         let incoming = IncomingTile {
             frame: header.frame,
             state: header.state,
+            source: header.source,
             tile: th.tile,
             rgb,
             conn: conn.clone(),

@@ -1,17 +1,24 @@
-//! Window presenter for one screen of the wall (winit 0.30 + softbuffer 0.4).
+//! Window presenter for one screen of the wall (winit 0.30 + softbuffer 0.4), and the person
+//! in front of it: keys, drags and the wheel go back to the master as input events.
 //!
-//! Frames are copied into the softbuffer buffer pixel for pixel (no scaling, no gamma), so a
-//! screenshot of the window's inner area equals the RGB frame byte for byte.
+//! A window of the screen's own size gets each frame pixel for pixel (no scaling, no gamma),
+//! so a screenshot of its inner area equals the RGB frame byte for byte; a window of another
+//! size (`--window-size`, full screen) shows it scaled to fit, nearest pixel.
 
+use std::collections::BTreeSet;
 use std::num::NonZeroU32;
 use std::rc::Rc;
 
+use crate::overlay::{self, Overlay};
 use anyhow::{anyhow, bail, Context as _};
+use tessera_wire::input::{Button, InputEvent, Key};
+use tessera_wire::window::WindowPlacement;
 use winit::application::ApplicationHandler;
-use winit::dpi::PhysicalSize;
-use winit::event::WindowEvent;
+use winit::dpi::{PhysicalPosition, PhysicalSize};
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop, EventLoopProxy};
-use winit::window::{Window, WindowId};
+use winit::keyboard::{KeyCode, PhysicalKey};
+use winit::window::{Fullscreen, Window, WindowId};
 
 /// One frame to show: `rgb` is width*height*3 bytes, RGB8, row-major, row 0 at the top.
 pub struct WindowFrame {
@@ -19,6 +26,8 @@ pub struct WindowFrame {
     pub width: u32,
     pub height: u32,
     pub rgb: Vec<u8>,
+    /// Drawn over the frame when the overlay is on.
+    pub overlay: Option<Overlay>,
 }
 
 /// Messages from the (tokio) network side to the window.
@@ -46,15 +55,23 @@ pub struct WindowRunner {
     app: App,
 }
 
+/// What the window reports back: each frame once presented, and the person's input.
+pub struct WindowCallbacks {
+    /// Called on the main thread right after a frame has been handed to softbuffer's
+    /// `present()` (once per frame; re-presents after expose do not count).
+    pub on_presented: Box<dyn FnMut(u64) + Send>,
+    /// Called on the main thread for each key, drag and wheel turn.
+    pub on_input: Box<dyn FnMut(InputEvent) + Send>,
+}
+
 /// Creates the event loop (must be called on the main thread). Returns a sender usable from any
 /// thread, and a runner to call on the main thread that blocks until the window is closed or
-/// Close is sent. `on_presented(frame)` is called on the main thread right after each frame has
-/// been handed to softbuffer's `present()` (once per frame; re-presents after expose do not count).
+/// Close is sent. Frames are `width × height`; `placement` says where the window goes.
 pub fn window_presenter(
     title: String,
-    width: u32,
-    height: u32,
-    on_presented: Box<dyn FnMut(u64) + Send>,
+    (width, height): (u32, u32),
+    placement: WindowPlacement,
+    callbacks: WindowCallbacks,
 ) -> anyhow::Result<(WindowSender, WindowRunner)> {
     let (nz_width, nz_height) = match (NonZeroU32::new(width), NonZeroU32::new(height)) {
         (Some(w), Some(h)) => (w, h),
@@ -75,11 +92,14 @@ pub fn window_presenter(
         title,
         width: nz_width,
         height: nz_height,
-        on_presented,
+        placement,
+        callbacks,
         state: None,
         frame: None,
         reported: None,
         error: None,
+        buttons: BTreeSet::new(),
+        cursor: None,
     };
     Ok((sender, WindowRunner { event_loop, app }))
 }
@@ -109,13 +129,17 @@ fn no_display_message() -> String {
 struct Surface {
     window: Rc<Window>,
     surface: softbuffer::Surface<Rc<Window>, Rc<Window>>,
+    /// The window's inner size, which the buffer follows.
+    size: (NonZeroU32, NonZeroU32),
 }
 
 struct App {
     title: String,
+    /// The frames' size: the screen's resolution.
     width: NonZeroU32,
     height: NonZeroU32,
-    on_presented: Box<dyn FnMut(u64) + Send>,
+    placement: WindowPlacement,
+    callbacks: WindowCallbacks,
     state: Option<Surface>,
     /// Last accepted frame, kept so expose events can re-present it.
     frame: Option<WindowFrame>,
@@ -123,17 +147,40 @@ struct App {
     reported: Option<u64>,
     /// Errors inside callbacks cannot be returned from winit; stash them for `run`.
     error: Option<anyhow::Error>,
+    /// Mouse buttons held, and where the cursor last was (to turn moves into drags).
+    buttons: BTreeSet<Button>,
+    cursor: Option<(f64, f64)>,
 }
 
 impl App {
     fn create_surface(&self, event_loop: &ActiveEventLoop) -> anyhow::Result<Surface> {
-        let size = PhysicalSize::new(self.width.get(), self.height.get());
-        let attrs = Window::default_attributes()
+        let (w, h) = self
+            .placement
+            .size
+            .unwrap_or((self.width.get(), self.height.get()));
+        let size = PhysicalSize::new(w, h);
+        let mut attrs = Window::default_attributes()
             .with_title(self.title.clone())
             .with_inner_size(size)
             .with_min_inner_size(size)
             .with_max_inner_size(size)
             .with_resizable(false);
+        if let Some((x, y)) = self.placement.position {
+            attrs = attrs.with_position(PhysicalPosition::new(x, y));
+        }
+        if let Some(n) = self.placement.fullscreen {
+            let monitors: Vec<_> = event_loop.available_monitors().collect();
+            let monitor = monitors.get(n as usize).cloned().with_context(|| {
+                format!(
+                    "--fullscreen {n}: this display server has {} monitor(s)",
+                    monitors.len()
+                )
+            })?;
+            attrs = attrs
+                .with_min_inner_size(PhysicalSize::new(1, 1))
+                .with_max_inner_size(monitor.size())
+                .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor))));
+        }
         let window = Rc::new(
             event_loop
                 .create_window(attrs)
@@ -143,10 +190,36 @@ impl App {
             .map_err(|e| anyhow!("softbuffer context: {e}"))?;
         let mut surface = softbuffer::Surface::new(&context, window.clone())
             .map_err(|e| anyhow!("softbuffer surface: {e}"))?;
+        let inner = window.inner_size();
+        let size = (
+            NonZeroU32::new(inner.width).unwrap_or(self.width),
+            NonZeroU32::new(inner.height).unwrap_or(self.height),
+        );
         surface
-            .resize(self.width, self.height)
+            .resize(size.0, size.1)
             .map_err(|e| anyhow!("softbuffer resize: {e}"))?;
-        Ok(Surface { window, surface })
+        Ok(Surface {
+            window,
+            surface,
+            size,
+        })
+    }
+
+    fn resized(&mut self, size: PhysicalSize<u32>) -> anyhow::Result<()> {
+        let (Some(state), Some(w), Some(h)) = (
+            self.state.as_mut(),
+            NonZeroU32::new(size.width),
+            NonZeroU32::new(size.height),
+        ) else {
+            return Ok(());
+        };
+        state.size = (w, h);
+        state
+            .surface
+            .resize(w, h)
+            .map_err(|e| anyhow!("softbuffer resize: {e}"))?;
+        state.window.request_redraw();
+        Ok(())
     }
 
     fn redraw(&mut self) -> anyhow::Result<()> {
@@ -159,8 +232,23 @@ impl App {
             .map_err(|e| anyhow!("softbuffer buffer: {e}"))?;
         match &self.frame {
             Some(f) => {
-                for (px, rgb) in buffer.iter_mut().zip(f.rgb.chunks_exact(3)) {
-                    *px = (u32::from(rgb[0]) << 16) | (u32::from(rgb[1]) << 8) | u32::from(rgb[2]);
+                let overlaid;
+                let rgb = match &f.overlay {
+                    Some(o) => {
+                        let mut copy = f.rgb.clone();
+                        overlay::draw(&mut copy, f.width, f.height, o);
+                        overlaid = copy;
+                        &overlaid
+                    }
+                    None => &f.rgb,
+                };
+                let (bw, bh) = (state.size.0.get(), state.size.1.get());
+                if (bw, bh) == (f.width, f.height) {
+                    for (px, rgb) in buffer.iter_mut().zip(rgb.chunks_exact(3)) {
+                        *px = pack(rgb);
+                    }
+                } else {
+                    scale_into(&mut buffer, (bw, bh), rgb, (f.width, f.height));
                 }
             }
             None => buffer.fill(0),
@@ -172,10 +260,70 @@ impl App {
         if let Some(f) = &self.frame {
             if self.reported != Some(f.frame) {
                 self.reported = Some(f.frame);
-                (self.on_presented)(f.frame);
+                (self.callbacks.on_presented)(f.frame);
             }
         }
         Ok(())
+    }
+
+    /// Turns a window event into an input event for the master, if it is one.
+    fn input(&mut self, event: &WindowEvent) -> Option<InputEvent> {
+        let screen_height = self
+            .state
+            .as_ref()
+            .map_or(self.height.get(), |s| s.size.1.get()) as f64;
+        match event {
+            WindowEvent::KeyboardInput { event, .. } => {
+                let PhysicalKey::Code(code) = event.physical_key else {
+                    return None;
+                };
+                Some(InputEvent::Key {
+                    key: key_of(code)?,
+                    pressed: event.state == ElementState::Pressed,
+                })
+            }
+            WindowEvent::MouseInput { state, button, .. } => {
+                let button = button_of(*button)?;
+                if *state == ElementState::Pressed {
+                    self.buttons.insert(button);
+                } else {
+                    self.buttons.remove(&button);
+                }
+                None
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                let now = (position.x, position.y);
+                let last = self.cursor.replace(now)?;
+                let button = *self.buttons.iter().next()?;
+                let (dx, dy) = (
+                    (now.0 - last.0) / screen_height,
+                    (now.1 - last.1) / screen_height,
+                );
+                (dx != 0.0 || dy != 0.0).then_some(InputEvent::Drag {
+                    button,
+                    dx: dx as f32,
+                    dy: dy as f32,
+                })
+            }
+            WindowEvent::CursorLeft { .. } => {
+                self.cursor = None;
+                None
+            }
+            WindowEvent::MouseWheel { delta, .. } => {
+                let lines = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => *y,
+                    // A trackpad's pixels: call a line 40 of them.
+                    MouseScrollDelta::PixelDelta(p) => (p.y / 40.0) as f32,
+                };
+                (lines != 0.0).then_some(InputEvent::Scroll {
+                    lines: lines.clamp(
+                        -tessera_wire::input::MAX_MOVE,
+                        tessera_wire::input::MAX_MOVE,
+                    ),
+                })
+            }
+            _ => None,
+        }
     }
 
     fn fail(&mut self, event_loop: &ActiveEventLoop, err: anyhow::Error) {
@@ -229,10 +377,18 @@ impl ApplicationHandler<WindowCommand> for App {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        if let Some(input) = self.input(&event) {
+            (self.callbacks.on_input)(input);
+        }
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::RedrawRequested => {
                 if let Err(e) = self.redraw() {
+                    self.fail(event_loop, e);
+                }
+            }
+            WindowEvent::Resized(size) => {
+                if let Err(e) = self.resized(size) {
                     self.fail(event_loop, e);
                 }
             }
@@ -243,5 +399,48 @@ impl ApplicationHandler<WindowCommand> for App {
     fn exiting(&mut self, _event_loop: &ActiveEventLoop) {
         // Drop the surface before the loop tears down the display connection.
         self.state = None;
+    }
+}
+
+fn pack(rgb: &[u8]) -> u32 {
+    (u32::from(rgb[0]) << 16) | (u32::from(rgb[1]) << 8) | u32::from(rgb[2])
+}
+
+/// Nearest-pixel scaling of an RGB8 frame into a window buffer of another size.
+fn scale_into(buffer: &mut [u32], (bw, bh): (u32, u32), rgb: &[u8], (fw, fh): (u32, u32)) {
+    for y in 0..bh {
+        let sy = (y as u64 * fh as u64 / bh as u64) as u32;
+        for x in 0..bw {
+            let sx = (x as u64 * fw as u64 / bw as u64) as u32;
+            let i = ((sy * fw + sx) * 3) as usize;
+            buffer[(y * bw + x) as usize] = pack(&rgb[i..i + 3]);
+        }
+    }
+}
+
+fn key_of(code: KeyCode) -> Option<Key> {
+    Some(match code {
+        KeyCode::KeyW => Key::W,
+        KeyCode::KeyA => Key::A,
+        KeyCode::KeyS => Key::S,
+        KeyCode::KeyD => Key::D,
+        KeyCode::KeyQ => Key::Q,
+        KeyCode::KeyE => Key::E,
+        KeyCode::KeyF => Key::F,
+        KeyCode::KeyH | KeyCode::Home => Key::H,
+        KeyCode::KeyO => Key::O,
+        KeyCode::Digit1 => Key::Digit1,
+        KeyCode::Digit2 => Key::Digit2,
+        KeyCode::Digit3 => Key::Digit3,
+        _ => return None,
+    })
+}
+
+fn button_of(button: MouseButton) -> Option<Button> {
+    match button {
+        MouseButton::Left => Some(Button::Left),
+        MouseButton::Right => Some(Button::Right),
+        MouseButton::Middle => Some(Button::Middle),
+        _ => None,
     }
 }

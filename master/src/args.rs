@@ -49,6 +49,58 @@ pub struct RunArgs {
     /// Drive the wall from a recorded session: each recorded state lands on its frame.
     #[arg(long, value_name = "FILE")]
     pub replay: Option<PathBuf>,
+    /// Progressive refinement: once the camera has held still for --still-frames frames,
+    /// each frame doubles the samples per pixel, with --final-ao rays, up to --final-spp;
+    /// then nothing renders until something changes. `auto`: on for runs until Ctrl-C
+    /// (`--frames 0`) that replay nothing.
+    #[arg(long, value_enum, default_value_t = RefineArg::Auto)]
+    pub refine: RefineArg,
+    /// Samples per pixel of the final quality.
+    #[arg(long, default_value_t = 8)]
+    pub final_spp: u32,
+    /// Ambient-occlusion rays per hit of the final quality.
+    #[arg(long, default_value_t = 8)]
+    pub final_ao: u32,
+    /// Frames a view must hold before refining starts.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub still_frames: u64,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RefineArg {
+    Auto,
+    On,
+    Off,
+}
+
+impl RunArgs {
+    /// The refinement this run does, if any.
+    ///
+    /// # Errors
+    /// A final quality out of bounds, or refining a replayed session (it was recorded with
+    /// its passes; refining again would render other frames than it holds).
+    pub fn refinement(&self) -> Result<Option<tessera_core::balance::Refinement>> {
+        let on = match self.refine {
+            RefineArg::Off => false,
+            RefineArg::Auto => self.frames == 0 && self.replay.is_none(),
+            RefineArg::On => {
+                if self.replay.is_some() {
+                    bail!("--refine on cannot go with --replay: the session holds its own passes");
+                }
+                true
+            }
+        };
+        if !on {
+            return Ok(None);
+        }
+        let r = tessera_core::balance::Refinement::new(
+            self.still_frames,
+            self.final_spp,
+            self.final_ao,
+        )
+        .context("--final-spp / --final-ao")?;
+        Ok(Some(r))
+    }
 }
 
 #[derive(clap::Args, Clone)]
@@ -158,9 +210,11 @@ impl RoleArg {
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
 pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
     // Every flag is checked before the scene, which can take long to load.
-    let wall = run.wall.layout()?;
+    let wall_file = run.wall.wall_file()?;
+    let wall = wall_file.layout;
     let spec = run.scene.spec()?;
     let params = run.quality.params()?;
+    let refinement = run.refinement()?;
     let scene = Scene::load(&spec)?;
     if let Some(dir) = &run.out {
         std::fs::create_dir_all(dir)
@@ -180,8 +234,18 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         .as_deref()
         .map(crate::record::Session::load)
         .transpose()?;
+    let bounds = scene.bounds();
+    let (pivot, scene_size) = if bounds.center().is_finite() {
+        (bounds.center(), bounds.diagonal().length() * 0.5)
+    } else {
+        (glam::Vec3::ZERO, 1.0)
+    };
     Ok(RunConfig {
         wall,
+        refinement,
+        windows: wall_file.windows,
+        pivot,
+        scene_size,
         record: run.record.clone(),
         replay,
         camera: run

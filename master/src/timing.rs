@@ -37,6 +37,8 @@ pub struct Timing {
     same_host: std::collections::BTreeSet<DisplayId>,
     starts: HashMap<FrameId, u64>,
     presents: BTreeMap<FrameId, Vec<(DisplayId, u64)>>,
+    /// Entry stamps (master clock) of the inputs and commands that a frame's state applied.
+    inputs: BTreeMap<FrameId, Vec<u64>>,
 }
 
 /// One frame's figures, for the per-frame CSV.
@@ -50,6 +52,11 @@ pub struct FrameTiming {
 #[derive(Debug, Default, Serialize)]
 pub struct TimingSummary {
     pub latency_ms: Percentiles,
+    /// Input event or control command entering the wall (stamped where it entered, mapped to
+    /// the master's clock) → the first frame with it presented on every display.
+    pub input_latency_ms: Percentiles,
+    /// Inputs and commands that `input_latency_ms` measured.
+    pub inputs_measured: u64,
     pub skew_ms: Percentiles,
     /// Frames every display reported a present for (a window may coalesce frames).
     pub frames_measured: u64,
@@ -89,6 +96,15 @@ impl Timing {
         }
     }
 
+    /// The state of `frame` applied the inputs and commands stamped `stamps` (0: unstamped,
+    /// as replayed changes are; not measured).
+    pub fn inputs_applied(&mut self, frame: FrameId, stamps: &[u64]) {
+        let stamped: Vec<u64> = stamps.iter().copied().filter(|&s| s > 0).collect();
+        if !stamped.is_empty() {
+            self.inputs.entry(frame).or_default().extend(stamped);
+        }
+    }
+
     pub fn frame_started(&mut self, frame: FrameId, master_ns: u64) {
         self.starts.insert(frame, master_ns);
     }
@@ -98,6 +114,27 @@ impl Timing {
             .entry(frame)
             .or_default()
             .push((display, display_ns));
+    }
+
+    /// Input → present on every display, ms, for each stamped input whose frame every display
+    /// presented.
+    fn input_latencies(&self, displays: u32) -> Vec<f64> {
+        let mut out = Vec::new();
+        for (frame, stamps) in &self.inputs {
+            let Some(presents) = self.presents.get(frame) else {
+                continue;
+            };
+            if presents.len() < displays as usize {
+                continue;
+            }
+            let last = presents
+                .iter()
+                .map(|&(d, ns)| ns as i128 - self.offset(d) as i128)
+                .max()
+                .expect("at least one present");
+            out.extend(stamps.iter().map(|&s| (last - s as i128) as f64 / 1e6));
+        }
+        out
     }
 
     /// Figures over the frames that every one of `displays` presented.
@@ -124,8 +161,11 @@ impl Timing {
         }
         let latency: Vec<f64> = per_frame.iter().map(|f| f.latency_ms).collect();
         let skew: Vec<f64> = per_frame.iter().map(|f| f.skew_ms).collect();
+        let input_latency = self.input_latencies(displays);
         TimingSummary {
             latency_ms: Percentiles::of_ms(&latency),
+            input_latency_ms: Percentiles::of_ms(&input_latency),
+            inputs_measured: input_latency.len() as u64,
             skew_ms: Percentiles::of_ms(&skew),
             frames_measured: per_frame.len() as u64,
             clocks: self
@@ -191,5 +231,32 @@ mod tests {
         let s = t.summary(2);
         assert_eq!(s.per_frame[1].skew_ms, 0.2);
         assert!(s.clocks[&1].same_host);
+    }
+
+    #[test]
+    fn input_latency_runs_from_each_stamp_to_the_last_display_present() {
+        let mut t = Timing::default();
+        let (a, b) = (DisplayId(0), DisplayId(1));
+        t.same_host(a);
+        t.same_host(b);
+        // Two inputs (at 1 ms and 3 ms) and a replayed change (0) land in frame 7.
+        t.inputs_applied(FrameId(7), &[1_000_000, 3_000_000, 0]);
+        t.frame_started(FrameId(7), 4_000_000);
+        t.presented(a, FrameId(7), 9_000_000);
+        let s = t.summary(2);
+        assert_eq!(s.inputs_measured, 0, "not on every display yet");
+        t.presented(b, FrameId(7), 10_000_000);
+        let s = t.summary(2);
+        assert_eq!(s.inputs_measured, 2);
+        assert!(
+            (s.input_latency_ms.max - 9.0).abs() < 0.01,
+            "{:?}",
+            s.input_latency_ms
+        );
+        assert!(
+            (s.input_latency_ms.p50 - 7.0).abs() < 0.05,
+            "{:?}",
+            s.input_latency_ms
+        );
     }
 }

@@ -57,6 +57,25 @@ pub struct LocalRun {
 /// Starts the display and render nodes of `args` as child processes, runs the wall, and reaps
 /// every child before returning.
 pub async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun> {
+    run_local_driven(args, show_progress, None).await
+}
+
+/// Something to run beside a local wall, as a control client would: it is given the master's
+/// address and a control certificate's directory, and is stopped when the wall ends.
+pub type Driver = Box<
+    dyn FnOnce(
+            String,
+            PathBuf,
+        ) -> std::pin::Pin<Box<dyn std::future::Future<Output = Result<()>> + Send>>
+        + Send,
+>;
+
+/// [`run_local`], with `driver` steering the wall while it runs.
+pub async fn run_local_driven(
+    args: &LocalArgs,
+    show_progress: bool,
+    driver: Option<Driver>,
+) -> Result<LocalRun> {
     if args.render_nodes == 0 {
         bail!("--render-nodes must be at least 1");
     }
@@ -126,6 +145,7 @@ pub async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun
     let started = Arc::new(AtomicBool::new(false));
     let mut lost = Vec::new();
     let wall = cfg.wall;
+    let driving = driver.map(|d| tokio::spawn(d(master_addr.clone(), control_dir.clone())));
     let outcome = {
         let run = run_wall(endpoint, cfg, started.clone(), stop);
         tokio::pin!(run);
@@ -134,6 +154,9 @@ pub async fn run_local(args: &LocalArgs, show_progress: bool) -> Result<LocalRun
             err = watch(&mut children, started.clone(), &mut lost) => Err(err),
         }
     };
+    if let Some(task) = driving {
+        task.abort();
+    }
     // Windows stay up for --linger after the run; only then is a display late to exit.
     let grace = Duration::from_secs(5) + Duration::from_secs_f64(args.linger);
     let failures = reap(&mut children, grace).await;

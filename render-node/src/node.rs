@@ -165,9 +165,11 @@ pub async fn run(options: Options) -> Result<()> {
                 stats.tiles += tiles.len() as u64;
                 stats.rays += rays.total();
                 stats.busy_s += took.as_secs_f64();
+                // Per tile, averaged over the batch: what a display's overlay shows per tile.
+                let per_tile = took.as_micros() / tiles.len().max(1) as u128;
                 let source = BatchSource {
                     node,
-                    render_us: took.as_micros().min(u32::MAX as u128) as u32,
+                    render_us: per_tile.min(u32::MAX as u128) as u32,
                 };
                 let batch = Batch { frame, state, source, tiles, payloads };
                 send_pixels(&displays, &grid, compression, batch, delivered_tx.clone());

@@ -1,6 +1,8 @@
 //! Helpers for Tessera's end-to-end tests: find the built binaries, run them with a time bound,
 //! and never leave a process behind.
 
+pub mod xvfb;
+
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};

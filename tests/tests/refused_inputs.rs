@@ -254,6 +254,7 @@ fn render_node_told(lie: &[u8]) -> Output {
                     displays: Vec::new(),
                     save_frame: None,
                     compression: Default::default(),
+                    windows: Default::default(),
                 })
                 .unwrap();
             let welcome = ToNode::Welcome {

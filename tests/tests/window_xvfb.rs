@@ -5,72 +5,21 @@
 //! `.ci/run` calls). Where they are missing the test says so and passes only outside CI; in CI
 //! (CI=true) a missing tool is a failure.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
+use tessera_tests::xvfb::{screenshot_script, Xvfb};
 use tessera_tests::*;
-
-fn have(tool: &str) -> bool {
-    Command::new("sh")
-        .args(["-c", &format!("command -v {tool}")])
-        .stdout(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
-fn screenshot_script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/xvfb-screenshot.sh")
-}
-
-struct Xvfb(std::process::Child);
-
-impl Drop for Xvfb {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 #[test]
 fn window_shows_exactly_the_saved_frame() {
-    let missing: Vec<&str> = ["Xvfb", "xwininfo", "import"]
-        .into_iter()
-        .filter(|t| !have(t))
-        .collect();
-    if !missing.is_empty() {
-        let msg = format!("{missing:?} not installed (run deploy/xvfb-screenshot.sh install)");
-        assert!(
-            std::env::var("CI").is_err(),
-            "CI is set, so this may not skip: {msg}"
-        );
-        skip("window_shows_exactly_the_saved_frame", &msg);
+    let Some(xvfb) = Xvfb::start(
+        "window_shows_exactly_the_saved_frame",
+        "800x600",
+        &["xwininfo", "import"],
+    ) else {
         return;
-    }
-    let number = 100 + std::process::id() % 400;
-    let display = format!(":{number}");
-    let _xvfb = Xvfb(
-        Command::new("Xvfb")
-            .args([
-                display.as_str(),
-                "-screen",
-                "0",
-                "800x600x24",
-                "-nolisten",
-                "tcp",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start Xvfb"),
-    );
-    assert!(
-        wait_for(Duration::from_secs(10), || Path::new(&format!(
-            "/tmp/.X11-unix/X{number}"
-        ))
-        .exists()),
-        "Xvfb did not start"
-    );
-
+    };
+    let display = xvfb.display.clone();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("windowed");
     let master = Proc::start_with_env(

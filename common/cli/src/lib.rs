@@ -17,6 +17,7 @@ use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP}
 use tessera_wire::protocol::pixels::Compression;
 use tessera_wire::scene_spec::{SceneSpec, SceneSpecError};
 use tessera_wire::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
+use tessera_wire::window::WallFile;
 
 /// A flag whose value was refused, named with its flag.
 #[derive(Debug, thiserror::Error)]
@@ -60,17 +61,26 @@ pub struct WallArgs {
 
 impl WallArgs {
     pub fn layout(&self) -> Result<WallLayout, ArgError> {
+        Ok(self.wall_file()?.layout)
+    }
+
+    /// The wall and, from a wall file, where its displays' windows go.
+    pub fn wall_file(&self) -> Result<WallFile, ArgError> {
         let wall = |flag| move |source| ArgError::Wall { flag, source };
         if let Some(path) = &self.wall_file {
-            return WallLayout::from_file(path).map_err(wall("--wall-file"));
+            return WallFile::from_file(path).map_err(wall("--wall-file"));
         }
         let (columns, rows) = parse_size(&self.wall).map_err(wall("--wall"))?;
         let (w, h) = parse_size(&self.screen).map_err(wall("--screen"))?;
-        WallSpec::grid(columns, rows, w, h)
+        let layout = WallSpec::grid(columns, rows, w, h)
             .bezel(self.bezel)
             .tile_size(self.tile)
             .build()
-            .map_err(wall("--wall/--screen/--bezel/--tile"))
+            .map_err(wall("--wall/--screen/--bezel/--tile"))?;
+        Ok(WallFile {
+            layout,
+            windows: Default::default(),
+        })
     }
 }
 

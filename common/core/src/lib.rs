@@ -12,5 +12,6 @@
 
 pub mod assemble;
 pub mod balance;
+pub mod navigate;
 pub mod sim;
 pub mod worker;

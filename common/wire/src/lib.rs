@@ -20,3 +20,4 @@ pub mod protocol;
 pub mod scene_spec;
 pub mod state;
 pub mod wall;
+pub mod window;

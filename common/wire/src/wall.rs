@@ -281,25 +281,15 @@ impl WallLayout {
         self.spec
     }
 
-    /// Reads a wall from TOML text; `origin` names the source in errors.
+    /// Reads a wall from TOML text (a wall file, whose `[[window]]` tables are read and
+    /// checked but not kept: see [`crate::window::WallFile`]); `origin` names the source.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, WallError> {
-        let spec: WallSpec = toml::from_str(text).map_err(|e| WallError::File {
-            path: origin.to_string(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
-        spec.build().map_err(|e| WallError::File {
-            path: origin.to_string(),
-            message: e.to_string(),
-        })
+        crate::window::WallFile::from_toml(text, origin).map(|f| f.layout)
     }
 
     /// Reads a wall file (see `deploy/walls/*.toml` for examples).
     pub fn from_file(path: &Path) -> Result<Self, WallError> {
-        let text = std::fs::read_to_string(path).map_err(|e| WallError::File {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-        Self::from_toml(&text, &path.display().to_string())
+        crate::window::WallFile::from_file(path).map(|f| f.layout)
     }
 
     pub fn columns(&self) -> u32 {

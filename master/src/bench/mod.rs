@@ -6,14 +6,19 @@ mod plot;
 mod transport;
 
 use crate::args::LocalArgs;
+use crate::control::ControlClient;
 use crate::report::Report;
-use crate::wall_run::run_local;
+use crate::wall_run::{run_local, run_local_driven, Driver};
 use anyhow::{bail, Context, Result};
 use plot::{line_plot, Series};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
+use tessera_wire::camera::{Camera, CameraMode};
+use tessera_wire::control::{ControlReply, ControlRequest};
 use tessera_wire::protocol::pixels::Compression;
+use tessera_wire::state::StateChange;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Experiment {
@@ -51,6 +56,15 @@ pub struct BenchArgs {
     /// error-vs-time: samples per pixel of the converged reference.
     #[arg(long, default_value_t = 64)]
     reference_spp: u32,
+    /// latency: milliseconds between the scripted camera path's control commands.
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    command_ms: u64,
+}
+
+impl BenchArgs {
+    fn command_every(&self) -> Duration {
+        Duration::from_millis(self.command_ms)
+    }
 }
 
 fn parse_transport_seconds(text: &str) -> Result<f64, String> {
@@ -83,7 +97,11 @@ pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
 /// Runs one local wall and returns its report; any failed node fails the experiment.
 async fn wall_run(local: &LocalArgs, what: &str) -> Result<Report> {
     eprintln!("bench: {what}");
-    let run = run_local(local, true).await?;
+    checked_run(run_local(local, true).await?, what)
+}
+
+/// A run's report, or why there is none: interrupted, failed, or nodes lost on the way.
+fn checked_run(run: crate::wall_run::LocalRun, what: &str) -> Result<Report> {
     if run.interrupted {
         bail!("interrupted during {what}");
     }
@@ -152,8 +170,43 @@ fn efficiency(report: &Report) -> (f64, f64) {
     (mean, shares.iter().copied().fold(f64::INFINITY, f64::min))
 }
 
+/// Moves the camera along a circle about the scene through the control interface, one
+/// command every `every`, for as long as the wall runs: each command's entry stamp is what
+/// `input_latency_ms` measures from.
+fn camera_path(every: Duration) -> Driver {
+    Box::new(move |addr, cert_dir| {
+        Box::pin(async move {
+            // The wall takes a moment to start; a client that comes too early retries.
+            let mut client = loop {
+                match ControlClient::connect(&addr, &cert_dir).await {
+                    Ok(c) => break c,
+                    Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+                }
+            };
+            let ControlReply::State { current, frame, .. } =
+                client.ask(ControlRequest::State).await?
+            else {
+                bail!("the master answered a state request with something else");
+            };
+            let start = current.camera.camera_for_frame(frame);
+            let center = start.target();
+            let offset = start.eye() - center;
+            for step in 0u32.. {
+                tokio::time::sleep(every).await;
+                let angle = step as f32 * 0.02;
+                let eye = center + glam::Quat::from_rotation_y(angle) * offset;
+                let camera = Camera::new(eye, center, start.up(), start.fov_y_deg())?;
+                let change = StateChange::Camera(CameraMode::fixed(camera));
+                client.ask(ControlRequest::Change(vec![change])).await?;
+            }
+            Ok(())
+        })
+    })
+}
+
 async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
-    let report = wall_run(&args.local, "latency run").await?;
+    let run = run_local_driven(&args.local, true, Some(camera_path(args.command_every()))).await?;
+    let report = checked_run(run, "latency run")?;
     let t = &report.timing;
     if t.frames_measured == 0 {
         bail!("no frame was reported presented by every display");
@@ -190,11 +243,19 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
     } else {
         0.0
     };
+    let input_in_periods = if period > 0.0 {
+        t.input_latency_ms.p95 / period
+    } else {
+        0.0
+    };
     let json = write_json(
         out,
         &json!({
             "experiment": "latency",
             "latency_ms": t.latency_ms,
+            "input_latency_ms": t.input_latency_ms,
+            "input_latency_p95_in_frame_periods": input_in_periods,
+            "inputs_measured": t.inputs_measured,
             "skew_ms": t.skew_ms,
             "frame_period_ms": period,
             "latency_p95_in_frame_periods": in_periods,
@@ -207,7 +268,11 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
         "{:<10} {:>8} {:>8} {:>8} {:>8}",
         "ms", "p50", "p95", "p99", "max"
     );
-    for (name, p) in [("latency", &t.latency_ms), ("skew", &t.skew_ms)] {
+    for (name, p) in [
+        ("latency", &t.latency_ms),
+        ("input", &t.input_latency_ms),
+        ("skew", &t.skew_ms),
+    ] {
         println!(
             "{name:<10} {:>8.3} {:>8.3} {:>8.3} {:>8.3}",
             p.p50, p.p95, p.p99, p.max

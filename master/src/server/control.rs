@@ -92,6 +92,32 @@ impl Wall {
         })
     }
 
+    /// A person's input at a display window: what the navigator makes of it, queued for the
+    /// next barrier like a control command (and refused in the log, not on the wall, if the
+    /// knobs it turns would leave their bounds).
+    pub(super) fn handle_input(&mut self, event: tessera_wire::input::InputEvent, stamp: u64) {
+        use tessera_core::navigate::NavAction;
+        let current = self.current_camera();
+        let frame = self.live.last_start.map_or(0, |s| s.frame.0);
+        let camera = current.camera_for_frame(frame);
+        let params = self.coordinator.next_state().params;
+        match self.navigator.handle(&event, &camera, &params) {
+            Some(NavAction::Change(change)) => {
+                if let Err(e) = self.coordinator.queue_change(change, stamp, Instant::now()) {
+                    tracing::warn!("input {event:?} refused: {e}");
+                }
+            }
+            Some(NavAction::ToggleOverlay) => {
+                let on = !self.live.overlay;
+                self.live.overlay = on;
+                for peer in self.displays.values() {
+                    self.send(*peer, ToNode::Overlay { on });
+                }
+            }
+            None => {}
+        }
+    }
+
     /// Queues `changes` all or none: each is checked against the state the ones before it make.
     pub(super) fn queue_all(
         &mut self,
@@ -106,7 +132,7 @@ impl Wall {
         }
         for change in changes {
             self.coordinator
-                .queue_change(*change, stamp)
+                .queue_change(*change, stamp, Instant::now())
                 .map_err(|e| e.to_string())?;
         }
         Ok(ControlReply::Queued {

@@ -33,6 +33,10 @@ use tokio::sync::mpsc;
 #[derive(Clone, Debug)]
 pub struct RunConfig {
     pub wall: WallLayout,
+    /// Progressive refinement while the camera holds still, if the run does it.
+    pub refinement: Option<tessera_core::balance::Refinement>,
+    /// Where displays put their windows (from the wall file).
+    pub windows: BTreeMap<u32, tessera_wire::window::WindowPlacement>,
     pub scene: SceneSpec,
     pub scene_hash: [u8; 32],
     pub camera: CameraMode,
@@ -53,6 +57,9 @@ pub struct RunConfig {
     pub record: Option<std::path::PathBuf>,
     /// A recorded session to drive the wall from.
     pub replay: Option<crate::record::Session>,
+    /// Where input from the windows orbits about, and the scene's size (half its diagonal).
+    pub pivot: glam::Vec3,
+    pub scene_size: f32,
 }
 
 enum PeerRole {
@@ -89,6 +96,8 @@ struct Wall {
     progress: Option<indicatif::ProgressBar>,
     live: control::Live,
     recorder: Option<crate::record::Recorder>,
+    /// Turns input from the display windows into state changes.
+    navigator: tessera_core::navigate::Navigator,
     /// The state of the frames starting now (as the last `StateApplied` said).
     frame_state: WallState,
 }
@@ -124,6 +133,7 @@ pub async fn run_wall(
         cfg.frames,
         BalanceConfig::default(),
     );
+    coordinator.set_refinement(cfg.refinement);
     if let Some(session) = &cfg.replay {
         for line in &session.lines {
             coordinator.schedule_change(FrameId(line.frame), StateChange::All(line.wall))?;
@@ -147,6 +157,7 @@ pub async fn run_wall(
         progress: None,
         live: control::Live::default(),
         recorder,
+        navigator: tessera_core::navigate::Navigator::new(cfg.camera, cfg.pivot, cfg.scene_size),
         frame_state,
         cfg,
     };
@@ -283,6 +294,7 @@ impl Wall {
                 .collect(),
             save_frame: self.cfg.save_frame,
             compression: self.cfg.compression,
+            windows: self.cfg.windows.clone(),
         })
         .expect("displays are checked against the wall, and for duplicates, when they join")
     }
@@ -384,10 +396,21 @@ impl Wall {
                     }
                 }
                 Output::FrameRendered(_) => {}
-                Output::StateApplied { changes, wall, .. } => {
+                Output::StateApplied {
+                    frame,
+                    changes,
+                    wall,
+                    stamps,
+                    ..
+                } => {
                     self.changes_applied += changes;
                     self.frame_state = wall;
+                    self.timing.inputs_applied(frame, &stamps);
                 }
+                Output::Converged(frame) => tracing::info!(
+                    "frame {} is at the final quality; nothing renders until something changes",
+                    frame.0
+                ),
                 Output::Refused { frame, error } => {
                     tracing::warn!(
                         "a change replayed at frame {} was refused: {error}",

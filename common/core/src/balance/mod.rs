@@ -24,6 +24,9 @@
 //!   displays are told to present it at once.
 
 mod frames;
+mod refine;
+
+pub use refine::Refinement;
 
 use frames::InFlight;
 use std::collections::{BTreeMap, VecDeque};
@@ -68,6 +71,8 @@ pub enum Output {
         changes: u64,
         stamps: Vec<u64>,
     },
+    /// `frame` is the final refinement pass: nothing more starts until something changes.
+    Converged(FrameId),
     /// A change scheduled for `frame` was refused by the state there.
     Refused {
         frame: FrameId,
@@ -172,6 +177,12 @@ pub struct Coordinator {
     pending_stamps: Vec<u64>,
     /// Changes to apply at the barrier of a given frame (a replayed session).
     scheduled: BTreeMap<FrameId, Vec<StateChange>>,
+    refinement: Option<Refinement>,
+    /// The frame the current state took effect with.
+    state_since: FrameId,
+    /// The last frame started was at the final quality and nothing has changed since: no
+    /// frame starts until something does.
+    converged: bool,
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
@@ -213,6 +224,9 @@ impl Coordinator {
             pending_changes: 0,
             pending_stamps: Vec::new(),
             scheduled: BTreeMap::new(),
+            refinement: None,
+            state_since: FrameId(0),
+            converged: false,
             frame_limit,
             running: false,
             nodes: BTreeMap::new(),
@@ -247,6 +261,11 @@ impl Coordinator {
     }
 
     // ---- commands ----
+
+    /// Refine frames while the camera holds still (see [`Refinement`]); `None`: never.
+    pub fn set_refinement(&mut self, refinement: Option<Refinement>) {
+        self.refinement = refinement;
+    }
 
     /// The state frames start with now, and its id.
     pub fn state(&self) -> (StateId, WallState) {
@@ -283,10 +302,19 @@ impl Coordinator {
     ///
     /// # Errors
     /// A combination that [`WallState::apply`] refuses; nothing is queued.
-    pub fn queue_change(&mut self, change: StateChange, stamp: u64) -> Result<(), ParamsError> {
+    pub fn queue_change(
+        &mut self,
+        change: StateChange,
+        stamp: u64,
+        now: Instant,
+    ) -> Result<(), ParamsError> {
         self.next = self.next.apply(&change)?;
         self.pending_changes += 1;
         self.pending_stamps.push(stamp);
+        // A converged wall renders again once something changed.
+        if std::mem::take(&mut self.converged) {
+            self.try_start_frames(now);
+        }
         Ok(())
     }
 
@@ -447,6 +475,35 @@ impl Coordinator {
         }
     }
 
+    /// What `frame` renders with: the state's knobs, or a refinement pass of them. Marks the
+    /// wall converged when this is the final pass and nothing waits to change.
+    fn frame_params(&mut self, frame: FrameId) -> RenderParams {
+        let Some(refinement) = self.refinement else {
+            return self.state.params;
+        };
+        // An orbiting camera never holds still.
+        if self.state.camera.fixed_camera().is_none() {
+            return self.state.params;
+        }
+        let age = frame.0 - self.state_since.0;
+        let (params, last) = refinement.frame_params(self.state.params, age);
+        let waiting = self.pending_changes > 0
+            || self
+                .scheduled
+                .keys()
+                .next()
+                .is_some_and(|&f| f <= self.next_frame);
+        if last && !waiting {
+            self.converged = true;
+            self.outputs.push_back(Output::Converged(frame));
+            // A run of so many frames has nothing more to show: end it here.
+            if self.frame_limit.is_some() {
+                self.frame_limit = Some(frame.0 + 1);
+            }
+        }
+        params
+    }
+
     fn can_start_next(&self) -> bool {
         if !self.running || self.nodes.is_empty() {
             return false;
@@ -455,6 +512,9 @@ impl Coordinator {
             .frame_limit
             .is_some_and(|limit| self.next_frame.0 >= limit)
         {
+            return false;
+        }
+        if self.converged {
             return false;
         }
         // At most two frames in flight, and every tile of the newer one handed out.
@@ -474,13 +534,20 @@ impl Coordinator {
             let frame = self.next_frame;
             self.next_frame = FrameId(frame.0 + 1);
             for change in self.scheduled.remove(&frame).unwrap_or_default() {
-                if let Err(error) = self.queue_change(change, 0) {
-                    self.outputs.push_back(Output::Refused { frame, error });
+                // Queued inside the barrier that applies it: nothing to restart.
+                match self.next.apply(&change) {
+                    Ok(next) => {
+                        self.next = next;
+                        self.pending_changes += 1;
+                        self.pending_stamps.push(0);
+                    }
+                    Err(error) => self.outputs.push_back(Output::Refused { frame, error }),
                 }
             }
             if self.pending_changes > 0 {
                 self.state = self.next;
                 self.state_id = StateId(self.state_id.0 + 1);
+                self.state_since = frame;
                 self.outputs.push_back(Output::StateApplied {
                     frame,
                     state: self.state_id,
@@ -489,11 +556,12 @@ impl Coordinator {
                     stamps: std::mem::take(&mut self.pending_stamps),
                 });
             }
+            let params = self.frame_params(frame);
             let start = FrameStart {
                 frame,
                 state: self.state_id,
                 camera: self.state.camera.camera_for_frame(frame.0),
-                params: self.state.params,
+                params,
                 lights: self.state.lights,
             };
             let mut state = InFlight::new(start, self.tile_count);

@@ -139,17 +139,19 @@ fn state_changes_wait_for_the_barrier() {
     c.start(now);
     let first = drain(&mut c);
     let moved = Camera::new(Vec3::new(5.0, 0.0, 0.0), Vec3::ZERO, Vec3::Y, 30.0).unwrap();
-    c.queue_change(StateChange::Camera(CameraMode::fixed(moved)), 1)
+    c.queue_change(StateChange::Camera(CameraMode::fixed(moved)), 1, now)
         .unwrap();
     // Many changes before one barrier make one state, and none is lost.
     for ao in 1..=999u32 {
-        c.queue_change(StateChange::AoSamples(ao % 7), 1 + ao as u64)
+        c.queue_change(StateChange::AoSamples(ao % 7), 1 + ao as u64, now)
             .unwrap();
     }
     // A change the budget refuses is refused now, at the caller, and queues nothing.
-    c.queue_change(StateChange::Spp(4096), 0).unwrap();
-    assert!(c.queue_change(StateChange::AoSamples(1024), 0).is_err());
-    c.queue_change(StateChange::Spp(1), 1001).unwrap();
+    c.queue_change(StateChange::Spp(4096), 0, now).unwrap();
+    assert!(c
+        .queue_change(StateChange::AoSamples(1024), 0, now)
+        .is_err());
+    c.queue_change(StateChange::Spp(1), 1001, now).unwrap();
     // Nothing is re-broadcast for the frame in flight.
     assert!(drain(&mut c).is_empty());
     let starts = |outs: &[Output]| -> Vec<FrameStart> {
@@ -366,4 +368,65 @@ fn a_node_that_renders_more_of_a_frame_gets_a_larger_static_share_later() {
         "{fast_share} + {slow_share}"
     );
     assert!(fast_share >= 2 * slow_share, "{fast_share} : {slow_share}");
+}
+
+/// Renders and presents every frame the coordinator starts, with one node and one display,
+/// until it starts no more or `limit` frames; returns the frame starts in order.
+fn run_frames(c: &mut Coordinator, limit: usize, now: Instant) -> Vec<FrameStart> {
+    let node = RenderNodeId(0);
+    let mut starts = Vec::new();
+    let mut outs = drain(c);
+    for _ in 0..limit * 20 {
+        for o in &outs {
+            if let Output::ToDisplays(ToNode::FrameStart(s)) = o {
+                starts.push(*s);
+            }
+        }
+        let mine = assigned_to(&outs, node);
+        let frames: Vec<FrameId> = outs
+            .iter()
+            .filter_map(|o| match o {
+                Output::ToRender(_, ToNode::Assign { frame, tiles }) if !tiles.is_empty() => {
+                    Some(*frame)
+                }
+                _ => None,
+            })
+            .collect();
+        let Some(&frame) = frames.first() else {
+            break;
+        };
+        c.handle_tiles_done(node, frame, &mine, true, now).unwrap();
+        c.handle_frame_complete(DisplayId(0), frame, now).unwrap();
+        outs = drain(c);
+        if starts.len() >= limit {
+            break;
+        }
+    }
+    starts
+}
+
+#[test]
+fn a_still_view_refines_to_the_final_quality_then_renders_nothing_until_a_change() {
+    let now = Instant::now();
+    let mut c = coordinator(3, 1, 1_000);
+    c.set_frame_limit(None);
+    c.set_refinement(Some(Refinement::new(2, 4, 2).unwrap()));
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.start(now);
+    let starts = run_frames(&mut c, 50, now);
+    let quality: Vec<(u32, u32)> = starts
+        .iter()
+        .map(|s| (s.params.spp(), s.params.ao_samples()))
+        .collect();
+    assert_eq!(
+        quality,
+        [(1, 0), (1, 0), (2, 2), (4, 2)],
+        "two still frames, two passes, then nothing"
+    );
+    assert_eq!(c.next_frame(), FrameId(4));
+    // A change renders again, interactive first.
+    c.queue_change(StateChange::Shadows(false), 1, now).unwrap();
+    let starts = run_frames(&mut c, 2, now);
+    assert_eq!(starts[0].frame, FrameId(4));
+    assert!(!starts[0].params.shadows() && starts[0].params.spp() == 1);
 }

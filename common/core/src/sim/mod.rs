@@ -719,7 +719,7 @@ impl SimWall {
                     if self.change_every_frame {
                         let spp = 1 + (frame.0 % 2) as u32;
                         self.coordinator
-                            .queue_change(StateChange::Spp(spp), self.now_us)
+                            .queue_change(StateChange::Spp(spp), self.now_us, self.now())
                             .expect("1 or 2 samples per pixel are always allowed");
                     }
                     let doomed: Vec<RenderNodeId> = self
@@ -743,6 +743,7 @@ impl SimWall {
                 Output::FramePresented(_)
                 | Output::Finished
                 | Output::Stalled
+                | Output::Converged(_)
                 | Output::Refused { .. } => {}
             }
         }

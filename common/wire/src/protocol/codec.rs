@@ -143,6 +143,14 @@ mod tests {
                     }],
                     save_frame: Some(FrameId(3)),
                     compression: crate::protocol::pixels::Compression::Lz4,
+                    windows: [(
+                        0,
+                        crate::window::WindowPlacement {
+                            position: Some((-10, 20)),
+                            ..Default::default()
+                        },
+                    )]
+                    .into(),
                 })
                 .unwrap(),
             },

@@ -18,7 +18,9 @@ use crate::params::RenderParams;
 use crate::scene_spec::SceneSpec;
 use crate::state::StateId;
 use crate::wall::{DisplayId, TileId, WallLayout};
+use crate::window::WindowPlacement;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
@@ -163,6 +165,8 @@ pub struct SessionSpec {
     pub save_frame: Option<FrameId>,
     /// How render nodes pack tiles' pixels; displays refuse streams packed otherwise.
     pub compression: pixels::Compression,
+    /// Where displays put their windows, by display id, if the wall file says.
+    pub windows: BTreeMap<u32, WindowPlacement>,
 }
 
 impl Session {
@@ -181,6 +185,9 @@ impl Session {
             if !seen.insert(d.display) {
                 return Err(ProtocolError::DuplicateDisplay(d.display.0));
             }
+        }
+        if let Some(&display) = spec.windows.keys().find(|&&d| d >= count) {
+            return Err(ProtocolError::UnknownDisplay { display, count });
         }
         Ok(Session(spec))
     }
@@ -207,6 +214,11 @@ impl Session {
 
     pub fn compression(&self) -> pixels::Compression {
         self.0.compression
+    }
+
+    /// Where display `display`'s window goes, if the wall file says.
+    pub fn window(&self, display: DisplayId) -> Option<WindowPlacement> {
+        self.0.windows.get(&display.0).copied()
     }
 }
 
@@ -568,6 +580,7 @@ mod tests {
             displays,
             save_frame: None,
             compression: pixels::Compression::None,
+            windows: BTreeMap::new(),
         };
         assert!(Session::new(spec(vec![endpoint(0), endpoint(1)])).is_ok());
         assert_eq!(

@@ -163,7 +163,7 @@ pub struct StreamHeader {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BatchSource {
     pub node: RenderNodeId,
-    /// Rendering time of the whole batch, microseconds.
+    /// Rendering time of one tile, averaged over the batch, microseconds.
     pub render_us: u32,
 }
 

@@ -1,0 +1,213 @@
+//! Where each display's window goes on its host's desktop: a position, a size (the screen's
+//! own resolution unless said otherwise) or borderless full screen on a monitor. A wall file
+//! may say it for every display in `[[window]]` tables, and it travels in the session, so
+//! that three windows of a desk wall open side by side instead of on top of each other.
+//!
+//! ```toml
+//! columns = 3
+//! rows = 1
+//! screen_width = 640
+//! screen_height = 360
+//!
+//! [[window]]
+//! display = 1
+//! x = 640
+//! y = 0
+//! ```
+
+use crate::wall::{WallError, WallLayout, WallSpec};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// Largest window side and position offset accepted, in pixels.
+pub const MAX_WINDOW_SIDE: u32 = 1 << 15;
+/// Monitors a full-screen window may name (0 is the first).
+pub const MAX_MONITOR: u32 = 63;
+
+/// One display's window.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct WindowPlacement {
+    /// Top-left corner on the desktop, pixels; `None` leaves it to the window manager.
+    pub position: Option<(i32, i32)>,
+    /// Inner size; `None` is the screen's resolution (no scaling).
+    pub size: Option<(u32, u32)>,
+    /// Borderless full screen on monitor N (the frame is scaled to the monitor).
+    pub fullscreen: Option<u32>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WindowPlacementRaw {
+    position: Option<(i32, i32)>,
+    size: Option<(u32, u32)>,
+    fullscreen: Option<u32>,
+}
+
+impl WindowPlacement {
+    /// # Errors
+    /// A position or size beyond [`MAX_WINDOW_SIDE`], an empty size, a monitor past
+    /// [`MAX_MONITOR`].
+    pub fn check(&self) -> Result<(), String> {
+        let limit = MAX_WINDOW_SIDE as i32;
+        if let Some((x, y)) = self.position {
+            if x.abs() > limit || y.abs() > limit {
+                return Err(format!("window position {x},{y} is beyond ±{limit}"));
+            }
+        }
+        if let Some((w, h)) = self.size {
+            if w == 0 || h == 0 || w > MAX_WINDOW_SIDE || h > MAX_WINDOW_SIDE {
+                return Err(format!(
+                    "window size {w}x{h} must be from 1 to {MAX_WINDOW_SIDE} on each side"
+                ));
+            }
+        }
+        if let Some(m) = self.fullscreen.filter(|&m| m > MAX_MONITOR) {
+            return Err(format!(
+                "monitor {m} is past the last one accepted ({MAX_MONITOR})"
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl TryFrom<WindowPlacementRaw> for WindowPlacement {
+    type Error = String;
+
+    fn try_from(raw: WindowPlacementRaw) -> Result<Self, String> {
+        let placement = WindowPlacement {
+            position: raw.position,
+            size: raw.size,
+            fullscreen: raw.fullscreen,
+        };
+        placement.check()?;
+        Ok(placement)
+    }
+}
+
+impl<'de> Deserialize<'de> for WindowPlacement {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, WindowPlacementRaw, Self>(d)
+    }
+}
+
+/// A `[[window]]` table of a wall file.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WindowEntry {
+    display: u32,
+    x: Option<i32>,
+    y: Option<i32>,
+    width: Option<u32>,
+    height: Option<u32>,
+    fullscreen: Option<u32>,
+}
+
+/// A wall file: the wall, and where its displays' windows go.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WallFile {
+    pub layout: WallLayout,
+    pub windows: BTreeMap<u32, WindowPlacement>,
+}
+
+impl WallFile {
+    /// Reads a wall file from TOML text; `origin` names the source in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<WallFile, WallError> {
+        let file_error = |message: String| WallError::File {
+            path: origin.to_string(),
+            message,
+        };
+        let mut table: toml::Table =
+            toml::from_str(text).map_err(|e| file_error(e.to_string().trim_end().to_string()))?;
+        let windows = table.remove("window");
+        let spec: WallSpec = table
+            .try_into()
+            .map_err(|e: toml::de::Error| file_error(e.to_string().trim_end().to_string()))?;
+        let layout = spec.build().map_err(|e| file_error(e.to_string()))?;
+        let entries: Vec<WindowEntry> = match windows {
+            None => Vec::new(),
+            Some(value) => value.try_into().map_err(|e: toml::de::Error| {
+                file_error(format!("[[window]]: {}", e.to_string().trim_end()))
+            })?,
+        };
+        let mut windows = BTreeMap::new();
+        for e in entries {
+            if e.display >= layout.display_count() {
+                return Err(file_error(format!(
+                    "[[window]] display {} is not one of the {} displays",
+                    e.display,
+                    layout.display_count()
+                )));
+            }
+            let size = match (e.width, e.height) {
+                (Some(w), Some(h)) => Some((w, h)),
+                (None, None) => None,
+                _ => {
+                    return Err(file_error(format!(
+                        "[[window]] display {}: give width and height together",
+                        e.display
+                    )))
+                }
+            };
+            let placement = WindowPlacement {
+                position: (e.x.is_some() || e.y.is_some())
+                    .then(|| (e.x.unwrap_or(0), e.y.unwrap_or(0))),
+                size,
+                fullscreen: e.fullscreen,
+            };
+            placement
+                .check()
+                .map_err(|m| file_error(format!("[[window]] display {}: {m}", e.display)))?;
+            if windows.insert(e.display, placement).is_some() {
+                return Err(file_error(format!(
+                    "[[window]] display {} is placed twice",
+                    e.display
+                )));
+            }
+        }
+        Ok(WallFile { layout, windows })
+    }
+
+    /// Reads a wall file (see `deploy/walls/*.toml` for examples).
+    pub fn from_file(path: &Path) -> Result<WallFile, WallError> {
+        let text = std::fs::read_to_string(path).map_err(|e| WallError::File {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DESK: &str = "columns = 3\nrows = 1\nscreen_width = 640\nscreen_height = 360\n";
+
+    #[test]
+    fn windows_are_read_and_checked() {
+        let text = format!(
+            "{DESK}[[window]]\ndisplay = 1\nx = 640\ny = 0\n[[window]]\ndisplay = 2\nfullscreen = 1\n"
+        );
+        let file = WallFile::from_toml(&text, "desk.toml").unwrap();
+        assert_eq!(file.layout, WallLayout::grid(3, 1, 640, 360).unwrap());
+        assert_eq!(file.windows[&1].position, Some((640, 0)));
+        assert_eq!(file.windows[&2].fullscreen, Some(1));
+        assert!(!file.windows.contains_key(&0));
+        for (bad, why) in [
+            ("[[window]]\ndisplay = 3\n", "not one of the 3"),
+            ("[[window]]\ndisplay = 0\nwidth = 10\n", "together"),
+            (
+                "[[window]]\ndisplay = 0\n[[window]]\ndisplay = 0\n",
+                "twice",
+            ),
+            ("[[window]]\ndisplay = 0\nfullscreen = 99\n", "monitor 99"),
+            ("[[window]]\ndisplay = 0\nwidht = 10\n", "widht"),
+        ] {
+            let err = WallFile::from_toml(&format!("{DESK}{bad}"), "desk.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(why) && err.contains("desk.toml"), "{err}");
+        }
+    }
+}
