@@ -95,7 +95,8 @@ pub enum Command {
     Views,
     /// Show or hide the displays' overlay.
     Overlay {
-        #[arg(value_parser = parse_on_off)]
+        /// on or off.
+        #[arg(value_parser = parse_on_off, action = clap::ArgAction::Set)]
         on: bool,
     },
     /// Have the displays save the next frame; prints its number.

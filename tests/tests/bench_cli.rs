@@ -83,6 +83,11 @@ fn latency_reports_percentiles_of_latency_and_skew() {
     }
     positive(&r["frame_period_ms"]);
     assert_eq!(r["frames_measured"], 30);
+    // The camera path's control commands, each measured from its stamp to its present.
+    assert!(r["inputs_measured"].as_u64().unwrap() > 0, "{r}");
+    let input = &r["input_latency_ms"];
+    assert!(input["p50"].as_f64().unwrap() <= input["max"].as_f64().unwrap());
+    assert!(input["max"].as_f64().unwrap() < elapsed_ms, "{input}");
     let csv = std::fs::read_to_string(dir.path().join("latency.csv")).unwrap();
     assert_eq!(csv.lines().count(), 31, "header and one row per frame");
 }
