@@ -236,7 +236,11 @@ fn only_a_control_certificate_may_control() {
         LIMIT,
     );
     o.assert_refused("control with a render certificate", &["refused", "render"]);
-    // The wall is unharmed.
+    // The wall is unharmed, and the real control certificate still steers it.
     wall.control(&["figures"]).assert_success("figures");
+    wall.control(&["overlay", "on"])
+        .assert_success("overlay on");
+    wall.control(&["overlay", "maybe"])
+        .assert_refused("overlay maybe", &["on or off"]);
     wall.stop();
 }

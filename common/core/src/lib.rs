@@ -1,8 +1,9 @@
 //! Tessera's sans-IO core: the state machines of a wall, with no socket, clock or thread.
 //!
-//! [`balance::Coordinator`] (the master's load balancer and frame barrier),
-//! [`assemble::FrameAssembler`] (a display's frames) and [`worker::RenderWorker`] (a render
-//! node's queue) take messages and `now` and return messages, following quinn-proto's
+//! [`balance::Coordinator`] (the master's load balancer, frame barrier and wall states),
+//! [`assemble::FrameAssembler`] (a display's frames, never a mix of states),
+//! [`worker::RenderWorker`] (a render node's queue) and [`navigate::Navigator`] (window input
+//! to state changes) take messages and `now` and return messages, following quinn-proto's
 //! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
 //! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
 //! in thin tokio + quinn driver loops.
