@@ -11,6 +11,11 @@ use tessera_wire::control::{
 use tessera_wire::protocol::FrameStart;
 use tessera_wire::state::StateChange;
 
+/// Most saved views and outstanding snapshots a run keeps: a client asking for more is
+/// refused rather than allowed to grow the master's memory.
+const MAX_VIEWS: usize = 1000;
+const MAX_SNAPSHOTS: usize = 10_000;
+
 /// What the driver keeps for the control interface and the displays' overlay.
 #[derive(Default)]
 pub(super) struct Live {
@@ -61,6 +66,9 @@ impl Wall {
             }
             ControlRequest::Figures => ControlReply::Figures(self.figures()),
             ControlRequest::SaveView(name) => {
+                if self.live.views.len() >= MAX_VIEWS && !self.live.views.contains_key(&name) {
+                    return Err(format!("{MAX_VIEWS} views are saved already; reuse a name"));
+                }
                 let camera = self.current_camera();
                 self.live.views.insert(name, camera);
                 ControlReply::Done
@@ -82,6 +90,9 @@ impl Wall {
                 ControlReply::Done
             }
             ControlRequest::Snapshot => {
+                if self.live.snapshots.len() >= MAX_SNAPSHOTS {
+                    return Err(format!("this run has taken its {MAX_SNAPSHOTS} snapshots"));
+                }
                 let frame = self.coordinator.next_frame();
                 self.live.snapshots.push(frame);
                 for peer in self.displays.values() {
