@@ -160,6 +160,7 @@ pub async fn run_local_driven(
     // Windows stay up for --linger after the run; only then is a display late to exit.
     let grace = Duration::from_secs(5) + Duration::from_secs_f64(args.linger);
     let failures = reap(&mut children, grace).await;
+    tracing::info!("every node process has exited");
     Ok(LocalRun {
         outcome,
         wall,

@@ -71,6 +71,8 @@ pub struct Proc {
     pub name: String,
     stdout: Captured,
     stderr: Captured,
+    /// Where a process that would not finish was stuck, for the failure message.
+    hang_report: String,
 }
 
 impl Proc {
@@ -111,6 +113,7 @@ impl Proc {
             name: name.to_string(),
             stdout,
             stderr,
+            hang_report: String::new(),
         }
     }
 
@@ -189,6 +192,7 @@ impl Proc {
                 break Some(status);
             }
             if Instant::now() > deadline {
+                self.hang_report = stacks_of(child.id());
                 let _ = child.kill();
                 let _ = child.wait();
                 break None;
@@ -204,8 +208,10 @@ impl Proc {
                 stderr,
             },
             None => panic!(
-                "{} did not finish within {limit:?}\nstderr:\n{stderr}",
-                self.name
+                "{} did not finish within {limit:?}\nstderr (its last 80 lines):\n{}\n{}",
+                self.name,
+                last_lines(&stderr, 80),
+                self.hang_report
             ),
         }
     }
@@ -260,6 +266,35 @@ impl Output {
     }
 }
 
+/// Every thread's stack of process `pid`, from gdb where it is installed: what a hung
+/// process was waiting for, which its log alone rarely says.
+fn stacks_of(pid: u32) -> String {
+    let out = Command::new("timeout")
+        .args([
+            "30",
+            "gdb",
+            "-p",
+            &pid.to_string(),
+            "-batch",
+            "-ex",
+            "thread apply all bt 30",
+        ])
+        .stdin(Stdio::null())
+        .output();
+    match out {
+        Ok(o) if o.status.success() => format!(
+            "its threads when it was given up on:\n{}",
+            last_lines(&String::from_utf8_lossy(&o.stdout), 300)
+        ),
+        _ => "(gdb is not there to say where it hung)".into(),
+    }
+}
+
+fn last_lines(text: &str, n: usize) -> String {
+    let lines: Vec<&str> = text.lines().collect();
+    lines[lines.len().saturating_sub(n)..].join("\n")
+}
+
 /// Says, where the person running the tests sees it, that a test skipped and why: the test
 /// harness keeps a passing test's `eprintln!` to itself, so this writes to stderr directly.
 pub fn skip(test: &str, why: &str) {
@@ -270,6 +305,44 @@ pub fn skip(test: &str, why: &str) {
 /// Runs a binary to completion within `limit`.
 pub fn run(name: &str, args: &[&str], limit: Duration) -> Output {
     Proc::start(name, args).wait(limit)
+}
+
+/// The `--connect ADDR --cert-dir DIR` of the control command that a local wall prints when
+/// it starts (waited for, bounded by `limit`).
+pub fn control_args(master: &Proc, limit: Duration) -> Vec<String> {
+    let line = master.wait_for_stderr("control with", limit);
+    let command = line
+        .split('`')
+        .nth(1)
+        .unwrap_or_else(|| panic!("no command between backquotes in {line:?}"));
+    let args: Vec<String> = command
+        .split_whitespace()
+        .skip(2) // tessera-master control
+        .map(str::to_string)
+        .collect();
+    assert_eq!(
+        args.first().map(String::as_str),
+        Some("--connect"),
+        "{line}"
+    );
+    args
+}
+
+/// Runs `tessera-master control CONNECT COMMAND...` to completion within `limit`.
+pub fn control(connect: &[String], command: &[&str], limit: Duration) -> Output {
+    let mut args: Vec<&str> = vec!["control"];
+    args.extend(connect.iter().map(String::as_str));
+    args.extend(command);
+    run("tessera-master", &args, limit)
+}
+
+/// Asserts that two PNG files hold the same image, pixel for pixel.
+pub fn assert_same_pixels(shown: &Path, expected: &Path, what: &str) {
+    let (w, h, a) = load_rgb(shown);
+    let (ew, eh, b) = load_rgb(expected);
+    assert_eq!((w, h), (ew, eh), "{what}: sizes differ");
+    let differing = a.iter().zip(&b).filter(|(x, y)| x != y).count();
+    assert_eq!(differing, 0, "{what}: {differing} bytes differ");
 }
 
 pub fn load_rgb(path: &Path) -> (u32, u32, Vec<u8>) {

@@ -43,17 +43,7 @@ fn start_wall(dir: &Path, extra: &[&str]) -> Wall {
     ];
     args.extend(extra);
     let master = Proc::start("tessera-master", &args);
-    let line = master.wait_for_stderr("control with", LIMIT);
-    let command = line
-        .split('`')
-        .nth(1)
-        .expect("the command between backquotes");
-    let connect: Vec<String> = command
-        .split_whitespace()
-        .skip(2) // tessera-master control
-        .map(str::to_string)
-        .collect();
-    assert_eq!(connect[0], "--connect", "{line}");
+    let connect = control_args(&master, LIMIT);
     // Steer a wall that is running: frames flow once frame 1 is on screen.
     let shown = out.join("display-1.png");
     assert!(
@@ -70,10 +60,7 @@ fn start_wall(dir: &Path, extra: &[&str]) -> Wall {
 
 impl Wall {
     fn control(&self, command: &[&str]) -> Output {
-        let mut args: Vec<&str> = vec!["control"];
-        args.extend(self.connect.iter().map(String::as_str));
-        args.extend(command);
-        run("tessera-master", &args, LIMIT)
+        control(&self.connect, command, LIMIT)
     }
 
     /// Interrupts the wall and returns its report.

@@ -48,21 +48,8 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
         ],
         &[("DISPLAY", xvfb.display.as_str())],
     );
-    let line = master.wait_for_stderr("control with", LIMIT);
-    let connect: Vec<String> = line
-        .split('`')
-        .nth(1)
-        .unwrap()
-        .split_whitespace()
-        .skip(2)
-        .map(str::to_string)
-        .collect();
-    let control = |command: &[&str]| {
-        let mut args: Vec<&str> = vec!["control"];
-        args.extend(connect.iter().map(String::as_str));
-        args.extend(command);
-        run("tessera-master", &args, LIMIT)
-    };
+    let connect = control_args(&master, LIMIT);
+    let control = |command: &[&str]| control(&connect, command, LIMIT);
 
     // The wall file placed the windows: side by side, not on top of each other.
     let window = |title: &str| match xvfb.window(title, LIMIT) {

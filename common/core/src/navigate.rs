@@ -173,13 +173,7 @@ impl Navigator {
             Key::Q => -up,
             _ => return None,
         } * step;
-        Camera::new(
-            camera.eye() + delta,
-            camera.target() + delta,
-            camera.up(),
-            camera.fov_y_deg(),
-        )
-        .ok()
+        translate(camera, delta)
     }
 
     /// Moves the eye towards the target, never closer than a thousandth of the scene.
@@ -222,7 +216,11 @@ fn pan(camera: &Camera, dx: f32, dy: f32) -> Option<Camera> {
     let true_up = right.cross(view).normalize_or_zero();
     // One screen height spans 2·tan(fov/2)·distance at the target.
     let height = 2.0 * (camera.fov_y_deg().to_radians() * 0.5).tan() * view.length();
-    let delta = (right * -dx + true_up * dy) * height;
+    translate(camera, (right * -dx + true_up * dy) * height)
+}
+
+/// The camera moved by `delta`, eye and target together.
+fn translate(camera: &Camera, delta: Vec3) -> Option<Camera> {
     Camera::new(
         camera.eye() + delta,
         camera.target() + delta,

@@ -168,6 +168,11 @@ pub async fn run_wall(
         endpoint.local_addr()?
     );
     let join_deadline = tokio::time::Instant::now() + wall.cfg.join_timeout;
+    // Whether the interrupt was handled. Not `*stop.borrow()` in the branch's condition: an
+    // interrupt that came while an event was being handled would already read true there,
+    // disable the branch before `changed()` ever reported it, and be lost (the wall then ran
+    // on after Ctrl-C). `changed()` reports a value not yet seen whenever it is polled.
+    let mut stopping = false;
     let result = loop {
         let deadline_passed =
             wall.started.is_none() && tokio::time::Instant::now() >= join_deadline;
@@ -181,7 +186,12 @@ pub async fn run_wall(
         let event = tokio::select! {
             e = events.recv() => e,
             _ = tokio::time::sleep_until(join_deadline), if wall.started.is_none() => continue,
-            _ = stop.changed(), if !*stop.borrow() => {
+            changed = stop.changed(), if !stopping => {
+                stopping = true;
+                if changed.is_err() && !*stop.borrow() {
+                    // The interrupt watcher is gone without an interrupt: nothing to stop.
+                    continue;
+                }
                 if wall.started.is_none() {
                     break Err(anyhow::anyhow!("interrupted before the first frame"));
                 }
@@ -224,6 +234,10 @@ pub async fn run_wall(
     }
     let outcome = match result {
         Ok(()) => {
+            tracing::info!(
+                "{} frames presented; asking the nodes for their figures",
+                wall.presents.len()
+            );
             wall.shutdown(&mut events).await;
             Ok(wall.report())
         }
