@@ -176,9 +176,14 @@ impl App {
                     monitors.len()
                 )
             })?;
+            // Placed and sized as the monitor too: a bare X session (a wall's usual set-up)
+            // has no window manager to carry out the full-screen request.
             attrs = attrs
-                .with_min_inner_size(PhysicalSize::new(1, 1))
+                .with_position(monitor.position())
+                .with_inner_size(monitor.size())
+                .with_min_inner_size(monitor.size())
                 .with_max_inner_size(monitor.size())
+                .with_decorations(false)
                 .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor))));
         }
         let window = Rc::new(

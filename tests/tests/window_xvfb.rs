@@ -77,3 +77,74 @@ fn window_shows_exactly_the_saved_frame() {
     let o = master.wait(Duration::from_secs(60));
     o.assert_success("windowed local wall");
 }
+
+#[test]
+fn a_full_screen_window_covers_its_monitor_with_the_frame_scaled() {
+    let test = "a_full_screen_window_covers_its_monitor_with_the_frame_scaled";
+    let Some(xvfb) = Xvfb::start(test, "320x200", &["xwininfo", "import"]) else {
+        return;
+    };
+    // A bare X server, no window manager: as on many walls. The window must cover the
+    // monitor all the same, the 80x50 frame scaled four times, nearest pixel.
+    let dir = tempfile::tempdir().unwrap();
+    let wall = dir.path().join("one.toml");
+    std::fs::write(
+        &wall,
+        "columns = 1\nrows = 1\nscreen_width = 80\nscreen_height = 50\n\
+         [[window]]\ndisplay = 0\nfullscreen = 0\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let master = Proc::start_with_env(
+        "tessera-master",
+        &[
+            "local",
+            "--wall-file",
+            wall.to_str().unwrap(),
+            "--frames",
+            "3",
+            "--save-frame",
+            "2",
+            "--window",
+            "--linger",
+            "8",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &[("DISPLAY", xvfb.display.as_str())],
+    );
+    let saved = out.join("display-0.png");
+    assert!(
+        wait_for(Duration::from_secs(60), || saved.exists()),
+        "display never saved frame 2"
+    );
+    let (_, _, frame) = load_rgb(&saved);
+    let scaled: Vec<u8> = (0..200)
+        .flat_map(|y| (0..320).map(move |x| ((y / 4) * 80 + x / 4) * 3))
+        .flat_map(|i| frame[i..i + 3].to_vec())
+        .collect();
+    let shot = dir.path().join("shot.png");
+    let mut last = String::new();
+    let matched = wait_for(Duration::from_secs(6), || {
+        let grabbed = Command::new("bash")
+            .arg(screenshot_script())
+            .args(["grab", "Tessera display 0", shot.to_str().unwrap()])
+            .env("DISPLAY", &xvfb.display)
+            .status()
+            .is_ok_and(|s| s.success());
+        if !grabbed {
+            return false;
+        }
+        let (w, h, pixels) = load_rgb(&shot);
+        let differing = pixels.iter().zip(&scaled).filter(|(a, b)| a != b).count();
+        last = format!("{w}x{h}, {differing} bytes differ");
+        (w, h) == (320, 200) && differing == 0
+    });
+    assert!(
+        matched,
+        "the full-screen window is not the scaled frame: {last}"
+    );
+    master
+        .wait(Duration::from_secs(60))
+        .assert_success("full-screen wall");
+}
