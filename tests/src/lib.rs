@@ -336,6 +336,36 @@ pub fn control(connect: &[String], command: &[&str], limit: Duration) -> Output 
     run("tessera-master", &args, limit)
 }
 
+/// Renders frame `frame` of the recorded session `record` in one process (`render --replay`,
+/// on the wall `wall` describes) into a folder under `scratch`, and asserts that the wall's
+/// `shown` image of that frame is the same, pixel for pixel.
+pub fn assert_shows_replayed_frame(
+    wall: &[&str],
+    record: &Path,
+    frame: u64,
+    shown: &Path,
+    scratch: &Path,
+) {
+    let reference = scratch.join(format!("replayed-frame-{frame}"));
+    let frame_arg = frame.to_string();
+    let mut args = vec!["render"];
+    args.extend(wall);
+    args.extend([
+        "--replay",
+        record.to_str().unwrap(),
+        "--frame",
+        &frame_arg,
+        "--out",
+        reference.to_str().unwrap(),
+    ]);
+    run("tessera-master", &args, Duration::from_secs(120)).assert_success("render --replay");
+    assert_same_pixels(
+        shown,
+        &reference.join("wall.png"),
+        &format!("frame {frame} against the replayed session"),
+    );
+}
+
 /// Asserts that two PNG files hold the same image, pixel for pixel.
 pub fn assert_same_pixels(shown: &Path, expected: &Path, what: &str) {
     let (w, h, a) = load_rgb(shown);

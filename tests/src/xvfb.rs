@@ -115,6 +115,39 @@ impl Xvfb {
         });
         found.then_some(info)
     }
+
+    /// Grabs the window titled `title` into `shot` until it shows exactly `expected` (RGB,
+    /// `width`×`height`), for at most `limit`; on failure returns what the last grab showed.
+    /// Polling is needed because a window presents a saved frame shortly after it is saved.
+    pub fn wait_for_window_image(
+        &self,
+        title: &str,
+        (width, height, expected): (u32, u32, &[u8]),
+        shot: &Path,
+        limit: Duration,
+    ) -> Result<(), String> {
+        let mut last = String::from("no grab succeeded");
+        let matched = wait_for(limit, || {
+            let grabbed = Command::new("bash")
+                .arg(screenshot_script())
+                .args(["grab", title, shot.to_str().unwrap()])
+                .env("DISPLAY", &self.display)
+                .status()
+                .is_ok_and(|s| s.success());
+            if !grabbed {
+                return false;
+            }
+            let (w, h, pixels) = crate::load_rgb(shot);
+            let differing = pixels.iter().zip(expected).filter(|(a, b)| a != b).count();
+            last = format!("{w}x{h}, {differing} bytes differ");
+            (w, h) == (width, height) && differing == 0
+        });
+        if matched {
+            Ok(())
+        } else {
+            Err(last)
+        }
+    }
 }
 
 /// A number `xwininfo` prints after `label` (e.g. "Absolute upper-left X:").

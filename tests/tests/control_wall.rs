@@ -131,35 +131,12 @@ fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
     assert_eq!(v["wall"]["params"]["cuts"].as_array().unwrap().len(), 1);
     assert_eq!(v["camera_at_frame"]["fov_y_deg"], 40.0, "{at_frame}");
     // ...and the wall showed exactly what rendering that frame of the session gives.
-    let reference = dir.path().join("reference");
-    let frame_arg = frame.to_string();
-    run(
-        "tessera-master",
-        &[
-            "render",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--bezel",
-            "8",
-            "--replay",
-            record.to_str().unwrap(),
-            "--frame",
-            &frame_arg,
-            "--out",
-            reference.to_str().unwrap(),
-        ],
-        LIMIT,
-    )
-    .assert_success("render --replay");
-    let (w, h, shown) = load_rgb(&out.join(format!("wall-frame-{frame}.png")));
-    let (rw, rh, expected) = load_rgb(&reference.join("wall.png"));
-    assert_eq!((w, h), (rw, rh));
-    let differing = shown.iter().zip(&expected).filter(|(a, b)| a != b).count();
-    assert_eq!(
-        differing, 0,
-        "frame {frame} differs from the replayed render"
+    assert_shows_replayed_frame(
+        &["--wall", "2x1", "--screen", "160x90", "--bezel", "8"],
+        &record,
+        frame,
+        &out.join(format!("wall-frame-{frame}.png")),
+        dir.path(),
     );
 }
 

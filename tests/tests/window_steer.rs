@@ -116,29 +116,11 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
     assert!(report["changes_applied"].as_u64().unwrap() >= 2, "{report}");
     assert!(report["inputs_measured"].as_u64().unwrap() >= 2, "{report}");
 
-    let reference = dir.path().join("reference");
-    let frame_arg = frame.to_string();
-    run(
-        "tessera-master",
-        &[
-            "render",
-            "--wall-file",
-            wall_file.to_str().unwrap(),
-            "--replay",
-            record.to_str().unwrap(),
-            "--frame",
-            &frame_arg,
-            "--out",
-            reference.to_str().unwrap(),
-        ],
-        LIMIT,
-    )
-    .assert_success("render --replay");
-    let (_, _, shown) = load_rgb(&out.join(format!("wall-frame-{frame}.png")));
-    let (_, _, expected) = load_rgb(&reference.join("wall.png"));
-    let differing = shown.iter().zip(&expected).filter(|(a, b)| a != b).count();
-    assert_eq!(
-        differing, 0,
-        "frame {frame} differs from the replayed session"
+    assert_shows_replayed_frame(
+        &["--wall-file", wall_file.to_str().unwrap()],
+        &record,
+        frame,
+        &out.join(format!("wall-frame-{frame}.png")),
+        dir.path(),
     );
 }

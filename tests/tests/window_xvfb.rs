@@ -5,9 +5,8 @@
 //! `.ci/run` calls). Where they are missing the test says so and passes only outside CI; in CI
 //! (CI=true) a missing tool is a failure.
 
-use std::process::Command;
 use std::time::Duration;
-use tessera_tests::xvfb::{screenshot_script, Xvfb};
+use tessera_tests::xvfb::Xvfb;
 use tessera_tests::*;
 
 #[test]
@@ -19,7 +18,6 @@ fn window_shows_exactly_the_saved_frame() {
     ) else {
         return;
     };
-    let display = xvfb.display.clone();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("windowed");
     let master = Proc::start_with_env(
@@ -40,7 +38,7 @@ fn window_shows_exactly_the_saved_frame() {
             "--out",
             out.to_str().unwrap(),
         ],
-        &[("DISPLAY", display.as_str())],
+        &[("DISPLAY", xvfb.display.as_str())],
     );
     let saved = out.join("display-0.png");
     assert!(
@@ -50,30 +48,14 @@ fn window_shows_exactly_the_saved_frame() {
     let (w, h, expected) = load_rgb(&saved);
     assert_eq!((w, h), (320, 180));
     let shot = dir.path().join("shot.png");
-    // The window gets frame 2 right after it is saved; give it a moment, bounded.
-    let mut last_diff = usize::MAX;
-    let matched = wait_for(Duration::from_secs(6), || {
-        let grabbed = Command::new("bash")
-            .arg(screenshot_script())
-            .args(["grab", "Tessera display 0", shot.to_str().unwrap()])
-            .env("DISPLAY", &display)
-            .status()
-            .is_ok_and(|s| s.success());
-        if !grabbed {
-            return false;
-        }
-        let (sw, sh, pixels) = load_rgb(&shot);
-        last_diff = if (sw, sh) == (w, h) {
-            pixels.iter().zip(&expected).filter(|(a, b)| a != b).count()
-        } else {
-            usize::MAX
-        };
-        last_diff == 0
-    });
-    assert!(
-        matched,
-        "screenshot differs from display-0.png in {last_diff} bytes"
-    );
+    if let Err(last) = xvfb.wait_for_window_image(
+        "Tessera display 0",
+        (w, h, &expected),
+        &shot,
+        Duration::from_secs(6),
+    ) {
+        panic!("screenshot is not display-0.png: {last}");
+    }
     let o = master.wait(Duration::from_secs(60));
     o.assert_success("windowed local wall");
 }
@@ -124,26 +106,14 @@ fn a_full_screen_window_covers_its_monitor_with_the_frame_scaled() {
         .flat_map(|i| frame[i..i + 3].to_vec())
         .collect();
     let shot = dir.path().join("shot.png");
-    let mut last = String::new();
-    let matched = wait_for(Duration::from_secs(6), || {
-        let grabbed = Command::new("bash")
-            .arg(screenshot_script())
-            .args(["grab", "Tessera display 0", shot.to_str().unwrap()])
-            .env("DISPLAY", &xvfb.display)
-            .status()
-            .is_ok_and(|s| s.success());
-        if !grabbed {
-            return false;
-        }
-        let (w, h, pixels) = load_rgb(&shot);
-        let differing = pixels.iter().zip(&scaled).filter(|(a, b)| a != b).count();
-        last = format!("{w}x{h}, {differing} bytes differ");
-        (w, h) == (320, 200) && differing == 0
-    });
-    assert!(
-        matched,
-        "the full-screen window is not the scaled frame: {last}"
-    );
+    if let Err(last) = xvfb.wait_for_window_image(
+        "Tessera display 0",
+        (320, 200, &scaled),
+        &shot,
+        Duration::from_secs(6),
+    ) {
+        panic!("the full-screen window is not the scaled frame: {last}");
+    }
     master
         .wait(Duration::from_secs(60))
         .assert_success("full-screen wall");
