@@ -5,6 +5,7 @@
 //! `.ci/run` calls). Where they are missing the test says so and passes only outside CI; in CI
 //! (CI=true) a missing tool is a failure.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 use tessera_tests::xvfb::Xvfb;
 use tessera_tests::*;
@@ -20,31 +21,8 @@ fn window_shows_exactly_the_saved_frame() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("windowed");
-    let master = Proc::start_with_env(
-        "tessera-master",
-        &[
-            "local",
-            "--wall",
-            "1x1",
-            "--screen",
-            "320x180",
-            "--frames",
-            "3",
-            "--save-frame",
-            "2",
-            "--window",
-            "--linger",
-            "8",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        &[("DISPLAY", xvfb.display.as_str())],
-    );
-    let saved = out.join("display-0.png");
-    assert!(
-        wait_for(Duration::from_secs(60), || saved.exists()),
-        "display never saved frame 2"
-    );
+    let (master, saved) =
+        start_windowed_wall(&xvfb, &["--wall", "1x1", "--screen", "320x180"], &out);
     let (w, h, expected) = load_rgb(&saved);
     assert_eq!((w, h), (320, 180));
     let shot = dir.path().join("shot.png");
@@ -77,29 +55,8 @@ fn a_full_screen_window_covers_its_monitor_with_the_frame_scaled() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let master = Proc::start_with_env(
-        "tessera-master",
-        &[
-            "local",
-            "--wall-file",
-            wall.to_str().unwrap(),
-            "--frames",
-            "3",
-            "--save-frame",
-            "2",
-            "--window",
-            "--linger",
-            "8",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        &[("DISPLAY", xvfb.display.as_str())],
-    );
-    let saved = out.join("display-0.png");
-    assert!(
-        wait_for(Duration::from_secs(60), || saved.exists()),
-        "display never saved frame 2"
-    );
+    let (master, saved) =
+        start_windowed_wall(&xvfb, &["--wall-file", wall.to_str().unwrap()], &out);
     let (_, _, frame) = load_rgb(&saved);
     let scaled: Vec<u8> = (0..200)
         .flat_map(|y| (0..320).map(move |x| ((y / 4) * 80 + x / 4) * 3))
@@ -117,4 +74,32 @@ fn a_full_screen_window_covers_its_monitor_with_the_frame_scaled() {
     master
         .wait(Duration::from_secs(60))
         .assert_success("full-screen wall");
+}
+
+/// Starts a local wall whose display presents in a window on `xvfb` and saves frame 2 under
+/// `out`; returns the master and that saved image, once it exists.
+fn start_windowed_wall(xvfb: &Xvfb, wall: &[&str], out: &Path) -> (Proc, PathBuf) {
+    let mut args = vec!["local"];
+    args.extend(wall);
+    args.extend([
+        "--frames",
+        "3",
+        "--save-frame",
+        "2",
+        "--window",
+        "--linger",
+        "8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let master = Proc::start_with_env(
+        "tessera-master",
+        &args,
+        &[("DISPLAY", xvfb.display.as_str())],
+    );
+    let saved = out.join("display-0.png");
+    if !wait_for(Duration::from_secs(60), || saved.exists()) {
+        master.fail("display never saved frame 2");
+    }
+    (master, saved)
 }

@@ -164,15 +164,7 @@ impl FrameAssembler {
         frame: FrameId,
         state: StateId,
     ) -> Result<(), AssembleError> {
-        if frame < self.next_present {
-            return Err(AssembleError::Stale(frame));
-        }
-        if frame.0 >= self.next_present.0 + FRAMES_AHEAD {
-            return Err(AssembleError::TooFarAhead {
-                frame,
-                next: self.next_present,
-            });
-        }
+        self.check_frame(frame)?;
         self.states.insert(frame, state);
         Ok(())
     }
