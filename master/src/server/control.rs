@@ -83,10 +83,7 @@ impl Wall {
             }
             ControlRequest::Views => ControlReply::Views(self.live.views.keys().cloned().collect()),
             ControlRequest::Overlay(on) => {
-                self.live.overlay = on;
-                for peer in self.displays.values() {
-                    self.send(*peer, ToNode::Overlay { on });
-                }
+                self.set_overlay(on);
                 ControlReply::Done
             }
             ControlRequest::Snapshot => {
@@ -118,14 +115,15 @@ impl Wall {
                     tracing::warn!("input {event:?} refused: {e}");
                 }
             }
-            Some(NavAction::ToggleOverlay) => {
-                let on = !self.live.overlay;
-                self.live.overlay = on;
-                for peer in self.displays.values() {
-                    self.send(*peer, ToNode::Overlay { on });
-                }
-            }
+            Some(NavAction::ToggleOverlay) => self.set_overlay(!self.live.overlay),
             None => {}
+        }
+    }
+
+    fn set_overlay(&mut self, on: bool) {
+        self.live.overlay = on;
+        for peer in self.displays.values() {
+            self.send(*peer, ToNode::Overlay { on });
         }
     }
 

@@ -270,12 +270,14 @@ impl Wall {
     fn all_ready(&self) -> bool {
         let displays_ready = self.displays.len() == self.cfg.wall.display_count() as usize
             && self.displays.values().all(|p| self.peers[p].ready);
-        let renders_ready = self
-            .peers
+        displays_ready && self.ready_render_nodes() >= self.cfg.render_nodes as usize
+    }
+
+    fn ready_render_nodes(&self) -> usize {
+        self.peers
             .values()
             .filter(|p| p.ready && matches!(p.role, PeerRole::Render { .. }))
-            .count();
-        displays_ready && renders_ready >= self.cfg.render_nodes as usize
+            .count()
     }
 
     fn missing_summary(&self) -> String {
@@ -284,11 +286,7 @@ impl Wall {
             .filter(|d| !self.displays.get(d).is_some_and(|p| self.peers[p].ready))
             .map(|d| d.0.to_string())
             .collect();
-        let renders = self
-            .peers
-            .values()
-            .filter(|p| p.ready && matches!(p.role, PeerRole::Render { .. }))
-            .count();
+        let renders = self.ready_render_nodes();
         format!(
             "displays not ready: [{}]; render nodes ready: {renders} of {}",
             missing.join(", "),
