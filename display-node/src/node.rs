@@ -184,6 +184,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                 link.send(&FromNode::Presented { frame: FrameId(frame), clock_ns }).await?;
             }
             Some((event, clock_ns)) = async { window_inputs.as_mut()?.recv().await } => {
+                tracing::debug!("display {}: input {event:?} to the master", me.0);
                 link.send(&FromNode::Input { event, clock_ns }).await?;
             }
             Some(tile) = tiles.recv() => {

@@ -46,7 +46,14 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
             "--out",
             out.to_str().unwrap(),
         ],
-        &[("DISPLAY", xvfb.display.as_str())],
+        &[
+            ("DISPLAY", xvfb.display.as_str()),
+            // What each display forwards and what the master makes of it, for a failure.
+            (
+                "RUST_LOG",
+                "info,tessera_display_node=debug,tessera_master=debug",
+            ),
+        ],
     );
     let connect = control_args(&master, LIMIT);
     let control = |command: &[&str]| control(&connect, command, LIMIT);
@@ -68,7 +75,29 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
         "{right}"
     );
 
-    // A drag in the right window, then "2" (ambient occlusion on) with it focused.
+    // Input is sent once the wall runs: both windows have presented frames, so their event
+    // loops are up.
+    let state_shows = |what: &dyn Fn(&str) -> bool| {
+        let mut last = String::new();
+        let shown = wait_for(LIMIT, || {
+            let o = control(&["state"]);
+            last = o.stdout.clone();
+            o.status.success() && what(&o.stdout)
+        });
+        if shown {
+            Ok(())
+        } else {
+            Err(last)
+        }
+    };
+    let running = |s: &str| frame_of_state(s).is_some_and(|f| f >= 3);
+    if let Err(last) = state_shows(&running) {
+        master.fail(&format!(
+            "the wall never reached frame 3; last state:\n{last}"
+        ));
+    }
+
+    // A drag in the right window...
     let id = xvfb
         .client("xdotool", &["search", "--name", "^Tessera display 1$"])
         .trim()
@@ -76,29 +105,32 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
         .next()
         .expect("xdotool finds the window")
         .to_string();
-    xvfb.client("xdotool", &["mousemove", "--window", &id, "60", "68"]);
+    xvfb.client(
+        "xdotool",
+        &["mousemove", "--sync", "--window", &id, "60", "68"],
+    );
     xvfb.client("xdotool", &["mousedown", "1"]);
     for x in [80, 100, 120, 140] {
         xvfb.client(
             "xdotool",
-            &["mousemove", "--window", &id, &x.to_string(), "68"],
+            &["mousemove", "--sync", "--window", &id, &x.to_string(), "68"],
         );
     }
     xvfb.client("xdotool", &["mouseup", "1"]);
+    if let Err(last) = state_shows(&|s: &str| s.contains("\"Fixed\"")) {
+        master.fail(&format!(
+            "the drag never changed the camera; last state:\n{last}"
+        ));
+    }
+    // ...then "2" (ambient occlusion on) with it focused.
     xvfb.client("xdotool", &["windowfocus", "--sync", &id]);
     xvfb.client("xdotool", &["key", "2"]);
-
-    // Both reached the master and wait for (or passed) a barrier.
-    let steered = wait_for(LIMIT, || {
-        let o = control(&["state"]);
-        o.status.success()
-            && o.stdout.contains("\"Fixed\"")
-            && o.stdout.contains("\"ao_samples\": 4")
-    });
-    assert!(
-        steered,
-        "the drag and the key never changed the wall's state"
-    );
+    if let Err(last) = state_shows(&|s: &str| s.contains("\"ao_samples\": 4")) {
+        master.fail(&format!(
+            "the key never turned ambient occlusion on; focus: {}; last state:\n{last}",
+            xvfb.client("xdotool", &["getwindowfocus"]).trim()
+        ));
+    }
     let snap = control(&["snapshot"]);
     snap.assert_success("snapshot");
     let frame: u64 = snap.stdout.trim().parse().unwrap();
@@ -123,4 +155,10 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
         &out.join(format!("wall-frame-{frame}.png")),
         dir.path(),
     );
+}
+
+/// The frame number in `control state`'s JSON.
+fn frame_of_state(state: &str) -> Option<u64> {
+    let json: serde_json::Value = serde_json::from_str(state).ok()?;
+    json["State"]["frame"].as_u64()
 }

@@ -109,7 +109,9 @@ impl Wall {
         let frame = self.live.last_start.map_or(0, |s| s.frame.0);
         let camera = current.camera_for_frame(frame);
         let params = self.coordinator.next_state().params;
-        match self.navigator.handle(&event, &camera, &params) {
+        let action = self.navigator.handle(&event, &camera, &params);
+        tracing::debug!("input {event:?} at frame {frame}: {action:?}");
+        match action {
             Some(NavAction::Change(change)) => {
                 if let Err(e) = self.coordinator.queue_change(change, stamp, Instant::now()) {
                     tracing::warn!("input {event:?} refused: {e}");
