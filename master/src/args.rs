@@ -213,9 +213,12 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     let wall_file = run.wall.wall_file()?;
     let wall = wall_file.layout;
     let spec = run.scene.spec()?;
-    let params = run.quality.params()?;
+    // Checked here; the cutting planes are moved into the scene's frame once it is loaded.
+    run.quality
+        .params(&tessera_wire::local_frame::RenderFromWorld::IDENTITY)?;
     let refinement = run.refinement()?;
     let scene = Scene::load(&spec)?;
+    let params = run.quality.params(&scene.render_from_world)?;
     if let Some(dir) = &run.out {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create --out {}", dir.display()))?;
@@ -248,9 +251,9 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         scene_size,
         record: run.record.clone(),
         replay,
-        camera: run
-            .scene
-            .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?,
+        camera: run.scene.camera_mode(&scene.render_from_world, |fov| {
+            orbit_of(&scene.bounds(), fov)
+        })?,
         scene_hash: scene.content_hash(),
         scene: spec,
         params,

@@ -58,10 +58,11 @@ pub enum Command {
         #[arg(long)]
         spp: Option<u32>,
     },
-    /// Set the cutting planes (NX,NY,NZ,D, up to 4), or --clear them.
+    /// Set the cutting planes (NX,NY,NZ,D, up to 4), or --clear them. In render coordinates,
+    /// as `state` shows them: a file's mesh is centred on its middle.
     Cut {
         #[arg(long = "plane", value_parser = parse_plane, allow_hyphen_values = true)]
-        planes: Vec<(glam::Vec3, f32)>,
+        planes: Vec<(glam::Vec3, f64)>,
         #[arg(long, conflicts_with = "planes")]
         clear: bool,
     },
@@ -121,7 +122,7 @@ fn parse_light(text: &str) -> Result<(glam::Vec3, f32), String> {
             e.to_string().replace("NX,NY,NZ,D", "X,Y,Z,I")
         )
     })?;
-    Ok((xyz, intensity))
+    Ok((xyz, intensity as f32))
 }
 
 fn parse_light_dir(text: &str) -> Result<Light, String> {
@@ -252,9 +253,13 @@ impl ControlClient {
                 ControlRequest::Change(changes)
             }
             Command::Cut { planes, clear } => {
-                let planes: &[(glam::Vec3, f32)] = if *clear { &[] } else { planes };
+                let planes: Vec<(glam::Vec3, f32)> = if *clear {
+                    Vec::new()
+                } else {
+                    planes.iter().map(|&(n, d)| (n, d as f32)).collect()
+                };
                 ControlRequest::Change(vec![StateChange::Cuts(
-                    CutPlanes::new(planes).context("--plane")?,
+                    CutPlanes::new(&planes).context("--plane")?,
                 )])
             }
             Command::Crop { range, off } => {

@@ -11,18 +11,21 @@ use tessera_wire::wall::TileGrid;
 
 pub fn render_reference(args: RenderArgs) -> Result<()> {
     let wall = args.wall.layout()?;
-    let params = args.quality.params()?;
+    // Checked before the (long) load; the cutting planes are then moved into the scene's frame.
+    args.quality
+        .params(&tessera_wire::local_frame::RenderFromWorld::IDENTITY)?;
     let replayed = args
         .replay
         .as_deref()
         .map(|path| crate::record::Session::load(path)?.state_at(args.frame))
         .transpose()?;
     let scene = Scene::load(&args.scene.spec()?)?;
+    let params = args.quality.params(&scene.render_from_world)?;
     let camera = match &replayed {
         Some(state) => state.camera,
-        None => args
-            .scene
-            .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?,
+        None => args.scene.camera_mode(&scene.render_from_world, |fov| {
+            orbit_of(&scene.bounds(), fov)
+        })?,
     }
     .camera_for_frame(args.frame);
     let t0 = Instant::now();

@@ -9,10 +9,11 @@
 pub mod logging;
 
 use clap::Args;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::path::PathBuf;
 use tessera_wire::camera::{check_fov, Camera, CameraError, CameraMode, DEFAULT_FOV_DEG};
 use tessera_wire::cut::{CutError, CutPlanes};
+use tessera_wire::local_frame::RenderFromWorld;
 use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
 use tessera_wire::protocol::pixels::Compression;
 use tessera_wire::scene_spec::{SceneSpec, SceneSpecError};
@@ -93,11 +94,12 @@ pub struct SceneArgs {
     #[arg(long, default_value = "builtin")]
     pub scene: String,
     /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.
-    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
-    pub eye: Option<Vec3>,
-    /// Point the camera looks at, X,Y,Z.
-    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
-    pub target: Option<Vec3>,
+    /// World coordinates, read in f64 (a mesh far from the origin keeps its camera exact).
+    #[arg(long, value_parser = parse_dvec3, requires = "target", allow_hyphen_values = true)]
+    pub eye: Option<DVec3>,
+    /// Point the camera looks at, X,Y,Z, in world coordinates.
+    #[arg(long, value_parser = parse_dvec3, requires = "eye", allow_hyphen_values = true)]
+    pub target: Option<DVec3>,
     /// Up direction X,Y,Z.
     #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
     pub up: Vec3,
@@ -133,11 +135,20 @@ fn parse_fov(text: &str) -> Result<f32, BadValue> {
 
 /// Parses `X,Y,Z` into a vector of finite numbers.
 pub fn parse_vec3(text: &str) -> Result<Vec3, BadValue> {
+    let v = parse_dvec3(text)?.as_vec3();
+    if !v.is_finite() {
+        return Err(bad(format!("`{text}` is out of the f32 range")));
+    }
+    Ok(v)
+}
+
+/// Parses `X,Y,Z` into a vector of finite f64 numbers (world coordinates).
+pub fn parse_dvec3(text: &str) -> Result<DVec3, BadValue> {
     let parts: Vec<&str> = text.split(',').collect();
     if parts.len() != 3 {
         return Err(bad(format!("`{text}` is not X,Y,Z")));
     }
-    let mut v = [0f32; 3];
+    let mut v = [0f64; 3];
     for (slot, part) in v.iter_mut().zip(parts) {
         *slot = part
             .trim()
@@ -147,7 +158,7 @@ pub fn parse_vec3(text: &str) -> Result<Vec3, BadValue> {
             return Err(bad(format!("`{part}` in `{text}` is not finite")));
         }
     }
-    Ok(Vec3::from_array(v))
+    Ok(DVec3::from_array(v))
 }
 
 impl SceneArgs {
@@ -155,15 +166,20 @@ impl SceneArgs {
         Ok(SceneSpec::from_arg(&self.scene)?)
     }
 
-    /// The camera mode: fixed if the flags say so, else `orbit`, the default orbit around the
+    /// The camera mode in render coordinates: fixed if the flags say so (their world
+    /// coordinates moved by `frame`, the scene's), else `orbit`, the default orbit around the
     /// loaded scene made with [`SceneArgs::fov`] (the renderer's `orbit_of`).
     pub fn camera_mode(
         &self,
+        frame: &RenderFromWorld,
         orbit: impl FnOnce(f32) -> Result<CameraMode, CameraError>,
     ) -> Result<CameraMode, ArgError> {
         match (self.eye, self.target) {
             (Some(eye), Some(target)) => Ok(CameraMode::fixed(Camera::new(
-                eye, target, self.up, self.fov,
+                frame.point(eye),
+                frame.point(target),
+                self.up,
+                self.fov,
             )?)),
             (None, None) => Ok(orbit(self.fov)?),
             _ => Err(ArgError::EyeWithoutTarget),
@@ -187,7 +203,7 @@ pub struct QualityArgs {
     /// origin (points with N·p > D), to look inside a mesh. Repeat for up to 4 planes; e.g.
     /// `--cut 0,0,1,0` removes all with z > 0.
     #[arg(long = "cut", value_name = "NX,NY,NZ,D", value_parser = parse_plane, allow_hyphen_values = true)]
-    pub cuts: Vec<(Vec3, f32)>,
+    pub cuts: Vec<(Vec3, f64)>,
     /// Samples per pixel: 1 traces the pixel centre; more average jittered sub-pixel samples
     /// (antialiasing), each with its own ambient-occlusion rays.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=MAX_SPP as i64))]
@@ -197,13 +213,19 @@ pub struct QualityArgs {
 impl QualityArgs {
     /// # Errors
     /// More cutting planes than supported, or knobs out of their bounds
-    /// ([`tessera_wire::params`]).
-    pub fn params(&self) -> Result<RenderParams, ArgError> {
+    /// ([`tessera_wire::params`]). Cutting planes are given in world coordinates and moved by
+    /// `frame`, the scene's.
+    pub fn params(&self, frame: &RenderFromWorld) -> Result<RenderParams, ArgError> {
+        let cuts: Vec<(Vec3, f32)> = self
+            .cuts
+            .iter()
+            .map(|&(n, d)| (n, frame.plane_distance(n, d)))
+            .collect();
         Ok(RenderParamsSpec {
             shadows: !self.no_shadows,
             ao_samples: self.ao,
             crop: self.crop,
-            cuts: CutPlanes::new(&self.cuts)?,
+            cuts: CutPlanes::new(&cuts)?,
             spp: self.spp,
             ..RenderParamsSpec::INTERACTIVE
         }
@@ -241,21 +263,21 @@ impl From<CompressArg> for Compression {
 }
 
 /// Parses `NX,NY,NZ,D`: a plane's non-zero normal and its offset, all finite.
-pub fn parse_plane(text: &str) -> Result<(Vec3, f32), BadValue> {
+pub fn parse_plane(text: &str) -> Result<(Vec3, f64), BadValue> {
     let numbers: Vec<&str> = text.split(',').collect();
     let [x, y, z, d] = numbers[..] else {
         return Err(bad(format!("`{text}` is not NX,NY,NZ,D (four numbers)")));
     };
-    let mut values = [0f32; 4];
+    let mut values = [0f64; 4];
     for (value, word) in values.iter_mut().zip([x, y, z, d]) {
         *value = word
             .trim()
             .parse()
             .ok()
-            .filter(|v: &f32| v.is_finite())
+            .filter(|v: &f64| v.is_finite() && v.abs() < f32::MAX as f64)
             .ok_or_else(|| format!("`{word}` in `{text}` is not a finite number"))?;
     }
-    let normal = Vec3::new(values[0], values[1], values[2]);
+    let normal = DVec3::new(values[0], values[1], values[2]).as_vec3();
     if normal == Vec3::ZERO {
         return Err(bad(format!(
             "`{text}`: the normal NX,NY,NZ must not be zero"
@@ -333,13 +355,39 @@ mod tests {
         let cli = Cli::try_parse_from(["t", "--fov", "30"]).unwrap();
         let mut asked = None;
         cli.scene
-            .camera_mode(|fov| {
+            .camera_mode(&RenderFromWorld::IDENTITY, |fov| {
                 asked = Some(fov);
                 CameraMode::orbit(Vec3::ZERO, 1.0, fov)
             })
             .unwrap();
         assert_eq!(asked, Some(30.0));
         assert!(Cli::try_parse_from(["t", "--fov", "0"]).is_err());
+    }
+
+    #[test]
+    fn a_world_camera_far_away_is_exact_in_render_coordinates() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            scene: SceneArgs,
+        }
+        let cli = Cli::try_parse_from([
+            "t",
+            "--eye",
+            "1000000.3,1000000,1000002.7",
+            "--target",
+            "1000000,1000000,1000000",
+        ])
+        .unwrap();
+        let frame = RenderFromWorld::new(DVec3::splat(1e6));
+        let camera = cli
+            .scene
+            .camera_mode(&frame, |_| unreachable!("a fixed camera"))
+            .unwrap()
+            .camera_for_frame(0);
+        assert_eq!(camera.eye(), Vec3::new(0.3, 0.0, 2.7));
+        assert_eq!(camera.target(), Vec3::ZERO);
     }
 
     #[test]
@@ -351,7 +399,7 @@ mod tests {
             quality: QualityArgs,
         }
         let cli = Cli::try_parse_from(["t", "--ao", "4000000000"]).unwrap();
-        let err = cli.quality.params().unwrap_err();
+        let err = cli.quality.params(&RenderFromWorld::IDENTITY).unwrap_err();
         let why = std::error::Error::source(&err).unwrap().to_string();
         assert!(
             err.to_string().contains("quality") && why.contains("4000000000"),

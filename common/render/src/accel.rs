@@ -91,10 +91,55 @@ impl Accel {
                 v2: scene.positions[t[2] as usize].into(),
             })
             .collect();
+        let groups = crate::accel_coincident::coincident_groups(&tris);
+        if !groups.is_empty() {
+            return Self::build_with_groups(&tris, &groups);
+        }
         let bvh = build_bvh2_from_tris(&tris, Self::preset(tris.len()), &mut Duration::default());
         let nodes = bvh.nodes.iter().map(BvhNode::from).collect();
-        let triangles = bvh
-            .primitive_indices
+        Self::from_order(nodes, &tris, bvh.primitive_indices, bvh.max_depth)
+    }
+
+    /// The build when many triangles share one box (see `accel_coincident`): each group goes to
+    /// obvhs as one triangle and comes back as a balanced subtree.
+    fn build_with_groups(tris: &[Triangle], groups: &[Vec<u32>]) -> Accel {
+        let mut grouped = vec![false; tris.len()];
+        for g in groups {
+            for &m in g {
+                grouped[m as usize] = true;
+            }
+        }
+        let mut input: Vec<u32> = (0..tris.len() as u32)
+            .filter(|&i| !grouped[i as usize])
+            .collect();
+        let mut group_of = vec![None; input.len()];
+        for (g, members) in groups.iter().enumerate() {
+            input.push(members[0]);
+            group_of.push(Some(g as u32));
+        }
+        drop(grouped);
+        let subset: Vec<Triangle> = input.iter().map(|&i| tris[i as usize]).collect();
+        let bvh = build_bvh2_from_tris(
+            &subset,
+            Self::preset(subset.len()),
+            &mut Duration::default(),
+        );
+        drop(subset);
+        let (nodes, order) =
+            crate::accel_coincident::flatten_expanding(&bvh, tris, &input, &group_of, groups);
+        let largest = groups.iter().map(Vec::len).max().unwrap_or(1);
+        tracing::info!(
+            "{} triangles in {} groups with equal boxes: each built as one balanced subtree",
+            groups.iter().map(Vec::len).sum::<usize>(),
+            groups.len()
+        );
+        let depth = bvh.max_depth + 2 * (usize::BITS - largest.leading_zeros()) as usize + 2;
+        Self::from_order(nodes, tris, order, depth)
+    }
+
+    /// The accelerator from flattened nodes and the scene triangle of each leaf slot.
+    fn from_order(nodes: Vec<BvhNode>, tris: &[Triangle], order: Vec<u32>, depth: usize) -> Accel {
+        let triangles = order
             .iter()
             .map(|&i| {
                 let t = &tris[i as usize];
@@ -108,8 +153,8 @@ impl Accel {
         Accel {
             nodes,
             triangles,
-            scene_index: bvh.primitive_indices,
-            max_depth: bvh.max_depth.max(64),
+            scene_index: order,
+            max_depth: depth.max(64),
         }
     }
 

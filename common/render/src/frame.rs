@@ -72,6 +72,11 @@ impl PreparedScene {
     }
 
     /// No triangles and no particles: every pixel is the backdrop.
+    /// Bytes of the per-slot material indices (for memory reports).
+    pub fn slot_material_bytes(&self) -> usize {
+        std::mem::size_of_val(&self.slot_material[..])
+    }
+
     pub fn is_empty(&self) -> bool {
         self.accel.triangles.is_empty() && self.spheres.is_none()
     }

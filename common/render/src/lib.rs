@@ -16,6 +16,7 @@
 
 pub mod accel;
 pub mod accel_cache;
+mod accel_coincident;
 pub mod accel_packet;
 pub mod aov;
 pub mod bench;

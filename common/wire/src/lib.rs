@@ -15,6 +15,7 @@ pub mod cut;
 pub mod image;
 pub mod input;
 pub mod light;
+pub mod local_frame;
 pub mod params;
 pub mod protocol;
 pub mod scene_spec;

@@ -61,7 +61,8 @@ struct Point {
 pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     let run = &args.local.run;
     let wall = run.wall.layout()?;
-    let base = run.quality.params()?.spec();
+    let scene = Scene::load(&run.scene.spec()?)?;
+    let base = run.quality.params(&scene.render_from_world)?.spec();
     let knobs = |change: &dyn Fn(&mut RenderParamsSpec)| -> Result<RenderParams> {
         let mut spec = base;
         change(&mut spec);
@@ -89,10 +90,11 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    let scene = Scene::load(&run.scene.spec()?)?;
     let camera = run
         .scene
-        .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?
+        .camera_mode(&scene.render_from_world, |fov| {
+            orbit_of(&scene.bounds(), fov)
+        })?
         .camera_for_frame(0);
     let prepared = PreparedScene::new(&scene);
     let grid = TileGrid::new(wall);

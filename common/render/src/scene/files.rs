@@ -3,7 +3,7 @@
 //! element at fault: a render node that cannot load a scene must say exactly why.
 
 use super::{Mesh, SceneError};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::io::BufRead;
 use std::path::Path;
 
@@ -24,6 +24,11 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh, SceneError> {
             path: path.display().to_string(),
         }),
     }
+}
+
+/// Whether a vertex read in f64 is finite and within f32's range, as the renderer needs it.
+pub(super) fn in_range(p: DVec3) -> bool {
+    p.is_finite() && p.abs().max_element() <= f32::MAX as f64
 }
 
 pub(super) fn file_error(path: &Path, message: impl ToString) -> SceneError {
@@ -82,7 +87,7 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
         mesh.positions.extend(
             m.positions
                 .chunks_exact(3)
-                .map(|p| Vec3::new(p[0], p[1], p[2])),
+                .map(|p| DVec3::new(p[0], p[1], p[2])),
         );
         mesh.triangles.extend(
             m.indices
@@ -98,7 +103,7 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
                 .extend(std::iter::repeat_n(id, m.indices.len() / 3));
         }
     }
-    if mesh.positions.iter().any(|p| !p.is_finite()) {
+    if mesh.positions.iter().any(|p| !in_range(*p)) {
         let why = obj_culprit(path).unwrap_or_else(|| "has a non-finite vertex".into());
         return Err(file_error(path, why));
     }
@@ -110,18 +115,20 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
 /// the mirror reflectance; `d` (or `Tr`) below 1 makes it transparent.
 fn mtl_material(m: &tobj::Material) -> super::Material {
     let illum = m.illumination_model.unwrap_or(2);
-    let albedo = m.diffuse.map_or(super::NEUTRAL.albedo, Vec3::from_array);
-    let specular = m.specular.map_or(Vec3::ZERO, Vec3::from_array);
+    // tobj reads in f64 (for positions far from the origin); colours need no such range.
+    let colour = |c: [f64; 3]| DVec3::from_array(c).as_vec3();
+    let albedo = m.diffuse.map_or(super::NEUTRAL.albedo, colour);
+    let specular = m.specular.map_or(Vec3::ZERO, colour);
     super::Material {
         albedo,
         specular: if illum >= 2 { specular } else { Vec3::ZERO },
-        shininess: m.shininess.unwrap_or(32.0),
+        shininess: m.shininess.unwrap_or(32.0) as f32,
         mirror: if matches!(illum, 3 | 5 | 7) {
             specular.max_element().clamp(0.0, 1.0)
         } else {
             0.0
         },
-        opacity: m.dissolve.unwrap_or(1.0),
+        opacity: m.dissolve.unwrap_or(1.0) as f32,
     }
 }
 
@@ -236,7 +243,7 @@ fn obj_face_index(word: &str, vertices: usize) -> Result<usize, String> {
 /// per row, hundreds of bytes for each vertex of what may be a multi-million-vertex scan.
 #[derive(Default)]
 struct PlyRow {
-    xyz: [Option<f32>; 3],
+    xyz: [Option<f64>; 3],
     indices: Option<Vec<i64>>,
 }
 
@@ -272,7 +279,19 @@ impl ply_rs_bw::ply::PropertyAccess for PlyRow {
             }
             _ => return R::Ignored,
         };
-        match property.to_f32_lossy() {
+        let value = match property {
+            P::Char(v) => Some(f64::from(v)),
+            P::UChar(v) => Some(f64::from(v)),
+            P::Short(v) => Some(f64::from(v)),
+            P::UShort(v) => Some(f64::from(v)),
+            P::Int(v) => Some(f64::from(v)),
+            P::UInt(v) => Some(f64::from(v)),
+            P::Float(v) => Some(f64::from(v)),
+            // Read in full: a scan far from the origin keeps its detail until the local origin.
+            P::Double(v) => Some(v),
+            _ => None,
+        };
+        match value {
             Some(value) => {
                 self.xyz[axis] = Some(value);
                 R::Set
@@ -353,8 +372,8 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
         let [Some(x), Some(y), Some(z)] = vertex.xyz else {
             return Err(err(format!("{} lacks one of x, y, z", at())));
         };
-        let p = Vec3::new(x, y, z);
-        if !p.is_finite() {
+        let p = DVec3::new(x, y, z);
+        if !in_range(p) {
             return Err(err(format!("{} has a non-finite coordinate {p}", at())));
         }
         mesh.positions.push(p);

@@ -59,7 +59,8 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
             return Err(err("more vertices than 32-bit indices reach".into()));
         }
         for (i, &p) in local.positions.iter().enumerate() {
-            let p = world.transform_point3(p);
+            // In f64: a node placed far from the origin keeps its mesh's detail.
+            let p = world.as_dmat4().transform_point3(p);
             if !p.is_finite() {
                 return Err(err(format!(
                     "node {}: its transform makes vertex {i} of mesh {} non-finite",
@@ -289,7 +290,7 @@ fn decode_mesh(
                     .map(|t| at_base([indices[0], t[0], t[1]])),
             ),
         }
-        out.positions.extend(positions);
+        out.positions.extend(positions.iter().map(|p| p.as_dvec3()));
         let material = primitive.material().index().unwrap_or(default_material) as u16;
         out.triangle_material.resize(out.triangles.len(), material);
     }
@@ -504,7 +505,10 @@ mod tests {
     #[test]
     fn default_scene_is_loaded_in_world_space() {
         let mesh = load("m.gltf", &edited("", "")).unwrap();
-        assert_eq!(mesh.positions, WORLD.map(Vec3::from_array));
+        assert_eq!(
+            mesh.positions,
+            WORLD.map(|p| Vec3::from_array(p).as_dvec3())
+        );
         assert_eq!(mesh.triangles, [[0, 1, 2], [3, 4, 5]]);
     }
 
@@ -537,7 +541,10 @@ mod tests {
         let binary = glb(&doc(r#"{"byteLength":80}"#, 4), &bin([0, 1, 2]));
         for mesh in [load("e.gltf", external.as_bytes()), load("b.glb", &binary)] {
             let mesh = mesh.unwrap();
-            assert_eq!(mesh.positions, WORLD.map(Vec3::from_array));
+            assert_eq!(
+                mesh.positions,
+                WORLD.map(|p| Vec3::from_array(p).as_dvec3())
+            );
             assert_eq!(mesh.triangles, [[0, 1, 2], [3, 4, 5]]);
         }
     }
@@ -546,7 +553,11 @@ mod tests {
     fn without_a_default_scene_every_scene_is_loaded() {
         let mesh = load("all.gltf", &edited(r#""scene":1,"#, "")).unwrap();
         assert_eq!(mesh.triangles.len(), 4);
-        assert_eq!(mesh.positions[0], Vec3::ZERO, "scene 0 (node 2) first");
+        assert_eq!(
+            mesh.positions[0],
+            glam::DVec3::ZERO,
+            "scene 0 (node 2) first"
+        );
     }
 
     #[test]
@@ -560,7 +571,7 @@ mod tests {
     #[test]
     fn mirroring_node_keeps_the_winding() {
         let mesh = load("mirror.gltf", &edited("[2,2,2]", "[-2,2,2]")).unwrap();
-        assert_eq!(mesh.positions[1], Vec3::new(8., 0., 0.));
+        assert_eq!(mesh.positions[1], glam::DVec3::new(8., 0., 0.));
         assert_eq!(mesh.triangles, [[0, 2, 1], [3, 5, 4]]);
     }
 

@@ -12,9 +12,10 @@ pub mod particles;
 mod procedural;
 
 use crate::geometry::Bounds;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use tessera_wire::local_frame::RenderFromWorld;
 use tessera_wire::scene_spec::SceneSpec;
 
 pub use files::load_mesh_file;
@@ -112,6 +113,7 @@ impl Material {
 /// The scene as the renderer consumes it.
 #[derive(Clone, Debug, Default)]
 pub struct Scene {
+    /// Vertices in render coordinates: the world's moved by [`Scene::render_from_world`].
     pub positions: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
     /// Material index of each triangle.
@@ -123,6 +125,9 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
     pub particles: Vec<particles::Particle>,
+    /// Where the render coordinates sit in the world (identity for built-in scenes): a file's
+    /// mesh is moved to its middle, in f64, before it becomes f32.
+    pub render_from_world: RenderFromWorld,
 }
 
 pub use tessera_wire::light::Light;
@@ -278,11 +283,13 @@ impl Scene {
         self.materials.iter().any(Material::is_transparent)
     }
 
-    /// Writes the scene's triangles as OBJ, so other renderers can load exactly the same mesh.
+    /// Writes the scene's triangles as OBJ in world coordinates, so other renderers can load
+    /// exactly the same mesh (f64 text, so reading it back gives the same f32 vertices).
     pub fn export_obj(&self, out: &Path) -> std::io::Result<()> {
         use std::io::Write;
         let mut w = std::io::BufWriter::new(std::fs::File::create(out)?);
-        for p in &self.positions {
+        for &p in &self.positions {
+            let p = self.render_from_world.world_point(p);
             writeln!(w, "v {} {} {}", p.x, p.y, p.z)?;
         }
         for t in &self.triangles {
@@ -309,6 +316,7 @@ impl Scene {
     pub fn content_hash(&self) -> [u8; 32] {
         let mut hasher = blake3::Hasher::new();
         hasher.update(bytemuck::cast_slice(&self.positions));
+        hasher.update(bytemuck::bytes_of(&self.render_from_world.world_origin));
         hasher.update(bytemuck::cast_slice(&self.triangles));
         hasher.update(bytemuck::cast_slice(&self.triangle_material));
         for m in &self.materials {
@@ -353,7 +361,8 @@ fn spec_origin(spec: &SceneSpec) -> String {
 /// Loader output: positions, triangles and the file's own materials, before the light is added.
 #[derive(Clone, Debug, Default)]
 pub struct Mesh {
-    pub positions: Vec<Vec3>,
+    /// World coordinates, as read (f64, so that a mesh far from the origin keeps its shape).
+    pub positions: Vec<DVec3>,
     pub triangles: Vec<[u32; 3]>,
     /// Material of each triangle; empty when the file has none (all get the neutral one).
     pub triangle_material: Vec<u16>,
@@ -365,23 +374,66 @@ pub struct Mesh {
 pub const NEUTRAL: Material = Material::lambert(Vec3::new(0.8, 0.78, 0.74));
 
 /// A file mesh keeps its materials (or gets the neutral one) and gets a light from the upper
-/// front left.
-fn from_mesh(mesh: Mesh, _path: &Path) -> Scene {
+/// front left. Its vertices are moved to a local origin at their middle before they become
+/// f32, and triangles with no area there are dropped (counted in the log): they can never be
+/// hit, and a million of them would only slow the BVH build.
+fn from_mesh(mut mesh: Mesh, path: &Path) -> Scene {
     let count = mesh.triangles.len();
-    let (triangle_material, materials, material_names) = if mesh.materials.is_empty() {
-        (vec![0; count], vec![NEUTRAL], vec!["neutral".into()])
-    } else {
-        (mesh.triangle_material, mesh.materials, mesh.material_names)
-    };
+    if mesh.materials.is_empty() {
+        mesh.triangle_material = vec![0; count];
+        mesh.materials = vec![NEUTRAL];
+        mesh.material_names = vec!["neutral".into()];
+    }
+    let render_from_world = RenderFromWorld::centred_on(&mesh.positions);
+    let positions: Vec<Vec3> = mesh
+        .positions
+        .iter()
+        .map(|&p| render_from_world.point(p))
+        .collect();
+    let (triangles, triangle_material) =
+        drop_degenerate(&positions, mesh.triangles, mesh.triangle_material);
+    if triangles.len() < count {
+        tracing::info!(
+            "{}: dropped {} degenerate triangles (no area, or a repeated or missing vertex) of {count}",
+            path.display(),
+            count - triangles.len()
+        );
+    }
     Scene {
-        positions: mesh.positions,
-        triangles: mesh.triangles,
+        positions,
+        triangles,
         triangle_material,
-        materials,
-        material_names,
+        materials: mesh.materials,
+        material_names: mesh.material_names,
         lights: vec![default_light()],
         particles: Vec::new(),
+        render_from_world,
     }
+}
+
+/// The triangles (and their materials) that have an area in f32. Indices out of range are
+/// kept, for [`Scene::validate`] to name.
+fn drop_degenerate(
+    positions: &[Vec3],
+    triangles: Vec<[u32; 3]>,
+    materials: Vec<u16>,
+) -> (Vec<[u32; 3]>, Vec<u16>) {
+    let corner = |i: u32| positions.get(i as usize).copied();
+    let has_area = |t: &[u32; 3]| match (corner(t[0]), corner(t[1]), corner(t[2])) {
+        (Some(a), Some(b), Some(c)) => {
+            let n = (b - a).cross(c - a);
+            n != Vec3::ZERO && n.is_finite()
+        }
+        _ => true,
+    };
+    if triangles.iter().all(has_area) {
+        return (triangles, materials);
+    }
+    triangles
+        .into_iter()
+        .zip(materials)
+        .filter(|(t, _)| has_area(t))
+        .unzip()
 }
 
 /// A sun from the upper front left.
@@ -399,7 +451,7 @@ mod tests {
     fn one_triangle() -> Scene {
         from_mesh(
             Mesh {
-                positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+                positions: vec![DVec3::ZERO, DVec3::X, DVec3::Y],
                 triangles: vec![[0, 1, 2]],
                 ..Mesh::default()
             },
@@ -444,6 +496,43 @@ mod tests {
         scene.triangle_material[0] = 3;
         let err = scene.validate("m.obj").unwrap_err().to_string();
         assert!(err.contains("material 3"), "{err}");
+    }
+
+    #[test]
+    fn degenerate_triangles_are_dropped_with_their_materials() {
+        let scene = from_mesh(
+            Mesh {
+                positions: vec![DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::X * 2.0],
+                // Good, repeated vertex, collinear, good.
+                triangles: vec![[0, 1, 2], [0, 0, 2], [0, 1, 3], [1, 3, 2]],
+                triangle_material: vec![0, 1, 1, 2],
+                materials: vec![NEUTRAL; 3],
+                material_names: vec!["a".into(), "b".into(), "c".into()],
+            },
+            Path::new("t"),
+        );
+        assert_eq!(scene.triangles, vec![[0, 1, 2], [1, 3, 2]]);
+        assert_eq!(scene.triangle_material, vec![0, 2]);
+    }
+
+    #[test]
+    fn a_far_mesh_is_centred_in_f64() {
+        let far = DVec3::splat(1e6);
+        let scene = from_mesh(
+            Mesh {
+                positions: vec![far, far + DVec3::X * 0.01, far + DVec3::Y * 0.01],
+                triangles: vec![[0, 1, 2]],
+                ..Mesh::default()
+            },
+            Path::new("t"),
+        );
+        assert_eq!(
+            scene.render_from_world.world_origin,
+            far + DVec3::new(0.005, 0.005, 0.0)
+        );
+        // In f32 around 1e6 the three corners would be one point; centred they keep their shape.
+        assert_eq!(scene.triangles.len(), 1);
+        assert!((scene.positions[1] - scene.positions[0] - Vec3::X * 0.01).length() < 1e-7);
     }
 
     #[test]
