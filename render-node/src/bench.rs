@@ -3,15 +3,17 @@
 //! Prints machine-readable lines (`TESSERA_PRIMARY_MRAYPS 12.3`) that
 //! `deploy/bench/embree-compare.sh` puts beside Embree's figure for the same mesh and camera.
 
+use crate::memory::{release_freed, resident_bytes};
 use anyhow::{Context, Result};
 use std::time::Instant;
 use tessera_cli::SceneArgs;
-use tessera_render::accel_cache::load_or_build;
-use tessera_render::bench::{time_passes, PassTimes};
+use tessera_render::accel::Accel;
+use tessera_render::accel_cache::{load_or_build, Source};
+use tessera_render::bench::{time_passes, Pass, PassTimes};
 use tessera_render::scene::Scene;
-use tessera_render::{orbit_of, FrameView, PreparedScene};
+use tessera_render::{orbit_of, render_tiles, FrameView, PreparedScene};
 use tessera_wire::params::RenderParamsSpec;
-use tessera_wire::wall::parse_size;
+use tessera_wire::wall::{parse_size, TileGrid, WallSpec};
 
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
@@ -24,8 +26,9 @@ pub struct BenchArgs {
     /// is measured too and the scaling printed.
     #[arg(long, value_parser = crate::parse_threads)]
     threads: Option<usize>,
-    /// Frames to time; the best frame of each pass is reported (after one warm-up frame).
-    #[arg(long, default_value_t = 10)]
+    /// Frames to time (after one warm-up frame); the fastest and the median of each pass are
+    /// reported.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     frames: u32,
     /// Ambient-occlusion rays per hit.
     #[arg(long, default_value_t = 4)]
@@ -47,27 +50,44 @@ pub fn run(args: BenchArgs) -> Result<()> {
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let spec = args.scene.spec()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    let resident_before = resident_bytes();
     let t0 = Instant::now();
     let scene = Scene::load(&spec)?;
     let loaded = t0.elapsed();
     let camera = args
         .scene
-        .camera_mode(|fov| orbit_of(&scene.bounds(), fov))?
+        .camera_mode(&scene.render_from_world, |fov| {
+            orbit_of(&scene.bounds(), fov)
+        })?
         .camera_for_frame(0);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()?;
     let t1 = Instant::now();
     let cache = crate::cache_dir(args.bvh_cache, args.no_bvh_cache);
     let (accel, source) = pool.install(|| load_or_build(&scene, cache.as_deref()));
+    let bvh_seconds = t1.elapsed().as_secs_f64();
     let prepared = PreparedScene::from_accel(&scene, accel);
+    let triangles = scene.triangles.len();
+    // What a render node keeps is the prepared scene; the loaded one goes, as in `node`.
+    drop(scene);
+    release_freed();
     eprintln!(
-        "{} triangles: loaded in {:.2} s, BVH {source:?} in {:.2} s ({} nodes); {width}x{height}, {threads} threads",
-        scene.triangles.len(),
+        "{triangles} triangles: loaded in {:.2} s, BVH {source:?} in {bvh_seconds:.2} s ({} nodes); {width}x{height}, {threads} threads",
         loaded.as_secs_f64(),
-        t1.elapsed().as_secs_f64(),
         prepared.accel.nodes.len()
     );
+    report_memory(&prepared, triangles, resident_before);
+    match source {
+        Source::Built => println!(
+            "TESSERA_BUILD_MTRIS_PER_S {:.3} (obvhs preset {}, {threads} threads, {bvh_seconds:.3} s, flattening included)",
+            triangles as f64 / bvh_seconds / 1e6,
+            Accel::preset_name(triangles)
+        ),
+        Source::Cached => println!(
+            "TESSERA_BVH_CACHE_LOAD_S {bvh_seconds:.3} (no build: read from the cache; --no-bvh-cache to time the build)"
+        ),
+    }
     let params = RenderParamsSpec {
         ao_samples: args.ao,
         ..RenderParamsSpec::INTERACTIVE
@@ -75,43 +95,139 @@ pub fn run(args: BenchArgs) -> Result<()> {
     .build()
     .context("--ao")?;
     let view = FrameView::new(0, &camera, params, width, height);
-    let measure = |pool: &rayon::ThreadPool| -> PassTimes {
-        let mut best = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
+    let shaded_view = FrameView::new(0, &camera, eyelight_params()?, width, height);
+    let wall = WallSpec::grid(1, 1, width, height).build()?;
+    let grid = TileGrid::new(wall);
+    let measure = |pool: &rayon::ThreadPool| -> Frames {
+        let mut frames = Frames::default();
+        // One warm-up frame of each, untimed.
+        pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
+        pool.install(|| render_tiles(&prepared, &shaded_view, grid.tiles()));
         for _ in 0..args.frames {
-            let t = pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
-            for (b, n) in [
-                (&mut best.primary, t.primary),
-                (&mut best.shadow, t.shadow),
-                (&mut best.shadow_single, t.shadow_single),
-                (&mut best.ambient, t.ambient),
-            ] {
-                if n.seconds < b.seconds {
-                    *b = n;
-                }
-            }
+            frames
+                .passes
+                .push(pool.install(|| time_passes(&prepared, &view, width, height, args.ao)));
+            let t = Instant::now();
+            std::hint::black_box(
+                pool.install(|| render_tiles(&prepared, &shaded_view, grid.tiles())),
+            );
+            frames.shaded.push(Pass {
+                rays: width as u64 * height as u64,
+                seconds: t.elapsed().as_secs_f64(),
+            });
         }
-        best
+        frames
     };
-    let times = measure(&pool);
-    println!("TESSERA_PRIMARY_MRAYPS {:.3}", times.primary.mrays_per_s());
-    println!("TESSERA_SHADOW_MRAYPS {:.3}", times.shadow.mrays_per_s());
-    println!(
-        "TESSERA_SHADOW_SINGLE_MRAYPS {:.3} (the same shadow rays one by one; packets are {:.2}x)",
-        times.shadow_single.mrays_per_s(),
-        times.shadow.mrays_per_s() / times.shadow_single.mrays_per_s()
+    let frames = measure(&pool);
+    frames.print(
+        "TESSERA_PRIMARY_MRAYPS",
+        |p| p.primary,
+        "8x8 packets, closest hit only: traversal and intersection, no shading",
     );
-    println!("TESSERA_AO_MRAYPS {:.3}", times.ambient.mrays_per_s());
+    frames.print_shaded();
+    frames.print(
+        "TESSERA_SHADOW_MRAYPS",
+        |p| p.shadow,
+        "one per primary hit, towards the light, as packets",
+    );
+    frames.print(
+        "TESSERA_SHADOW_SINGLE_MRAYPS",
+        |p| p.shadow_single,
+        "the same shadow rays one by one",
+    );
+    frames.print(
+        "TESSERA_AO_MRAYPS",
+        |p| p.ambient,
+        "single rays, cosine-distributed, any hit",
+    );
     if threads > 1 {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
         let single = measure(&one);
-        println!(
-            "TESSERA_PRIMARY_MRAYPS_1T {:.3}",
-            single.primary.mrays_per_s()
-        );
+        let (many, one) = (frames.best(|p| p.primary), single.best(|p| p.primary));
+        println!("TESSERA_PRIMARY_MRAYPS_1T {:.3}", one.mrays_per_s());
         println!(
             "TESSERA_SCALING_PRIMARY {:.3} ({threads} threads / 1 thread)",
-            times.primary.mrays_per_s() / single.primary.mrays_per_s()
+            many.mrays_per_s() / one.mrays_per_s()
         );
     }
     Ok(())
+}
+
+/// Shading as Embree's viewer does it: one primary ray a pixel, shaded and stored, no shadow or
+/// ambient-occlusion rays.
+fn eyelight_params() -> Result<tessera_wire::params::RenderParams> {
+    Ok(RenderParamsSpec {
+        shadows: false,
+        ao_samples: 0,
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()?)
+}
+
+/// Resident memory of the prepared scene, and what its arrays take by count.
+fn report_memory(prepared: &PreparedScene, triangles: usize, before: Option<u64>) {
+    let per = |bytes: usize| bytes as f64 / triangles.max(1) as f64;
+    let a = &prepared.accel;
+    let nodes = std::mem::size_of_val(&a.nodes[..]);
+    let leaf = std::mem::size_of_val(&a.triangles[..]);
+    let index = std::mem::size_of_val(&a.scene_index[..]);
+    let materials = prepared.slot_material_bytes();
+    let counted = nodes + leaf + index + materials;
+    match (before, resident_bytes()) {
+        (Some(before), Some(after)) => println!(
+            "TESSERA_BYTES_PER_TRIANGLE {:.1} (resident {:.1} MB more after the scene was prepared and the loaded copy freed)",
+            per(after.saturating_sub(before) as usize),
+            after.saturating_sub(before) as f64 / 1e6
+        ),
+        _ => println!("TESSERA_BYTES_PER_TRIANGLE n/a (no /proc/self/statm here)"),
+    }
+    println!(
+        "TESSERA_ARRAY_BYTES_PER_TRIANGLE {:.1} (BVH nodes {:.1}, leaf triangles {:.1}, triangle index {:.1}, materials {:.1})",
+        per(counted),
+        per(nodes),
+        per(leaf),
+        per(index),
+        per(materials)
+    );
+}
+
+/// Each timed frame's passes, for the fastest and the median.
+#[derive(Default)]
+struct Frames {
+    passes: Vec<PassTimes>,
+    shaded: Vec<Pass>,
+}
+
+impl Frames {
+    fn sorted(passes: impl Iterator<Item = Pass>) -> Vec<Pass> {
+        let mut all: Vec<Pass> = passes.collect();
+        all.sort_by(|a, b| a.seconds.total_cmp(&b.seconds));
+        all
+    }
+
+    fn best(&self, pass: impl Fn(&PassTimes) -> Pass) -> Pass {
+        Self::sorted(self.passes.iter().map(pass))[0]
+    }
+
+    fn line(name: &str, all: &[Pass], what: &str) {
+        let median = all[all.len() / 2];
+        println!(
+            "{name} {:.3} (fastest of {}; median {:.3}; {what})",
+            all[0].mrays_per_s(),
+            all.len(),
+            median.mrays_per_s()
+        );
+    }
+
+    fn print(&self, name: &str, pass: impl Fn(&PassTimes) -> Pass, what: &str) {
+        Self::line(name, &Self::sorted(self.passes.iter().map(pass)), what);
+    }
+
+    fn print_shaded(&self) {
+        Self::line(
+            "TESSERA_SHADED_MRAYPS",
+            &Self::sorted(self.shaded.iter().copied()),
+            "primary rays shaded (one light, no shadow rays) and written as RGB8 tiles, as Embree's viewer does",
+        );
+    }
 }

@@ -7,6 +7,7 @@
 //! [`tessera_core::worker::RenderWorker`]; the link to the master is `tessera_net::link`.
 
 mod bench;
+pub mod memory;
 mod node;
 mod pixels_out;
 

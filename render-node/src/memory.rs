@@ -1,0 +1,39 @@
+//! What a render node's scene costs in memory, read from the process itself: resident bytes
+//! from `/proc/self/statm`, and glibc asked to hand freed heap back first, so that what the
+//! loader and the BVH build used and dropped is not counted as the scene's.
+
+/// Resident bytes of this process, or `None` where `/proc` has no answer (not Linux).
+pub fn resident_bytes() -> Option<u64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    // SAFETY: sysconf has no preconditions.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    Some(pages * u64::try_from(page).ok()?)
+}
+
+/// Returns freed heap memory to the system. glibc keeps freed blocks below its (growing) mmap
+/// threshold in the heap, so without this a node would hold on to its loader's peak.
+pub fn release_freed() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only walks glibc's own arenas.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_touched_allocation_shows_in_resident_memory() {
+        let Some(before) = resident_bytes() else {
+            return; // no /proc here
+        };
+        let block = vec![1u8; 64 << 20];
+        let during = resident_bytes().unwrap();
+        assert!(during >= before + (60 << 20), "{before} -> {during}");
+        drop(std::hint::black_box(block));
+        release_freed();
+    }
+}
