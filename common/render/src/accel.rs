@@ -1,5 +1,7 @@
 //! The acceleration structure: a binary BVH built by obvhs, flattened into our own node array
 //! with the triangles stored in leaf order, so a leaf's triangles are contiguous in memory.
+//! Packets walk the binary tree; single rays walk its 4-wide collapse (`accel4`), which shares
+//! its leaves.
 
 use crate::geometry::{Bounds, Ray};
 use crate::scene::Scene;
@@ -39,8 +41,8 @@ pub struct Hit {
 
 /// The scene's bounding volume hierarchy: obvhs builds it, and it is flattened here into
 /// depth-first nodes with the triangles copied in leaf order, so traversal reads memory in the
-/// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`]; 8×8
-/// packets use the packet traversal in `accel_packet`.
+/// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`] on the
+/// 4-wide collapse of the tree; 8×8 packets use the packet traversal in `accel_packet`.
 ///
 /// # Examples
 ///
@@ -68,7 +70,10 @@ pub struct Hit {
 /// assert!(bvh.closest_hit(&up, 0.0, f32::INFINITY, &mut stack).is_none());
 /// ```
 pub struct Accel {
+    /// The binary tree, for 8×8 packets.
     pub nodes: Vec<BvhNode>,
+    /// The same tree collapsed 4-wide, for single rays (see `accel4`).
+    pub wide: Vec<crate::accel4::Node4>,
     pub triangles: Vec<LeafTriangle>,
     /// Scene triangle index of each leaf slot.
     pub scene_index: Vec<u32>,
@@ -150,12 +155,7 @@ impl Accel {
                 }
             })
             .collect();
-        Accel {
-            nodes,
-            triangles,
-            scene_index: order,
-            max_depth: depth.max(64),
-        }
+        Self::from_parts(nodes, triangles, order, depth)
     }
 
     /// The obvhs preset for a scene of `triangles`: the best tree that still builds in about a
@@ -193,6 +193,7 @@ impl Accel {
         max_depth: usize,
     ) -> Self {
         Accel {
+            wide: crate::accel4::collapse(&nodes),
             nodes,
             triangles,
             scene_index,
@@ -216,8 +217,8 @@ impl Accel {
         Vec::with_capacity(self.max_depth * 2)
     }
 
-    /// The nearest triangle hit in `(t_min, t_max)`. Ties keep the first triangle found, and
-    /// traversal order is fixed by the tree, so the answer is deterministic.
+    /// The nearest triangle hit in `(t_min, t_max)`. Of hits at the same distance the lowest
+    /// slot wins, so the answer depends on the tree, never on the order it is walked in.
     pub fn closest_hit(
         &self,
         ray: &Ray,
@@ -227,11 +228,15 @@ impl Accel {
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_far = t_max;
-        self.traverse(ray, stack, &mut t_far, |slot, t_far| {
-            let tri = &self.triangles[slot as usize];
-            if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, *t_far) {
-                *t_far = t;
-                best = Some(Hit { t, slot });
+        crate::accel4::traverse4(&self.wide, ray, stack, &mut t_far, |slots, t_far| {
+            for slot in slots {
+                let tri = &self.triangles[slot as usize];
+                if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max) {
+                    if Hit::closer(t, slot, best) {
+                        *t_far = t;
+                        best = Some(Hit { t, slot });
+                    }
+                }
             }
             false
         });
@@ -242,27 +247,23 @@ impl Accel {
     pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> bool {
         let mut t_far = t_max;
         let mut blocked = false;
-        self.traverse(ray, stack, &mut t_far, |slot, t_far| {
-            let tri = &self.triangles[slot as usize];
-            blocked = ray
-                .hit_triangle(tri.a, tri.b, tri.c, t_min, *t_far)
-                .is_some();
+        crate::accel4::traverse4(&self.wide, ray, stack, &mut t_far, |slots, _| {
+            blocked = slots.into_iter().any(|slot| {
+                let tri = &self.triangles[slot as usize];
+                ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
+                    .is_some()
+            });
             blocked
         });
         blocked
     }
+}
 
-    /// Visits the leaf triangles whose boxes the ray enters before `t_far`, nearer child first.
-    /// `visit` may shrink `t_far` and returns `true` to stop.
+impl Hit {
+    /// Whether a hit at `t` on `slot` beats `best`: nearer, or as near on a lower slot.
     #[inline(always)]
-    pub(crate) fn traverse(
-        &self,
-        ray: &Ray,
-        stack: &mut Vec<u32>,
-        t_far: &mut f32,
-        visit: impl FnMut(u32, &mut f32) -> bool,
-    ) {
-        traverse_nodes(&self.nodes, ray, stack, t_far, visit);
+    pub(crate) fn closer(t: f32, slot: u32, best: Option<Hit>) -> bool {
+        best.is_none_or(|b| t < b.t || (t == b.t && slot < b.slot))
     }
 }
 

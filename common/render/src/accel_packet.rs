@@ -14,7 +14,7 @@
 //! fuses a multiply and an add into an FMA on its own, so every node of a wall renders the same
 //! pixels whatever its CPU.
 
-use crate::accel::Accel;
+use crate::accel::{Accel, Hit};
 use crate::geometry::Ray;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
@@ -223,8 +223,11 @@ impl Accel {
                     }
                     for slot in node.first..node.first + node.count {
                         let tri = &self.triangles[slot as usize];
+                        // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
+                        // so they agree with the single-ray traversal of the 4-wide tree.
+                        let t_max = if ANY { lanes.t[i] } else { packet.t_max[i] };
                         if let Some(t) =
-                            rays[i].hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], lanes.t[i])
+                            rays[i].hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], t_max)
                         {
                             if ANY {
                                 // Done with this ray: it enters no box from now on.
@@ -232,8 +235,14 @@ impl Accel {
                                 lanes.t[i] = f32::NEG_INFINITY;
                                 break;
                             }
-                            lanes.t[i] = t;
-                            hits[i] = PacketHit::new(t, slot);
+                            let best = hits[i].slot().map(|s| Hit {
+                                t: lanes.t[i],
+                                slot: s,
+                            });
+                            if Hit::closer(t, slot, best) {
+                                lanes.t[i] = t;
+                                hits[i] = PacketHit::new(t, slot);
+                            }
                         }
                     }
                 }

@@ -15,6 +15,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod accel;
+pub mod accel4;
 pub mod accel_cache;
 mod accel_coincident;
 pub mod accel_packet;

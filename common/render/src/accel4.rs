@@ -1,0 +1,235 @@
+//! A 4-wide BVH for single rays (shadow, ambient-occlusion, reflected and refracted rays),
+//! collapsed from the binary one: each node holds its four children's boxes in
+//! structure-of-arrays form, so one ray tests all four with a few 4-lane instructions (SSE on
+//! any x86-64, NEON on ARM; the compiler vectorizes the fixed-size loops). A binary tree
+//! costs a dependent memory load per level; this one has half as many levels and a quarter of
+//! the nodes to fetch. Leaves are the binary tree's own: the same triangle slots.
+//!
+//! Closest hits are order-independent: of two hits at the same distance the lower slot wins,
+//! so this traversal and the packet traversal of the binary tree agree bit for bit.
+
+use crate::accel::BvhNode;
+use crate::geometry::Ray;
+
+/// One node: four children, each an inner node (`count == 0`, `child` its index), a leaf
+/// (`count` triangles from slot `child`) or empty (`count == EMPTY`).
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C, align(64))]
+pub struct Node4 {
+    /// Per axis, the four children's box minima.
+    pub lo: [[f32; 4]; 3],
+    pub hi: [[f32; 4]; 3],
+    pub child: [u32; 4],
+    pub count: [u32; 4],
+}
+
+/// `count` of a child slot that holds nothing.
+pub const EMPTY: u32 = u32::MAX;
+
+const BLANK: Node4 = Node4 {
+    lo: [[f32::INFINITY; 4]; 3],
+    hi: [[f32::NEG_INFINITY; 4]; 3],
+    child: [0; 4],
+    count: [EMPTY; 4],
+};
+
+fn area(n: &BvhNode) -> f32 {
+    let d = (n.max - n.min).max(glam::Vec3::ZERO);
+    d.x * d.y + d.y * d.z + d.z * d.x
+}
+
+/// Collapses a binary BVH (children of inner node `i` at `first` and `first + 1`) into a
+/// 4-wide one: each 4-wide node takes its binary node's children and keeps opening the largest
+/// inner one among them until it has four. Deterministic, linear in the node count.
+pub fn collapse(nodes: &[BvhNode]) -> Vec<Node4> {
+    let Some(root) = nodes.first() else {
+        return Vec::new();
+    };
+    let mut out = vec![BLANK];
+    let mut stack: Vec<(u32, usize)> = Vec::new();
+    if root.count > 0 {
+        set_child(&mut out[0], 0, root, 0);
+        return out;
+    }
+    stack.push((0, 0));
+    while let Some((index, at)) = stack.pop() {
+        let node = &nodes[index as usize];
+        let mut children: Vec<u32> = vec![node.first, node.first + 1];
+        while children.len() < 4 {
+            let widest = children
+                .iter()
+                .enumerate()
+                .filter(|(_, &c)| nodes[c as usize].count == 0)
+                .max_by(|a, b| area(&nodes[*a.1 as usize]).total_cmp(&area(&nodes[*b.1 as usize])))
+                .map(|(k, _)| k);
+            let Some(k) = widest else { break };
+            let open = children.remove(k);
+            let first = nodes[open as usize].first;
+            children.insert(k, first + 1);
+            children.insert(k, first);
+        }
+        for (k, &c) in children.iter().enumerate() {
+            let child = &nodes[c as usize];
+            if child.count > 0 {
+                set_child(&mut out[at], k, child, child.first);
+            } else {
+                let next = out.len();
+                out.push(BLANK);
+                set_child(&mut out[at], k, child, next as u32);
+                stack.push((c, next));
+            }
+        }
+    }
+    out
+}
+
+fn set_child(node: &mut Node4, k: usize, child: &BvhNode, target: u32) {
+    for axis in 0..3 {
+        node.lo[axis][k] = child.min[axis];
+        node.hi[axis][k] = child.max[axis];
+    }
+    node.child[k] = target;
+    node.count[k] = child.count;
+}
+
+/// Entry distances into the four children's boxes before `t_far`; +inf where the ray misses
+/// (or the slot is empty). `inv` must be finite (see [`finite_inverse`]), so that no slab
+/// distance is a NaN.
+#[inline(always)]
+fn enter4(node: &Node4, origin: [f32; 3], inv: [f32; 3], t_far: f32) -> [f32; 4] {
+    let mut near = [0f32; 4];
+    let mut far = [t_far; 4];
+    for axis in 0..3 {
+        for k in 0..4 {
+            let t0 = (node.lo[axis][k] - origin[axis]) * inv[axis];
+            let t1 = (node.hi[axis][k] - origin[axis]) * inv[axis];
+            near[k] = near[k].max(t0.min(t1));
+            far[k] = far[k].min(t0.max(t1));
+        }
+    }
+    let mut out = [f32::INFINITY; 4];
+    for k in 0..4 {
+        if near[k] <= far[k] && node.count[k] != EMPTY {
+            out[k] = near[k];
+        }
+    }
+    out
+}
+
+/// The ray's inverse direction with an infinite component (a direction parallel to an axis)
+/// made the largest finite value of its sign: then an origin exactly on a slab plane gives
+/// 0 · MAX = 0 where 0 · inf would give NaN, and the box is entered, as it should be.
+fn finite_inverse(ray: &Ray) -> [f32; 3] {
+    ray.inv_dir.to_array().map(|v| {
+        if v.is_infinite() {
+            f32::MAX.copysign(v)
+        } else {
+            v
+        }
+    })
+}
+
+/// Visits the leaves whose boxes `ray` enters before `t_far`, nearer children first; `visit`
+/// gets a leaf's slots, may shrink `t_far`, and returns `true` to stop.
+#[inline(always)]
+pub(crate) fn traverse4(
+    nodes: &[Node4],
+    ray: &Ray,
+    stack: &mut Vec<u32>,
+    t_far: &mut f32,
+    mut visit: impl FnMut(std::ops::Range<u32>, &mut f32) -> bool,
+) {
+    stack.clear();
+    if nodes.is_empty() {
+        return;
+    }
+    let origin = ray.origin.to_array();
+    let inv = finite_inverse(ray);
+    // Entries are (child, count) pairs: count 0 is an inner node.
+    stack.extend([0, 0]);
+    while let (Some(count), Some(child)) = (stack.pop(), stack.pop()) {
+        if count > 0 {
+            if visit(child..child + count, t_far) {
+                return;
+            }
+            continue;
+        }
+        let node = &nodes[child as usize];
+        let t = enter4(node, origin, inv, *t_far);
+        // The entered children, nearest first (an insertion sort of at most four).
+        let mut order = [0usize; 4];
+        let mut n = 0;
+        for k in 0..4 {
+            if t[k] == f32::INFINITY {
+                continue;
+            }
+            let mut j = n;
+            while j > 0 && t[order[j - 1]] > t[k] {
+                order[j] = order[j - 1];
+                j -= 1;
+            }
+            order[j] = k;
+            n += 1;
+        }
+        for &k in order[..n].iter().rev() {
+            stack.extend([node.child[k], node.count[k]]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::Accel;
+    use crate::scene::knot_scene;
+    use glam::Vec3;
+
+    #[test]
+    fn every_leaf_appears_once_in_the_collapsed_tree() {
+        let accel = Accel::build(&knot_scene(120, 16));
+        let wide = collapse(&accel.nodes);
+        let mut slots: Vec<u32> = wide
+            .iter()
+            .flat_map(|n| {
+                (0..4)
+                    .filter(|&k| n.count[k] != EMPTY && n.count[k] > 0)
+                    .flat_map(move |k| n.child[k]..n.child[k] + n.count[k])
+            })
+            .collect();
+        slots.sort_unstable();
+        assert_eq!(slots, (0..accel.triangles.len() as u32).collect::<Vec<_>>());
+        // About a third as many nodes as the binary tree has inner nodes, or fewer.
+        let inner = accel.nodes.iter().filter(|n| n.count == 0).count();
+        assert!(
+            wide.len() * 2 < inner,
+            "{} wide nodes for {inner} inner ones",
+            wide.len()
+        );
+    }
+
+    #[test]
+    fn a_ray_on_a_slab_plane_parallel_to_it_still_enters() {
+        let mut node = BLANK;
+        set_child(
+            &mut node,
+            0,
+            &BvhNode {
+                min: Vec3::ZERO,
+                max: Vec3::ONE,
+                first: 0,
+                count: 1,
+            },
+            0,
+        );
+        // Origin on the x = 0 plane, moving along y: (0 - 0) * inf is NaN on x.
+        let ray = Ray::new(Vec3::new(0.0, -1.0, 0.5), Vec3::Y);
+        let t = enter4(
+            &node,
+            ray.origin.to_array(),
+            finite_inverse(&ray),
+            f32::INFINITY,
+        );
+        assert_eq!(t[0], 1.0);
+        assert!(t[1..].iter().all(|t| *t == f32::INFINITY));
+    }
+}
