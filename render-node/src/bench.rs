@@ -10,6 +10,7 @@ use tessera_cli::SceneArgs;
 use tessera_render::accel::Accel;
 use tessera_render::accel_cache::{load_or_build, Source};
 use tessera_render::bench::{time_passes, Pass, PassTimes};
+use tessera_render::isa::Isa;
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_tiles, FrameView, PreparedScene};
 use tessera_wire::params::RenderParamsSpec;
@@ -78,6 +79,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         prepared.accel.nodes.len()
     );
     report_memory(&prepared, triangles, resident_before);
+    let isas: Vec<&str> = Isa::available().iter().map(|i| i.name()).collect();
+    println!(
+        "TESSERA_ISA {} (packet traversal build; this CPU runs {}; TESSERA_ISA=NAME picks one)",
+        Isa::best().name(),
+        isas.join(", ")
+    );
     match source {
         Source::Built => println!(
             "TESSERA_BUILD_MTRIS_PER_S {:.3} (obvhs preset {}, {threads} threads, {bvh_seconds:.3} s, flattening included)",

@@ -9,13 +9,14 @@
 //! rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a frustum
 //! built from the box of their origins and stop each ray at its first hit.
 //!
-//! The SIMD width is chosen at run time: an AVX2 build of the same code runs where the CPU has
-//! it, the baseline SSE2 build elsewhere. Both give bit-identical results, because Rust never
-//! fuses a multiply and an add into an FMA on its own, so every node of a wall renders the same
-//! pixels whatever its CPU.
+//! The SIMD width is chosen at run time (`isa`): an AVX-512 or AVX2 build of the same code runs
+//! where the CPU has it, the baseline SSE2 build elsewhere. All give bit-identical results,
+//! because Rust never fuses a multiply and an add into an FMA on its own, so every node of a
+//! wall renders the same pixels whatever its CPU.
 
 use crate::accel::{Accel, Hit};
 use crate::geometry::Ray;
+use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
 
@@ -71,20 +72,35 @@ impl Lanes<'_> {
 }
 
 impl Accel {
-    /// Closest hits of a whole packet (see the module documentation).
+    /// Closest hits of a whole packet (see the module documentation), on the widest SIMD
+    /// build this CPU runs.
     pub fn closest_hits(
         &self,
         packet: &mut RayPacket,
         hits: &mut [PacketHit; PACKET_RAYS],
         stack: &mut Vec<u32>,
     ) {
+        self.closest_hits_on(Isa::best(), packet, hits, stack);
+    }
+
+    /// [`Accel::closest_hits`] on the build `isa` (the portable one if the CPU lacks it).
+    pub fn closest_hits_on(
+        &self,
+        isa: Isa,
+        packet: &mut RayPacket,
+        hits: &mut [PacketHit; PACKET_RAYS],
+        stack: &mut Vec<u32>,
+    ) {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            unsafe { self.closest_hits_avx2(packet, hits, stack) };
-            return;
+        if isa.is_available() {
+            match isa {
+                // SAFETY: the CPU has the features, checked just above.
+                Isa::Avx512 => return unsafe { self.closest_hits_avx512(packet, hits, stack) },
+                Isa::Avx2 => return unsafe { self.closest_hits_avx2(packet, hits, stack) },
+                Isa::Portable => {}
+            }
         }
-        self.closest_hits_portable(packet, hits, stack);
+        self.closest_hits_generic(packet, hits, stack);
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -98,8 +114,9 @@ impl Accel {
         self.closest_hits_generic(packet, hits, stack);
     }
 
-    /// The baseline build of the traversal, also used to check that the SIMD builds agree.
-    pub fn closest_hits_portable(
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
+    unsafe fn closest_hits_avx512(
         &self,
         packet: &mut RayPacket,
         hits: &mut [PacketHit; PACKET_RAYS],
@@ -133,12 +150,21 @@ impl Accel {
     /// i): shadow rays, which stop at the first hit. Rays need no common origin; the answer is
     /// the same as [`Accel::occluded`] ray by ray.
     pub fn occluded_lanes(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
+        self.occluded_lanes_on(Isa::best(), packet, stack)
+    }
+
+    /// [`Accel::occluded_lanes`] on the build `isa` (the portable one if the CPU lacks it).
+    pub fn occluded_lanes_on(&self, isa: Isa, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.occluded_lanes_avx2(packet, stack) };
+        if isa.is_available() {
+            match isa {
+                // SAFETY: the CPU has the features, checked just above.
+                Isa::Avx512 => return unsafe { self.occluded_lanes_avx512(packet, stack) },
+                Isa::Avx2 => return unsafe { self.occluded_lanes_avx2(packet, stack) },
+                Isa::Portable => {}
+            }
         }
-        self.occluded_lanes_portable(packet, stack)
+        self.occluded_lanes_generic(packet, stack)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -147,8 +173,9 @@ impl Accel {
         self.occluded_lanes_generic(packet, stack)
     }
 
-    /// The baseline build, also used to check that the SIMD builds agree.
-    pub fn occluded_lanes_portable(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
+    unsafe fn occluded_lanes_avx512(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
         self.occluded_lanes_generic(packet, stack)
     }
 
@@ -204,6 +231,8 @@ impl Accel {
             t_min: packet.t_min,
         };
         let mut entry = [0f32; PACKET_RAYS];
+        // The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
+        let mut best_slot = [u32::MAX; PACKET_RAYS];
         // Stack entries are pairs (first active lane, node): lanes before the first active one
         // missed an ancestor's box, so they miss every box below it.
         stack.clear();
@@ -235,13 +264,13 @@ impl Accel {
                                 lanes.t[i] = f32::NEG_INFINITY;
                                 break;
                             }
-                            let best = hits[i].slot().map(|s| Hit {
+                            let best = Some(Hit {
                                 t: lanes.t[i],
-                                slot: s,
+                                slot: best_slot[i],
                             });
                             if Hit::closer(t, slot, best) {
                                 lanes.t[i] = t;
-                                hits[i] = PacketHit::new(t, slot);
+                                best_slot[i] = slot;
                             }
                         }
                     }
@@ -268,6 +297,13 @@ impl Accel {
                 stack.extend([active, r, active, l]);
             } else {
                 stack.extend([active, l, active, r]);
+            }
+        }
+        if !ANY {
+            for i in 0..n {
+                if best_slot[i] != u32::MAX {
+                    hits[i] = PacketHit::new(lanes.t[i], best_slot[i]);
+                }
             }
         }
         blocked
@@ -365,10 +401,12 @@ mod tests {
                 let mut packet = RayPacket::primary(&rays, x0, y0, w, h);
                 packet.clip(cuts);
                 let mut fast = [PacketHit::MISS; PACKET_RAYS];
-                let mut portable = [PacketHit::MISS; PACKET_RAYS];
-                accel.closest_hits(&mut packet, &mut fast, &mut stack);
-                accel.closest_hits_portable(&mut packet, &mut portable, &mut stack);
-                assert_eq!(fast, portable, "SIMD paths disagree (frame {frame})");
+                accel.closest_hits_on(Isa::Portable, &mut packet, &mut fast, &mut stack);
+                for isa in Isa::available() {
+                    let mut wide = [PacketHit::MISS; PACKET_RAYS];
+                    accel.closest_hits_on(isa, &mut packet, &mut wide, &mut stack);
+                    assert_eq!(wide, fast, "{isa:?} and portable disagree (frame {frame})");
+                }
                 for i in 0..packet.len() {
                     let ray = Ray::new(camera.eye(), packet.direction(i));
                     let (t_min, t_max) = cuts.interval(camera.eye(), packet.direction(i));
@@ -426,9 +464,11 @@ mod tests {
                         f32::INFINITY
                     };
                 }
-                let fast = accel.occluded_lanes(&mut packet, &mut stack);
-                let portable = accel.occluded_lanes_portable(&mut packet, &mut stack);
-                assert_eq!(fast, portable, "SIMD paths disagree");
+                let fast = accel.occluded_lanes_on(Isa::Portable, &mut packet, &mut stack);
+                for isa in Isa::available() {
+                    let wide = accel.occluded_lanes_on(isa, &mut packet, &mut stack);
+                    assert_eq!(wide, fast, "{isa:?} and portable disagree");
+                }
                 for (i, &o) in starts.iter().enumerate() {
                     let ray = Ray::new(o, packet.direction(i));
                     let single = accel.occluded(&ray, 0.0, packet.t_max[i], &mut stack);

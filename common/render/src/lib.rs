@@ -23,6 +23,7 @@ pub mod aov;
 pub mod bench;
 mod frame;
 pub mod geometry;
+pub mod isa;
 pub mod packet;
 mod pixel_rays;
 mod reference;
