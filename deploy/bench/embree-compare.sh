@@ -1,5 +1,8 @@
 #!/usr/bin/env bash
-# Primary-ray throughput of a Tessera render node next to Embree 3's `viewer` (Debian 12).
+# A Tessera render node next to Embree 3 (Debian 12's embree-tools) at its best: primary rays
+# against both `viewer` (single rays) and `viewer_stream` (8x8 ray streams), each at every ISA
+# the CPU has (avx2, avx512), the faster taken; ambient-occlusion rays against `viewer --shader
+# ao`; BVH build rate against Embree's Mprim/s; bytes per triangle; 1 and N threads.
 #
 #   deploy/bench/embree-compare.sh [--size 1920x1080] [--threads N] [--mesh FILE|knot:S:T]...
 #                                  [--frames K] [--fov DEG] [--cache DIR] [--out DIR]
@@ -17,7 +20,8 @@
 #   --cache DIR        exported meshes (default ${XDG_CACHE_HOME:-$HOME/.cache}/tessera-bench)
 #   --out DIR          logs, images, results.tsv, commands.txt (default CACHE/runs/DATE)
 #   --timeout S        limit for each benchmark or export command (default 1200)
-#   --no-scaling       skip the 1-thread/2-thread runs
+#   --no-scaling       skip the 1-thread runs
+#   --no-ao            skip the ambient-occlusion comparison (64 rays per hit: the slowest part)
 #   --reference        also render Tessera's reference image (tessera-master render) per mesh
 set -euo pipefail
 
@@ -38,6 +42,7 @@ CACHE=${XDG_CACHE_HOME:-$HOME/.cache}/tessera-bench
 OUT=
 LIMIT=1200
 SCALING=1
+AO=1
 REFERENCE=0
 MESHES=()
 DEFAULT_MESHES=(
@@ -60,6 +65,7 @@ while [[ $# -gt 0 ]]; do
         --out) need_arg "$@"; OUT=$2; shift 2 ;;
         --timeout) need_arg "$@"; LIMIT=$2; shift 2 ;;
         --no-scaling) SCALING=0; shift ;;
+        --no-ao) AO=0; shift ;;
         --reference) REFERENCE=1; shift ;;
         -h|--help) sed -n '2,/^set -euo/{/^set -euo/d;s/^# \{0,1\}//;p}' "$0"; exit 0 ;;
         *) die "unknown argument: $1 (see --help)" ;;
@@ -126,7 +132,12 @@ if [[ ${#MISSING[@]} -gt 0 ]]; then
     run "$OUT/apt-install.log" 1200 apt-get install -y --no-install-recommends "${MISSING[@]}"
 fi
 VIEWER=/usr/bin/viewer
-[[ -x $VIEWER ]] || die "$VIEWER (package embree-tools) not found"
+STREAM=/usr/bin/viewer_stream
+[[ -x $VIEWER && -x $STREAM ]] || die "$VIEWER or $STREAM (package embree-tools) not found"
+# Embree picks its ISA per run; we measure each one this CPU has and keep the faster.
+ISAS=(avx2)
+grep -qw avx512f /proc/cpuinfo && ISAS+=(avx512)
+grep -qw avx2 /proc/cpuinfo || ISAS=(sse4.2)
 for mesh in "${MESHES[@]}"; do
     [[ $mesh =~ ^knot:[0-9]+:[0-9]+$ ]] && continue
     [[ -f $mesh ]] || die "mesh $mesh not found"
@@ -158,9 +169,11 @@ fi
 
 # --- 4. Per mesh -------------------------------------------------------------------------------
 RESULTS=$OUT/results.tsv
-printf 'mesh\ttriangles\tsize\tthreads\tembree_mrayps\ttessera_mrayps\tratio\ttessera_shadow_mrayps\ttessera_ao_mrayps\n' >"$RESULTS"
-SCALE=$OUT/scaling.tsv
-printf 'mesh\ttessera_1t\ttessera_2t\ttessera_2t_over_1t\tembree_1t\tembree_2t\tembree_2t_over_1t\n' >"$SCALE"
+printf 'mesh\ttriangles\tsize\tthreads\tviewer\tviewer_stream\tembree_best\tembree_mode\ttessera_primary\tratio\ttessera_shaded\tshaded_ratio\n' >"$RESULTS"
+AO_TSV=$OUT/ao.tsv
+printf 'mesh\tthreads\thits\tembree_ao_fps\tembree_ao_mrayps\ttessera_ao_mrayps\tratio\n' >"$AO_TSV"
+BUILD_TSV=$OUT/build.tsv
+printf 'mesh\tthreads\tembree_mprims\ttessera_build_mtris\tratio\ttessera_cache_load_s\tbytes_per_triangle\tarray_bytes_per_triangle\n' >"$BUILD_TSV"
 
 key_of() {  # file name in the cache for a mesh spec
     local spec=$1
@@ -174,7 +187,7 @@ key_of() {  # file name in the cache for a mesh spec
     fi
 }
 
-figure() {  # figure NAME LOG: the value on the line "NAME value"
+figure() {  # figure NAME LOG: the value on the line "NAME value ..."
     local v
     v=$(awk -v n="$1" '$1 == n { v = $2 } END { print v }' "$2")
     [[ $v =~ ^[0-9]+([.][0-9]*)?([eE][-+]?[0-9]+)?$ ]] || die "no $1 figure in $2"
@@ -182,32 +195,59 @@ figure() {  # figure NAME LOG: the value on the line "NAME value"
 }
 
 ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (b > 0) printf "%.3f", a / b; else print "n/a" }'; }
+max_of() { awk -v a="$1" -v b="$2" 'BEGIN { print (a + 0 >= b + 0) ? a : b }'; }
 
-embree_run() {  # embree_run TAG THREADS -> prints Mrays/s
-    local tag=$1 threads=$2 log=$OUT/$KEY-embree-$1.log
-    run "$log" "$LIMIT" "$VIEWER" -i "$OBJ" -o "$OUT/$KEY-embree-$tag.ppm" \
+# embree_run PROGRAM ISA THREADS [SHADER] -> prints the log's path. Checks the triangle count.
+embree_run() {
+    local prog=$1 isa=$2 threads=$3 shader=${4:-default}
+    local tag log frames=$FRAMES
+    tag=$(basename "$prog")-$isa-${threads}t-$shader
+    log=$OUT/$KEY-embree-$tag.log
+    [[ $shader == ao ]] && frames=3
+    run "$log" "$LIMIT" "$prog" -i "$OBJ" -o "$OUT/$KEY-embree-$tag.ppm" \
         --size "$WIDTH" "$HEIGHT" --vp $EYE_S --vi $TARGET_S --vu $UP_S --fov "$CAM_FOV" \
-        --threads "$threads" --verbose 1 --benchmark 2 "$FRAMES" --legacy
+        --threads "$threads" --isa "$isa" --shader "$shader" --verbose 2 --benchmark 1 "$frames" --legacy
     local loaded
     loaded=$(awk -F: '/# triangles/ { gsub(/ /, "", $2); v = $2 } END { print v }' "$log")
     [[ $loaded == "$TRIS" ]] || die "Embree loaded ${loaded:-no} triangles from $OBJ, expected $TRIS"
-    figure BENCHMARK_RENDER_MRAYPS_AVG "$log"
+    echo "$log"
 }
 
-tessera_run() {  # tessera_run TAG THREADS -> sets T_PRIMARY T_SHADOW T_AO
+# embree_primary THREADS [ISA...] -> sets E_VIEWER E_STREAM (best over the ISAs, with the ISA in
+# E_VIEWER_ISA / E_STREAM_ISA), E_BEST, E_MODE and E_BUILD (Mprim/s of the first run's build).
+embree_primary() {
+    local threads=$1 isa log v
+    shift
+    E_VIEWER=0 E_STREAM=0 E_BUILD=
+    for isa in "$@"; do
+        log=$(embree_run "$VIEWER" "$isa" "$threads")
+        v=$(figure BENCHMARK_RENDER_MRAYPS_AVG "$log")
+        if awk -v a="$v" -v b="$E_VIEWER" 'BEGIN { exit !(a > b) }'; then E_VIEWER=$v E_VIEWER_ISA=$isa; fi
+        [[ -n $E_BUILD ]] || E_BUILD=$(sed -n 's/.*finished BVH.* \([0-9.]*\) Mprim\/s.*/\1/p' "$log" | tail -n 1)
+        log=$(embree_run "$STREAM" "$isa" "$threads")
+        v=$(figure BENCHMARK_RENDER_MRAYPS_AVG "$log")
+        if awk -v a="$v" -v b="$E_STREAM" 'BEGIN { exit !(a > b) }'; then E_STREAM=$v E_STREAM_ISA=$isa; fi
+    done
+    if awk -v a="$E_STREAM" -v b="$E_VIEWER" 'BEGIN { exit !(a > b) }'; then
+        E_BEST=$E_STREAM E_MODE="viewer_stream/$E_STREAM_ISA" E_BEST_PROG=$STREAM E_BEST_ISA=$E_STREAM_ISA
+    else
+        E_BEST=$E_VIEWER E_MODE="viewer/$E_VIEWER_ISA" E_BEST_PROG=$VIEWER E_BEST_ISA=$E_VIEWER_ISA
+    fi
+}
+
+# tessera_run TAG THREADS [EXTRA...] -> prints the log's path.
+tessera_run() {
     local tag=$1 threads=$2 log=$OUT/$KEY-tessera-$1.log
+    shift 2
     run "$log" "$LIMIT" "$NODE" bench --scene "$OBJ" --size "${WIDTH}x${HEIGHT}" \
         --threads "$threads" --eye="$EYE" --target="$TARGET_P" --up="$CAM_UP" --fov "$CAM_FOV" \
-        --frames "$FRAMES"
-    T_PRIMARY=$(figure TESSERA_PRIMARY_MRAYPS "$log")
-    T_SHADOW=$(awk '$1 == "TESSERA_SHADOW_MRAYPS" { v = $2 } END { print v }' "$log")
-    T_AO=$(awk '$1 == "TESSERA_AO_MRAYPS" { v = $2 } END { print v }' "$log")
-    # With more than one thread, bench also times the same work on one thread.
-    T_1T=$(awk '$1 == "TESSERA_PRIMARY_MRAYPS_1T" { v = $2 } END { print v }' "$log")
+        --bvh-cache "$OUT/bvh-cache" "$@"
+    echo "$log"
 }
 
 ROWS=()
-SCALE_ROWS=()
+AO_ROWS=()
+BUILD_ROWS=()
 for MESH in "${MESHES[@]}"; do
     KEY=$(key_of "$MESH")
     LABEL=$MESH
@@ -235,56 +275,87 @@ for MESH in "${MESHES[@]}"; do
     EYE_S=${EYE//,/ } TARGET_S=${TARGET_P//,/ } UP_S=${CAM_UP//,/ }
     note "  $TRIS triangles; camera eye $EYE target $TARGET_P up $CAM_UP fov $CAM_FOV"
 
-    E_MAIN=$(embree_run "${THREADS}t" "$THREADS")
-    tessera_run "${THREADS}t" "$THREADS"
-    T_MAIN=$T_PRIMARY
-    ROWS+=("$(printf '%-22s %10s %10s %7s %14s %15s %15s' "$LABEL" "$TRIS" "$SIZE" "$THREADS" \
-        "$E_MAIN" "$T_MAIN" "$(ratio "$T_MAIN" "$E_MAIN")")")
-    printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "$TRIS" "$SIZE" "$THREADS" "$E_MAIN" \
-        "$T_MAIN" "$(ratio "$T_MAIN" "$E_MAIN")" "$T_SHADOW" "$T_AO" >>"$RESULTS"
+    # Primary rays at N threads (and 1), with the build (a fresh cache: this run builds it).
+    rm -rf "$OUT/bvh-cache"
+    TLOG=$(tessera_run "${THREADS}t" "$THREADS" --frames "$FRAMES" $([[ $SCALING -eq 1 ]] || echo --no-scaling))
+    T_MAIN=$(figure TESSERA_PRIMARY_MRAYPS "$TLOG")
+    T_SHADED=$(figure TESSERA_SHADED_MRAYPS "$TLOG")
+    T_BUILD=$(figure TESSERA_BUILD_MTRIS_PER_S "$TLOG")
+    T_BYTES=$(figure TESSERA_BYTES_PER_TRIANGLE "$TLOG")
+    T_ARRAY=$(figure TESSERA_ARRAY_BYTES_PER_TRIANGLE "$TLOG")
+    embree_primary "$THREADS" "${ISAS[@]}"
+    ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s' "$LABEL" "$TRIS" "$THREADS" \
+        "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_MAIN" \
+        "$(ratio "$T_MAIN" "$E_BEST")" "$T_SHADED" "$(ratio "$T_SHADED" "$E_BEST")")")
+    printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "$TRIS" "$SIZE" "$THREADS" \
+        "$E_VIEWER" "$E_STREAM" "$E_BEST" "$E_MODE" "$T_MAIN" "$(ratio "$T_MAIN" "$E_BEST")" \
+        "$T_SHADED" "$(ratio "$T_SHADED" "$E_BEST")" >>"$RESULTS"
+    BEST_ISA_N=$E_BEST_ISA
+    if [[ $SCALING -eq 1 && $THREADS -gt 1 ]]; then
+        T_1T=$(figure TESSERA_PRIMARY_MRAYPS_1T "$TLOG")
+        E_N=$E_BEST
+        embree_primary 1 "$BEST_ISA_N"
+        ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s' "$LABEL" "$TRIS" 1 \
+            "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_1T" \
+            "$(ratio "$T_1T" "$E_BEST")" - -)")
+        printf '%s\t%s\t%s\t1\t%s\t%s\t%s\t%s\t%s\t%s\t\t\n' "$LABEL" "$TRIS" "$SIZE" \
+            "$E_VIEWER" "$E_STREAM" "$E_BEST" "$E_MODE" "$T_1T" "$(ratio "$T_1T" "$E_BEST")" >>"$RESULTS"
+        ROWS+=("$(printf '%-22s %9s %7s   scaling %dt/1t: embree %s, tessera %s' "$LABEL" "" "" "$THREADS" \
+            "$(ratio "$E_N" "$E_BEST")" "$(ratio "$T_MAIN" "$T_1T")")")
+    fi
 
-    if [[ $SCALING -eq 1 ]]; then
-        declare -A T_BY=() E_BY=()
-        T_BY[$THREADS]=$T_MAIN E_BY[$THREADS]=$E_MAIN
-        [[ -n $T_1T ]] && T_BY[1]=$T_1T
-        for n in 1 2; do
-            if [[ -z ${T_BY[$n]:-} ]]; then
-                tessera_run "${n}t" "$n"
-                T_BY[$n]=$T_PRIMARY
-                [[ -n $T_1T ]] && T_BY[1]=$T_1T
-            fi
-            [[ -n ${E_BY[$n]:-} ]] || E_BY[$n]=$(embree_run "${n}t" "$n")
-        done
-        SCALE_ROWS+=("$(printf '%-22s %12s %12s %9s %12s %12s %9s' "$LABEL" "${T_BY[1]}" "${T_BY[2]}" \
-            "$(ratio "${T_BY[2]}" "${T_BY[1]}")" "${E_BY[1]}" "${E_BY[2]}" \
-            "$(ratio "${E_BY[2]}" "${E_BY[1]}")")")
-        printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "${T_BY[1]}" "${T_BY[2]}" \
-            "$(ratio "${T_BY[2]}" "${T_BY[1]}")" "${E_BY[1]}" "${E_BY[2]}" \
-            "$(ratio "${E_BY[2]}" "${E_BY[1]}")" >>"$SCALE"
-        unset T_BY E_BY
+    # The build: Embree's BVH8 SAH builder against ours, and our cache (same fresh cache).
+    CLOG=$(tessera_run cached "$THREADS" --frames 1 --no-scaling)
+    T_LOAD=$(figure TESSERA_BVH_CACHE_LOAD_S "$CLOG")
+    BUILD_ROWS+=("$(printf '%-22s %7s %14s %16s %8s %14s %10s %10s' "$LABEL" "$THREADS" "${E_BUILD:-n/a}" \
+        "$T_BUILD" "$(ratio "$T_BUILD" "${E_BUILD:-0}")" "$T_LOAD" "$T_BYTES" "$T_ARRAY")")
+    printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "$THREADS" "${E_BUILD:-}" "$T_BUILD" \
+        "$(ratio "$T_BUILD" "${E_BUILD:-0}")" "$T_LOAD" "$T_BYTES" "$T_ARRAY" >>"$BUILD_TSV"
+
+    # Ambient occlusion: Embree's ao shader traces 64 unbounded occlusion rays per primary hit
+    # with rtcOccluded1; its rays/s are its frame rate times our hit count times 64 (its frame
+    # also holds the primary rays and shading, which favours us by at most 1/65).
+    if [[ $AO -eq 1 ]]; then
+        ALOG=$(tessera_run ao "$THREADS" --frames 2 --no-scaling --ao 64 --ao-unbounded)
+        T_AO=$(figure TESSERA_AO_MRAYPS "$ALOG")
+        HITS=$(figure TESSERA_PRIMARY_HITS "$ALOG")
+        ELOG=$(embree_run "$VIEWER" "$BEST_ISA_N" "$THREADS" ao)
+        FPS=$(figure BENCHMARK_RENDER_AVG "$ELOG")
+        E_AO=$(awk -v f="$FPS" -v h="$HITS" 'BEGIN { printf "%.3f", f * h * 64 / 1e6 }')
+        AO_ROWS+=("$(printf '%-22s %7s %10s %10s %14s %15s %9s' "$LABEL" "$THREADS" "$HITS" "$FPS" \
+            "$E_AO" "$T_AO" "$(ratio "$T_AO" "$E_AO")")")
+        printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "$THREADS" "$HITS" "$FPS" "$E_AO" "$T_AO" \
+            "$(ratio "$T_AO" "$E_AO")" >>"$AO_TSV"
     fi
 
     if [[ $REFERENCE -eq 1 ]]; then
         run "$OUT/$KEY-reference.log" "$LIMIT" "$MASTER" render --scene "$OBJ" --eye="$EYE" \
             --target="$TARGET_P" --up="$CAM_UP" --fov "$CAM_FOV" --wall 1x1 \
             --screen "${WIDTH}x${HEIGHT}" --out "$OUT/$KEY-reference"
-        note "  reference image $OUT/$KEY-reference/wall.png; Embree's $OUT/$KEY-embree-${THREADS}t.ppm"
+        note "  reference image $OUT/$KEY-reference/wall.png; Embree's $OUT/$KEY-embree-*.ppm"
     fi
 done
 
 # --- 5. Report ---------------------------------------------------------------------------------
 echo
-echo "Primary rays, million rays per second (Embree: viewer BENCHMARK_RENDER_MRAYPS_AVG;"
-echo "Tessera: render-node bench TESSERA_PRIMARY_MRAYPS), $FRAMES timed frames each:"
-printf '%-22s %10s %10s %7s %14s %15s %15s\n' mesh triangles size threads "embree Mray/s" \
-    "tessera Mray/s" "tessera/embree"
+echo "Primary rays, Mrays/s at $SIZE ($FRAMES timed frames; Embree: BENCHMARK_RENDER_MRAYPS_AVG of"
+echo "viewer and viewer_stream at each ISA, the faster named; Tessera: render-node bench, fastest"
+echo "frame; 'shaded' adds shading and the pixel store, as Embree's frames include):"
+printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s\n' mesh triangles threads "viewer/isa" \
+    "stream/isa" "faster" tessera ratio shaded ratio
 printf '%s\n' "${ROWS[@]}"
-if [[ $SCALING -eq 1 ]]; then
+echo
+echo "BVH build, million triangles/s (Embree: its BVH8 SAH builder's Mprim/s; Tessera: obvhs build"
+echo "and flattening), the cache's load time, and the render node's bytes per triangle:"
+printf '%-22s %7s %14s %16s %8s %14s %10s %10s\n' mesh threads "embree Mprim/s" "tessera Mtris/s" \
+    ratio "cache load s" "B/tri" "array B/tri"
+printf '%s\n' "${BUILD_ROWS[@]}"
+if [[ $AO -eq 1 ]]; then
     echo
-    echo "Thread scaling of primary rays (Mray/s at 1 and 2 threads):"
-    printf '%-22s %12s %12s %9s %12s %12s %9s\n' mesh "tessera 1t" "tessera 2t" "2t/1t" \
-        "embree 1t" "embree 2t" "2t/1t"
-    printf '%s\n' "${SCALE_ROWS[@]}"
+    echo "Ambient occlusion, 64 unbounded rays per hit (Embree: viewer --shader ao at the ISA above):"
+    printf '%-22s %7s %10s %10s %14s %15s %9s\n' mesh threads hits "embree fps" "embree Mray/s" \
+        "tessera Mray/s" ratio
+    printf '%s\n' "${AO_ROWS[@]}"
 fi
 echo
-echo "Results: $RESULTS, $SCALE; commands: $CMDS; logs and images: $OUT"
+echo "Results: $RESULTS, $BUILD_TSV, $AO_TSV; commands: $CMDS; logs and images: $OUT"

@@ -9,7 +9,7 @@ use std::time::Instant;
 use tessera_cli::SceneArgs;
 use tessera_render::accel::Accel;
 use tessera_render::accel_cache::{load_or_build, Source};
-use tessera_render::bench::{time_passes, Pass, PassTimes};
+use tessera_render::bench::{time_passes, AoReach, Pass, PassTimes};
 use tessera_render::isa::Isa;
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_tiles, FrameView, PreparedScene};
@@ -34,6 +34,13 @@ pub struct BenchArgs {
     /// Ambient-occlusion rays per hit.
     #[arg(long, default_value_t = 4)]
     ao: u32,
+    /// Ambient-occlusion rays of unbounded length, as Embree's `ao` shader traces them (the
+    /// renderer's reach a share of the scene's diagonal).
+    #[arg(long)]
+    ao_unbounded: bool,
+    /// Skip the 1-thread re-run that measures thread scaling.
+    #[arg(long)]
+    no_scaling: bool,
     /// Directory of cached BVHs (default: ~/.cache/tessera/bvh).
     #[arg(long)]
     bvh_cache: Option<std::path::PathBuf>,
@@ -68,7 +75,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let cache = crate::cache_dir(args.bvh_cache, args.no_bvh_cache);
     let (accel, source) = pool.install(|| load_or_build(&scene, cache.as_deref()));
     let bvh_seconds = t1.elapsed().as_secs_f64();
-    let prepared = PreparedScene::from_accel(&scene, accel);
+    let mut prepared = PreparedScene::from_accel(&scene, accel);
+    // As a render node keeps it (`node::prepare`).
+    prepared.drop_scene_index();
     let triangles = scene.triangles.len();
     // What a render node keeps is the prepared scene; the loaded one goes, as in `node`.
     drop(scene);
@@ -102,18 +111,26 @@ pub fn run(args: BenchArgs) -> Result<()> {
     .build()
     .context("--ao")?;
     let view = FrameView::new(0, &camera, params, width, height);
+    let ao = (
+        args.ao,
+        if args.ao_unbounded {
+            AoReach::Unbounded
+        } else {
+            AoReach::Renderer
+        },
+    );
     let shaded_view = FrameView::new(0, &camera, eyelight_params()?, width, height);
     let wall = WallSpec::grid(1, 1, width, height).build()?;
     let grid = TileGrid::new(wall);
     let measure = |pool: &rayon::ThreadPool| -> Frames {
         let mut frames = Frames::default();
         // One warm-up frame of each, untimed.
-        pool.install(|| time_passes(&prepared, &view, width, height, args.ao));
+        pool.install(|| time_passes(&prepared, &view, width, height, ao));
         pool.install(|| render_tiles(&prepared, &shaded_view, grid.tiles()));
         for _ in 0..args.frames {
             frames
                 .passes
-                .push(pool.install(|| time_passes(&prepared, &view, width, height, args.ao)));
+                .push(pool.install(|| time_passes(&prepared, &view, width, height, ao)));
             let t = Instant::now();
             std::hint::black_box(
                 pool.install(|| render_tiles(&prepared, &shaded_view, grid.tiles())),
@@ -147,7 +164,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
         |p| p.ambient,
         "single rays, cosine-distributed, any hit",
     );
-    if threads > 1 {
+    println!(
+        "TESSERA_PRIMARY_HITS {} (of {} primary rays; {} AO rays per hit)",
+        frames.passes[0].hits,
+        width as u64 * height as u64,
+        args.ao
+    );
+    if threads > 1 && !args.no_scaling {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
         let single = measure(&one);
         let (many, one) = (frames.best(|p| p.primary), single.best(|p| p.primary));

@@ -34,12 +34,23 @@ impl Pass {
 
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PassTimes {
+    /// Primary rays that hit something (each starts the shadow and AO rays).
+    pub hits: u64,
     pub primary: Pass,
     /// Shadow rays in packets, as the renderer traces them.
     pub shadow: Pass,
     /// The same shadow rays one by one.
     pub shadow_single: Pass,
     pub ambient: Pass,
+}
+
+/// How far ambient-occlusion rays reach in [`time_passes`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AoReach {
+    /// As the renderer traces them: a share of the scene's diagonal (`RenderParams::ao_range`).
+    Renderer,
+    /// Unbounded, as Embree's `ao` tutorial shader traces them.
+    Unbounded,
 }
 
 /// Traces one frame of `width × height` primary rays, then one shadow ray per hit towards the
@@ -49,7 +60,7 @@ pub fn time_passes(
     view: &FrameView,
     width: u32,
     height: u32,
-    ao_samples: u32,
+    (ao_samples, ao_reach): (u32, AoReach),
 ) -> PassTimes {
     let blocks: Vec<(u32, u32)> = (0..height.div_ceil(PACKET))
         .flat_map(|by| (0..width.div_ceil(PACKET)).map(move |bx| (bx * PACKET, by * PACKET)))
@@ -149,7 +160,10 @@ pub fn time_passes(
         rays: shadow_rays,
         seconds: t1.elapsed().as_secs_f64(),
     };
-    let reach = scene.diagonal * view.params.ao_range();
+    let reach = match ao_reach {
+        AoReach::Renderer => scene.diagonal * view.params.ao_range(),
+        AoReach::Unbounded => f32::INFINITY,
+    };
     let t2 = Instant::now();
     let ao_rays: u64 = starts
         .par_iter()
@@ -167,6 +181,7 @@ pub fn time_passes(
         )
         .sum();
     PassTimes {
+        hits: starts.len() as u64,
         primary: primary_pass,
         shadow,
         shadow_single,

@@ -72,6 +72,12 @@ impl PreparedScene {
     }
 
     /// No triangles and no particles: every pixel is the backdrop.
+    /// Frees the map from leaf slots to scene triangles: tracing and shading never read it,
+    /// only AOVs (the primitive index) do, and a render node makes none. 4 bytes a triangle.
+    pub fn drop_scene_index(&mut self) {
+        self.accel.scene_index = Vec::new();
+    }
+
     /// Bytes of the per-slot material indices (for memory reports).
     pub fn slot_material_bytes(&self) -> usize {
         std::mem::size_of_val(&self.slot_material[..])

@@ -74,9 +74,17 @@ impl SurfaceHit {
     }
 
     /// Index of the primitive in the scene: triangles first, then particles.
+    ///
+    /// # Panics
+    /// On a scene whose scene index was dropped ([`PreparedScene::drop_scene_index`]).
     pub fn scene_primitive(&self, scene: &PreparedScene) -> u64 {
         match *self {
-            SurfaceHit::Triangle(h) => scene.accel.scene_index[h.slot as usize] as u64,
+            SurfaceHit::Triangle(h) => *scene
+                .accel
+                .scene_index
+                .get(h.slot as usize)
+                .expect("AOVs need the scene index, which render nodes drop")
+                as u64,
             SurfaceHit::Sphere { slot, .. } => {
                 scene.accel.triangles.len() as u64
                     + scene.spheres().scene_index[slot as usize] as u64
