@@ -3,7 +3,7 @@
 //! Prints machine-readable lines (`TESSERA_PRIMARY_MRAYPS 12.3`) that
 //! `deploy/bench/embree-compare.sh` puts beside Embree's figure for the same mesh and camera.
 
-use crate::memory::{release_freed, resident_bytes};
+use crate::memory::{map_large_allocations, release_freed, resident_bytes};
 use anyhow::{Context, Result};
 use std::time::Instant;
 use tessera_cli::SceneArgs;
@@ -61,6 +61,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;
+    map_large_allocations();
     let resident_before = resident_bytes();
     let t0 = Instant::now();
     let scene = Scene::load(&spec)?;

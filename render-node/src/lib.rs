@@ -93,6 +93,8 @@ pub fn run(cli: Cli) -> Result<()> {
             let (Some(master), Some(cert_dir)) = (cli.master, cli.cert_dir) else {
                 bail!("to join a wall give --master HOST:PORT and --cert-dir DIR (see --help)");
             };
+            // Before the scene is loaded, so its arrays never pin each other in the heap.
+            memory::map_large_allocations();
             let options = node::Options {
                 master,
                 cert_dir,

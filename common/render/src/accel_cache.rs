@@ -48,8 +48,9 @@ pub fn load_or_build(scene: &Scene, dir: Option<&Path>) -> (Accel, Source) {
         return (Accel::build(scene), Source::Built);
     };
     let path = cache_path(dir, scene);
-    if let Ok(bytes) = std::fs::read(&path) {
-        match decode(&bytes, scene.triangles.len()) {
+    let opened = std::fs::File::open(&path).and_then(|f| Ok((f.metadata()?.len(), f)));
+    if let Ok((len, file)) = opened {
+        match decode(file, len, scene.triangles.len()) {
             Ok(accel) => return (accel, Source::Cached),
             Err(why) => tracing::warn!(
                 "ignoring the BVH cache {} ({why}); building it again",
@@ -65,23 +66,33 @@ pub fn load_or_build(scene: &Scene, dir: Option<&Path>) -> (Accel, Source) {
 }
 
 fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
+    use std::io::Write;
     std::fs::create_dir_all(dir)?;
-    let mut bytes =
-        Vec::with_capacity(HEADER + accel.nodes.len() * 32 + accel.triangles.len() * 40);
-    bytes.extend(MAGIC);
-    bytes.extend(FORMAT.to_le_bytes());
-    bytes.extend((accel.nodes.len() as u64).to_le_bytes());
-    bytes.extend((accel.triangles.len() as u64).to_le_bytes());
-    bytes.extend((accel.max_depth() as u64).to_le_bytes());
-    bytes.extend([0u8; 32]);
-    bytes.extend_from_slice(bytemuck::cast_slice(&accel.nodes));
-    bytes.extend_from_slice(bytemuck::cast_slice(&accel.triangles));
-    bytes.extend_from_slice(bytemuck::cast_slice(&accel.scene_index));
-    let hash = blake3::hash(&bytes[HEADER..]);
-    bytes[HEADER - 32..HEADER].copy_from_slice(hash.as_bytes());
+    let payload: [&[u8]; 3] = [
+        bytemuck::cast_slice(&accel.nodes),
+        bytemuck::cast_slice(&accel.triangles),
+        bytemuck::cast_slice(&accel.scene_index),
+    ];
+    // The hash first, so the arrays go to the file as they are, without a copy of them all.
+    let mut hasher = blake3::Hasher::new();
+    for part in payload {
+        hasher.update(part);
+    }
+    let mut header = Vec::with_capacity(HEADER);
+    header.extend(MAGIC);
+    header.extend(FORMAT.to_le_bytes());
+    header.extend((accel.nodes.len() as u64).to_le_bytes());
+    header.extend((accel.triangles.len() as u64).to_le_bytes());
+    header.extend((accel.max_depth() as u64).to_le_bytes());
+    header.extend(hasher.finalize().as_bytes());
     // Write then rename, so a crash or a concurrent node never leaves a half file in place.
     let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-    std::fs::write(&tmp, &bytes)?;
+    let mut out = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+    out.write_all(&header)?;
+    for part in payload {
+        out.write_all(part)?;
+    }
+    out.into_inner().map_err(|e| e.into_error())?.sync_all()?;
     std::fs::rename(&tmp, path)
 }
 
@@ -100,12 +111,16 @@ enum Damage {
     Index,
 }
 
-fn decode(bytes: &[u8], triangles: usize) -> Result<Accel, Damage> {
-    if bytes.len() < HEADER || bytes[..4] != MAGIC {
+/// Reads a cache file of `len` bytes straight into the arrays (no copy of the whole file is
+/// held: on a multi-million-triangle mesh that copy was the load's peak) and checks it.
+fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Accel, Damage> {
+    let mut header = [0u8; HEADER];
+    file.read_exact(&mut header).map_err(|_| Damage::Format)?;
+    if header[..4] != MAGIC {
         return Err(Damage::Format);
     }
-    let u32_at = |i: usize| u32::from_le_bytes(bytes[i..i + 4].try_into().expect("4 bytes"));
-    let u64_at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().expect("8 bytes"));
+    let u32_at = |i: usize| u32::from_le_bytes(header[i..i + 4].try_into().expect("4 bytes"));
+    let u64_at = |i: usize| u64::from_le_bytes(header[i..i + 8].try_into().expect("8 bytes"));
     if u32_at(4) != FORMAT {
         return Err(Damage::Format);
     }
@@ -120,21 +135,28 @@ fn decode(bytes: &[u8], triangles: usize) -> Result<Accel, Damage> {
     let Some(((node_bytes, tri_bytes), index_bytes)) = sizes else {
         return Err(Damage::Length);
     };
-    if Some(bytes.len()) != HEADER.checked_add(node_bytes + tri_bytes + index_bytes) {
+    if Some(len)
+        != HEADER
+            .checked_add(node_bytes + tri_bytes + index_bytes)
+            .map(|l| l as u64)
+    {
         return Err(Damage::Length);
     }
-    if blake3::hash(&bytes[HEADER..]).as_bytes()[..] != bytes[HEADER - 32..HEADER] {
+    let mut hasher = blake3::Hasher::new();
+    let mut read = |bytes: &mut [u8]| -> Result<(), Damage> {
+        file.read_exact(bytes).map_err(|_| Damage::Length)?;
+        hasher.update(bytes);
+        Ok(())
+    };
+    let mut nodes: Vec<BvhNode> = vec![bytemuck::Zeroable::zeroed(); nodes];
+    read(bytemuck::cast_slice_mut(&mut nodes))?;
+    let mut leaf: Vec<LeafTriangle> = vec![bytemuck::Zeroable::zeroed(); tris];
+    read(bytemuck::cast_slice_mut(&mut leaf))?;
+    let mut scene_index = vec![0u32; tris];
+    read(bytemuck::cast_slice_mut(&mut scene_index))?;
+    if hasher.finalize().as_bytes()[..] != header[HEADER - 32..] {
         return Err(Damage::Checksum);
     }
-    let mut at = HEADER;
-    let mut take = |n: usize| {
-        let s = &bytes[at..at + n];
-        at += n;
-        s
-    };
-    let nodes: Vec<BvhNode> = bytemuck::pod_collect_to_vec(take(node_bytes));
-    let leaf: Vec<LeafTriangle> = bytemuck::pod_collect_to_vec(take(tri_bytes));
-    let scene_index: Vec<u32> = bytemuck::pod_collect_to_vec(take(index_bytes));
     // Indices must stay in range: traversal trusts them.
     let nodes_ok = nodes.iter().all(|n| {
         if n.count == 0 {
@@ -201,14 +223,14 @@ mod tests {
         let (built, _) = load_or_build(&scene, Some(dir.path()));
         let path = cache_path(dir.path(), &scene);
         let good = std::fs::read(&path).unwrap();
-        assert!(decode(&good, scene.triangles.len()).is_ok());
+        assert!(decode(&good[..], good.len() as u64, scene.triangles.len()).is_ok());
 
         // One low mantissa bit of the root's bounding box: a well-formed file with every
         // index in range, which the checks before the checksum accepted and rendered from.
         let mut flipped = good.clone();
         flipped[HEADER] ^= 0x01;
         assert_eq!(
-            decode(&flipped, scene.triangles.len()).err(),
+            decode(&flipped[..], flipped.len() as u64, scene.triangles.len()).err(),
             Some(Damage::Checksum)
         );
         std::fs::write(&path, &flipped).unwrap();
