@@ -18,7 +18,14 @@ use crate::accel::{Accel, Hit};
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
+use crate::packet_leaf::ShearedLanes;
 use glam::Vec3;
+
+/// Lanes entering a leaf from which all 64 are tested at once (`packet_leaf`); with fewer,
+/// testing only those one by one is cheaper.
+/// (Measured on the bunny and the 4.2M knot, 1 thread, AVX-512: from 4 lanes on, the wide test
+/// won by 16 % and 21 % over testing the lanes one by one; from 32 on, by only 3 %.)
+const WIDE_LEAF_LANES: usize = 4;
 
 /// The packet's rays in lanes: origins, inverse directions and current hit distances.
 struct Lanes<'a> {
@@ -233,6 +240,11 @@ impl Accel {
         let mut entry = [0f32; PACKET_RAYS];
         // The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
         let mut best_slot = [u32::MAX; PACKET_RAYS];
+        let sheared = if COMMON {
+            ShearedLanes::of(&rays, n)
+        } else {
+            None
+        };
         // Stack entries are pairs (first active lane, node): lanes before the first active one
         // missed an ancestor's box, so they miss every box below it.
         stack.clear();
@@ -244,6 +256,47 @@ impl Accel {
             }
             if node.count > 0 {
                 if !lanes.enter::<COMMON>(node.min, node.max, &mut entry) {
+                    continue;
+                }
+                let active: [bool; PACKET_RAYS] = std::array::from_fn(|i| {
+                    (i >= first as usize) & (i < n) & (entry[i] != f32::INFINITY)
+                });
+                let many = active.iter().filter(|&&a| a).count() >= WIDE_LEAF_LANES;
+                if let Some(sheared) = sheared.as_ref().filter(|_| !ANY && many) {
+                    let mut redo = [false; PACKET_RAYS];
+                    for slot in node.first..node.first + node.count {
+                        let tri = &self.triangles[slot as usize];
+                        let again = sheared.hit(
+                            origin,
+                            tri,
+                            slot,
+                            &active,
+                            (&lanes.t_min, &packet.t_max),
+                            &mut lanes.t,
+                            &mut best_slot,
+                            &mut redo,
+                        );
+                        if !again {
+                            continue;
+                        }
+                        for i in (0..n).filter(|&i| redo[i]) {
+                            let hit = rays[i].hit_triangle(
+                                tri.a,
+                                tri.b,
+                                tri.c,
+                                lanes.t_min[i],
+                                packet.t_max[i],
+                            );
+                            let best = Some(Hit {
+                                t: lanes.t[i],
+                                slot: best_slot[i],
+                            });
+                            if let Some(t) = hit.filter(|&t| Hit::closer(t, slot, best)) {
+                                lanes.t[i] = t;
+                                best_slot[i] = slot;
+                            }
+                        }
+                    }
                     continue;
                 }
                 for i in first as usize..n {

@@ -49,6 +49,12 @@ impl Ray {
         }
     }
 
+    /// The axes the watertight test works in (x, y, then the dominant z) and its shear
+    /// constants, for testing many rays against one triangle at once (`packet_leaf`).
+    pub(crate) fn shear_frame(&self) -> ([usize; 3], Vec3) {
+        ([self.kx, self.ky, self.kz], self.shear)
+    }
+
     pub fn at(&self, t: f32) -> Vec3 {
         self.origin + self.dir * t
     }

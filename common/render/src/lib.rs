@@ -25,6 +25,7 @@ mod frame;
 pub mod geometry;
 pub mod isa;
 pub mod packet;
+mod packet_leaf;
 mod pixel_rays;
 mod reference;
 pub mod sampling;
