@@ -78,15 +78,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let bvh_seconds = t1.elapsed().as_secs_f64();
     let mut prepared = PreparedScene::from_accel(&scene, accel);
     // As a render node keeps it (`node::prepare`).
-    prepared.drop_scene_index();
+    prepared.slim_for_rendering();
     let triangles = scene.triangles.len();
     // What a render node keeps is the prepared scene; the loaded one goes, as in `node`.
     drop(scene);
     release_freed();
     eprintln!(
-        "{triangles} triangles: loaded in {:.2} s, BVH {source:?} in {bvh_seconds:.2} s ({} nodes); {width}x{height}, {threads} threads",
+        "{triangles} triangles: loaded in {:.2} s, BVH {source:?} in {bvh_seconds:.2} s ({} 4-wide nodes); {width}x{height}, {threads} threads",
         loaded.as_secs_f64(),
-        prepared.accel.nodes.len()
+        prepared.accel.wide.len()
     );
     report_memory(&prepared, triangles, resident_before);
     let isas: Vec<&str> = Isa::available().iter().map(|i| i.name()).collect();

@@ -201,7 +201,7 @@ async fn prepare(
         let (accel, source) = pool.install(|| tessera_render::accel_cache::load_or_build(&scene, bvh_cache.as_deref()));
         tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
         let mut prepared = PreparedScene::from_accel(&scene, accel);
-        prepared.drop_scene_index();
+        prepared.slim_for_rendering();
         // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
         drop(scene);
         crate::memory::release_freed();

@@ -1,7 +1,8 @@
 //! The acceleration structure: a binary BVH built by obvhs, flattened into our own node array
 //! with the triangles stored in leaf order, so a leaf's triangles are contiguous in memory.
-//! Packets walk the binary tree; single rays walk its 4-wide collapse (`accel4`), which shares
-//! its leaves.
+//! Rays walk its 4-wide collapse (`accel4`), which shares its leaves: single rays in
+//! `accel4`, 8×8 packets in `accel_packet`. The binary tree is what obvhs builds and what the
+//! cache stores; a render node frees it once the 4-wide one is made.
 
 use crate::geometry::{Bounds, Ray};
 use crate::scene::Scene;
@@ -41,8 +42,8 @@ pub struct Hit {
 
 /// The scene's bounding volume hierarchy: obvhs builds it, and it is flattened here into
 /// depth-first nodes with the triangles copied in leaf order, so traversal reads memory in the
-/// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`] on the
-/// 4-wide collapse of the tree; 8×8 packets use the packet traversal in `accel_packet`.
+/// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`], 8×8
+/// packets the packet traversal in `accel_packet`, both on the 4-wide collapse of the tree.
 ///
 /// # Examples
 ///
@@ -70,9 +71,9 @@ pub struct Hit {
 /// assert!(bvh.closest_hit(&up, 0.0, f32::INFINITY, &mut stack).is_none());
 /// ```
 pub struct Accel {
-    /// The binary tree, for 8×8 packets.
+    /// The binary tree as built (and cached); empty once slimmed for rendering.
     pub nodes: Vec<BvhNode>,
-    /// The same tree collapsed 4-wide, for single rays (see `accel4`).
+    /// The same tree collapsed 4-wide, which every traversal walks (see `accel4`).
     pub wide: Vec<crate::accel4::Node4>,
     pub triangles: Vec<LeafTriangle>,
     /// Scene triangle index of each leaf slot.

@@ -1,12 +1,12 @@
-//! A 4-wide BVH for single rays (shadow, ambient-occlusion, reflected and refracted rays),
-//! collapsed from the binary one: each node holds its four children's boxes in
+//! A 4-wide BVH, collapsed from the binary one, that every ray walks (single rays here, packets
+//! in `accel_packet`): each node holds its four children's boxes in
 //! structure-of-arrays form, so one ray tests all four with a few 4-lane instructions (SSE on
 //! any x86-64, NEON on ARM; the compiler vectorizes the fixed-size loops). A binary tree
 //! costs a dependent memory load per level; this one has half as many levels and a quarter of
 //! the nodes to fetch. Leaves are the binary tree's own: the same triangle slots.
 //!
 //! Closest hits are order-independent: of two hits at the same distance the lower slot wins,
-//! so this traversal and the packet traversal of the binary tree agree bit for bit.
+//! so this traversal and the packet traversal agree bit for bit.
 
 use crate::accel::BvhNode;
 use crate::geometry::Ray;
@@ -102,7 +102,7 @@ fn set_child(node: &mut Node4, k: usize, child: &BvhNode, target: u32) {
 /// (or the slot is empty). `inv` must be finite (see [`finite_inverse`]), so that no slab
 /// distance is a NaN.
 #[inline(always)]
-fn enter4(node: &Node4, origin: [f32; 3], inv: [f32; 3], t_far: f32) -> [f32; 4] {
+pub(crate) fn enter4(node: &Node4, origin: [f32; 3], inv: [f32; 3], t_far: f32) -> [f32; 4] {
     let mut near = [0f32; 4];
     let mut far = [t_far; 4];
     for axis in 0..3 {
@@ -125,7 +125,7 @@ fn enter4(node: &Node4, origin: [f32; 3], inv: [f32; 3], t_far: f32) -> [f32; 4]
 /// The ray's inverse direction with an infinite component (a direction parallel to an axis)
 /// made the largest finite value of its sign: then an origin exactly on a slab plane gives
 /// 0 · MAX = 0 where 0 · inf would give NaN, and the box is entered, as it should be.
-fn finite_inverse(ray: &Ray) -> [f32; 3] {
+pub(crate) fn finite_inverse(ray: &Ray) -> [f32; 3] {
     ray.inv_dir.to_array().map(|v| {
         if v.is_infinite() {
             f32::MAX.copysign(v)

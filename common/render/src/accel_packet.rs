@@ -1,11 +1,11 @@
-//! Coherent traversal of the BVH by whole 64-ray packets.
+//! Coherent traversal of the 4-wide BVH by whole 64-ray packets.
 //!
-//! For packets with a common origin (primary rays), every node is first tested against the
+//! For packets with a common origin (primary rays), every child is first tested against the
 //! packet's frustum (interval arithmetic over its directions), which drops whole subtrees with
 //! one test; inner nodes then test single rays from the first active one until one enters
-//! (Wald's "first hit" traversal), and leaves test all 64 lanes at once in structure-of-arrays
-//! form, which the compiler turns into 8-wide SIMD, so that only the lanes whose rays enter a
-//! leaf test its triangles. Closest-hit packets without a common origin fall back to single
+//! (Wald's "first hit" traversal), which orders the four children; leaves test all 64 lanes'
+//! boxes at once in structure-of-arrays form, and then the triangles against the lanes that
+//! enter, all of them at once (`packet_leaf`) when four or more do. Closest-hit packets without a common origin fall back to single
 //! rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a frustum
 //! built from the box of their origins and stop each ray at its first hit.
 //!
@@ -15,6 +15,7 @@
 //! wall renders the same pixels whatever its CPU.
 
 use crate::accel::{Accel, Hit};
+use crate::accel4::{self, EMPTY};
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
@@ -207,7 +208,7 @@ impl Accel {
         stack: &mut Vec<u32>,
     ) -> u64 {
         let n = packet.len();
-        if self.nodes.is_empty() || n == 0 {
+        if self.wide.is_empty() || n == 0 {
             return 0;
         }
         let all: u64 = if n == PACKET_RAYS {
@@ -245,17 +246,26 @@ impl Accel {
         } else {
             None
         };
-        // Stack entries are pairs (first active lane, node): lanes before the first active one
-        // missed an ancestor's box, so they miss every box below it.
+        // Stack entries are triples (first active lane, 4-wide node, child slot): lanes before
+        // the first active one missed an ancestor's box, so they miss every box below it. The
+        // child's box and kind are read from its parent, where the 4-wide tree keeps them.
         stack.clear();
-        stack.extend([0, 0]);
-        while let (Some(index), Some(first)) = (stack.pop(), stack.pop()) {
-            let node = &self.nodes[index as usize];
-            if frustum.misses(node.min, node.max, f32::INFINITY) {
-                continue;
+        for k in (0..4).rev() {
+            if self.wide[0].count[k] != EMPTY && !frustum.misses_child(&self.wide[0], k) {
+                stack.extend([0, 0, k as u32]);
             }
-            if node.count > 0 {
-                if !lanes.enter::<COMMON>(node.min, node.max, &mut entry) {
+        }
+        while let (Some(k), Some(parent), Some(first)) = (stack.pop(), stack.pop(), stack.pop()) {
+            let parent = &self.wide[parent as usize];
+            let k = k as usize;
+            let (min, max) = (
+                Vec3::new(parent.lo[0][k], parent.lo[1][k], parent.lo[2][k]),
+                Vec3::new(parent.hi[0][k], parent.hi[1][k], parent.hi[2][k]),
+            );
+            // (The frustum culled it before it was pushed.)
+            let (child, count) = (parent.child[k], parent.count[k]);
+            if count > 0 {
+                if !lanes.enter::<COMMON>(min, max, &mut entry) {
                     continue;
                 }
                 let active: [bool; PACKET_RAYS] = std::array::from_fn(|i| {
@@ -264,7 +274,7 @@ impl Accel {
                 let many = active.iter().filter(|&&a| a).count() >= WIDE_LEAF_LANES;
                 if let Some(sheared) = sheared.as_ref().filter(|_| !ANY && many) {
                     let mut redo = [false; PACKET_RAYS];
-                    for slot in node.first..node.first + node.count {
+                    for slot in child..child + count {
                         let tri = &self.triangles[slot as usize];
                         let again = sheared.hit(
                             origin,
@@ -303,7 +313,7 @@ impl Accel {
                     if entry[i] == f32::INFINITY {
                         continue;
                     }
-                    for slot in node.first..node.first + node.count {
+                    for slot in child..child + count {
                         let tri = &self.triangles[slot as usize];
                         // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
                         // so they agree with the single-ray traversal of the 4-wide tree.
@@ -337,19 +347,25 @@ impl Accel {
             // (Wald's "first hit" packet traversal): for coherent rays that is the first one,
             // so a node costs one ray's box test instead of 64.
             let Some(active) = (first as usize..n)
-                .find(|&i| rays[i].box_entry(node.min, node.max, lanes.t[i]) < f32::INFINITY)
+                .find(|&i| rays[i].box_entry(min, max, lanes.t[i]) < f32::INFINITY)
             else {
                 continue;
             };
-            let (l, r) = (node.first, node.first + 1);
-            let (ln, rn) = (&self.nodes[l as usize], &self.nodes[r as usize]);
-            let tl = rays[active].box_entry(ln.min, ln.max, f32::INFINITY);
-            let tr = rays[active].box_entry(rn.min, rn.max, f32::INFINITY);
-            let active = active as u32;
-            if tl <= tr {
-                stack.extend([active, r, active, l]);
-            } else {
-                stack.extend([active, l, active, r]);
+            // The children in the order the active ray enters them (all are pushed: other
+            // lanes may enter what it misses), nearest on top.
+            let node = &self.wide[child as usize];
+            let t = accel4::enter4(
+                node,
+                rays[active].origin.to_array(),
+                accel4::finite_inverse(&rays[active]),
+                f32::INFINITY,
+            );
+            let mut order: [usize; 4] = [0, 1, 2, 3];
+            order.sort_unstable_by(|&a, &b| t[a].total_cmp(&t[b]));
+            for &c in order.iter().rev() {
+                if node.count[c] != EMPTY && !frustum.misses_child(node, c) {
+                    stack.extend([active as u32, child, c as u32]);
+                }
             }
         }
         if !ANY {
@@ -390,6 +406,14 @@ impl Frustum {
             (lo, hi)
         });
         Frustum { inv, org, usable }
+    }
+
+    /// [`Frustum::misses`] for child `k` of a 4-wide node.
+    #[inline(always)]
+    fn misses_child(&self, node: &accel4::Node4, k: usize) -> bool {
+        let min = Vec3::new(node.lo[0][k], node.lo[1][k], node.lo[2][k]);
+        let max = Vec3::new(node.hi[0][k], node.hi[1][k], node.hi[2][k]);
+        self.misses(min, max, f32::INFINITY)
     }
 
     /// True when no ray of the packet can enter the box before `t_max`. Per axis, the slab

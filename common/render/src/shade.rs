@@ -76,7 +76,7 @@ impl SurfaceHit {
     /// Index of the primitive in the scene: triangles first, then particles.
     ///
     /// # Panics
-    /// On a scene whose scene index was dropped ([`PreparedScene::drop_scene_index`]).
+    /// On a scene slimmed for rendering ([`PreparedScene::slim_for_rendering`]).
     pub fn scene_primitive(&self, scene: &PreparedScene) -> u64 {
         match *self {
             SurfaceHit::Triangle(h) => *scene
