@@ -343,12 +343,19 @@ impl Accel {
                 }
                 continue;
             }
-            // Inner nodes test single rays, from the first active one on, until one enters
-            // (Wald's "first hit" packet traversal): for coherent rays that is the first one,
-            // so a node costs one ray's box test instead of 64.
-            let Some(active) = (first as usize..n)
-                .find(|&i| rays[i].box_entry(min, max, lanes.t[i]) < f32::INFINITY)
-            else {
+            // Inner nodes test the first active ray alone (Wald's "first hit" packet
+            // traversal): for coherent rays it usually enters, and the node costs one ray's
+            // box test. If it misses, all lanes are tested at once, which is cheaper than
+            // trying them one by one when none enters (a frequent case for 4-wide siblings).
+            let first = first as usize;
+            let active = if rays[first].box_entry(min, max, lanes.t[first]) < f32::INFINITY {
+                first
+            } else if lanes.enter::<COMMON>(min, max, &mut entry) {
+                match (first + 1..n).find(|&i| entry[i] < f32::INFINITY) {
+                    Some(i) => i,
+                    None => continue,
+                }
+            } else {
                 continue;
             };
             // The children in the order the active ray enters them (all are pushed: other
@@ -419,6 +426,7 @@ impl Frustum {
     /// True when no ray of the packet can enter the box before `t_max`. Per axis, the slab
     /// distances are products of two intervals (box side minus origin, times inverse
     /// direction), bounded by their corners; for a common origin the first interval is a point.
+    #[inline(always)]
     fn misses(&self, min: Vec3, max: Vec3, t_max: f32) -> bool {
         if !self.usable {
             return false;
