@@ -84,7 +84,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     drop(scene);
     release_freed();
     eprintln!(
-        "{triangles} triangles: loaded in {:.2} s, BVH {source:?} in {bvh_seconds:.2} s ({} 4-wide nodes); {width}x{height}, {threads} threads",
+        "{triangles} triangles: loaded in {:.2} s, BVH {source:?} in {bvh_seconds:.2} s ({} 8-wide nodes); {width}x{height}, {threads} threads",
         loaded.as_secs_f64(),
         prepared.accel.wide.len()
     );
@@ -214,7 +214,7 @@ fn report_memory(prepared: &PreparedScene, triangles: usize, before: Option<u64>
         _ => println!("TESSERA_BYTES_PER_TRIANGLE n/a (no /proc/self/statm here)"),
     }
     println!(
-        "TESSERA_ARRAY_BYTES_PER_TRIANGLE {:.1} (binary BVH nodes {:.1}, 4-wide nodes {:.1}, leaf triangles {:.1}, triangle index {:.1}, materials {:.1})",
+        "TESSERA_ARRAY_BYTES_PER_TRIANGLE {:.1} (binary BVH nodes {:.1}, 8-wide nodes {:.1}, leaf triangles {:.1}, triangle index {:.1}, materials {:.1})",
         per(counted),
         per(nodes),
         per(wide),

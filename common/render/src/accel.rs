@@ -1,10 +1,11 @@
 //! The acceleration structure: a binary BVH built by obvhs, flattened into our own node array
 //! with the triangles stored in leaf order, so a leaf's triangles are contiguous in memory.
-//! Rays walk its 4-wide collapse (`accel4`), which shares its leaves: single rays in
-//! `accel4`, 8×8 packets in `accel_packet`. The binary tree is what obvhs builds and what the
-//! cache stores; a render node frees it once the 4-wide one is made.
+//! Rays walk its 8-wide collapse (`accel_wide`), which shares its leaves: single rays in
+//! `accel_wide`, 8×8 packets in `accel_packet`. The binary tree is what obvhs builds and what the
+//! cache stores; a render node frees it once the 8-wide one is made.
 
 use crate::geometry::{Bounds, Ray};
+use crate::isa::Isa;
 use crate::scene::Scene;
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
@@ -43,7 +44,7 @@ pub struct Hit {
 /// The scene's bounding volume hierarchy: obvhs builds it, and it is flattened here into
 /// depth-first nodes with the triangles copied in leaf order, so traversal reads memory in the
 /// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`], 8×8
-/// packets the packet traversal in `accel_packet`, both on the 4-wide collapse of the tree.
+/// packets the packet traversal in `accel_packet`, both on the 8-wide collapse of the tree.
 ///
 /// # Examples
 ///
@@ -73,8 +74,8 @@ pub struct Hit {
 pub struct Accel {
     /// The binary tree as built (and cached); empty once slimmed for rendering.
     pub nodes: Vec<BvhNode>,
-    /// The same tree collapsed 4-wide, which every traversal walks (see `accel4`).
-    pub wide: Vec<crate::accel4::Node4>,
+    /// The same tree collapsed 8-wide, which every traversal walks (see `accel_wide`).
+    pub wide: Vec<crate::accel_wide::WideNode>,
     pub triangles: Vec<LeafTriangle>,
     /// Scene triangle index of each leaf slot.
     pub scene_index: Vec<u32>,
@@ -194,7 +195,7 @@ impl Accel {
         max_depth: usize,
     ) -> Self {
         Accel {
-            wide: crate::accel4::collapse(&nodes),
+            wide: crate::accel_wide::collapse(&nodes),
             nodes,
             triangles,
             scene_index,
@@ -227,9 +228,40 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> Option<Hit> {
+        #[cfg(target_arch = "x86_64")]
+        if Isa::best() != Isa::Portable {
+            // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
+            return unsafe { self.closest_hit_avx2(ray, t_min, t_max, stack) };
+        }
+        self.closest_hit_generic(ray, t_min, t_max, stack)
+    }
+
+    /// [`Accel::closest_hit`] with the wide node tests 8 lanes wide.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn closest_hit_avx2(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> Option<Hit> {
+        self.closest_hit_generic(ray, t_min, t_max, stack)
+    }
+
+    /// The portable build of [`Accel::closest_hit`], also what the SIMD builds are tested
+    /// against.
+    #[inline(always)]
+    pub fn closest_hit_generic(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_far = t_max;
-        crate::accel4::traverse4(&self.wide, ray, stack, &mut t_far, |slots, t_far| {
+        crate::accel_wide::traverse_wide(&self.wide, ray, stack, &mut t_far, |slots, t_far| {
             for slot in slots {
                 let tri = &self.triangles[slot as usize];
                 if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max) {
@@ -246,9 +278,38 @@ impl Accel {
 
     /// Whether anything blocks the ray in `(t_min, t_max)`; stops at the first blocker.
     pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if Isa::best() != Isa::Portable {
+            // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
+            return unsafe { self.occluded_avx2(ray, t_min, t_max, stack) };
+        }
+        self.occluded_generic(ray, t_min, t_max, stack)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn occluded_avx2(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> bool {
+        self.occluded_generic(ray, t_min, t_max, stack)
+    }
+
+    /// The portable build of [`Accel::occluded`].
+    #[inline(always)]
+    pub fn occluded_generic(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> bool {
         let mut t_far = t_max;
         let mut blocked = false;
-        crate::accel4::traverse4(&self.wide, ray, stack, &mut t_far, |slots, _| {
+        crate::accel_wide::traverse_wide(&self.wide, ray, stack, &mut t_far, |slots, _| {
             blocked = slots.into_iter().any(|slot| {
                 let tri = &self.triangles[slot as usize];
                 ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
@@ -354,6 +415,30 @@ mod tests {
             assert_eq!(
                 accel.occluded(&ray, 0.0, f32::INFINITY, &mut stack),
                 brute.is_some()
+            );
+        }
+    }
+
+    #[test]
+    fn single_rays_give_the_portable_answers_on_the_simd_build() {
+        let scene = knot_scene(96, 12);
+        let accel = Accel::build(&scene);
+        let mut stack = accel.new_stack();
+        let center = scene.bounds().center();
+        for i in 0..500 {
+            let a = i as f32 * 0.53;
+            let origin = center + Vec3::new(a.cos() * 7.0, 2.0 + a.sin(), (a * 1.3).sin() * 7.0);
+            let ray = Ray::new(origin, center - origin + Vec3::new(a.sin(), 0.0, a.cos()));
+            let t_max = if i % 2 == 0 { f32::INFINITY } else { 9.0 };
+            assert_eq!(
+                accel.closest_hit(&ray, 0.0, t_max, &mut stack),
+                accel.closest_hit_generic(&ray, 0.0, t_max, &mut stack),
+                "ray {i}"
+            );
+            assert_eq!(
+                accel.occluded(&ray, 0.0, t_max, &mut stack),
+                accel.occluded_generic(&ray, 0.0, t_max, &mut stack),
+                "ray {i}"
             );
         }
     }

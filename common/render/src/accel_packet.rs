@@ -1,4 +1,4 @@
-//! Coherent traversal of the 4-wide BVH by whole 64-ray packets.
+//! Coherent traversal of the 8-wide BVH by whole 64-ray packets.
 //!
 //! For packets with a common origin (primary rays), every child is first tested against the
 //! packet's frustum (interval arithmetic over its directions), which drops whole subtrees with
@@ -15,7 +15,7 @@
 //! wall renders the same pixels whatever its CPU.
 
 use crate::accel::{Accel, Hit};
-use crate::accel4::{self, EMPTY};
+use crate::accel_wide::{self, EMPTY, WIDTH};
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
@@ -246,12 +246,13 @@ impl Accel {
         } else {
             None
         };
-        // Stack entries are triples (first active lane, 4-wide node, child slot): lanes before
+        // Stack entries are triples (first active lane, 8-wide node, child slot): lanes before
         // the first active one missed an ancestor's box, so they miss every box below it. The
-        // child's box and kind are read from its parent, where the 4-wide tree keeps them.
+        // child's box and kind are read from its parent, where the 8-wide tree keeps them.
         stack.clear();
-        for k in (0..4).rev() {
-            if self.wide[0].count[k] != EMPTY && !frustum.misses_child(&self.wide[0], k) {
+        let culled = frustum.misses_children(&self.wide[0]);
+        for k in (0..WIDTH).rev() {
+            if !culled[k] {
                 stack.extend([0, 0, k as u32]);
             }
         }
@@ -316,7 +317,7 @@ impl Accel {
                     for slot in child..child + count {
                         let tri = &self.triangles[slot as usize];
                         // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
-                        // so they agree with the single-ray traversal of the 4-wide tree.
+                        // so they agree with the single-ray traversal of the 8-wide tree.
                         let t_max = if ANY { lanes.t[i] } else { packet.t_max[i] };
                         if let Some(t) =
                             rays[i].hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], t_max)
@@ -346,7 +347,7 @@ impl Accel {
             // Inner nodes test the first active ray alone (Wald's "first hit" packet
             // traversal): for coherent rays it usually enters, and the node costs one ray's
             // box test. If it misses, all lanes are tested at once, which is cheaper than
-            // trying them one by one when none enters (a frequent case for 4-wide siblings).
+            // trying them one by one when none enters (a frequent case for 8-wide siblings).
             let first = first as usize;
             let active = if rays[first].box_entry(min, max, lanes.t[first]) < f32::INFINITY {
                 first
@@ -361,16 +362,17 @@ impl Accel {
             // The children in the order the active ray enters them (all are pushed: other
             // lanes may enter what it misses), nearest on top.
             let node = &self.wide[child as usize];
-            let t = accel4::enter4(
+            let t = accel_wide::enter_wide(
                 node,
                 rays[active].origin.to_array(),
-                accel4::finite_inverse(&rays[active]),
+                accel_wide::finite_inverse(&rays[active]),
                 f32::INFINITY,
             );
-            let mut order: [usize; 4] = [0, 1, 2, 3];
+            let mut order: [usize; WIDTH] = std::array::from_fn(|k| k);
             order.sort_unstable_by(|&a, &b| t[a].total_cmp(&t[b]));
+            let culled = frustum.misses_children(node);
             for &c in order.iter().rev() {
-                if node.count[c] != EMPTY && !frustum.misses_child(node, c) {
+                if !culled[c] {
                     stack.extend([active as u32, child, c as u32]);
                 }
             }
@@ -415,36 +417,36 @@ impl Frustum {
         Frustum { inv, org, usable }
     }
 
-    /// [`Frustum::misses`] for child `k` of a 4-wide node.
+    /// [`Frustum::misses`] for every child of a wide node at once (the same arithmetic, over
+    /// the children's structure-of-arrays boxes, so it runs one child per SIMD lane). Empty
+    /// slots count as missed.
     #[inline(always)]
-    fn misses_child(&self, node: &accel4::Node4, k: usize) -> bool {
-        let min = Vec3::new(node.lo[0][k], node.lo[1][k], node.lo[2][k]);
-        let max = Vec3::new(node.hi[0][k], node.hi[1][k], node.hi[2][k]);
-        self.misses(min, max, f32::INFINITY)
-    }
-
-    /// True when no ray of the packet can enter the box before `t_max`. Per axis, the slab
-    /// distances are products of two intervals (box side minus origin, times inverse
-    /// direction), bounded by their corners; for a common origin the first interval is a point.
-    #[inline(always)]
-    fn misses(&self, min: Vec3, max: Vec3, t_max: f32) -> bool {
+    fn misses_children(&self, node: &accel_wide::WideNode) -> [bool; WIDTH] {
+        let empty: [bool; WIDTH] = std::array::from_fn(|k| node.count[k] == EMPTY);
         if !self.usable {
-            return false;
+            return empty;
         }
-        let mut near = 0.0f32;
-        let mut far = t_max;
+        let mut near = [0.0f32; WIDTH];
+        let mut far = [f32::INFINITY; WIDTH];
         for axis in 0..3 {
             let (lo, hi) = self.inv[axis];
             let (o_lo, o_hi) = self.org[axis];
-            let a = (min[axis] - o_hi, min[axis] - o_lo);
-            let b = (max[axis] - o_hi, max[axis] - o_lo);
             // Rays going + enter through the min slab, rays going - through the max slab.
-            let (enter, exit) = if lo > 0.0 { (a, b) } else { (b, a) };
-            let products = |(x0, x1): (f32, f32)| [x0 * lo, x0 * hi, x1 * lo, x1 * hi];
-            near = near.max(products(enter).into_iter().fold(f32::INFINITY, f32::min));
-            far = far.min(products(exit).into_iter().fold(f32::NEG_INFINITY, f32::max));
+            let (enter, exit) = if lo > 0.0 {
+                (&node.lo[axis], &node.hi[axis])
+            } else {
+                (&node.hi[axis], &node.lo[axis])
+            };
+            for k in 0..WIDTH {
+                let (e0, e1) = (enter[k] - o_hi, enter[k] - o_lo);
+                let (x0, x1) = (exit[k] - o_hi, exit[k] - o_lo);
+                let entered = (e0 * lo).min(e0 * hi).min(e1 * lo).min(e1 * hi);
+                let exited = (x0 * lo).max(x0 * hi).max(x1 * lo).max(x1 * hi);
+                near[k] = near[k].max(entered);
+                far[k] = far[k].min(exited);
+            }
         }
-        near > far
+        std::array::from_fn(|k| empty[k] | (near[k] > far[k]))
     }
 }
 

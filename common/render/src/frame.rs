@@ -73,7 +73,7 @@ impl PreparedScene {
 
     /// No triangles and no particles: every pixel is the backdrop.
     /// Frees what only building, caching and AOVs read, for a render node: the binary tree
-    /// (packets and single rays both walk its 4-wide collapse) and the map from leaf slots to
+    /// (packets and single rays both walk its 8-wide collapse) and the map from leaf slots to
     /// scene triangles (only AOVs' primitive index needs it). 16 bytes a triangle on the 4.2M
     /// knot.
     pub fn slim_for_rendering(&mut self) {

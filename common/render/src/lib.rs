@@ -15,10 +15,10 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod accel;
-pub mod accel4;
 pub mod accel_cache;
 mod accel_coincident;
 pub mod accel_packet;
+pub mod accel_wide;
 pub mod aov;
 pub mod bench;
 mod frame;
