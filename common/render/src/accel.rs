@@ -261,18 +261,24 @@ impl Accel {
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_far = t_max;
-        crate::accel_wide::traverse_wide(&self.wide, ray, stack, &mut t_far, |slots, t_far| {
-            for slot in slots {
-                let tri = &self.triangles[slot as usize];
-                if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max) {
-                    if Hit::closer(t, slot, best) {
-                        *t_far = t;
-                        best = Some(Hit { t, slot });
+        crate::accel_wide::traverse_wide::<true>(
+            &self.wide,
+            ray,
+            stack,
+            &mut t_far,
+            |slots, t_far| {
+                for slot in slots {
+                    let tri = &self.triangles[slot as usize];
+                    if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max) {
+                        if Hit::closer(t, slot, best) {
+                            *t_far = t;
+                            best = Some(Hit { t, slot });
+                        }
                     }
                 }
-            }
-            false
-        });
+                false
+            },
+        );
         best
     }
 
@@ -309,17 +315,26 @@ impl Accel {
     ) -> bool {
         let mut t_far = t_max;
         let mut blocked = false;
-        crate::accel_wide::traverse_wide(&self.wide, ray, stack, &mut t_far, |slots, _| {
-            blocked = slots.into_iter().any(|slot| {
-                let tri = &self.triangles[slot as usize];
-                ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
-                    .is_some()
-            });
-            blocked
-        });
+        crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION>(
+            &self.wide,
+            ray,
+            stack,
+            &mut t_far,
+            |slots, _| {
+                blocked = slots.into_iter().any(|slot| {
+                    let tri = &self.triangles[slot as usize];
+                    ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
+                        .is_some()
+                });
+                blocked
+            },
+        );
         blocked
     }
 }
+
+/// Whether occlusion rays visit nearer children first (see `traverse_wide`).
+const ORDERED_OCCLUSION: bool = false;
 
 impl Hit {
     /// Whether a hit at `t` on `slot` beats `best`: nearer, or as near on a lower slot.

@@ -147,10 +147,11 @@ pub(crate) fn finite_inverse(ray: &Ray) -> [f32; 3] {
     })
 }
 
-/// Visits the leaves whose boxes `ray` enters before `t_far`, nearer children first; `visit`
-/// gets a leaf's slots, may shrink `t_far`, and returns `true` to stop.
+/// Visits the leaves whose boxes `ray` enters before `t_far` (nearer children first when
+/// `ORDERED`: closest hits want that, any-hit rays do not); `visit` gets a leaf's slots, may
+/// shrink `t_far`, and returns `true` to stop.
 #[inline(always)]
-pub(crate) fn traverse_wide(
+pub(crate) fn traverse_wide<const ORDERED: bool>(
     nodes: &[WideNode],
     ray: &Ray,
     stack: &mut Vec<u32>,
@@ -174,6 +175,20 @@ pub(crate) fn traverse_wide(
         }
         let node = &nodes[child as usize];
         let t = enter_wide(node, origin, inv, *t_far);
+        if !ORDERED {
+            // Any hit ends the ray, so the order buys little and costs a sort per node (AO
+            // rays a few per cent faster without it on the bunny).
+            let mut entered = 0u32;
+            for (k, &tk) in t.iter().enumerate() {
+                entered |= ((tk != f32::INFINITY) as u32) << k;
+            }
+            while entered != 0 {
+                let k = entered.trailing_zeros() as usize;
+                entered &= entered - 1;
+                stack.extend([node.child[k], node.count[k]]);
+            }
+            continue;
+        }
         // The entered children, nearest first (an insertion sort of at most WIDTH).
         let mut order = [0usize; WIDTH];
         let mut n = 0;
