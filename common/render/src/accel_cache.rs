@@ -10,6 +10,7 @@
 use crate::accel::{Accel, BvhNode, LeafTriangle};
 use crate::scene::Scene;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 const MAGIC: [u8; 4] = *b"TBVH";
 /// Bumped whenever the node layout, the build or the file layout changes (2: payload hash).
@@ -44,25 +45,39 @@ pub enum Source {
 /// Loads the cached BVH of `scene` from `dir`, or builds it and stores it there. A cache that
 /// cannot be written costs a warning, never the run.
 pub fn load_or_build(scene: &Scene, dir: Option<&Path>) -> (Accel, Source) {
+    let (accel, source, _) = load_or_build_timed(scene, dir);
+    (accel, source)
+}
+
+/// [`load_or_build`], and how long the build itself took (zero when read from the cache;
+/// storing the cache is not counted), for build-rate figures.
+pub fn load_or_build_timed(scene: &Scene, dir: Option<&Path>) -> (Accel, Source, Duration) {
+    let build = || {
+        let t0 = Instant::now();
+        let accel = Accel::build(scene);
+        let took = t0.elapsed();
+        (accel, took)
+    };
     let Some(dir) = dir else {
-        return (Accel::build(scene), Source::Built);
+        let (accel, took) = build();
+        return (accel, Source::Built, took);
     };
     let path = cache_path(dir, scene);
     let opened = std::fs::File::open(&path).and_then(|f| Ok((f.metadata()?.len(), f)));
     if let Ok((len, file)) = opened {
         match decode(file, len, scene.triangles.len()) {
-            Ok(accel) => return (accel, Source::Cached),
+            Ok(accel) => return (accel, Source::Cached, Duration::ZERO),
             Err(why) => tracing::warn!(
                 "ignoring the BVH cache {} ({why}); building it again",
                 path.display()
             ),
         }
     }
-    let accel = Accel::build(scene);
+    let (accel, took) = build();
     if let Err(e) = store(&accel, dir, &path) {
         tracing::warn!("cannot cache the BVH in {}: {e}", dir.display());
     }
-    (accel, Source::Built)
+    (accel, Source::Built, took)
 }
 
 fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
@@ -92,7 +107,8 @@ fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
     for part in payload {
         out.write_all(part)?;
     }
-    out.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+    // No fsync: a file cut short by a crash fails its checksum and is rebuilt.
+    out.into_inner().map_err(|e| e.into_error())?;
     std::fs::rename(&tmp, path)
 }
 
