@@ -406,6 +406,17 @@ pub(crate) fn traverse_nodes(
     }
 }
 
+/// The nearest hit distance over every leaf triangle, one by one: what the tests check the
+/// traversals against.
+#[cfg(test)]
+pub(crate) fn brute_force_t(accel: &Accel, ray: &Ray) -> Option<f32> {
+    accel
+        .triangles
+        .iter()
+        .filter_map(|t| ray.hit_triangle(t.a, t.b, t.c, 0.0, f32::INFINITY))
+        .min_by(f32::total_cmp)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -428,11 +439,7 @@ mod tests {
             let got = accel
                 .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
                 .map(|h| h.t);
-            let brute = accel
-                .triangles
-                .iter()
-                .filter_map(|t| ray.hit_triangle(t.a, t.b, t.c, 0.0, f32::INFINITY))
-                .min_by(f32::total_cmp);
+            let brute = brute_force_t(&accel, &ray);
             assert_eq!(got, brute, "ray {i}");
             assert_eq!(
                 accel.occluded(&ray, 0.0, f32::INFINITY, &mut stack),

@@ -80,13 +80,7 @@ pub(crate) fn flatten_expanding(
     group_of: &[Option<u32>],
     groups: &[Vec<u32>],
 ) -> (Vec<BvhNode>, Vec<u32>) {
-    let blank = BvhNode {
-        min: Vec3::ZERO,
-        max: Vec3::ZERO,
-        first: 0,
-        count: 0,
-    };
-    let mut nodes = vec![blank];
+    let mut nodes = vec![BLANK_NODE];
     let mut order: Vec<u32> =
         Vec::with_capacity(groups.iter().map(Vec::len).sum::<usize>() + input.len());
     let mut stack = vec![(Source::Obvhs(0), 0usize)];
@@ -96,14 +90,7 @@ pub(crate) fn flatten_expanding(
                 let n = &bvh.nodes[i as usize];
                 let (min, max) = (n.aabb().min.into(), n.aabb().max.into());
                 if !n.is_leaf() {
-                    let first = nodes.len();
-                    nodes.extend([blank, blank]);
-                    nodes[at] = BvhNode {
-                        min,
-                        max,
-                        first: first as u32,
-                        count: 0,
-                    };
+                    let first = add_inner(&mut nodes, at, min, max);
                     stack.push((Source::Obvhs(n.first_index + 1), first + 1));
                     stack.push((Source::Obvhs(n.first_index), first));
                     continue;
@@ -141,19 +128,33 @@ pub(crate) fn flatten_expanding(
         }
         let mut left = items;
         let right = left.split_off(left.len() / 2);
-        let first = nodes.len();
-        nodes.extend([blank, blank]);
-        nodes[at] = BvhNode {
-            min,
-            max,
-            first: first as u32,
-            count: 0,
-        };
+        let first = add_inner(&mut nodes, at, min, max);
         stack.push((Source::Items(right), first + 1));
         stack.push((Source::Items(left), first));
     }
     (nodes, order)
 }
+
+/// Makes node `at` an inner node over `min..max` with two new (blank) children, and returns
+/// the first child's index.
+fn add_inner(nodes: &mut Vec<BvhNode>, at: usize, min: Vec3, max: Vec3) -> usize {
+    let first = nodes.len();
+    nodes.extend([BLANK_NODE, BLANK_NODE]);
+    nodes[at] = BvhNode {
+        min,
+        max,
+        first: first as u32,
+        count: 0,
+    };
+    first
+}
+
+const BLANK_NODE: BvhNode = BvhNode {
+    min: Vec3::ZERO,
+    max: Vec3::ZERO,
+    first: 0,
+    count: 0,
+};
 
 /// A leaf's entries as items: its plain triangles in one, each group in chunks of
 /// [`GROUP_LEAF`].
@@ -266,12 +267,7 @@ mod tests {
             let got = accel
                 .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
                 .map(|h| h.t);
-            let brute = accel
-                .triangles
-                .iter()
-                .filter_map(|t| ray.hit_triangle(t.a, t.b, t.c, 0.0, f32::INFINITY))
-                .min_by(f32::total_cmp);
-            assert_eq!(got, brute, "ray {i}");
+            assert_eq!(got, crate::accel::brute_force_t(&accel, &ray), "ray {i}");
         }
     }
 }

@@ -3,8 +3,9 @@
 //! and the camera given in world coordinates is moved the same way. In plain f32 the moved
 //! vertices would sit on a 0.0625 grid, far coarser than the mesh's detail.
 
+mod real_mesh;
+
 use glam::{DVec3, Vec3};
-use std::path::Path;
 use tessera_render::aov::primary_aovs;
 use tessera_render::scene::Scene;
 use tessera_render::{FrameView, PreparedScene};
@@ -13,7 +14,6 @@ use tessera_wire::params::RenderParams;
 use tessera_wire::scene_spec::SceneSpec;
 use tessera_wire::wall::{TileGrid, WallSpec};
 
-const REAL_MESH: &str = "/usr/share/assimp/models/OBJ/WusonOBJ.obj";
 const SHIFT: f64 = 1e6;
 const SIZE: (u32, u32) = (320, 240);
 
@@ -50,15 +50,9 @@ fn depth(scene: &Scene, eye: DVec3, target: DVec3) -> Vec<f32> {
 
 #[test]
 fn a_mesh_moved_a_million_away_gives_the_same_depth_image() {
-    let path = Path::new(REAL_MESH);
-    if !path.exists() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "{REAL_MESH} is missing: .ci/run installs assimp-testmodels"
-        );
-        eprintln!("skipping: {REAL_MESH} not installed (apt-get install assimp-testmodels)");
+    let Some(path) = real_mesh::real_mesh() else {
         return;
-    }
+    };
     let near = Scene::load(&SceneSpec::File(path.into())).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let moved_path = dir.path().join("moved.obj");

@@ -1,6 +1,8 @@
 //! Numerical soundness on stiff cases: closed meshes far from the origin and at tiny scales,
 //! grazing rays, rays leaving a surface, and agreement with a float64 reference.
 
+mod real_mesh;
+
 use glam::{DVec3, Vec3};
 use proptest::prelude::*;
 use tessera_render::accel::Accel;
@@ -186,9 +188,6 @@ fn hit_distances_agree_with_float64() {
     assert!(checked > 1000, "only {checked} rays hit");
 }
 
-/// A real mesh nobody here made: Debian's `assimp-testmodels` (CI installs it).
-const REAL_MESH: &str = "/usr/share/assimp/models/OBJ/WusonOBJ.obj";
-
 /// Closest hit over every triangle in float64, no BVH: the reference for a whole mesh.
 fn reference_closest(scene: &Scene, o: DVec3, d: DVec3) -> Option<f64> {
     scene
@@ -203,15 +202,9 @@ fn reference_closest(scene: &Scene, o: DVec3, d: DVec3) -> Option<f64> {
 
 #[test]
 fn closest_hits_on_a_real_mesh_agree_with_a_float64_brute_force() {
-    let path = std::path::Path::new(REAL_MESH);
-    if !path.exists() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "{REAL_MESH} is missing: .ci/run installs assimp-testmodels"
-        );
-        eprintln!("skipping: {REAL_MESH} not installed (apt-get install assimp-testmodels)");
+    let Some(path) = real_mesh::real_mesh() else {
         return;
-    }
+    };
     let scene = Scene::load(&SceneSpec::File(path.into())).unwrap();
     let accel = Accel::build(&scene);
     let mut stack = accel.new_stack();
