@@ -214,11 +214,19 @@ impl Accel {
         self.max_depth
     }
 
+    /// The box around every triangle, from the wide tree's root (which a render node keeps
+    /// when it frees the binary tree).
     pub fn bounds(&self) -> Bounds {
-        self.nodes.first().map_or(Bounds::EMPTY, |n| Bounds {
-            min: n.min,
-            max: n.max,
-        })
+        let mut bounds = Bounds::EMPTY;
+        if let Some(root) = self.wide.first() {
+            for k in
+                (0..crate::accel_wide::WIDTH).filter(|&k| root.count[k] != crate::accel_wide::EMPTY)
+            {
+                bounds.grow(Vec3::new(root.lo[0][k], root.lo[1][k], root.lo[2][k]));
+                bounds.grow(Vec3::new(root.hi[0][k], root.hi[1][k], root.hi[2][k]));
+            }
+        }
+        bounds
     }
 
     /// A traversal stack deep enough for this tree; reuse it across rays.
@@ -470,6 +478,28 @@ mod tests {
                 "ray {i}"
             );
         }
+    }
+
+    #[test]
+    fn the_bounds_are_the_binary_roots_and_need_only_the_wide_tree() {
+        let scene = knot_scene(64, 8);
+        let mut accel = Accel::build(&scene);
+        let root = accel.nodes[0];
+        assert_eq!(
+            accel.bounds(),
+            Bounds {
+                min: root.min,
+                max: root.max
+            }
+        );
+        accel.nodes = Vec::new();
+        assert_eq!(
+            accel.bounds(),
+            Bounds {
+                min: root.min,
+                max: root.max
+            }
+        );
     }
 
     #[test]

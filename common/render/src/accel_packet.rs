@@ -241,7 +241,8 @@ impl Accel {
         let mut entry = [0f32; PACKET_RAYS];
         // The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
         let mut best_slot = [u32::MAX; PACKET_RAYS];
-        let sheared = if COMMON {
+        // Only closest-hit packets with one origin test leaves lane-wide (`packet_leaf`).
+        let sheared = if COMMON && !ANY {
             ShearedLanes::of(&rays, n)
         } else {
             None
@@ -273,7 +274,7 @@ impl Accel {
                     (i >= first as usize) & (i < n) & (entry[i] != f32::INFINITY)
                 });
                 let many = active.iter().filter(|&&a| a).count() >= WIDE_LEAF_LANES;
-                if let Some(sheared) = sheared.as_ref().filter(|_| !ANY && many) {
+                if let Some(sheared) = sheared.as_ref().filter(|_| many) {
                     let mut redo = [false; PACKET_RAYS];
                     for slot in child..child + count {
                         let tri = &self.triangles[slot as usize];
