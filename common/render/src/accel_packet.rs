@@ -35,6 +35,9 @@ struct Lanes<'a> {
     /// Per-lane origins, for packets without a common one (shadow rays).
     org: &'a [[f32; PACKET_RAYS]; 3],
     inv: [[f32; PACKET_RAYS]; 3],
+    /// `inv` with infinities made finite (see [`accel_wide::finite_inverse`]), for the
+    /// one-lane tests.
+    finite_inv: [[f32; PACKET_RAYS]; 3],
     /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
     /// packet's end or with an empty interval, so they never enter a box.
     t: [f32; PACKET_RAYS],
@@ -43,6 +46,39 @@ struct Lanes<'a> {
 }
 
 impl Lanes<'_> {
+    #[inline(always)]
+    fn origin_of<const COMMON: bool>(&self, i: usize) -> [f32; 3] {
+        if COMMON {
+            self.origin.to_array()
+        } else {
+            [self.org[0][i], self.org[1][i], self.org[2][i]]
+        }
+    }
+
+    #[inline(always)]
+    fn finite_inv_of(&self, i: usize) -> [f32; 3] {
+        [
+            self.finite_inv[0][i],
+            self.finite_inv[1][i],
+            self.finite_inv[2][i],
+        ]
+    }
+
+    /// Whether lane `i` enters the box within its interval.
+    #[inline(always)]
+    fn enters<const COMMON: bool>(&self, i: usize, min: Vec3, max: Vec3) -> bool {
+        let (o, inv) = (self.origin_of::<COMMON>(i), self.finite_inv_of(i));
+        let mut near = self.t_min[i];
+        let mut far = self.t[i];
+        for axis in 0..3 {
+            let t0 = (min[axis] - o[axis]) * inv[axis];
+            let t1 = (max[axis] - o[axis]) * inv[axis];
+            near = near.max(t0.min(t1));
+            far = far.min(t0.max(t1));
+        }
+        near <= far
+    }
+
     /// Entry distance of every lane into the box, +inf where the lane misses it. `COMMON`:
     /// all lanes start at `origin` (the box offsets are then shared).
     #[inline(always)]
@@ -219,16 +255,18 @@ impl Accel {
         let mut blocked = 0u64;
         let origin = packet.origin;
         let frustum = Frustum::of(packet);
-        let rays: [Ray; PACKET_RAYS] = std::array::from_fn(|i| {
-            let i = i.min(n - 1);
-            let o = if COMMON { origin } else { packet.ray_origin(i) };
-            Ray::new(o, packet.direction(i))
-        });
+        // Most packets of a view miss the whole scene (the sky around an object): they stop
+        // here, before any per-lane set-up.
+        let root_culled = frustum.misses_children(&self.wide[0]);
+        if root_culled.iter().all(|&c| c) {
+            return 0;
+        }
         let inv = *packet.inverse_directions();
         let mut lanes = Lanes {
             origin,
             org: &packet.org,
             inv,
+            finite_inv: inv.map(|axis| axis.map(accel_wide::finite)),
             t: std::array::from_fn(|i| {
                 if i < n && packet.t_min[i] <= packet.t_max[i] {
                     packet.t_max[i]
@@ -238,12 +276,14 @@ impl Accel {
             }),
             t_min: packet.t_min,
         };
+        // Rays for the scalar triangle test, made for the lanes that need one.
+        let mut rays = LazyRays::new(n);
         let mut entry = [0f32; PACKET_RAYS];
         // The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
         let mut best_slot = [u32::MAX; PACKET_RAYS];
         // Only closest-hit packets with one origin test leaves lane-wide (`packet_leaf`).
         let sheared = if COMMON && !ANY {
-            ShearedLanes::of(&rays, n)
+            ShearedLanes::of_directions(&packet.dir, n)
         } else {
             None
         };
@@ -251,9 +291,8 @@ impl Accel {
         // the first active one missed an ancestor's box, so they miss every box below it. The
         // child's box and kind are read from its parent, where the 8-wide tree keeps them.
         stack.clear();
-        let culled = frustum.misses_children(&self.wide[0]);
         for k in (0..WIDTH).rev() {
-            if !culled[k] {
+            if !root_culled[k] {
                 stack.extend([0, 0, k as u32]);
             }
         }
@@ -292,7 +331,7 @@ impl Accel {
                             continue;
                         }
                         for i in (0..n).filter(|&i| redo[i]) {
-                            let hit = rays[i].hit_triangle(
+                            let hit = rays.get(i, origin, packet).hit_triangle(
                                 tri.a,
                                 tri.b,
                                 tri.c,
@@ -315,13 +354,14 @@ impl Accel {
                     if entry[i] == f32::INFINITY {
                         continue;
                     }
+                    let ray = rays.get(i, origin, packet);
                     for slot in child..child + count {
                         let tri = &self.triangles[slot as usize];
                         // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
                         // so they agree with the single-ray traversal of the 8-wide tree.
                         let t_max = if ANY { lanes.t[i] } else { packet.t_max[i] };
                         if let Some(t) =
-                            rays[i].hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], t_max)
+                            ray.hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], t_max)
                         {
                             if ANY {
                                 // Done with this ray: it enters no box from now on.
@@ -350,7 +390,7 @@ impl Accel {
             // box test. If it misses, all lanes are tested at once, which is cheaper than
             // trying them one by one when none enters (a frequent case for 8-wide siblings).
             let first = first as usize;
-            let active = if rays[first].box_entry(min, max, lanes.t[first]) < f32::INFINITY {
+            let active = if lanes.enters::<COMMON>(first, min, max) {
                 first
             } else if lanes.enter::<COMMON>(min, max, &mut entry) {
                 match (first + 1..n).find(|&i| entry[i] < f32::INFINITY) {
@@ -365,8 +405,8 @@ impl Accel {
             let node = &self.wide[child as usize];
             let t = accel_wide::enter_wide(
                 node,
-                rays[active].origin.to_array(),
-                accel_wide::finite_inverse(&rays[active]),
+                lanes.origin_of::<COMMON>(active),
+                lanes.finite_inv_of(active),
                 f32::INFINITY,
             );
             let mut order: [usize; WIDTH] = std::array::from_fn(|k| k);
@@ -386,6 +426,47 @@ impl Accel {
             }
         }
         blocked
+    }
+}
+
+/// The packet's rays as [`Ray`]s for the scalar triangle test, each made on first use: most
+/// lanes of a primary packet never need one (their leaves are tested lane-wide), and making
+/// all 64 up front cost an eighth of the traversal.
+struct LazyRays {
+    made: u64,
+    rays: [std::mem::MaybeUninit<Ray>; PACKET_RAYS],
+    len: usize,
+}
+
+impl LazyRays {
+    fn new(len: usize) -> Self {
+        LazyRays {
+            made: 0,
+            rays: [const { std::mem::MaybeUninit::uninit() }; PACKET_RAYS],
+            len,
+        }
+    }
+
+    /// Lane `i`'s ray (from `origin` if the packet has one origin, else its own).
+    #[inline(always)]
+    fn get(&mut self, i: usize, origin: Vec3, packet: &RayPacket) -> &Ray {
+        assert!(
+            i < self.len,
+            "lane {i} is past the packet's {} rays",
+            self.len
+        );
+        if self.made >> i & 1 == 0 {
+            let o = if packet.has(COMMON_ORIGIN) {
+                origin
+            } else {
+                packet.ray_origin(i)
+            };
+            self.rays[i].write(Ray::new(o, packet.direction(i)));
+            self.made |= 1 << i;
+        }
+        // SAFETY: bit i of `made` is set only once `rays[i]` has been written, just above or
+        // by an earlier call.
+        unsafe { self.rays[i].assume_init_ref() }
     }
 }
 
@@ -453,11 +534,27 @@ impl Frustum {
 
 /// Smallest and largest of `values`.
 fn span(values: &[f32]) -> (f32, f32) {
-    values
-        .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
-            (lo.min(v), hi.max(v))
-        })
+    // Sixteen running bounds, lane by lane, then folded: a compare-select per element
+    // vectorizes where a fold through `f32::min` (a NaN-aware reduction) stays scalar.
+    // NaNs are skipped either way.
+    const LANES: usize = 16;
+    let mut lo = [f32::INFINITY; LANES];
+    let mut hi = [f32::NEG_INFINITY; LANES];
+    let mut chunks = values.chunks_exact(LANES);
+    for chunk in &mut chunks {
+        for k in 0..LANES {
+            lo[k] = if chunk[k] < lo[k] { chunk[k] } else { lo[k] };
+            hi[k] = if chunk[k] > hi[k] { chunk[k] } else { hi[k] };
+        }
+    }
+    for (k, &v) in chunks.remainder().iter().enumerate() {
+        lo[k] = if v < lo[k] { v } else { lo[k] };
+        hi[k] = if v > hi[k] { v } else { hi[k] };
+    }
+    (
+        lo.iter().fold(f32::INFINITY, |a, &b| a.min(b)),
+        hi.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)),
+    )
 }
 
 #[cfg(test)]

@@ -138,13 +138,17 @@ pub(crate) fn enter_wide(
 /// made the largest finite value of its sign: then an origin exactly on a slab plane gives
 /// 0 · MAX = 0 where 0 · inf would give NaN, and the box is entered, as it should be.
 pub(crate) fn finite_inverse(ray: &Ray) -> [f32; 3] {
-    ray.inv_dir.to_array().map(|v| {
-        if v.is_infinite() {
-            f32::MAX.copysign(v)
-        } else {
-            v
-        }
-    })
+    ray.inv_dir.to_array().map(finite)
+}
+
+/// An inverse direction component with an infinity made the largest finite value of its sign.
+#[inline(always)]
+pub(crate) fn finite(v: f32) -> f32 {
+    if v.is_infinite() {
+        f32::MAX.copysign(v)
+    } else {
+        v
+    }
 }
 
 /// Visits the leaves whose boxes `ray` enters before `t_far` (nearer children first when

@@ -21,18 +21,39 @@ pub(crate) struct ShearedLanes {
 }
 
 impl ShearedLanes {
-    /// `None` if the first `n` rays do not all share the first one's axis frame.
-    pub(crate) fn of(rays: &[Ray; PACKET_RAYS], n: usize) -> Option<Self> {
-        let (axes, _) = rays[0].shear_frame();
-        if rays[..n].iter().any(|r| r.shear_frame().0 != axes) {
+    /// `None` if the first `n` directions (structure-of-arrays) do not all share the first
+    /// one's axis frame. The frame and the shear constants are those [`Ray::new`] computes,
+    /// with the same operations, so each lane's test is the scalar one; this runs over the
+    /// lanes at once instead of building 64 rays.
+    pub(crate) fn of_directions(dir: &[[f32; PACKET_RAYS]; 3], n: usize) -> Option<Self> {
+        if n == 0 {
             return None;
         }
-        let shear = |c: usize| std::array::from_fn(|i| rays[i].shear_frame().1[c]);
+        let first = Ray::new(Vec3::ZERO, Vec3::new(dir[0][0], dir[1][0], dir[2][0]));
+        let (axes, _) = first.shear_frame();
+        let [kx, ky, kz] = axes;
+        let negative = dir[kz][0] < 0.0;
+        let mut same = true;
+        for i in 0..n {
+            let (x, y, z) = (dir[0][i].abs(), dir[1][i].abs(), dir[2][i].abs());
+            let dominant = if (x >= y) & (x >= z) {
+                0
+            } else if y >= z {
+                1
+            } else {
+                2
+            };
+            same &= (dominant == kz) & ((dir[kz][i] < 0.0) == negative);
+        }
+        if !same {
+            return None;
+        }
+        let (dx, dy, dz) = (&dir[kx], &dir[ky], &dir[kz]);
         Some(ShearedLanes {
             axes,
-            sx: shear(0),
-            sy: shear(1),
-            sz: shear(2),
+            sx: std::array::from_fn(|i| dx[i] / dz[i]),
+            sy: std::array::from_fn(|i| dy[i] / dz[i]),
+            sz: std::array::from_fn(|i| 1.0 / dz[i]),
         })
     }
 
@@ -112,7 +133,16 @@ mod tests {
             let (x, y) = ((i % 8) as f32 / 3.5 - 1.0, (i / 8) as f32 / 3.5 - 1.0);
             Ray::new(origin, Vec3::new(x, y, 0.0) - origin)
         });
-        let lanes = ShearedLanes::of(&rays, PACKET_RAYS).expect("one axis frame");
+        let dir = std::array::from_fn(|axis| std::array::from_fn(|i| rays[i].dir[axis]));
+        let lanes = ShearedLanes::of_directions(&dir, PACKET_RAYS).expect("one axis frame");
+        for (i, ray) in rays.iter().enumerate() {
+            let (_, shear) = ray.shear_frame();
+            assert_eq!(
+                [lanes.sx[i], lanes.sy[i], lanes.sz[i]],
+                shear.to_array(),
+                "lane {i}"
+            );
+        }
         let (t_min, t_max) = ([0.0; PACKET_RAYS], [f32::INFINITY; PACKET_RAYS]);
         let mut best_t = [f32::INFINITY; PACKET_RAYS];
         let mut best_slot = [u32::MAX; PACKET_RAYS];
