@@ -12,6 +12,19 @@ use crate::geometry::Ray;
 use crate::packet::PACKET_RAYS;
 use glam::Vec3;
 
+/// Lanes computed together by [`ShearedLanes::hit`]: one AVX-512 vector, two AVX2 ones.
+pub(crate) const GROUP: usize = 16;
+
+/// Bit `g` set where a lane of group `g` (lanes `g·GROUP ..`) is active.
+#[inline(always)]
+pub(crate) fn active_groups(active: &[bool; PACKET_RAYS]) -> u32 {
+    let mut groups = 0;
+    for (g, lanes) in active.chunks_exact(GROUP).enumerate() {
+        groups |= (lanes.iter().fold(false, |a, &b| a | b) as u32) << g;
+    }
+    groups
+}
+
 /// The per-lane shear constants of a packet whose rays share one axis frame.
 pub(crate) struct ShearedLanes {
     axes: [usize; 3],
@@ -60,7 +73,10 @@ impl ShearedLanes {
     /// Tests `tri` (leaf slot `slot`) for every lane with `active` set, from the common
     /// `origin`, within `(t_min, t_max)`, and keeps it where it is closer than `best_t` /
     /// `best_slot` (ties to the lower slot). Sets `redo` for the lanes the scalar test must do
-    /// instead, and returns whether there are any.
+    /// instead, and returns whether there are any. Only the groups of [`GROUP`] lanes whose
+    /// bit is set in `groups` (see [`active_groups`]) are computed: on a mesh of
+    /// pixel-sized triangles a leaf is entered by a few neighbouring rays, which sit in one
+    /// or two rows of the 8×8 packet.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn hit(
@@ -68,7 +84,7 @@ impl ShearedLanes {
         origin: Vec3,
         tri: &LeafTriangle,
         slot: u32,
-        active: &[bool; PACKET_RAYS],
+        (active, groups): (&[bool; PACKET_RAYS], u32),
         (t_min, t_max): (&[f32; PACKET_RAYS], &[f32; PACKET_RAYS]),
         best_t: &mut [f32; PACKET_RAYS],
         best_slot: &mut [u32; PACKET_RAYS],
@@ -80,34 +96,40 @@ impl ShearedLanes {
         let (b_x, b_y, b_z) = (b[kx], b[ky], b[kz]);
         let (c_x, c_y, c_z) = (c[kx], c[ky], c[kz]);
         let mut any_redo = false;
-        for i in 0..PACKET_RAYS {
-            let (sx, sy, sz) = (self.sx[i], self.sy[i], self.sz[i]);
-            let ax = a_x - sx * a_z;
-            let ay = a_y - sy * a_z;
-            let bx = b_x - sx * b_z;
-            let by = b_y - sy * b_z;
-            let cx = c_x - sx * c_z;
-            let cy = c_y - sy * c_z;
-            let u = cx * by - cy * bx;
-            let v = ax * cy - ay * cx;
-            let w = bx * ay - by * ax;
-            let edge = (u == 0.0) | (v == 0.0) | (w == 0.0);
-            let outside = ((u < 0.0) | (v < 0.0) | (w < 0.0)) & ((u > 0.0) | (v > 0.0) | (w > 0.0));
-            let det = u + v + w;
-            let t = (u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z)) / det;
-            let closer = (t < best_t[i]) | ((t == best_t[i]) & (slot < best_slot[i]));
-            let take = active[i]
-                & !edge
-                & !outside
-                & (det != 0.0)
-                & (t > t_min[i])
-                & (t < t_max[i])
-                & closer;
-            let again = active[i] & edge;
-            redo[i] = again;
-            any_redo |= again;
-            best_t[i] = if take { t } else { best_t[i] };
-            best_slot[i] = if take { slot } else { best_slot[i] };
+        for group in 0..PACKET_RAYS / GROUP {
+            if groups >> group & 1 == 0 {
+                continue;
+            }
+            for i in group * GROUP..(group + 1) * GROUP {
+                let (sx, sy, sz) = (self.sx[i], self.sy[i], self.sz[i]);
+                let ax = a_x - sx * a_z;
+                let ay = a_y - sy * a_z;
+                let bx = b_x - sx * b_z;
+                let by = b_y - sy * b_z;
+                let cx = c_x - sx * c_z;
+                let cy = c_y - sy * c_z;
+                let u = cx * by - cy * bx;
+                let v = ax * cy - ay * cx;
+                let w = bx * ay - by * ax;
+                let edge = (u == 0.0) | (v == 0.0) | (w == 0.0);
+                let outside =
+                    ((u < 0.0) | (v < 0.0) | (w < 0.0)) & ((u > 0.0) | (v > 0.0) | (w > 0.0));
+                let det = u + v + w;
+                let t = (u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z)) / det;
+                let closer = (t < best_t[i]) | ((t == best_t[i]) & (slot < best_slot[i]));
+                let take = active[i]
+                    & !edge
+                    & !outside
+                    & (det != 0.0)
+                    & (t > t_min[i])
+                    & (t < t_max[i])
+                    & closer;
+                let again = active[i] & edge;
+                redo[i] = again;
+                any_redo |= again;
+                best_t[i] = if take { t } else { best_t[i] };
+                best_slot[i] = if take { slot } else { best_slot[i] };
+            }
         }
         any_redo
     }
@@ -152,7 +174,7 @@ mod tests {
             origin,
             &tri,
             7,
-            &active,
+            (&active, active_groups(&active)),
             (&t_min, &t_max),
             &mut best_t,
             &mut best_slot,
