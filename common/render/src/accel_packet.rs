@@ -398,8 +398,10 @@ impl Accel {
             } else {
                 continue;
             };
-            // The children in the order the active ray enters them (all are pushed: other
-            // lanes may enter what it misses), nearest on top.
+            // Every child the frustum keeps is pushed: other lanes may enter what the active
+            // ray misses. Those it misses (or enters beyond its closest hit) go deepest; those
+            // it enters on top, nearest last, in an insertion sort of the few (1-3 typically)
+            // it enters.
             let node = &self.wide[child as usize];
             let t = accel_wide::enter_wide(
                 node,
@@ -407,13 +409,28 @@ impl Accel {
                 lanes.finite_inv_of(active),
                 f32::INFINITY,
             );
-            let mut order: [usize; WIDTH] = std::array::from_fn(|k| k);
-            order.sort_unstable_by(|&a, &b| t[a].total_cmp(&t[b]));
             let culled = frustum.misses_children(node);
-            for &c in order.iter().rev() {
-                if !culled[c] {
-                    stack.extend([active as u32, child, c as u32]);
+            stack.reserve(3 * WIDTH);
+            let mut entered = [0usize; WIDTH];
+            let mut n_entered = 0;
+            for k in 0..WIDTH {
+                if culled[k] {
+                    continue;
                 }
+                if t[k] == f32::INFINITY {
+                    stack.extend([active as u32, child, k as u32]);
+                    continue;
+                }
+                let mut j = n_entered;
+                while j > 0 && t[entered[j - 1]] < t[k] {
+                    entered[j] = entered[j - 1];
+                    j -= 1;
+                }
+                entered[j] = k;
+                n_entered += 1;
+            }
+            for &k in &entered[..n_entered] {
+                stack.extend([active as u32, child, k as u32]);
             }
         }
         if !ANY {
