@@ -289,9 +289,19 @@ fn trace_packet(
         );
         counts = counts.add(c);
     }
-    for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
-        let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
-        out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
+    if w == PACKET {
+        // Lane i is pixel (i % 8, i / 8), so the channels lie in `out`'s order: encoded in
+        // one flat loop that runs several channels at once.
+        let flat: &[f32] = bytemuck::cast_slice(&sum[..]);
+        let n = (w * h * 3) as usize;
+        for (o, &c) in out[..n].iter_mut().zip(&flat[..n]) {
+            *o = shade::encode_channel(c / spp as f32);
+        }
+    } else {
+        for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
+            let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
+            out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
+        }
     }
     (out, counts)
 }

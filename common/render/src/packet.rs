@@ -38,20 +38,24 @@ pub struct RayPacket {
 impl RayPacket {
     /// Primary rays of the `w × h ≤ 8 × 8` pixel block at `(x0, y0)`, row-major.
     pub fn primary(rays: &PixelRays, x0: u32, y0: u32, w: u32, h: u32) -> Self {
-        Self::primary_jittered(rays, x0, y0, w, h, |_, _| (0.5, 0.5))
+        if w != 8 {
+            return Self::primary_jittered(rays, x0, y0, w, h, |_, _| (0.5, 0.5));
+        }
+        let mut p = Self::at_eye(rays, (w * h) as usize);
+        // A full-width block (all but the right edge of a tile): lane i is pixel
+        // (i % 8, i / 8), and the directions come lane-wide, with the operations of
+        // `PixelRays::direction_at` in its order, so the bits are the same.
+        let lanes = p.len;
+        let sx: [f32; PACKET_RAYS] = std::array::from_fn(|i| (x0 + (i % 8) as u32) as f32);
+        let sy: [f32; PACKET_RAYS] = std::array::from_fn(|i| (y0 + (i / 8) as u32) as f32);
+        rays.directions_soa(&sx[..lanes], &sy[..lanes], &mut p.dir);
+        p
     }
 
-    /// Primary rays through the points `jitter(x, y)` of each pixel of the block.
-    pub fn primary_jittered(
-        rays: &PixelRays,
-        x0: u32,
-        y0: u32,
-        w: u32,
-        h: u32,
-        mut jitter: impl FnMut(u32, u32) -> (f32, f32),
-    ) -> Self {
-        let mut p = RayPacket {
-            len: (w * h) as usize,
+    /// A packet of `len` rays from the eye with no directions yet.
+    fn at_eye(rays: &PixelRays, len: usize) -> Self {
+        RayPacket {
+            len,
             flags: COMMON_ORIGIN | NORMALIZED,
             origin: rays.eye,
             org: [
@@ -63,7 +67,19 @@ impl RayPacket {
             inv: [[0.0; PACKET_RAYS]; 3],
             t_min: [0.0; PACKET_RAYS],
             t_max: [f32::INFINITY; PACKET_RAYS],
-        };
+        }
+    }
+
+    /// Primary rays through the points `jitter(x, y)` of each pixel of the block.
+    pub fn primary_jittered(
+        rays: &PixelRays,
+        x0: u32,
+        y0: u32,
+        w: u32,
+        h: u32,
+        mut jitter: impl FnMut(u32, u32) -> (f32, f32),
+    ) -> Self {
+        let mut p = Self::at_eye(rays, (w * h) as usize);
         for i in 0..p.len {
             let (x, y) = (x0 + i as u32 % w, y0 + i as u32 / w);
             let (jx, jy) = jitter(x, y);
@@ -194,6 +210,22 @@ mod tests {
         let inv_x = p.inverse_directions()[0][9];
         assert!(p.has(HAVE_INVERSE));
         assert_eq!(inv_x, 1.0 / rays.direction(9, 17).x);
+    }
+
+    #[test]
+    fn full_width_blocks_get_the_directions_of_single_pixels_bit_for_bit() {
+        let camera = Camera::new(Vec3::new(0.3, 2.0, 7.0), Vec3::ONE, Vec3::Y, 35.0).unwrap();
+        let rays = PixelRays::new(&camera, 1920, 1080);
+        for (x0, y0, h) in [(0, 0, 8), (1912, 1072, 8), (640, 360, 3)] {
+            let p = RayPacket::primary(&rays, x0, y0, 8, h);
+            let slow = RayPacket::primary_jittered(&rays, x0, y0, 8, h, |_, _| (0.5, 0.5));
+            assert_eq!(p.len(), (8 * h) as usize);
+            for i in 0..p.len() {
+                let d = rays.direction(x0 + i as u32 % 8, y0 + i as u32 / 8);
+                assert_eq!(p.direction(i).to_array(), d.to_array(), "lane {i}");
+                assert_eq!(slow.direction(i).to_array(), d.to_array(), "lane {i}");
+            }
+        }
     }
 
     #[test]

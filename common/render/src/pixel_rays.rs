@@ -63,6 +63,25 @@ impl PixelRays {
         let sy = 1.0 - (y as f32 + jy) * self.inv_height;
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
+
+    /// [`PixelRays::direction_at`] through the centres of the pixels `(px[i], py[i])` (given
+    /// as floats), written to `dir[axis][i]`: the same operations in the same order, lane by
+    /// lane, so the compiler can run them several lanes at once.
+    #[inline(always)]
+    pub(crate) fn directions_soa(&self, px: &[f32], py: &[f32], dir: &mut [[f32; 64]; 3]) {
+        let n = px.len().min(py.len()).min(64);
+        for i in 0..n {
+            let sx = (px[i] + 0.5) * self.inv_width - 1.0;
+            let sy = 1.0 - (py[i] + 0.5) * self.inv_height;
+            let x = self.forward.x + self.right.x * sx + self.up.x * sy;
+            let y = self.forward.y + self.right.y * sx + self.up.y * sy;
+            let z = self.forward.z + self.right.z * sx + self.up.z * sy;
+            let recip = 1.0 / (x * x + y * y + z * z).sqrt();
+            dir[0][i] = x * recip;
+            dir[1][i] = y * recip;
+            dir[2][i] = z * recip;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -395,11 +395,19 @@ pub fn background(dir: Vec3) -> Vec3 {
 /// Linear to 8-bit with a gamma of 2 (a square root is exact in IEEE arithmetic, so it is the
 /// same on every CPU, unlike `powf`). Non-finite values come out black, never as garbage.
 pub fn encode_srgb_ish(color: Vec3) -> [u8; 3] {
-    color.to_array().map(|c| {
-        if c.is_finite() {
-            (c.clamp(0.0, 1.0).sqrt() * 255.0 + 0.5) as u8
-        } else {
-            0
-        }
-    })
+    color.to_array().map(encode_channel)
+}
+
+/// One channel of [`encode_srgb_ish`], written without branches so that loops over many
+/// channels vectorize.
+#[inline(always)]
+pub fn encode_channel(c: f32) -> u8 {
+    // `clamp` passes a NaN through, and `as u8` turns it into 0: the non-finite case for
+    // NaN; an infinity is caught by the select.
+    let encoded = (c.clamp(0.0, 1.0).sqrt() * 255.0 + 0.5) as u8;
+    if c.is_finite() {
+        encoded
+    } else {
+        0
+    }
 }
