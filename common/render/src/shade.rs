@@ -254,11 +254,16 @@ impl Shader<'_> {
             Some(p) => (p.point, p.normal, p.start),
             None => {
                 let (point, normal) = hit_frame(self.scene, origin, dir, hit);
-                (
-                    point,
-                    normal,
-                    offset_origin(point, normal, self.scene.diagonal),
-                )
+                // Where shadow, AO and reflected rays leave; a hit that sends none (an
+                // eyelight view) skips the offset, a tenth of its shading.
+                let params = &self.view.params;
+                let sends = params.shadows() || params.ao_samples() > 0 || material.is_mirror();
+                let start = if sends {
+                    offset_origin(point, normal, self.scene.diagonal)
+                } else {
+                    point
+                };
+                (point, normal, start)
             }
         };
         let mut color = self.local(
