@@ -278,6 +278,7 @@ impl Accel {
         let mut t_far = t_max;
         crate::accel_wide::traverse_wide::<true>(
             &self.wide,
+            crate::accel_packet::leaf_bytes(&self.triangles),
             ray,
             stack,
             &mut t_far,
@@ -332,6 +333,7 @@ impl Accel {
         let mut blocked = false;
         crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION>(
             &self.wide,
+            crate::accel_packet::leaf_bytes(&self.triangles),
             ray,
             stack,
             &mut t_far,
