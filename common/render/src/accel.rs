@@ -283,14 +283,10 @@ impl Accel {
             stack,
             &mut t_far,
             |slots, t_far| {
-                for slot in slots {
-                    let tri = &self.triangles[slot as usize];
-                    if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max) {
-                        if Hit::closer(t, slot, best) {
-                            *t_far = t;
-                            best = Some(Hit { t, slot });
-                        }
-                    }
+                let tris = &self.triangles[slots.start as usize..slots.end as usize];
+                best = crate::ray_leaf::closest_hit(ray, tris, slots.start, (t_min, t_max), best);
+                if let Some(b) = best {
+                    *t_far = b.t;
                 }
                 false
             },
@@ -338,11 +334,8 @@ impl Accel {
             stack,
             &mut t_far,
             |slots, _| {
-                blocked = slots.into_iter().any(|slot| {
-                    let tri = &self.triangles[slot as usize];
-                    ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
-                        .is_some()
-                });
+                let tris = &self.triangles[slots.start as usize..slots.end as usize];
+                blocked = crate::ray_leaf::any_hit(ray, tris, t_min, t_max);
                 blocked
             },
         );

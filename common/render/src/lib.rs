@@ -27,6 +27,7 @@ pub mod isa;
 pub mod packet;
 mod packet_leaf;
 mod pixel_rays;
+mod ray_leaf;
 mod reference;
 pub mod sampling;
 pub mod scene;
