@@ -4,6 +4,7 @@
 //! `accel_wide`, 8×8 packets in `accel_packet`. The binary tree is what obvhs builds and what the
 //! cache stores; a render node frees it once the 8-wide one is made.
 
+use crate::accel_wide::{WideNode, WIDTH};
 use crate::geometry::{Bounds, Ray};
 use crate::isa::Isa;
 use crate::scene::Scene;
@@ -261,7 +262,10 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> Option<Hit> {
-        self.closest_hit_generic(ray, t_min, t_max, stack)
+        self.closest_hit_with(ray, t_min, t_max, stack, |node, origin, inv, t_far| {
+            // SAFETY: this function runs only where the CPU has AVX2.
+            unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
+        })
     }
 
     /// The portable build of [`Accel::closest_hit`], also what the SIMD builds are tested
@@ -274,11 +278,25 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> Option<Hit> {
+        self.closest_hit_with(ray, t_min, t_max, stack, crate::accel_wide::enter_mask)
+    }
+
+    /// [`Accel::closest_hit`] with `enter` testing the ray against a wide node's children.
+    #[inline(always)]
+    fn closest_hit_with(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+        enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+    ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_far = t_max;
         crate::accel_wide::traverse_wide::<true>(
             &self.wide,
             crate::accel_packet::leaf_bytes(&self.triangles),
+            enter,
             ray,
             stack,
             &mut t_far,
@@ -313,7 +331,10 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> bool {
-        self.occluded_generic(ray, t_min, t_max, stack)
+        self.occluded_with(ray, t_min, t_max, stack, |node, origin, inv, t_far| {
+            // SAFETY: this function runs only where the CPU has AVX2.
+            unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
+        })
     }
 
     /// The portable build of [`Accel::occluded`].
@@ -325,11 +346,25 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> bool {
+        self.occluded_with(ray, t_min, t_max, stack, crate::accel_wide::enter_mask)
+    }
+
+    /// [`Accel::occluded`] with `enter` testing the ray against a wide node's children.
+    #[inline(always)]
+    fn occluded_with(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+        enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+    ) -> bool {
         let mut t_far = t_max;
         let mut blocked = false;
         crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION>(
             &self.wide,
             crate::accel_packet::leaf_bytes(&self.triangles),
+            enter,
             ray,
             stack,
             &mut t_far,
