@@ -28,9 +28,7 @@ struct Lanes<'a> {
     origin: Vec3,
     /// Per-lane origins, for packets without a common one (shadow rays).
     org: &'a [[f32; PACKET_RAYS]; 3],
-    inv: [[f32; PACKET_RAYS]; 3],
-    /// `inv` with infinities made finite (see [`accel_wide::finite_inverse`]), for the
-    /// one-lane tests.
+    /// Inverse directions with infinities made finite (see [`accel_wide::finite_inverse`]).
     finite_inv: [[f32; PACKET_RAYS]; 3],
     /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
     /// packet's end or with an empty interval, so they never enter a box.
@@ -67,8 +65,8 @@ impl Lanes<'_> {
         for axis in 0..3 {
             let t0 = (min[axis] - o[axis]) * inv[axis];
             let t1 = (max[axis] - o[axis]) * inv[axis];
-            near = near.max(t0.min(t1));
-            far = far.min(t0.max(t1));
+            near = fmax(near, fmin(t0, t1));
+            far = fmin(far, fmax(t0, t1));
         }
         near <= far
     }
@@ -92,15 +90,24 @@ impl Lanes<'_> {
                 let o = Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i]);
                 (min - o, max - o)
             };
-            let (x0, x1) = (lo.x * self.inv[0][i], hi.x * self.inv[0][i]);
-            let (y0, y1) = (lo.y * self.inv[1][i], hi.y * self.inv[1][i]);
-            let (z0, z1) = (lo.z * self.inv[2][i], hi.z * self.inv[2][i]);
-            let near = x0
-                .min(x1)
-                .max(y0.min(y1))
-                .max(z0.min(z1))
-                .max(self.t_min[i]);
-            let far = x0.max(x1).min(y0.max(y1)).min(z0.max(z1)).min(self.t[i]);
+            // Finite inverses keep NaN out (see `accel_wide::enter_mask`), so compare-selects
+            // stand in for `f32::min`/`max`, whose NaN handling costs three instructions each.
+            let inv = [
+                self.finite_inv[0][i],
+                self.finite_inv[1][i],
+                self.finite_inv[2][i],
+            ];
+            let (x0, x1) = (lo.x * inv[0], hi.x * inv[0]);
+            let (y0, y1) = (lo.y * inv[1], hi.y * inv[1]);
+            let (z0, z1) = (lo.z * inv[2], hi.z * inv[2]);
+            let near = fmax(
+                fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmin(z0, z1)),
+                self.t_min[i],
+            );
+            let far = fmin(
+                fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmax(z0, z1)),
+                self.t[i],
+            );
             let hit = near <= far;
             out[i] = if hit { near } else { f32::INFINITY };
             any |= hit;
@@ -259,7 +266,6 @@ impl Accel {
         let mut lanes = Lanes {
             origin,
             org: &packet.org,
-            inv,
             finite_inv: inv.map(|axis| axis.map(accel_wide::finite)),
             t: std::array::from_fn(|i| {
                 if i < n && packet.t_min[i] <= packet.t_max[i] {
@@ -554,16 +560,38 @@ impl Frustum {
             } else {
                 (&node.hi[axis], &node.lo[axis])
             };
+            // No NaN here (finite origins and inverse bounds, box corners finite or, in empty
+            // slots, infinite), so compare-selects do what `f32::min`/`max` would.
             for k in 0..WIDTH {
                 let (e0, e1) = (enter[k] - o_hi, enter[k] - o_lo);
                 let (x0, x1) = (exit[k] - o_hi, exit[k] - o_lo);
-                let entered = (e0 * lo).min(e0 * hi).min(e1 * lo).min(e1 * hi);
-                let exited = (x0 * lo).max(x0 * hi).max(x1 * lo).max(x1 * hi);
-                near[k] = near[k].max(entered);
-                far[k] = far[k].min(exited);
+                let entered = fmin(fmin(fmin(e0 * lo, e0 * hi), e1 * lo), e1 * hi);
+                let exited = fmax(fmax(fmax(x0 * lo, x0 * hi), x1 * lo), x1 * hi);
+                near[k] = fmax(near[k], entered);
+                far[k] = fmin(far[k], exited);
             }
         }
         std::array::from_fn(|k| empty[k] | (near[k] > far[k]))
+    }
+}
+
+/// The smaller of two floats that are not NaN, as one instruction.
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The larger of two floats that are not NaN, as one instruction.
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
     }
 }
 
