@@ -288,6 +288,10 @@ pub(crate) fn traverse_wide<const ORDERED: bool>(
     }
     let origin = ray.origin.to_array();
     let inv = finite_inverse(ray);
+    if !ORDERED {
+        traverse_unordered(nodes, leaves, enter, (origin, inv), stack, t_far, visit);
+        return;
+    }
     // Entries are (child, count) pairs: count 0 is an inner node.
     stack.extend([0, 0]);
     while let (Some(count), Some(child)) = (stack.pop(), stack.pop()) {
@@ -299,17 +303,6 @@ pub(crate) fn traverse_wide<const ORDERED: bool>(
         }
         let node = &nodes[child as usize];
         let (t, mut entered) = enter(node, origin, inv, *t_far);
-        if !ORDERED {
-            // Any hit ends the ray, so the order buys little and costs a sort per node (AO
-            // rays a few per cent faster without it on the bunny).
-            while entered != 0 {
-                let k = entered.trailing_zeros() as usize;
-                entered &= entered - 1;
-                prefetch_child(nodes, leaves, node, k);
-                stack.extend([node.child[k], node.count[k]]);
-            }
-            continue;
-        }
         // The entered children, nearest first (an insertion sort of at most WIDTH).
         let mut order = [0usize; WIDTH];
         let mut n = 0;
@@ -327,6 +320,50 @@ pub(crate) fn traverse_wide<const ORDERED: bool>(
         for &k in order[..n].iter().rev() {
             prefetch_child(nodes, leaves, node, k);
             stack.extend([node.child[k], node.count[k]]);
+        }
+    }
+}
+
+/// [`traverse_wide`] for rays that any hit ends: children in no order (the order buys little
+/// when the first hit stops the ray, and costs a sort per node: AO rays a few per cent faster
+/// without it on the bunny). One entered child is descended into at once instead of going
+/// through the stack.
+#[inline(always)]
+fn traverse_unordered(
+    nodes: &[WideNode],
+    leaves: (*const u8, usize),
+    enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+    (origin, inv): ([f32; 3], [f32; 3]),
+    stack: &mut Vec<u32>,
+    t_far: &mut f32,
+    mut visit: impl FnMut(std::ops::Range<u32>, &mut f32) -> bool,
+) {
+    // (child, count): count 0 is an inner node.
+    let (mut child, mut count) = (0u32, 0u32);
+    loop {
+        if count > 0 {
+            if visit(child..child + count, t_far) {
+                return;
+            }
+        } else {
+            let node = &nodes[child as usize];
+            let (_, mut entered) = enter(node, origin, inv, *t_far);
+            if entered != 0 {
+                let next = (u32::BITS - 1 - entered.leading_zeros()) as usize;
+                entered &= !(1 << next);
+                while entered != 0 {
+                    let k = entered.trailing_zeros() as usize;
+                    entered &= entered - 1;
+                    prefetch_child(nodes, leaves, node, k);
+                    stack.extend([node.child[k], node.count[k]]);
+                }
+                (child, count) = (node.child[next], node.count[next]);
+                continue;
+            }
+        }
+        match (stack.pop(), stack.pop()) {
+            (Some(c), Some(ch)) => (child, count) = (ch, c),
+            _ => return,
         }
     }
 }
