@@ -8,7 +8,7 @@
 use crate::accel::Hit;
 use crate::geometry::Ray;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
-use crate::sampling::{cosine_direction, SampleStream};
+use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::Light;
 use crate::{offset_origin, surface, FrameView, PreparedScene, PACKET};
 use glam::Vec3;
@@ -181,9 +181,10 @@ pub fn time_passes(
         .map_init(
             || scene.accel.new_stack(),
             |stack, (i, &(o, n))| {
+                let hemisphere = Hemisphere::around(n);
                 for s in 0..ao_samples {
                     let mut stream = SampleStream::new(view.frame, i as u32, 0, s);
-                    let d = cosine_direction(n, &mut stream);
+                    let d = hemisphere.cosine_direction(&mut stream);
                     std::hint::black_box(scene.accel.occluded(&Ray::new(o, d), 0.0, reach, stack));
                 }
                 ao_samples as u64

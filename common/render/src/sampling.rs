@@ -34,6 +34,39 @@ impl SampleStream {
 /// Cosine-weighted direction around unit `normal` (Malley: a uniform point on the unit disk,
 /// lifted to the hemisphere). The disk point comes from bounded rejection sampling.
 pub fn cosine_direction(normal: Vec3, stream: &mut SampleStream) -> Vec3 {
+    Hemisphere::around(normal).cosine_direction(stream)
+}
+
+/// The frame of the hemisphere around a normal, made once for all the directions drawn
+/// around it (an ambient-occlusion pixel draws dozens).
+#[derive(Clone, Copy, Debug)]
+pub struct Hemisphere {
+    normal: Vec3,
+    tangent: Vec3,
+    bitangent: Vec3,
+}
+
+impl Hemisphere {
+    /// The hemisphere around unit `normal`.
+    pub fn around(normal: Vec3) -> Self {
+        let (tangent, bitangent) = orthonormal_basis(normal);
+        Hemisphere {
+            normal,
+            tangent,
+            bitangent,
+        }
+    }
+
+    /// [`cosine_direction`] around this hemisphere's normal: the same bits.
+    pub fn cosine_direction(&self, stream: &mut SampleStream) -> Vec3 {
+        let (dx, dy, dz) = disk_lift(stream);
+        self.tangent * dx + self.bitangent * dy + self.normal * dz
+    }
+}
+
+/// A cosine-distributed point of the unit hemisphere in its own frame.
+#[inline(always)]
+fn disk_lift(stream: &mut SampleStream) -> (f32, f32, f32) {
     let (mut dx, mut dy) = (0.0f32, 0.0f32);
     for _ in 0..32 {
         let x = 2.0 * stream.next_f32() - 1.0;
@@ -44,8 +77,7 @@ pub fn cosine_direction(normal: Vec3, stream: &mut SampleStream) -> Vec3 {
         }
     }
     let dz = (1.0 - dx * dx - dy * dy).max(0.0).sqrt();
-    let (t, b) = orthonormal_basis(normal);
-    t * dx + b * dy + normal * dz
+    (dx, dy, dz)
 }
 
 /// Two unit vectors completing `n` to an orthonormal basis (Duff et al. 2017, branch-free).

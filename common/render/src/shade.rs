@@ -10,7 +10,7 @@
 use crate::accel::Hit;
 use crate::geometry::{triangle_normal, Ray};
 use crate::packet::PacketHit;
-use crate::sampling::{cosine_direction, SampleStream};
+use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::{Light, Material};
 use crate::shadow_packet::PrimaryHit;
 use crate::spheres::colormap;
@@ -354,10 +354,11 @@ impl Shader<'_> {
         let n = self.view.params.ao_samples();
         let reach = self.scene.diagonal * self.view.params.ao_range();
         let mut open = 0;
+        let hemisphere = Hemisphere::around(normal);
         for sample in 0..n {
             let key = self.first_ao_key + sample;
             let mut stream = SampleStream::new(self.view.frame, self.pixel.0, self.pixel.1, key);
-            let d = cosine_direction(normal, &mut stream);
+            let d = hemisphere.cosine_direction(&mut stream);
             if !self.blocked(&Ray::new(start, d), reach) {
                 open += 1;
             }
