@@ -510,6 +510,34 @@ mod tests {
         }
     }
 
+    /// Render nodes with different core counts must build the same tree: the leaf order
+    /// breaks ties between equally near hits, so another tree could mean other pixels.
+    #[test]
+    fn the_build_is_the_same_on_any_number_of_threads() {
+        let scene = knot_scene(400, 48);
+        let build = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| Accel::build(&scene))
+        };
+        let one = build(1);
+        for threads in [2, 3, 7] {
+            let many = build(threads);
+            assert_eq!(
+                bytemuck::cast_slice::<_, u8>(&many.wide),
+                bytemuck::cast_slice::<_, u8>(&one.wide),
+                "{threads} threads"
+            );
+            assert_eq!(
+                bytemuck::cast_slice::<_, u8>(&many.triangles),
+                bytemuck::cast_slice::<_, u8>(&one.triangles),
+                "{threads} threads"
+            );
+        }
+    }
+
     #[test]
     fn the_bounds_are_the_binary_roots_and_need_only_the_wide_tree() {
         let scene = knot_scene(64, 8);

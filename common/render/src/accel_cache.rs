@@ -13,8 +13,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 const MAGIC: [u8; 4] = *b"TBVH";
-/// Bumped whenever the node layout, the build or the file layout changes (2: payload hash).
-const FORMAT: u32 = 2;
+/// Bumped whenever the node layout, the build or the file layout changes (2: payload hash;
+/// 3: obvhs' parallel build, which makes another tree than its serial one).
+const FORMAT: u32 = 3;
 /// Magic, format, three counts, then the payload's hash.
 const HEADER: usize = 4 + 4 + 8 * 3 + 32;
 
