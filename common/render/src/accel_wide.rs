@@ -66,21 +66,25 @@ pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
     stack.push((0, 0));
     while let Some((index, at)) = stack.pop() {
         let node = &nodes[index as usize];
-        let mut children: Vec<u32> = vec![node.first, node.first + 1];
-        while children.len() < WIDTH {
-            let widest = children
+        // The children so far, in a fixed array (no allocation per wide node).
+        let mut children = [0u32; WIDTH];
+        (children[0], children[1]) = (node.first, node.first + 1);
+        let mut len = 2;
+        while len < WIDTH {
+            let widest = children[..len]
                 .iter()
                 .enumerate()
                 .filter(|(_, &c)| nodes[c as usize].count == 0)
                 .max_by(|a, b| area(&nodes[*a.1 as usize]).total_cmp(&area(&nodes[*b.1 as usize])))
                 .map(|(k, _)| k);
             let Some(k) = widest else { break };
-            let open = children.remove(k);
-            let first = nodes[open as usize].first;
-            children.insert(k, first + 1);
-            children.insert(k, first);
+            // Child k opens into its two children, in its place.
+            let first = nodes[children[k] as usize].first;
+            children.copy_within(k + 1..len, k + 2);
+            (children[k], children[k + 1]) = (first, first + 1);
+            len += 1;
         }
-        for (k, &c) in children.iter().enumerate() {
+        for (k, &c) in children[..len].iter().enumerate() {
             let child = &nodes[c as usize];
             if child.count > 0 {
                 set_child(&mut out[at], k, child, child.first);
