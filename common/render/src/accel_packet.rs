@@ -2,12 +2,17 @@
 //!
 //! For packets with a common origin (primary rays), every child is first tested against the
 //! packet's frustum (interval arithmetic over its directions), which drops whole subtrees with
-//! one test; inner nodes then test single rays from the first active one until one enters
-//! (Wald's "first hit" traversal), which orders the four children; leaves test all 64 lanes'
-//! boxes at once in structure-of-arrays form, and then the triangles against the lanes that
-//! enter, all of them at once (`packet_leaf`) for packets with one origin. Closest-hit packets without a common origin fall back to single
-//! rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a frustum
-//! built from the box of their origins and stop each ray at its first hit.
+//! one test; a packet whose frustum misses the root's children stops before any per-lane
+//! set-up. Inner nodes then test single rays from the first active one until one enters
+//! (Wald's "first hit" traversal), which orders the eight children; leaves test all 64 lanes'
+//! boxes at once in structure-of-arrays form, and then each triangle against the lanes that
+//! enter, 16 lanes at a time (`packet_leaf`), for packets with one origin. Children are
+//! prefetched as they are pushed. Closest-hit packets without a common origin fall back to
+//! single rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a
+//! frustum built from the box of their origins and stop each ray at its first hit.
+//!
+//! Box tests run on inverse directions made finite (`accel_wide::finite_inverse`), so no slab
+//! distance is a NaN and plain compare-selects stand in for `f32::min`/`max`.
 //!
 //! The SIMD width is chosen at run time (`isa`): an AVX-512 or AVX2 build of the same code runs
 //! where the CPU has it, the baseline SSE2 build elsewhere. All give bit-identical results,

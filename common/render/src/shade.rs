@@ -22,6 +22,7 @@ use tessera_wire::cut::CutPlanes;
 pub const MAX_DEPTH: u32 = 6;
 
 /// Surface point and the normal facing the viewer for a hit.
+#[inline]
 pub fn surface(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: Hit) -> (Vec3, Vec3) {
     let tri = &scene.accel.triangles[hit.slot as usize];
     let mut normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
@@ -150,6 +151,7 @@ pub struct Shader<'a> {
 }
 
 /// Surface point and the normal facing the viewer, for a triangle or particle hit.
+#[inline]
 pub fn hit_frame(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: SurfaceHit) -> (Vec3, Vec3) {
     match hit {
         SurfaceHit::Triangle(h) => surface(scene, origin, dir, h),
@@ -393,6 +395,7 @@ fn phong_lobe(cos: f32, shininess: f32) -> f32 {
     cos.powi(shininess.round().clamp(1.0, 10_000.0) as i32)
 }
 
+#[inline]
 pub fn background(dir: Vec3) -> Vec3 {
     let t = 0.5 + 0.5 * dir.y;
     Vec3::new(0.05, 0.06, 0.09).lerp(Vec3::new(0.32, 0.42, 0.62), t)
