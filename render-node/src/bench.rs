@@ -148,7 +148,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     frames.print(
         "TESSERA_PRIMARY_MRAYPS",
         |p| p.primary,
-        "8x8 packets, closest hit only: traversal and intersection, no shading",
+        "8x8 packets: ray generation, traversal and intersection, closest hit only, no shading",
     );
     frames.print_shaded();
     frames.print(
