@@ -4,7 +4,7 @@
 //! `accel_wide`, 8×8 packets in `accel_packet`. The binary tree is what obvhs builds and what the
 //! cache stores; a render node frees it once the 8-wide one is made.
 
-use crate::accel_wide::{WideNode, WIDTH};
+use crate::accel_wide::NodeTest;
 use crate::geometry::{Bounds, Ray};
 use crate::isa::Isa;
 use crate::scene::Scene;
@@ -289,7 +289,7 @@ impl Accel {
         t_min: f32,
         t_max: f32,
         stack: &mut Vec<u32>,
-        enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+        enter: impl NodeTest,
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_far = t_max;
@@ -357,7 +357,7 @@ impl Accel {
         t_min: f32,
         t_max: f32,
         stack: &mut Vec<u32>,
-        enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+        enter: impl NodeTest,
     ) -> bool {
         let mut t_far = t_max;
         let mut blocked = false;

@@ -129,6 +129,17 @@ pub(crate) fn enter_wide(
     })
 }
 
+/// A test of one ray against a wide node's children: (node, origin, finite inverse
+/// direction, `t_far`) to the children's entry distances and, as bits, which of them it
+/// enters ([`enter_mask`], or its AVX2 build [`enter_mask_avx2`]). Traversals take it as a
+/// parameter so that one traversal serves every SIMD build.
+pub(crate) trait NodeTest:
+    Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32)
+{
+}
+
+impl<F: Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32)> NodeTest for F {}
+
 /// The children's entry distances, and as bits (child k is bit k) which of them the ray
 /// enters before `t_far`. `inv` must be finite (see [`finite_inverse`]): then no slab
 /// distance is a NaN (box corners are finite or, in empty slots, infinite, and `inv` is
@@ -280,7 +291,7 @@ fn prefetch(start: *const u8, bytes: usize) {
 pub(crate) fn traverse_wide<const ORDERED: bool>(
     nodes: &[WideNode],
     leaves: (*const u8, usize),
-    enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+    enter: impl NodeTest,
     ray: &Ray,
     stack: &mut Vec<u32>,
     t_far: &mut f32,
@@ -336,7 +347,7 @@ pub(crate) fn traverse_wide<const ORDERED: bool>(
 fn traverse_unordered(
     nodes: &[WideNode],
     leaves: (*const u8, usize),
-    enter: impl Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32),
+    enter: impl NodeTest,
     (origin, inv): ([f32; 3], [f32; 3]),
     stack: &mut Vec<u32>,
     t_far: &mut f32,
