@@ -34,6 +34,7 @@ pub mod scene;
 mod shade;
 mod shadow_packet;
 pub mod spheres;
+pub mod volume;
 
 #[cfg(test)]
 mod render_tests;

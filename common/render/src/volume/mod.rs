@@ -1,0 +1,315 @@
+//! Volumes of scalar samples on a regular grid, placed in the world by an affine map: the data
+//! model that volume rendering and direct iso-surfaces (issue 11) start from, and its file
+//! loaders. This first step loads; nothing renders a volume yet.
+//!
+//! Samples are kept as f32 whatever the file's voxel type (u8, i16, u16, f32), in x-fastest
+//! order, with the file's own values (no rescaling). A file is read whole and checked before a
+//! [`Volume`] exists: a bad header names the field, data cut short says how many bytes were
+//! expected, and nothing half-loaded is ever returned.
+//!
+//! ```
+//! use tessera_render::volume::{Volume, VoxelType};
+//! let v = Volume::new([2, 1, 1], [0.5, 1.0, 1.0], [0.0; 3], VoxelType::U8, vec![0.0, 255.0])?;
+//! assert_eq!(v.world_of_index([1.0, 0.0, 0.0]), [0.5, 0.0, 0.0]);
+//! assert_eq!(v.range(), (0.0, 255.0));
+//! # Ok::<(), tessera_render::volume::VolumeError>(())
+//! ```
+
+mod nrrd;
+mod raw;
+
+use std::path::Path;
+
+/// The voxel type a file stores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VoxelType {
+    U8,
+    I16,
+    U16,
+    F32,
+}
+
+impl VoxelType {
+    pub fn bytes(self) -> usize {
+        match self {
+            VoxelType::U8 => 1,
+            VoxelType::I16 | VoxelType::U16 => 2,
+            VoxelType::F32 => 4,
+        }
+    }
+
+    /// Decodes `bytes` (a whole number of voxels) in the given byte order.
+    fn decode(self, bytes: &[u8], little_endian: bool) -> Vec<f32> {
+        let n = self.bytes();
+        bytes
+            .chunks_exact(n)
+            .map(|b| match (self, little_endian) {
+                (VoxelType::U8, _) => b[0] as f32,
+                (VoxelType::I16, true) => i16::from_le_bytes([b[0], b[1]]) as f32,
+                (VoxelType::I16, false) => i16::from_be_bytes([b[0], b[1]]) as f32,
+                (VoxelType::U16, true) => u16::from_le_bytes([b[0], b[1]]) as f32,
+                (VoxelType::U16, false) => u16::from_be_bytes([b[0], b[1]]) as f32,
+                (VoxelType::F32, true) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                (VoxelType::F32, false) => f32::from_be_bytes([b[0], b[1], b[2], b[3]]),
+            })
+            .collect()
+    }
+}
+
+/// Why a volume could not be loaded: each variant names the file, and the field where one is
+/// at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum VolumeError {
+    #[error("volume {path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("volume {path}: field `{field}`: {message}")]
+    Field {
+        path: String,
+        field: String,
+        message: String,
+    },
+    #[error("volume {path}: {expected} bytes of voxel data expected, {found} found")]
+    Truncated {
+        path: String,
+        expected: usize,
+        found: usize,
+    },
+    #[error("volume {path}: unsupported extension (expected .nrrd, .nhdr or .vol.toml)")]
+    UnknownFormat { path: String },
+}
+
+impl VolumeError {
+    fn field(path: &Path, field: &str, message: impl Into<String>) -> Self {
+        VolumeError::Field {
+            path: path.display().to_string(),
+            field: field.to_string(),
+            message: message.into(),
+        }
+    }
+
+    fn io(path: &Path, source: std::io::Error) -> Self {
+        VolumeError::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    }
+}
+
+/// A grid of `dims` samples placed in the world by an affine map (f64): voxel `(i, j, k)` sits
+/// at `origin + i·axes[0] + j·axes[1] + k·axes[2]`; values in x-fastest order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Volume {
+    dims: [usize; 3],
+    /// World step of one voxel along each index axis (the columns of the affine map).
+    axes: [[f64; 3]; 3],
+    origin: [f64; 3],
+    voxel_type: VoxelType,
+    values: Vec<f32>,
+    range: (f32, f32),
+}
+
+impl Volume {
+    /// # Errors
+    /// A dimension of 0, a spacing that is not finite and positive, an origin that is not
+    /// finite, a value count other than the product of `dims`, or a non-finite value.
+    pub fn new(
+        dims: [usize; 3],
+        spacing: [f64; 3],
+        origin: [f64; 3],
+        voxel_type: VoxelType,
+        values: Vec<f32>,
+    ) -> Result<Self, VolumeError> {
+        if !spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
+            return Err(VolumeError::field(
+                Path::new("(memory)"),
+                "spacing",
+                "must be finite and positive",
+            ));
+        }
+        let axes = axis_aligned(spacing);
+        Self::checked(
+            Path::new("(memory)"),
+            dims,
+            axes,
+            origin,
+            voxel_type,
+            values,
+        )
+    }
+
+    /// Checks everything and makes the volume; `path` is only for the errors.
+    fn checked(
+        path: &Path,
+        dims: [usize; 3],
+        axes: [[f64; 3]; 3],
+        origin: [f64; 3],
+        voxel_type: VoxelType,
+        values: Vec<f32>,
+    ) -> Result<Self, VolumeError> {
+        if dims.contains(&0) {
+            return Err(VolumeError::field(
+                path,
+                "sizes",
+                "every dimension must be at least 1",
+            ));
+        }
+        let [a, b, c] = axes;
+        let cross = [
+            b[1] * c[2] - b[2] * c[1],
+            b[2] * c[0] - b[0] * c[2],
+            b[0] * c[1] - b[1] * c[0],
+        ];
+        let volume = a[0] * cross[0] + a[1] * cross[1] + a[2] * cross[2];
+        if !(axes.iter().flatten().all(|v| v.is_finite()) && volume.abs() > 0.0) {
+            return Err(VolumeError::field(
+                path,
+                "spacing",
+                "the voxel axes must be finite and span 3-D space",
+            ));
+        }
+        if !origin.iter().all(|o| o.is_finite()) {
+            return Err(VolumeError::field(path, "origin", "must be finite"));
+        }
+        let count = voxel_count(path, dims)?;
+        if values.len() != count {
+            return Err(VolumeError::Truncated {
+                path: path.display().to_string(),
+                expected: count * voxel_type.bytes(),
+                found: values.len() * voxel_type.bytes(),
+            });
+        }
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(VolumeError::field(
+                path,
+                "data",
+                format!("voxel {i} is {} (not finite)", values[i]),
+            ));
+        }
+        let range = values
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        Ok(Volume {
+            dims,
+            axes,
+            origin,
+            voxel_type,
+            values,
+            range,
+        })
+    }
+
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// Distance between neighbouring voxels along each index axis.
+    pub fn spacing(&self) -> [f64; 3] {
+        self.axes
+            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+    }
+
+    /// World step of one voxel along each index axis.
+    pub fn axes(&self) -> [[f64; 3]; 3] {
+        self.axes
+    }
+
+    pub fn origin(&self) -> [f64; 3] {
+        self.origin
+    }
+
+    pub fn voxel_type(&self) -> VoxelType {
+        self.voxel_type
+    }
+
+    /// Smallest and largest sample.
+    pub fn range(&self) -> (f32, f32) {
+        self.range
+    }
+
+    /// The sample at grid index `(x, y, z)`.
+    ///
+    /// # Panics
+    /// Outside the grid.
+    pub fn at(&self, [x, y, z]: [usize; 3]) -> f32 {
+        assert!(x < self.dims[0] && y < self.dims[1] && z < self.dims[2]);
+        self.values[(z * self.dims[1] + y) * self.dims[0] + x]
+    }
+
+    /// World position of a (fractional) grid index.
+    pub fn world_of_index(&self, index: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|w| {
+            self.origin[w]
+                + index[0] * self.axes[0][w]
+                + index[1] * self.axes[1][w]
+                + index[2] * self.axes[2][w]
+        })
+    }
+}
+
+/// The axes of a grid aligned with the world's, `spacing` apart.
+fn axis_aligned(spacing: [f64; 3]) -> [[f64; 3]; 3] {
+    std::array::from_fn(|a| std::array::from_fn(|w| if w == a { spacing[a] } else { 0.0 }))
+}
+
+/// The product of `dims`, or an error naming `sizes` if it overflows.
+fn voxel_count(path: &Path, dims: [usize; 3]) -> Result<usize, VolumeError> {
+    dims.iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .ok_or_else(|| VolumeError::field(path, "sizes", "the voxel count overflows"))
+}
+
+/// Whether `path` names a volume this module loads (by extension, as meshes are chosen).
+pub fn is_volume_path(path: &Path) -> bool {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    let lower = name.to_ascii_lowercase();
+    lower.ends_with(".nrrd") || lower.ends_with(".nhdr") || lower.ends_with(".vol.toml")
+}
+
+/// Loads the volume at `path`, choosing the reader by extension: `.nrrd` / `.nhdr` (NRRD,
+/// raw or gzip encoding, data attached or in a detached file) and `.vol.toml` (raw voxels
+/// described by a small TOML sidecar, see `raw`).
+///
+/// # Errors
+/// An unknown extension, an unreadable file, a bad header field (named), or data cut short.
+pub fn load(path: &Path) -> Result<Volume, VolumeError> {
+    let lower = path.to_string_lossy().to_ascii_lowercase();
+    if lower.ends_with(".nrrd") || lower.ends_with(".nhdr") {
+        nrrd::load(path)
+    } else if lower.ends_with(".vol.toml") {
+        raw::load(path)
+    } else {
+        Err(VolumeError::UnknownFormat {
+            path: path.display().to_string(),
+        })
+    }
+}
+
+/// Reads exactly the voxels of `dims` × `voxel_type` from the start of `bytes`; more bytes
+/// than that is an error too (a wrong size or type in the header, most likely).
+fn decode_exact(
+    path: &Path,
+    bytes: &[u8],
+    dims: [usize; 3],
+    voxel_type: VoxelType,
+    little_endian: bool,
+) -> Result<Vec<f32>, VolumeError> {
+    let expected = voxel_count(path, dims)?
+        .checked_mul(voxel_type.bytes())
+        .ok_or_else(|| VolumeError::field(path, "sizes", "the byte count overflows"))?;
+    if bytes.len() != expected {
+        return Err(VolumeError::Truncated {
+            path: path.display().to_string(),
+            expected,
+            found: bytes.len(),
+        });
+    }
+    Ok(voxel_type.decode(bytes, little_endian))
+}
+
+#[cfg(test)]
+mod tests;
