@@ -122,22 +122,9 @@ impl Volume {
         voxel_type: VoxelType,
         values: Vec<f32>,
     ) -> Result<Self, VolumeError> {
-        if !spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
-            return Err(VolumeError::field(
-                Path::new("(memory)"),
-                "spacing",
-                "must be finite and positive",
-            ));
-        }
-        let axes = axis_aligned(spacing);
-        Self::checked(
-            Path::new("(memory)"),
-            dims,
-            axes,
-            origin,
-            voxel_type,
-            values,
-        )
+        let memory = Path::new("(memory)");
+        let axes = axis_aligned(memory, "spacing", spacing)?;
+        Self::checked(memory, dims, axes, origin, voxel_type, values)
     }
 
     /// Checks everything and makes the volume; `path` is only for the errors.
@@ -251,9 +238,32 @@ impl Volume {
     }
 }
 
-/// The axes of a grid aligned with the world's, `spacing` apart.
-fn axis_aligned(spacing: [f64; 3]) -> [[f64; 3]; 3] {
-    std::array::from_fn(|a| std::array::from_fn(|w| if w == a { spacing[a] } else { 0.0 }))
+/// The axes of a grid aligned with the world's, `spacing` apart; `field` names the spacing in
+/// the error if it is not finite and positive.
+fn axis_aligned(path: &Path, field: &str, spacing: [f64; 3]) -> Result<[[f64; 3]; 3], VolumeError> {
+    if !spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
+        return Err(VolumeError::field(
+            path,
+            field,
+            "must be finite and positive",
+        ));
+    }
+    Ok(std::array::from_fn(|a| {
+        std::array::from_fn(|w| if w == a { spacing[a] } else { 0.0 })
+    }))
+}
+
+/// Whether an `endian` field (absent: little) says little-endian.
+fn little_endian(path: &Path, value: Option<&str>) -> Result<bool, VolumeError> {
+    match value.map(str::trim) {
+        None | Some("little") => Ok(true),
+        Some("big") => Ok(false),
+        Some(other) => Err(VolumeError::field(
+            path,
+            "endian",
+            format!("{other:?} (little or big)"),
+        )),
+    }
 }
 
 /// The product of `dims`, or an error naming `sizes` if it overflows.

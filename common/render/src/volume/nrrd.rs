@@ -4,7 +4,7 @@
 //! placed by `space directions` and `space origin` (any three independent axes), or by
 //! `spacings`.
 
-use super::{axis_aligned, decode_exact, Volume, VolumeError, VoxelType};
+use super::{axis_aligned, decode_exact, little_endian, Volume, VolumeError, VoxelType};
 use std::collections::HashMap;
 use std::io::Read;
 use std::path::Path;
@@ -28,17 +28,7 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
     let dims: [usize; 3] = sizes
         .try_into()
         .map_err(|_| VolumeError::field(path, "sizes", "must list 3 sizes"))?;
-    let little_endian = match get("endian").map(str::trim) {
-        None | Some("little") => true,
-        Some("big") => false,
-        Some(other) => {
-            return Err(VolumeError::field(
-                path,
-                "endian",
-                format!("{other:?} (little or big)"),
-            ))
-        }
-    };
+    let little_endian = little_endian(path, get("endian"))?;
     let (axes, origin) = placement(path, &fields)?;
 
     let encoded = match get("data file").or(get("datafile")) {
@@ -169,14 +159,7 @@ fn placement(
             .map_err(|_| VolumeError::field(path, "spacings", "must list 3 spacings"))?,
         None => [1.0; 3],
     };
-    if !spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
-        return Err(VolumeError::field(
-            path,
-            "spacings",
-            "must be finite and positive",
-        ));
-    }
-    Ok((axis_aligned(spacing), origin))
+    Ok((axis_aligned(path, "spacings", spacing)?, origin))
 }
 
 /// A vector written `(x,y,z)`.

@@ -10,7 +10,7 @@
 //! endian = "little"        # or "big" (default little)
 //! ```
 
-use super::{axis_aligned, decode_exact, Volume, VolumeError, VoxelType};
+use super::{axis_aligned, decode_exact, little_endian, Volume, VolumeError, VoxelType};
 use serde::Deserialize;
 use std::path::Path;
 
@@ -51,32 +51,15 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
             ))
         }
     };
-    let little_endian = match sidecar.endian.as_deref() {
-        None | Some("little") => true,
-        Some("big") => false,
-        Some(other) => {
-            return Err(VolumeError::field(
-                path,
-                "endian",
-                format!("{other:?} (little or big)"),
-            ))
-        }
-    };
+    let little_endian = little_endian(path, sidecar.endian.as_deref())?;
     let data_path = path.parent().unwrap_or(Path::new(".")).join(&sidecar.data);
     let bytes = std::fs::read(&data_path).map_err(|e| VolumeError::io(&data_path, e))?;
     let values = decode_exact(&data_path, &bytes, sidecar.dims, voxel_type, little_endian)?;
-    let spacing = sidecar.spacing.unwrap_or([1.0; 3]);
-    if !spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
-        return Err(VolumeError::field(
-            path,
-            "spacing",
-            "must be finite and positive",
-        ));
-    }
+    let axes = axis_aligned(path, "spacing", sidecar.spacing.unwrap_or([1.0; 3]))?;
     Volume::checked(
         path,
         sidecar.dims,
-        axis_aligned(spacing),
+        axes,
         sidecar.origin.unwrap_or([0.0; 3]),
         voxel_type,
         values,
