@@ -295,7 +295,7 @@ impl Accel {
         let mut t_far = t_max;
         crate::accel_wide::traverse_wide::<true>(
             &self.wide,
-            crate::accel_packet::leaf_bytes(&self.triangles),
+            crate::accel_wide::leaf_bytes(&self.triangles),
             enter,
             ray,
             stack,
@@ -363,7 +363,7 @@ impl Accel {
         let mut blocked = false;
         crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION>(
             &self.wide,
-            crate::accel_packet::leaf_bytes(&self.triangles),
+            crate::accel_wide::leaf_bytes(&self.triangles),
             enter,
             ray,
             stack,

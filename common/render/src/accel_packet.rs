@@ -457,21 +457,13 @@ impl Accel {
     }
 }
 
-/// The leaf triangles as the prefetcher sees them: where they start and how big one is.
-pub(crate) fn leaf_bytes(triangles: &[crate::accel::LeafTriangle]) -> (*const u8, usize) {
-    (
-        triangles.as_ptr() as *const u8,
-        std::mem::size_of::<crate::accel::LeafTriangle>(),
-    )
-}
-
 impl Accel {
     /// Asks the CPU to start loading what child `k` of `node` points to (its 8-wide node, or
     /// its leaf's first triangles) while the nearer siblings are traversed: on a mesh of
     /// millions of triangles these loads miss every cache, and they dominated the traversal.
     #[inline(always)]
     fn prefetch_child(&self, node: &accel_wide::WideNode, k: usize) {
-        accel_wide::prefetch_child(&self.wide, leaf_bytes(&self.triangles), node, k);
+        accel_wide::prefetch_child(&self.wide, accel_wide::leaf_bytes(&self.triangles), node, k);
     }
 }
 

@@ -260,6 +260,14 @@ pub(crate) fn prefetch_child(
     prefetch(start, bytes.min(PREFETCH_BYTES));
 }
 
+/// The leaf triangles as the prefetcher sees them: where they start and how big one is.
+pub(crate) fn leaf_bytes(triangles: &[crate::accel::LeafTriangle]) -> (*const u8, usize) {
+    (
+        triangles.as_ptr() as *const u8,
+        std::mem::size_of::<crate::accel::LeafTriangle>(),
+    )
+}
+
 /// At most this much of a child is prefetched: a node's boxes, or a leaf's first seven
 /// triangles (prefetching whole 16-triangle leaves was no faster).
 const PREFETCH_BYTES: usize = 256;

@@ -4,7 +4,7 @@
 //! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
 //! on whichever node renders it and the single-process reference equals the wall.
 
-use crate::accel::{Accel, Hit};
+use crate::accel::Accel;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::pixel_rays::PixelRays;
 use crate::sampling::SampleStream;
@@ -323,11 +323,7 @@ fn shade_packet(
     let surfaces: [Option<SurfaceHit>; 64] = if scene.spheres.is_none() {
         // Triangles only: the packet's hits are the surfaces (a seventh of an eyelight
         // frame went into asking each ray about particles there are none of).
-        std::array::from_fn(|i| {
-            hits[i]
-                .slot()
-                .map(|slot| SurfaceHit::Triangle(Hit { t: hits[i].t, slot }))
-        })
+        std::array::from_fn(|i| SurfaceHit::of_triangle(hits[i]))
     } else {
         std::array::from_fn(|i| {
             (i < packet.len()).then(|| {

@@ -67,6 +67,13 @@ pub enum SurfaceHit {
 }
 
 impl SurfaceHit {
+    /// The surface a packet's triangle hit is, if it hit one.
+    #[inline]
+    pub fn of_triangle(hit: PacketHit) -> Option<SurfaceHit> {
+        hit.slot()
+            .map(|slot| SurfaceHit::Triangle(Hit { t: hit.t, slot }))
+    }
+
     pub fn t(&self) -> f32 {
         match *self {
             SurfaceHit::Triangle(h) => h.t,
@@ -114,12 +121,7 @@ pub fn nearest_surface(
     triangle: PacketHit,
     stack: &mut Vec<u32>,
 ) -> Option<SurfaceHit> {
-    let mut nearest = triangle.slot().map(|slot| {
-        SurfaceHit::Triangle(Hit {
-            t: triangle.t,
-            slot,
-        })
-    });
+    let mut nearest = SurfaceHit::of_triangle(triangle);
     if let Some(spheres) = &scene.spheres {
         let t_max = triangle.t.min(interval.1);
         if let Some((t, slot)) = spheres.closest_hit(

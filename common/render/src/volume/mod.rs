@@ -273,11 +273,29 @@ fn voxel_count(path: &Path, dims: [usize; 3]) -> Result<usize, VolumeError> {
         .ok_or_else(|| VolumeError::field(path, "sizes", "the voxel count overflows"))
 }
 
-/// Whether `path` names a volume this module loads (by extension, as meshes are chosen).
-pub fn is_volume_path(path: &Path) -> bool {
+/// The volume formats, as chosen by a file's name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Format {
+    Nrrd,
+    RawWithSidecar,
+}
+
+/// The format `path`'s name says, if it names a volume this module loads.
+fn format_of(path: &Path) -> Option<Format> {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
     let lower = name.to_ascii_lowercase();
-    lower.ends_with(".nrrd") || lower.ends_with(".nhdr") || lower.ends_with(".vol.toml")
+    if lower.ends_with(".nrrd") || lower.ends_with(".nhdr") {
+        Some(Format::Nrrd)
+    } else if lower.ends_with(".vol.toml") {
+        Some(Format::RawWithSidecar)
+    } else {
+        None
+    }
+}
+
+/// Whether `path` names a volume this module loads (by extension, as meshes are chosen).
+pub fn is_volume_path(path: &Path) -> bool {
+    format_of(path).is_some()
 }
 
 /// Loads the volume at `path`, choosing the reader by extension: `.nrrd` / `.nhdr` (NRRD,
@@ -287,15 +305,12 @@ pub fn is_volume_path(path: &Path) -> bool {
 /// # Errors
 /// An unknown extension, an unreadable file, a bad header field (named), or data cut short.
 pub fn load(path: &Path) -> Result<Volume, VolumeError> {
-    let lower = path.to_string_lossy().to_ascii_lowercase();
-    if lower.ends_with(".nrrd") || lower.ends_with(".nhdr") {
-        nrrd::load(path)
-    } else if lower.ends_with(".vol.toml") {
-        raw::load(path)
-    } else {
-        Err(VolumeError::UnknownFormat {
+    match format_of(path) {
+        Some(Format::Nrrd) => nrrd::load(path),
+        Some(Format::RawWithSidecar) => raw::load(path),
+        None => Err(VolumeError::UnknownFormat {
             path: path.display().to_string(),
-        })
+        }),
     }
 }
 
