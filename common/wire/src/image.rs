@@ -61,18 +61,27 @@ impl RgbImage {
         out
     }
 
+    /// Writes the image as PNG. It is written beside `path` and renamed into place, so whoever
+    /// waits for the file (a script, a test, a viewer) never reads half of it.
     pub fn save_png(&self, path: &Path) -> Result<(), ImageError> {
-        image::save_buffer(
-            path,
+        let error = |source| ImageError::Write {
+            path: path.display().to_string(),
+            source,
+        };
+        let name = path
+            .file_name()
+            .map_or_else(|| "image".into(), |n| n.to_string_lossy().into_owned());
+        let partial = path.with_file_name(format!(".{name}.partial"));
+        image::save_buffer_with_format(
+            &partial,
             &self.rgb,
             self.width,
             self.height,
             image::ColorType::Rgb8,
+            image::ImageFormat::Png,
         )
-        .map_err(|source| ImageError::Write {
-            path: path.display().to_string(),
-            source,
-        })
+        .map_err(error)?;
+        std::fs::rename(&partial, path).map_err(|e| error(image::ImageError::IoError(e)))
     }
 
     pub fn load_png(path: &Path) -> Result<RgbImage, ImageError> {
