@@ -8,6 +8,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
+use tessera_cli::transfer_file::transfer_function;
 use tessera_cli::{parse_plane, parse_range, parse_vec3};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::MasterLink;
@@ -16,7 +17,8 @@ use tessera_wire::control::{ControlReply, ControlRequest, ViewName};
 use tessera_wire::cut::CutPlanes;
 use tessera_wire::light::{Light, Lights};
 use tessera_wire::protocol::{FromNode, Role, ToNode};
-use tessera_wire::state::StateChange;
+use tessera_wire::state::{StateChange, WallState};
+use tessera_wire::volume_params::IsoValues;
 
 #[derive(clap::Args, Debug)]
 pub struct ControlArgs {
@@ -83,6 +85,20 @@ pub enum Command {
         point: Vec<Light>,
         #[arg(long, conflicts_with_all = ["directional", "point"])]
         scene: bool,
+    },
+    /// How volumes are drawn; what is not given stays as it is. --iso replaces the iso-values
+    /// (repeat for up to 4), --no-iso goes back to the transfer function.
+    Volume {
+        #[arg(long = "iso", value_name = "VALUE", allow_hyphen_values = true)]
+        iso: Vec<f32>,
+        #[arg(long, conflicts_with = "iso")]
+        no_iso: bool,
+        /// Ray-marching step in world units (0: half the smallest voxel spacing).
+        #[arg(long)]
+        step: Option<f32>,
+        /// A transfer-function preset (ramp, ct-bone, ct-skin) or TOML file.
+        #[arg(long)]
+        transfer: Option<String>,
     },
     /// Print the wall's state (now and after the next barrier) as JSON.
     State,
@@ -278,6 +294,25 @@ impl ControlClient {
                 };
                 ControlRequest::Change(vec![StateChange::Lights(set)])
             }
+            Command::Volume {
+                iso,
+                no_iso,
+                step,
+                transfer,
+            } => {
+                let mut volume = *self.state_and_frame().await?.0.params.volume();
+                if !iso.is_empty() || *no_iso {
+                    volume.iso = IsoValues::new(iso).context("--iso")?;
+                }
+                if let Some(step) = step {
+                    volume.step = *step;
+                }
+                if let Some(name) = transfer {
+                    volume.transfer = transfer_function(name).context("--transfer")?;
+                }
+                volume.check().context("volume")?;
+                ControlRequest::Change(vec![StateChange::Volume(volume)])
+            }
             Command::State => ControlRequest::State,
             Command::Figures => ControlRequest::Figures,
             Command::SaveView { name } => ControlRequest::SaveView(ViewName::new(name)?),
@@ -288,6 +323,14 @@ impl ControlClient {
             Command::Script { .. } => bail!("a script cannot run a script"),
         };
         self.ask(request).await
+    }
+
+    /// The wall's state after the next barrier, and the frame it is at.
+    async fn state_and_frame(&mut self) -> Result<(WallState, u64)> {
+        let ControlReply::State { next, frame, .. } = self.ask(ControlRequest::State).await? else {
+            bail!("the master answered a state request with something else");
+        };
+        Ok((next, frame))
     }
 
     async fn camera(
@@ -304,9 +347,7 @@ impl ControlClient {
                 .context("the wall started with a fixed camera: there is no orbit to go back to");
         }
         // What is not given is kept from the camera on the wall now.
-        let ControlReply::State { next, frame, .. } = self.ask(ControlRequest::State).await? else {
-            bail!("the master answered a state request with something else");
-        };
+        let (next, frame) = self.state_and_frame().await?;
         let now = next.camera.camera_for_frame(frame);
         let camera = Camera::new(
             eye.unwrap_or(now.eye()),

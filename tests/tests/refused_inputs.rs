@@ -180,6 +180,7 @@ struct RawParams {
     cuts: Vec<[f32; 4]>,
     spp: u32,
     first_sample: u32,
+    volume: tessera_wire::volume_params::VolumeParams,
 }
 
 impl RawParams {
@@ -193,11 +194,13 @@ impl RawParams {
             cuts: Vec::new(),
             spp: i.spp,
             first_sample: i.first_sample,
+            volume: i.volume,
         }
     }
 }
 
 /// ToNode's variants up to FrameStart, in wire order, with a FrameStart of raw parameters.
+#[allow(clippy::large_enum_variant)]
 #[derive(Serialize)]
 enum RawToNode {
     _Welcome,

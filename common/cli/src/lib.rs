@@ -7,6 +7,7 @@
 //! without compiling the renderer.
 
 pub mod logging;
+pub mod transfer_file;
 
 use clap::Args;
 use glam::{DVec3, Vec3};
@@ -17,6 +18,7 @@ use tessera_wire::local_frame::RenderFromWorld;
 use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
 use tessera_wire::protocol::pixels::Compression;
 use tessera_wire::scene_spec::{SceneSpec, SceneSpecError};
+use tessera_wire::volume_params::{IsoValues, VolumeParams};
 use tessera_wire::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
 use tessera_wire::window::WallFile;
 
@@ -38,6 +40,8 @@ pub enum ArgError {
     Params(#[from] ParamsError),
     #[error("--eye and --target go together")]
     EyeWithoutTarget,
+    #[error("--transfer")]
+    Transfer(#[from] transfer_file::TransferFileError),
 }
 
 /// The wall: either `--wall-file` or the `--wall/--screen/--bezel` shorthand.
@@ -90,7 +94,8 @@ impl WallArgs {
 pub struct SceneArgs {
     /// `builtin` (a procedural knot over a floor), `gallery` (the knot among a mirror and
     /// glass), `empty` (a flat backdrop, nothing traced), `knot:SEGMENTS:SIDES`, a mesh path
-    /// (OBJ, PLY, glTF/GLB) or particles (.csv, .tpart).
+    /// (OBJ, PLY, glTF/GLB), particles (.csv, .tpart) or a volume (.nrrd, .nhdr, .nii,
+    /// .nii.gz, .vol.toml; see --iso and --transfer).
     #[arg(long, default_value = "builtin")]
     pub scene: String,
     /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.
@@ -208,6 +213,18 @@ pub struct QualityArgs {
     /// (antialiasing), each with its own ambient-occlusion rays.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=MAX_SPP as i64))]
     pub spp: u32,
+    /// Volumes: draw the direct iso-surface at this value, in the data's own units (e.g.
+    /// Hounsfield units for CT) instead of the transfer function. Repeat for up to 4 surfaces.
+    #[arg(long = "iso", value_name = "VALUE", allow_hyphen_values = true)]
+    pub iso: Vec<f32>,
+    /// Volumes: ray-marching step in world units (those of the voxel spacing); 0 picks half the
+    /// smallest spacing. Opacity is corrected for the step, so the look stays the same.
+    #[arg(long, default_value_t = 0.0)]
+    pub volume_step: f32,
+    /// Volumes: the transfer function, a preset (ramp, ct-bone, ct-skin) or a TOML file of
+    /// points (see deploy/volumes/README.md).
+    #[arg(long, default_value = "ramp")]
+    pub transfer: String,
 }
 
 impl QualityArgs {
@@ -227,6 +244,12 @@ impl QualityArgs {
             crop: self.crop,
             cuts: CutPlanes::new(&cuts)?,
             spp: self.spp,
+            volume: VolumeParams {
+                step: self.volume_step,
+                iso: IsoValues::new(&self.iso).map_err(ParamsError::from)?,
+                transfer: transfer_file::transfer_function(&self.transfer)?,
+                ..VolumeParams::DEFAULT
+            },
             ..RenderParamsSpec::INTERACTIVE
         }
         .build()?)

@@ -12,6 +12,7 @@ use crate::scene::{Light, Material, Scene};
 use crate::shade::{self, background, encode_srgb_ish, nearest_surface, Shader, SurfaceHit};
 use crate::shadow_packet;
 use crate::spheres::SphereAccel;
+use crate::volume::PreparedVolume;
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -39,6 +40,8 @@ pub struct PreparedScene {
     pub spheres: Option<SphereAccel>,
     /// Attribute values mapped to the two ends of the colour map.
     pub(crate) attribute_range: (f32, f32),
+    /// The scene's volume, bricked, if it has one.
+    pub volume: Option<PreparedVolume>,
 }
 
 impl PreparedScene {
@@ -68,10 +71,13 @@ impl PreparedScene {
             lights: scene.lights.clone(),
             spheres: SphereAccel::build(&scene.particles),
             attribute_range: range,
+            volume: scene
+                .volume
+                .as_ref()
+                .map(|v| PreparedVolume::new(v, &scene.render_from_world)),
         }
     }
 
-    /// No triangles and no particles: every pixel is the backdrop.
     /// Frees what only building, caching and AOVs read, for a render node: the binary tree
     /// (packets and single rays both walk its 8-wide collapse) and the map from leaf slots to
     /// scene triangles (only AOVs' primitive index needs it). 16 bytes a triangle on the 4.2M
@@ -86,8 +92,9 @@ impl PreparedScene {
         std::mem::size_of_val(&self.slot_material[..])
     }
 
+    /// No triangles, particles or volume: every pixel is the backdrop.
     pub fn is_empty(&self) -> bool {
-        self.accel.triangles.is_empty() && self.spheres.is_none()
+        self.accel.triangles.is_empty() && self.spheres.is_none() && self.volume.is_none()
     }
 
     pub fn lights(&self) -> &[Light] {
@@ -320,7 +327,7 @@ fn shade_packet(
     packet.clip(view.params.cuts());
     let mut hits = [PacketHit::MISS; 64];
     scene.accel.closest_hits(packet, &mut hits, stack);
-    let surfaces: [Option<SurfaceHit>; 64] = if scene.spheres.is_none() {
+    let surfaces: [Option<SurfaceHit>; 64] = if scene.spheres.is_none() && scene.volume.is_none() {
         // Triangles only: the packet's hits are the surfaces (a seventh of an eyelight
         // frame went into asking each ray about particles there are none of).
         std::array::from_fn(|i| SurfaceHit::of_triangle(hits[i]))
@@ -362,21 +369,30 @@ fn shade_packet(
     // together, the material looked up once per run: ranges of the packet, not copies.
     let keys: [Option<u16>; 64] =
         std::array::from_fn(|i| surfaces[i].map(|s| s.material_key(scene)));
+    let volume_tables = shade::volume_tables(scene, view);
     for (key, run) in runs_by(&keys[..packet.len()]) {
+        // Particles and iso-surfaces have keys past the scene's materials.
         let material = key
-            .filter(|&k| k != shade::PARTICLE_KEY)
+            .filter(|&k| (k as usize) < scene.materials.len())
             .map(|k| scene.materials[k as usize]);
         for i in run {
             let dir = packet.direction(i);
-            sum[i] += match surfaces[i] {
+            let color = match surfaces[i] {
                 None => background(dir),
                 Some(hit) => {
-                    // Particles share one key but each has its own colour.
                     let m = material.unwrap_or_else(|| scene.material_of(hit));
                     shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
                     shader.primary = shadows.and_then(|s| s[i]);
                     shader.shade(view.rays.eye, dir, hit, &m, 0)
                 }
+            };
+            sum[i] += match &volume_tables {
+                Some(tables) => {
+                    let t_end = surfaces[i].map_or(packet.t_max[i], |h| h.t());
+                    let interval = (packet.t_min[i], t_end);
+                    shade::through_volume(scene, tables, (view.rays.eye, dir), interval, color)
+                }
+                None => color,
             };
         }
     }

@@ -14,8 +14,10 @@ use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::{Light, Material};
 use crate::shadow_packet::PrimaryHit;
 use crate::spheres::colormap;
+use crate::volume::FrameTables;
 use crate::{FrameView, PreparedScene, RayCounts};
 use glam::Vec3;
+use std::sync::Arc;
 use tessera_wire::cut::CutPlanes;
 
 /// Bounces of reflection and transmission (together) after the primary hit.
@@ -58,12 +60,31 @@ pub fn offset_origin(point: Vec3, normal: Vec3, scene_diagonal: f32) -> Vec3 {
 
 /// The shading key of particles: no scene has this many materials (loaders stop at 65535).
 pub const PARTICLE_KEY: u16 = u16::MAX;
+/// The shading key of a volume's first iso-surface; the others count down from it.
+pub const ISO_KEY: u16 = u16::MAX - 1;
+
+/// The colours of iso-surfaces, by their place in the list of iso-values: bone, skin, and two
+/// that tell further surfaces apart.
+const ISO_ALBEDO: [Vec3; 4] = [
+    Vec3::new(0.9, 0.86, 0.78),
+    Vec3::new(0.85, 0.55, 0.45),
+    Vec3::new(0.35, 0.55, 0.9),
+    Vec3::new(0.45, 0.8, 0.45),
+];
 
 /// What a ray hit first.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SurfaceHit {
     Triangle(Hit),
-    Sphere { t: f32, slot: u32 },
+    Sphere {
+        t: f32,
+        slot: u32,
+    },
+    /// A volume's direct iso-surface: `surface` indexes the frame's iso-values.
+    Iso {
+        t: f32,
+        surface: u8,
+    },
 }
 
 impl SurfaceHit {
@@ -77,7 +98,7 @@ impl SurfaceHit {
     pub fn t(&self) -> f32 {
         match *self {
             SurfaceHit::Triangle(h) => h.t,
-            SurfaceHit::Sphere { t, .. } => t,
+            SurfaceHit::Sphere { t, .. } | SurfaceHit::Iso { t, .. } => t,
         }
     }
 
@@ -97,6 +118,11 @@ impl SurfaceHit {
                 scene.accel.triangles.len() as u64
                     + scene.spheres().scene_index[slot as usize] as u64
             }
+            // After the triangles and particles, one index per iso-value.
+            SurfaceHit::Iso { surface, .. } => {
+                let spheres = scene.spheres.as_ref().map_or(0, |s| s.spheres.len());
+                (scene.accel.triangles.len() + spheres) as u64 + surface as u64
+            }
         }
     }
 
@@ -106,6 +132,7 @@ impl SurfaceHit {
         match *self {
             SurfaceHit::Triangle(h) => scene.slot_material[h.slot as usize],
             SurfaceHit::Sphere { .. } => PARTICLE_KEY,
+            SurfaceHit::Iso { surface, .. } => ISO_KEY - surface as u16,
         }
     }
 }
@@ -132,6 +159,13 @@ pub fn nearest_surface(
             stack,
         ) {
             nearest = Some(SurfaceHit::Sphere { t, slot });
+        }
+    }
+    if let Some(volume) = &scene.volume {
+        let t_max = nearest.map_or(interval.1, |h| h.t().min(interval.1));
+        let iso = view.params.volume().iso.as_slice();
+        if let Some((t, surface)) = volume.iso_hit(iso, origin, dir, (interval.0, t_max)) {
+            nearest = Some(SurfaceHit::Iso { t, surface });
         }
     }
     nearest
@@ -166,7 +200,73 @@ pub fn hit_frame(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: SurfaceHit
             }
             (p, n)
         }
+        SurfaceHit::Iso { t, .. } => {
+            let p = origin + dir * t;
+            let volume = scene.volume.as_ref().expect("an iso hit implies a volume");
+            let mut n = volume.normal_at(p, -dir);
+            if n.dot(dir) > 0.0 {
+                n = -n;
+            }
+            (p, n)
+        }
     }
+}
+
+/// Where rays leaving `hit` at `point` start. An iso-surface is found again from the volume's
+/// index space, whose rounding is larger than a few ULPs of the render coordinates: its rays
+/// start a thousandth of a voxel off the surface.
+pub fn leaving_point(scene: &PreparedScene, hit: SurfaceHit, point: Vec3, normal: Vec3) -> Vec3 {
+    let start = offset_origin(point, normal, scene.diagonal);
+    match (hit, &scene.volume) {
+        (SurfaceHit::Iso { .. }, Some(volume)) => {
+            let off = point + normal * (volume.reference_step() * 1e-3);
+            if (off - point).length_squared() > (start - point).length_squared() {
+                off
+            } else {
+                start
+            }
+        }
+        _ => start,
+    }
+}
+
+/// The frame's transfer-function tables, if the scene's volume is drawn through one (it has a
+/// volume, and the frame no iso-values).
+pub fn volume_tables(scene: &PreparedScene, view: &FrameView) -> Option<Arc<FrameTables>> {
+    let params = view.params.volume();
+    let volume = scene.volume.as_ref()?;
+    params.iso.is_empty().then(|| volume.tables(params))
+}
+
+/// `behind` (the colour at the ray's end, `interval.1`) seen through the volume in front of it.
+#[inline]
+pub fn through_volume(
+    scene: &PreparedScene,
+    tables: &FrameTables,
+    (origin, dir): (Vec3, Vec3),
+    interval: (f32, f32),
+    behind: Vec3,
+) -> Vec3 {
+    let Some(volume) = &scene.volume else {
+        return behind;
+    };
+    let [r, g, b, a] = volume.composite(tables, origin, dir, interval);
+    Vec3::new(r, g, b) + behind * (1.0 - a)
+}
+
+/// Whether a volume's iso-surface blocks `ray` within `interval` (never, in a frame without
+/// iso-values).
+pub fn iso_occludes(
+    scene: &PreparedScene,
+    view: &FrameView,
+    ray: &Ray,
+    interval: (f32, f32),
+) -> bool {
+    let iso = view.params.volume().iso.as_slice();
+    scene
+        .volume
+        .as_ref()
+        .is_some_and(|v| !iso.is_empty() && v.iso_hit(iso, ray.origin, ray.dir, interval).is_some())
 }
 
 /// Direction towards `light` from `point`, how far the light is, and its intensity there.
@@ -207,19 +307,33 @@ impl Shader<'_> {
             .accel
             .closest_hit(&ray, interval.0, interval.1, self.stack)
             .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
-        match nearest_surface(
+        let nearest = nearest_surface(
             self.scene,
             self.view,
             (origin, dir),
             interval,
             triangle,
             self.stack,
-        ) {
+        );
+        let color = match nearest {
             None => background(dir),
             Some(hit) => {
                 let material = self.scene.material_of(hit);
                 self.shade(origin, dir, hit, &material, depth)
             }
+        };
+        match volume_tables(self.scene, self.view) {
+            Some(tables) => {
+                let t_hit = nearest.map_or(interval.1, |h| h.t());
+                through_volume(
+                    self.scene,
+                    &tables,
+                    (origin, dir),
+                    (interval.0, t_hit),
+                    color,
+                )
+            }
+            None => color,
         }
     }
 
@@ -237,6 +351,7 @@ impl Shader<'_> {
                 .spheres
                 .as_ref()
                 .is_some_and(|s| s.occluded(ray, t_min, t_max, self.view.params.crop(), self.stack))
+            || iso_occludes(scene, self.view, ray, (t_min, t_max))
     }
 
     /// Colour of `hit` seen from `origin` along `dir`, `material` being its material (a
@@ -263,7 +378,7 @@ impl Shader<'_> {
                 let params = &self.view.params;
                 let sends = params.shadows() || params.ao_samples() > 0 || material.is_mirror();
                 let start = if sends {
-                    offset_origin(point, normal, self.scene.diagonal)
+                    leaving_point(self.scene, hit, point, normal)
                 } else {
                     point
                 };
@@ -385,6 +500,9 @@ impl PreparedScene {
                     0.5
                 };
                 Material::lambert(colormap(x))
+            }
+            SurfaceHit::Iso { surface, .. } => {
+                Material::lambert(ISO_ALBEDO[surface as usize % ISO_ALBEDO.len()])
             }
         }
     }

@@ -9,7 +9,9 @@
 
 use crate::geometry::Ray;
 use crate::packet::{RayPacket, PACKET_RAYS};
-use crate::shade::{faces_light, hit_frame, offset_origin, towards_light, SurfaceHit};
+use crate::shade::{
+    faces_light, hit_frame, iso_occludes, leaving_point, towards_light, SurfaceHit,
+};
 use crate::{FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_wire::cut::CutPlanes;
@@ -46,7 +48,7 @@ pub fn primary_shadows(
         Some(PrimaryHit {
             point,
             normal,
-            start: offset_origin(point, normal, scene.diagonal),
+            start: leaving_point(scene, hit, point, normal),
             blocked: 0,
         })
     });
@@ -89,6 +91,17 @@ pub fn primary_shadows(
                         view.params.crop(),
                         stack,
                     )
+                {
+                    occluded |= 1 << j;
+                }
+            }
+        }
+        if scene.volume.is_some() {
+            for (j, &(start, towards, _)) in rays[..count].iter().enumerate() {
+                let interval = (packet.t_min[j], packet.t_max[j]);
+                if occluded >> j & 1 == 0
+                    && interval.0 <= interval.1
+                    && iso_occludes(scene, view, &Ray::new(start, towards), interval)
                 {
                     occluded |= 1 << j;
                 }

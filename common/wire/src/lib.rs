@@ -20,5 +20,6 @@ pub mod params;
 pub mod protocol;
 pub mod scene_spec;
 pub mod state;
+pub mod volume_params;
 pub mod wall;
 pub mod window;

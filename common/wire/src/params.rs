@@ -5,6 +5,7 @@
 //! and their product within [`MAX_RAYS_PER_PIXEL`].
 
 use crate::cut::CutPlanes;
+use crate::volume_params::{VolumeParams, VolumeParamsError};
 use serde::{Deserialize, Serialize};
 
 /// Most ambient-occlusion rays per hit. 256 is already a converged reference.
@@ -54,6 +55,8 @@ pub struct RenderParamsSpec {
     pub spp: u32,
     /// Index of the first sample, so that successive progressive passes draw new samples.
     pub first_sample: u32,
+    /// How volumes are drawn (ignored by scenes without one).
+    pub volume: VolumeParams,
 }
 
 /// Why render parameters were refused.
@@ -73,6 +76,8 @@ pub enum ParamsError {
     BadAoRange(f32),
     #[error("particle crop {0}..{1} must be finite with LO <= HI")]
     BadCrop(f32, f32),
+    #[error(transparent)]
+    Volume(#[from] VolumeParamsError),
 }
 
 impl RenderParamsSpec {
@@ -85,6 +90,7 @@ impl RenderParamsSpec {
         cuts: CutPlanes::EMPTY,
         spp: 1,
         first_sample: 0,
+        volume: VolumeParams::DEFAULT,
     };
 
     /// Checks every knob.
@@ -121,6 +127,7 @@ impl RenderParamsSpec {
                 return Err(ParamsError::BadCrop(lo, hi));
             }
         }
+        self.volume.check()?;
         Ok(RenderParams(self))
     }
 }
@@ -200,6 +207,11 @@ impl RenderParams {
     #[inline]
     pub const fn first_sample(&self) -> u32 {
         self.0.first_sample
+    }
+
+    #[inline]
+    pub const fn volume(&self) -> &VolumeParams {
+        &self.0.volume
     }
 }
 

@@ -11,6 +11,7 @@ use crate::camera::CameraMode;
 use crate::cut::CutPlanes;
 use crate::light::Lights;
 use crate::params::{ParamsError, RenderParams};
+use crate::volume_params::VolumeParams;
 use serde::{Deserialize, Serialize};
 
 /// Identifies a state of the wall; a new one is made at each barrier where something changed.
@@ -30,6 +31,9 @@ pub struct WallState {
 
 /// One change of the wall's state. Every value inside is already valid on its own (the types
 /// see to it); [`WallState::apply`] checks the combination.
+// `All` and `Volume` carry a transfer function of 16 points; changes are queued a handful a
+// frame, and staying `Copy` is worth more than the bytes boxing would save.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum StateChange {
     /// A fixed camera, or the orbit.
@@ -44,6 +48,8 @@ pub enum StateChange {
     Crop(Option<(f32, f32)>),
     /// Lights in place of the scene's own (`None`: the scene's again).
     Lights(Option<Lights>),
+    /// How volumes are drawn: step, iso-values, transfer function.
+    Volume(VolumeParams),
     /// A whole state at once (a replayed session, a saved view).
     All(WallState),
 }
@@ -65,6 +71,7 @@ impl WallState {
             StateChange::Cuts(cuts) => spec.cuts = cuts,
             StateChange::Crop(crop) => spec.crop = crop,
             StateChange::Lights(lights) => next.lights = lights,
+            StateChange::Volume(volume) => spec.volume = volume,
             StateChange::All(state) => return Ok(state),
         }
         next.params = spec.build()?;

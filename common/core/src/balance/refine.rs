@@ -1,7 +1,8 @@
 //! Progressive refinement: while the camera moves, frames render with the state's own
 //! (interactive) knobs; once the state has held for a few frames, each new frame renders more
 //! samples per pixel (doubling) with the final ambient-occlusion rays, until the final quality
-//! is reached; then the wall renders nothing until something changes.
+//! is reached; then the wall renders nothing until something changes. Volumes in a moving view
+//! are marched at twice the step, the still view's passes at the full step.
 //!
 //! Each pass renders its samples from scratch (sample 0 on) rather than adding to the last
 //! pass's: pixels travel as 8-bit sRGB, and only a frame rendered in one go at the final
@@ -9,6 +10,7 @@
 //! the cost of all passes under twice that of the last one.
 
 use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec};
+use tessera_wire::volume_params::VolumeParams;
 
 /// When and how far to refine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,8 +45,11 @@ impl Refinement {
         let target_spp = self.final_spp.max(state.spp());
         let target_ao = self.final_ao.max(state.ao_samples());
         let already_final = state.spp() == target_spp && state.ao_samples() == target_ao;
-        if age < self.still_frames || already_final {
-            return (state, already_final && age >= self.still_frames);
+        if age < self.still_frames {
+            return (moving(state), false);
+        }
+        if already_final {
+            return (state, true);
         }
         let pass = (age - self.still_frames + 1).min(31) as u32;
         let spp = state.spp().saturating_mul(1u32 << pass).min(target_spp);
@@ -60,6 +65,17 @@ impl Refinement {
         .unwrap_or(state);
         (refined, refined == state || spp == target_spp)
     }
+}
+
+/// Step factor of volumes while the view moves.
+pub const MOVING_STEP_FACTOR: f32 = 2.0;
+
+/// `state` as a moving view renders it: volumes marched at [`MOVING_STEP_FACTOR`] times the
+/// step (their opacity corrected for it), everything else as it is.
+fn moving(state: RenderParams) -> RenderParams {
+    let mut spec = state.spec();
+    spec.volume.coarsen = (spec.volume.coarsen * MOVING_STEP_FACTOR).min(VolumeParams::MAX_COARSEN);
+    spec.build().unwrap_or(state)
 }
 
 #[cfg(test)]
@@ -81,6 +97,13 @@ mod tests {
         assert_eq!(at(4), (8, 4, true), "final quality reached");
         assert_eq!(at(50), (8, 4, true));
         assert_eq!(r.frame_params(base, 4).0.shadows(), base.shadows());
+        // Volumes: twice the step while moving, the full step on every pass after.
+        let coarsen = |age| r.frame_params(base, age).0.volume().coarsen;
+        assert_eq!(
+            (coarsen(0), coarsen(1)),
+            (MOVING_STEP_FACTOR, MOVING_STEP_FACTOR)
+        );
+        assert_eq!((coarsen(2), coarsen(4)), (1.0, 1.0));
     }
 
     #[test]
@@ -92,7 +115,7 @@ mod tests {
         }
         .build()
         .unwrap();
-        assert_eq!(r.frame_params(base, 0), (base, false));
+        assert_eq!(r.frame_params(base, 0), (moving(base), false));
         assert_eq!(r.frame_params(base, 1), (base, true));
         assert!(Refinement::new(1, 0, 0).is_err());
     }

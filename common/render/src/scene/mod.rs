@@ -12,6 +12,7 @@ pub mod particles;
 mod procedural;
 
 use crate::geometry::Bounds;
+use crate::volume::{self, Volume, VolumeError};
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -125,6 +126,8 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
     pub particles: Vec<particles::Particle>,
+    /// A volume of samples, placed in the world; a scene without one builds no bricks.
+    pub volume: Option<Volume>,
     /// Where the render coordinates sit in the world (identity for built-in scenes): a file's
     /// mesh is moved to its middle, in f64, before it becomes f32.
     pub render_from_world: RenderFromWorld,
@@ -170,6 +173,8 @@ pub enum SceneError {
     },
     #[error("scene {origin}: contains no triangles")]
     Empty { origin: String },
+    #[error(transparent)]
+    Volume(#[from] VolumeError),
     #[error("scene {origin}: {count} triangles is over the limit of {limit}")]
     TooLarge {
         origin: String,
@@ -194,6 +199,9 @@ impl Scene {
                 lights: vec![default_light()],
                 ..Scene::default()
             },
+            SceneSpec::File(path) if volume::is_volume_path(path) => {
+                from_volume(volume::load(path)?)
+            }
             SceneSpec::File(path) => from_mesh(load_mesh_file(path)?, path),
         };
         scene.validate(&spec_origin(spec))?;
@@ -203,7 +211,7 @@ impl Scene {
     /// Checks what the renderer relies on: finite coordinates, indices in range, something to
     /// draw. Loaders call it so that bad input fails at load, never as a NaN pixel later.
     pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
-        if self.triangles.is_empty() && self.particles.is_empty() {
+        if self.triangles.is_empty() && self.particles.is_empty() && self.volume.is_none() {
             return Err(SceneError::Empty {
                 origin: origin.into(),
             });
@@ -309,6 +317,11 @@ impl Scene {
             bounds.grow(p.center - Vec3::splat(p.radius));
             bounds.grow(p.center + Vec3::splat(p.radius));
         }
+        if let Some(volume) = &self.volume {
+            for corner in volume.world_corners() {
+                bounds.grow(self.render_from_world.point(DVec3::from_array(corner)));
+            }
+        }
         bounds
     }
 
@@ -332,6 +345,14 @@ impl Scene {
                 p.radius,
                 p.attribute,
             ]));
+        }
+        if let Some(volume) = &self.volume {
+            for d in volume.dims() {
+                hasher.update(&(d as u64).to_le_bytes());
+            }
+            hasher.update(bytemuck::cast_slice(&volume.axes()));
+            hasher.update(bytemuck::cast_slice(&volume.origin()));
+            hasher.update(bytemuck::cast_slice(volume.values()));
         }
         for light in &self.lights {
             let (tag, v, i) = match *light {
@@ -407,7 +428,23 @@ fn from_mesh(mut mesh: Mesh, path: &Path) -> Scene {
         material_names: mesh.material_names,
         lights: vec![default_light()],
         particles: Vec::new(),
+        volume: None,
         render_from_world,
+    }
+}
+
+/// A volume alone, lit by the default light, its render coordinates centred on its box.
+fn from_volume(volume: Volume) -> Scene {
+    let corners: Vec<DVec3> = volume
+        .world_corners()
+        .iter()
+        .map(|&c| DVec3::from_array(c))
+        .collect();
+    Scene {
+        lights: vec![default_light()],
+        render_from_world: RenderFromWorld::centred_on(&corners),
+        volume: Some(volume),
+        ..Scene::default()
     }
 }
 

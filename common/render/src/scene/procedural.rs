@@ -77,6 +77,7 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
         material_names: vec!["knot".into(), "light floor".into(), "dark floor".into()],
         lights: vec![default_light()],
         particles: Vec::new(),
+        volume: None,
         render_from_world: Default::default(),
     }
 }

@@ -1,6 +1,7 @@
 //! Volumes of scalar samples on a regular grid, placed in the world by an affine map: the data
 //! model that volume rendering and direct iso-surfaces (issue 11) start from, and its file
-//! loaders. This first step loads; nothing renders a volume yet.
+//! loaders, bricks and min/max grid ([`PreparedVolume`]), ray marching through a transfer
+//! function with opacity correction, and direct iso-surfaces.
 //!
 //! Samples are kept as f32 whatever the file's voxel type (u8, i16, u16, f32), in x-fastest
 //! order, with the file's own values (no rescaling). A file is read whole and checked before a
@@ -15,8 +16,17 @@
 //! # Ok::<(), tessera_render::volume::VolumeError>(())
 //! ```
 
+mod bricks;
+mod grid_walk;
+mod nifti;
 mod nrrd;
+mod prepared;
 mod raw;
+mod transfer;
+
+pub use bricks::{Bricks, BRICK_CELLS, MACRO_CELLS};
+pub use prepared::{FrameTables, PreparedVolume, MIN_STEP_FRACTION, OPAQUE_ENOUGH};
+pub use transfer::{corrected_opacity, TransferTable};
 
 use std::path::Path;
 
@@ -77,7 +87,9 @@ pub enum VolumeError {
         expected: usize,
         found: usize,
     },
-    #[error("volume {path}: unsupported extension (expected .nrrd, .nhdr or .vol.toml)")]
+    #[error(
+        "volume {path}: unsupported extension (expected .nrrd, .nhdr, .nii, .nii.gz or .vol.toml)"
+    )]
     UnknownFormat { path: String },
 }
 
@@ -213,6 +225,11 @@ impl Volume {
         self.voxel_type
     }
 
+    /// The samples, x fastest.
+    pub fn values(&self) -> &[f32] {
+        &self.values
+    }
+
     /// Smallest and largest sample.
     pub fn range(&self) -> (f32, f32) {
         self.range
@@ -225,6 +242,23 @@ impl Volume {
     pub fn at(&self, [x, y, z]: [usize; 3]) -> f32 {
         assert!(x < self.dims[0] && y < self.dims[1] && z < self.dims[2]);
         self.values[(z * self.dims[1] + y) * self.dims[0] + x]
+    }
+
+    /// The corners of the box the volume fills, in world coordinates: the grid's, or for an
+    /// axis of one sample a slab one voxel thick around it (as it is drawn).
+    pub fn world_corners(&self) -> [[f64; 3]; 8] {
+        std::array::from_fn(|i| {
+            let index: [f64; 3] = std::array::from_fn(|a| {
+                let far = (i >> a) & 1 == 1;
+                match (self.dims[a], far) {
+                    (1, false) => -0.5,
+                    (1, true) => 0.5,
+                    (_, false) => 0.0,
+                    (d, true) => (d - 1) as f64,
+                }
+            });
+            self.world_of_index(index)
+        })
     }
 
     /// World position of a (fractional) grid index.
@@ -277,6 +311,7 @@ fn voxel_count(path: &Path, dims: [usize; 3]) -> Result<usize, VolumeError> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Format {
     Nrrd,
+    Nifti,
     RawWithSidecar,
 }
 
@@ -286,6 +321,8 @@ fn format_of(path: &Path) -> Option<Format> {
     let lower = name.to_ascii_lowercase();
     if lower.ends_with(".nrrd") || lower.ends_with(".nhdr") {
         Some(Format::Nrrd)
+    } else if lower.ends_with(".nii") || lower.ends_with(".nii.gz") || lower.ends_with(".hdr") {
+        Some(Format::Nifti)
     } else if lower.ends_with(".vol.toml") {
         Some(Format::RawWithSidecar)
     } else {
@@ -299,14 +336,16 @@ pub fn is_volume_path(path: &Path) -> bool {
 }
 
 /// Loads the volume at `path`, choosing the reader by extension: `.nrrd` / `.nhdr` (NRRD,
-/// raw or gzip encoding, data attached or in a detached file) and `.vol.toml` (raw voxels
-/// described by a small TOML sidecar, see `raw`).
+/// raw or gzip encoding, data attached or in a detached file), `.nii` / `.nii.gz` / `.hdr`
+/// (NIfTI-1, placed by its sform or qform) and `.vol.toml` (raw voxels described by a small
+/// TOML sidecar, see `raw`).
 ///
 /// # Errors
 /// An unknown extension, an unreadable file, a bad header field (named), or data cut short.
 pub fn load(path: &Path) -> Result<Volume, VolumeError> {
     match format_of(path) {
         Some(Format::Nrrd) => nrrd::load(path),
+        Some(Format::Nifti) => nifti::load(path),
         Some(Format::RawWithSidecar) => raw::load(path),
         None => Err(VolumeError::UnknownFormat {
             path: path.display().to_string(),
@@ -336,5 +375,7 @@ fn decode_exact(
     Ok(voxel_type.decode(bytes, little_endian))
 }
 
+#[cfg(test)]
+mod render_tests;
 #[cfg(test)]
 mod tests;

@@ -190,3 +190,97 @@ fn bad_files_name_the_field_at_fault() {
 fn nan_floats() -> Vec<u8> {
     (0..12).flat_map(|_| f32::NAN.to_le_bytes()).collect()
 }
+
+/// A NIfTI-1 single file (`n+1`) of the 3×2×2 i16 samples, with `edit` applied to its header.
+fn nifti_file(edit: impl Fn(&mut [u8])) -> Vec<u8> {
+    let mut h = vec![0u8; 352];
+    let put_i16 = |h: &mut [u8], at: usize, v: i16| h[at..at + 2].copy_from_slice(&v.to_le_bytes());
+    let put_f32 = |h: &mut [u8], at: usize, v: f32| h[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    h[0..4].copy_from_slice(&348i32.to_le_bytes());
+    for (i, d) in [3i16, 3, 2, 2, 1, 1, 1, 1].iter().enumerate() {
+        put_i16(&mut h, 40 + 2 * i, *d);
+    }
+    put_i16(&mut h, 70, 4); // datatype: int16
+    put_i16(&mut h, 72, 16); // bitpix
+    for (i, p) in [1.0f32, 0.5, 0.25, 2.0].iter().enumerate() {
+        put_f32(&mut h, 76 + 4 * i, *p);
+    }
+    put_f32(&mut h, 108, 352.0); // vox_offset
+    h[344..348].copy_from_slice(b"n+1\0");
+    edit(&mut h);
+    h.extend(i16_bytes(&expected(), true));
+    h
+}
+
+#[test]
+fn nifti_is_placed_by_its_sform_else_its_qform_and_rescaled() {
+    let dir = tempfile::tempdir().unwrap();
+    let put_f32 = |h: &mut [u8], at: usize, v: f32| h[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    // Pixel sizes only: spacing 0.5, 0.25, 2 from the origin; scl_slope 2 and inter -1024.
+    let plain = dir.path().join("plain.nii");
+    std::fs::write(
+        &plain,
+        nifti_file(|h| {
+            put_f32(h, 112, 2.0);
+            put_f32(h, 116, -1024.0);
+        }),
+    )
+    .unwrap();
+    let v = load(&plain).unwrap();
+    assert_eq!(v.dims(), [3, 2, 2]);
+    assert_eq!(v.spacing(), [0.5, 0.25, 2.0]);
+    assert_eq!(v.at([1, 0, 0]), 10.0 * 2.0 - 1024.0);
+    // A qform turning x into y (90° about z: b = c = 0, d = sin 45°) with an offset; gzip.
+    let q = std::f32::consts::FRAC_1_SQRT_2;
+    let qform = nifti_file(|h| {
+        h[252..254].copy_from_slice(&1i16.to_le_bytes());
+        put_f32(h, 264, q);
+        for (i, o) in [10.0f32, 20.0, 30.0].iter().enumerate() {
+            put_f32(h, 268 + 4 * i, *o);
+        }
+    });
+    let gz = dir.path().join("q.nii.gz");
+    std::fs::write(&gz, gzip(&qform)).unwrap();
+    let v = load(&gz).unwrap();
+    let p = v.world_of_index([1.0, 0.0, 0.0]);
+    assert!(
+        (p[0] - 10.0).abs() < 1e-6 && (p[1] - 20.5).abs() < 1e-6,
+        "{p:?}"
+    );
+    // An sform wins over the qform.
+    let sform = nifti_file(|h| {
+        h[252..254].copy_from_slice(&1i16.to_le_bytes());
+        h[254..256].copy_from_slice(&2i16.to_le_bytes());
+        for (row, values) in [
+            [0.0f32, 0.0, 3.0, 1.0],
+            [0.0, 1.0, 0.0, 2.0],
+            [1.0, 0.0, 0.0, 3.0],
+        ]
+        .iter()
+        .enumerate()
+        {
+            for (i, v) in values.iter().enumerate() {
+                put_f32(h, 280 + 16 * row + 4 * i, *v);
+            }
+        }
+    });
+    let s = dir.path().join("s.nii");
+    std::fs::write(&s, sform).unwrap();
+    let v = load(&s).unwrap();
+    assert_eq!(v.world_of_index([1.0, 0.0, 1.0]), [4.0, 2.0, 4.0]);
+    // A series (dim[4] = 3) and a cut-short file are refused by name.
+    let series = dir.path().join("t.nii");
+    let mut three = nifti_file(|h| {
+        h[40..42].copy_from_slice(&4i16.to_le_bytes());
+        h[48..50].copy_from_slice(&3i16.to_le_bytes());
+    });
+    three.extend(i16_bytes(&[expected(), expected()].concat(), true));
+    std::fs::write(&series, three).unwrap();
+    let err = load(&series).unwrap_err().to_string();
+    assert!(err.contains("t.nii") && err.contains("`dim`"), "{err}");
+    let short = dir.path().join("short.nii");
+    let mut bytes = nifti_file(|_| {});
+    bytes.truncate(bytes.len() - 4);
+    std::fs::write(&short, bytes).unwrap();
+    assert!(load(&short).is_err());
+}

@@ -244,7 +244,9 @@ mod tests {
             cuts: Vec<[f32; 4]>,
             spp: u32,
             first_sample: u32,
+            volume: crate::volume_params::VolumeParams,
         }
+        #[allow(clippy::large_enum_variant)]
         #[derive(serde::Serialize)]
         enum RawToNode {
             _Welcome,
@@ -270,6 +272,7 @@ mod tests {
                 cuts: vec![[1.0, 0.0, 0.0, 0.0]; 5],
                 spp: i.spp,
                 first_sample: i.first_sample,
+                volume: i.volume,
             },
             None,
         );

@@ -1,0 +1,179 @@
+//! A volume's samples held in bricks, and the min/max grid over them that empty-space skipping
+//! reads.
+//!
+//! A brick covers [`BRICK_CELLS`]³ cells and stores their corner samples, 33³ with the
+//! one-voxel apron on the high side shared with the next brick, so the eight corners of any cell
+//! lie in one brick: trilinear interpolation and the iso-surface test never look at two bricks,
+//! and a brick is a unit the distributed shared memory can move whole.
+
+/// Cells along each edge of a brick.
+pub const BRICK_CELLS: usize = 32;
+/// Cells along each edge of a macro-cell of the min/max grid.
+pub const MACRO_CELLS: usize = 8;
+
+/// Where one brick's samples start and how many it has along x and y.
+#[derive(Clone, Copy, Debug)]
+struct BrickSlot {
+    offset: usize,
+    nx: u32,
+    ny: u32,
+}
+
+/// The samples of a grid of `cells` cells (`cells + 1` samples an axis), brick by brick.
+#[derive(Clone, Debug)]
+pub struct Bricks {
+    cells: [usize; 3],
+    bricks: [usize; 3],
+    slots: Vec<BrickSlot>,
+    samples: Vec<f32>,
+}
+
+impl Bricks {
+    /// Bricks of `values`, `dims` samples in x-fastest order (each dimension at least 2).
+    pub fn new(dims: [usize; 3], values: &[f32]) -> Self {
+        assert!(dims.iter().all(|&d| d >= 2) && values.len() == dims.iter().product::<usize>());
+        let cells = dims.map(|d| d - 1);
+        let bricks = cells.map(|c| c.div_ceil(BRICK_CELLS));
+        let mut slots = Vec::with_capacity(bricks.iter().product());
+        let mut samples = Vec::with_capacity(values.len() + values.len() / 8);
+        for bz in 0..bricks[2] {
+            for by in 0..bricks[1] {
+                for bx in 0..bricks[0] {
+                    let first = [bx, by, bz].map(|b| b * BRICK_CELLS);
+                    let n: [usize; 3] =
+                        std::array::from_fn(|a| (cells[a] - first[a]).min(BRICK_CELLS) + 1);
+                    slots.push(BrickSlot {
+                        offset: samples.len(),
+                        nx: n[0] as u32,
+                        ny: n[1] as u32,
+                    });
+                    for z in first[2]..first[2] + n[2] {
+                        for y in first[1]..first[1] + n[1] {
+                            let row = (z * dims[1] + y) * dims[0];
+                            samples
+                                .extend_from_slice(&values[row + first[0]..row + first[0] + n[0]]);
+                        }
+                    }
+                }
+            }
+        }
+        Bricks {
+            cells,
+            bricks,
+            slots,
+            samples,
+        }
+    }
+
+    /// Cells along each axis.
+    pub fn cells(&self) -> [usize; 3] {
+        self.cells
+    }
+
+    /// Bricks along each axis.
+    pub fn brick_counts(&self) -> [usize; 3] {
+        self.bricks
+    }
+
+    /// Bytes of samples held (apron included).
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of_val(&self.samples[..])
+    }
+
+    /// The eight corner samples of cell `c` (each index below `cells`), bit 0 of the corner's
+    /// number being +x, bit 1 +y, bit 2 +z.
+    #[inline]
+    pub fn corners(&self, c: [usize; 3]) -> [f32; 8] {
+        let b = c.map(|i| i / BRICK_CELLS);
+        let slot = self.slots[(b[2] * self.bricks[1] + b[1]) * self.bricks[0] + b[0]];
+        let (nx, ny) = (slot.nx as usize, slot.ny as usize);
+        let l = c.map(|i| i % BRICK_CELLS);
+        let base = slot.offset + (l[2] * ny + l[1]) * nx + l[0];
+        let s = &self.samples;
+        let (dy, dz) = (nx, nx * ny);
+        [
+            s[base],
+            s[base + 1],
+            s[base + dy],
+            s[base + dy + 1],
+            s[base + dz],
+            s[base + dz + 1],
+            s[base + dz + dy],
+            s[base + dz + dy + 1],
+        ]
+    }
+}
+
+/// Trilinear interpolation of `corners` at `u` (each in 0..1) inside the cell.
+#[inline]
+pub fn trilinear(corners: &[f32; 8], u: [f32; 3]) -> f32 {
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let x00 = lerp(corners[0], corners[1], u[0]);
+    let x10 = lerp(corners[2], corners[3], u[0]);
+    let x01 = lerp(corners[4], corners[5], u[0]);
+    let x11 = lerp(corners[6], corners[7], u[0]);
+    lerp(lerp(x00, x10, u[1]), lerp(x01, x11, u[1]), u[2])
+}
+
+/// The gradient of the trilinear interpolant of `corners` at `u`, in cell units.
+pub fn trilinear_gradient(c: &[f32; 8], [x, y, z]: [f32; 3]) -> [f32; 3] {
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let dx = lerp(
+        lerp(c[1] - c[0], c[3] - c[2], y),
+        lerp(c[5] - c[4], c[7] - c[6], y),
+        z,
+    );
+    let dy = lerp(
+        lerp(c[2] - c[0], c[3] - c[1], x),
+        lerp(c[6] - c[4], c[7] - c[5], x),
+        z,
+    );
+    let dz = lerp(
+        lerp(c[4] - c[0], c[5] - c[1], x),
+        lerp(c[6] - c[2], c[7] - c[3], x),
+        y,
+    );
+    [dx, dy, dz]
+}
+
+/// The smallest and largest sample of each macro-cell ([`MACRO_CELLS`]³ cells, corners
+/// included, so a value on a shared face is in both cells' ranges).
+#[derive(Clone, Debug)]
+pub struct MinMaxGrid {
+    dims: [usize; 3],
+    ranges: Vec<(f32, f32)>,
+}
+
+impl MinMaxGrid {
+    pub fn new(bricks: &Bricks) -> Self {
+        let cells = bricks.cells();
+        let dims = cells.map(|c| c.div_ceil(MACRO_CELLS));
+        let mut ranges = vec![(f32::INFINITY, f32::NEG_INFINITY); dims.iter().product()];
+        for z in 0..cells[2] {
+            for y in 0..cells[1] {
+                for x in 0..cells[0] {
+                    let m = [x, y, z].map(|i| i / MACRO_CELLS);
+                    let r = &mut ranges[(m[2] * dims[1] + m[1]) * dims[0] + m[0]];
+                    for v in bricks.corners([x, y, z]) {
+                        *r = (r.0.min(v), r.1.max(v));
+                    }
+                }
+            }
+        }
+        MinMaxGrid { dims, ranges }
+    }
+
+    /// Macro-cells along each axis.
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    #[inline]
+    pub fn range(&self, m: [usize; 3]) -> (f32, f32) {
+        self.ranges[(m[2] * self.dims[1] + m[1]) * self.dims[0] + m[0]]
+    }
+
+    pub fn ranges(&self) -> &[(f32, f32)] {
+        &self.ranges
+    }
+}

@@ -1,0 +1,172 @@
+//! Walking a ray through a regular grid cell by cell (Amanatides and Woo's 3-D DDA), in the
+//! volume's index space: used with cells of one voxel for iso-surfaces and of a macro-cell for
+//! empty-space skipping.
+//!
+//! Consecutive segments share their boundary value exactly, so a sample position `k · step`
+//! belongs to one segment only, whatever the grid: skipping cells changes which samples are
+//! taken, never where.
+
+/// A ray `origin + t · dir` in index space (the grid's cell `c` along axis `a` spans
+/// `c · size .. (c + 1) · size`).
+#[derive(Clone, Copy, Debug)]
+pub struct IndexRay {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+}
+
+/// One cell of the walk and the part of the ray inside it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Segment {
+    pub cell: [usize; 3],
+    pub t0: f32,
+    pub t1: f32,
+}
+
+/// The cells a ray crosses between `t_start` and `t_end`, in order.
+pub struct GridWalk {
+    cell: [i64; 3],
+    step: [i64; 3],
+    next: [f32; 3],
+    origin: [f32; 3],
+    dir: [f32; 3],
+    size: f32,
+    counts: [i64; 3],
+    t: f32,
+    t_end: f32,
+}
+
+impl GridWalk {
+    /// Starts at `t_start`, where the ray must be inside (or on the surface of) the grid of
+    /// `counts` cells of edge `size`.
+    pub fn new(ray: &IndexRay, size: f32, counts: [usize; 3], t_start: f32, t_end: f32) -> Self {
+        let mut cell = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut next = [f32::INFINITY; 3];
+        // The cell holding the ray a little after the start: on a boundary, the one it enters.
+        let t_probe = t_start + (t_end - t_start).min(size) * 1e-4;
+        for a in 0..3 {
+            let p = ray.origin[a] + ray.dir[a] * t_probe;
+            cell[a] = ((p / size).floor() as i64).clamp(0, counts[a] as i64 - 1);
+            let d = ray.dir[a];
+            if d > 0.0 {
+                step[a] = 1;
+                next[a] = ((cell[a] + 1) as f32 * size - ray.origin[a]) / d;
+            } else if d < 0.0 {
+                step[a] = -1;
+                next[a] = (cell[a] as f32 * size - ray.origin[a]) / d;
+            }
+        }
+        GridWalk {
+            cell,
+            step,
+            next,
+            origin: ray.origin,
+            dir: ray.dir,
+            size,
+            counts: counts.map(|c| c as i64),
+            t: t_start,
+            t_end,
+        }
+    }
+}
+
+impl Iterator for GridWalk {
+    type Item = Segment;
+
+    fn next(&mut self) -> Option<Segment> {
+        if self.t >= self.t_end || self.cell.iter().any(|&c| c < 0) {
+            return None;
+        }
+        if (0..3).any(|a| self.cell[a] >= self.counts[a]) {
+            return None;
+        }
+        let axis = if self.next[0] <= self.next[1] && self.next[0] <= self.next[2] {
+            0
+        } else if self.next[1] <= self.next[2] {
+            1
+        } else {
+            2
+        };
+        let t1 = self.next[axis].min(self.t_end).max(self.t);
+        let segment = Segment {
+            cell: self.cell.map(|c| c as usize),
+            t0: self.t,
+            t1,
+        };
+        self.t = t1;
+        self.cell[axis] += self.step[axis];
+        // Accumulating deltas drifts; computing each boundary from its cell keeps it one value
+        // whichever walk reaches it.
+        let boundary = self.cell[axis] + (self.step[axis] > 0) as i64;
+        self.next[axis] = (boundary as f32 * self.size - self.origin[axis]) / self.dir[axis];
+        Some(segment)
+    }
+}
+
+/// Where the ray is inside the box `0..extent` (each axis), clipped to `t_min..t_max`; None if
+/// nowhere. Axes the ray runs parallel to keep it if its origin lies within them (a ray along
+/// a face is inside).
+pub fn clip_to_box(ray: &IndexRay, extent: [f32; 3], t_min: f32, t_max: f32) -> Option<(f32, f32)> {
+    let (mut t0, mut t1) = (t_min, t_max);
+    for a in 0..3 {
+        let (o, d) = (ray.origin[a], ray.dir[a]);
+        if d == 0.0 {
+            if o < 0.0 || o > extent[a] {
+                return None;
+            }
+            continue;
+        }
+        let (mut near, mut far) = ((0.0 - o) / d, (extent[a] - o) / d);
+        if near > far {
+            std::mem::swap(&mut near, &mut far);
+        }
+        t0 = t0.max(near);
+        t1 = t1.min(far);
+    }
+    (t0 <= t1 && t0.is_finite() && t1.is_finite()).then_some((t0, t1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_diagonal_ray_visits_each_cell_it_crosses_once_and_in_order() {
+        let ray = IndexRay {
+            origin: [0.0, 0.0, 0.0],
+            dir: [0.6, 0.8, 0.0],
+        };
+        let (t0, t1) = clip_to_box(&ray, [4.0, 4.0, 1.0], 0.0, 100.0).unwrap();
+        let segments: Vec<Segment> = GridWalk::new(&ray, 1.0, [4, 4, 1], t0, t1).collect();
+        assert_eq!(segments.first().unwrap().cell, [0, 0, 0]);
+        assert_eq!(segments.last().unwrap().cell, [2, 3, 0]);
+        for pair in segments.windows(2) {
+            assert_eq!(pair[0].t1, pair[1].t0);
+            let moved: usize = (0..3)
+                .map(|a| pair[0].cell[a].abs_diff(pair[1].cell[a]))
+                .sum();
+            assert_eq!(moved, 1);
+        }
+        assert_eq!(segments.last().unwrap().t1, t1);
+    }
+
+    #[test]
+    fn a_ray_along_a_face_stays_inside_and_ends() {
+        let ray = IndexRay {
+            origin: [-1.0, 2.0, 0.0],
+            dir: [1.0, 0.0, 0.0],
+        };
+        let (t0, t1) = clip_to_box(&ray, [4.0, 4.0, 4.0], 0.0, 100.0).unwrap();
+        assert_eq!((t0, t1), (1.0, 5.0));
+        let cells: Vec<[usize; 3]> = GridWalk::new(&ray, 1.0, [4, 4, 4], t0, t1)
+            .map(|s| s.cell)
+            .collect();
+        assert_eq!(cells.len(), 4);
+        assert!(cells.iter().all(|c| c[1] == 2 && c[2] == 0));
+        let miss = IndexRay {
+            origin: [-1.0, 4.5, 0.0],
+            dir: [1.0, 0.0, 0.0],
+        };
+        assert_eq!(clip_to_box(&miss, [4.0; 3], 0.0, 100.0), None);
+    }
+}

@@ -1,0 +1,456 @@
+//! A volume ready to trace: its bricks and min/max grid, the map from render coordinates to
+//! its index space, and the two ways a ray sees it: composited through the transfer function,
+//! or stopped at the first direct iso-surface.
+
+use super::bricks::{trilinear, trilinear_gradient, Bricks, MinMaxGrid, MACRO_CELLS};
+use super::grid_walk::{clip_to_box, GridWalk, IndexRay, Segment};
+use super::transfer::TransferTable;
+use super::Volume;
+use glam::{DMat3, DVec3, Mat3, Vec3};
+use std::sync::{Arc, Mutex};
+use tessera_wire::local_frame::RenderFromWorld;
+use tessera_wire::volume_params::{TransferFunction, VolumeParams};
+
+/// Composited opacity past which a ray stops: what lies behind shows by less than this.
+pub const OPAQUE_ENOUGH: f32 = 0.9995;
+/// The smallest step allowed, in reference steps: below it a frame would take minutes.
+pub const MIN_STEP_FRACTION: f32 = 1.0 / 256.0;
+/// Most samples one ray takes, whatever the step: every loop is bounded.
+const MAX_SAMPLES_PER_RAY: u32 = 1 << 22;
+
+/// What the transfer function and step of a frame make of the volume.
+#[derive(Debug)]
+pub struct FrameTables {
+    key: (TransferFunction, f32),
+    pub step: f32,
+    pub table: TransferTable,
+    /// Per macro-cell: whether any of its values is visible.
+    visible: Vec<bool>,
+}
+
+/// A volume in render coordinates, bricked, with its min/max grid.
+///
+/// # Examples
+///
+/// ```
+/// use tessera_render::volume::{PreparedVolume, Volume, VoxelType};
+/// use tessera_wire::local_frame::RenderFromWorld;
+/// use tessera_wire::volume_params::VolumeParams;
+/// use glam::Vec3;
+///
+/// let v = Volume::new([2, 2, 2], [1.0; 3], [0.0; 3], VoxelType::F32, vec![0., 1., 0., 1., 0., 1., 0., 1.])?;
+/// let prepared = PreparedVolume::new(&v, &RenderFromWorld::IDENTITY);
+/// // The surface where the value is 0.5 is the plane x = 0.5.
+/// let hit = prepared.iso_hit(&[0.5], Vec3::new(-1.0, 0.5, 0.5), Vec3::X, (0.0, 10.0));
+/// assert!((hit.unwrap().0 - 1.5).abs() < 1e-5);
+/// let tables = prepared.tables(&VolumeParams::DEFAULT);
+/// let rgba = prepared.composite(&tables, Vec3::new(-1.0, 0.5, 0.5), Vec3::X, (0.0, 10.0));
+/// assert!(rgba[3] > 0.0 && rgba[3] < 1.0);
+/// # Ok::<(), tessera_render::volume::VolumeError>(())
+/// ```
+pub struct PreparedVolume {
+    bricks: Bricks,
+    minmax: MinMaxGrid,
+    index_from_render: Mat3,
+    index_offset: Vec3,
+    /// Transpose of `index_from_render`: takes an index-space gradient to render space.
+    gradient_to_render: Mat3,
+    extent: [f32; 3],
+    range: (f32, f32),
+    /// The smallest voxel spacing: what transfer-function opacities are given per.
+    reference_step: f32,
+    corners: [Vec3; 8],
+    frame: Mutex<Option<Arc<FrameTables>>>,
+}
+
+impl PreparedVolume {
+    pub fn new(volume: &Volume, frame: &RenderFromWorld) -> Self {
+        let (dims, values, origin) = padded(volume);
+        let bricks = Bricks::new(dims, &values);
+        let minmax = MinMaxGrid::new(&bricks);
+        let axes = volume.axes().map(DVec3::from_array);
+        let render_from_index = DMat3::from_cols(axes[0], axes[1], axes[2]);
+        let index_from_render = render_from_index.inverse();
+        let origin_render = DVec3::from_array(origin) - frame.world_origin;
+        let index_offset = -(index_from_render * origin_render);
+        let extent = bricks.cells().map(|c| c as f32);
+        let corners = std::array::from_fn(|i| {
+            let idx = DVec3::new(
+                if i & 1 == 1 { extent[0] as f64 } else { 0.0 },
+                if i & 2 == 2 { extent[1] as f64 } else { 0.0 },
+                if i & 4 == 4 { extent[2] as f64 } else { 0.0 },
+            );
+            (origin_render + render_from_index * idx).as_vec3()
+        });
+        let spacing = volume.spacing();
+        PreparedVolume {
+            bricks,
+            minmax,
+            index_from_render: index_from_render.as_mat3(),
+            index_offset: index_offset.as_vec3(),
+            gradient_to_render: index_from_render.transpose().as_mat3(),
+            extent,
+            range: volume.range(),
+            reference_step: spacing[0].min(spacing[1]).min(spacing[2]) as f32,
+            corners,
+            frame: Mutex::new(None),
+        }
+    }
+
+    /// The eight corners of the volume's box, in render coordinates.
+    pub fn corners(&self) -> [Vec3; 8] {
+        self.corners
+    }
+
+    pub fn bricks(&self) -> &Bricks {
+        &self.bricks
+    }
+
+    pub fn reference_step(&self) -> f32 {
+        self.reference_step
+    }
+
+    /// The step a frame with `params` marches at, in render units (the coarsening of a moving
+    /// view included).
+    pub fn step(&self, params: &VolumeParams) -> f32 {
+        let floor = self.reference_step * MIN_STEP_FRACTION;
+        let full = if params.step > 0.0 {
+            params.step.max(floor)
+        } else {
+            self.reference_step * 0.5
+        };
+        full * params.coarsen
+    }
+
+    /// The table and visible macro-cells for `params`, made once per transfer function and
+    /// step and shared by every packet of the frames that use them.
+    pub fn tables(&self, params: &VolumeParams) -> Arc<FrameTables> {
+        let step = self.step(params);
+        let key = (params.transfer, step);
+        let mut cached = self.frame.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(tables) = cached.as_ref().filter(|t| t.key == key) {
+            return tables.clone();
+        }
+        let table = TransferTable::new(
+            &params.transfer,
+            self.range,
+            step as f64 / self.reference_step as f64,
+        );
+        let visible = self
+            .minmax
+            .ranges()
+            .iter()
+            .map(|&r| table.any_visible(r))
+            .collect();
+        let tables = Arc::new(FrameTables {
+            key,
+            step,
+            table,
+            visible,
+        });
+        *cached = Some(tables.clone());
+        tables
+    }
+
+    fn index_ray(&self, origin: Vec3, dir: Vec3) -> IndexRay {
+        IndexRay {
+            origin: (self.index_from_render * origin + self.index_offset).to_array(),
+            dir: (self.index_from_render * dir).to_array(),
+        }
+    }
+
+    /// The value at index-space point `p` (clamped into the grid).
+    #[inline]
+    fn sample(&self, p: [f32; 3]) -> f32 {
+        let (cell, u) = self.cell_of(p);
+        trilinear(&self.bricks.corners(cell), u)
+    }
+
+    #[inline]
+    fn cell_of(&self, p: [f32; 3]) -> ([usize; 3], [f32; 3]) {
+        let cells = self.bricks.cells();
+        let mut cell = [0usize; 3];
+        let mut u = [0f32; 3];
+        for a in 0..3 {
+            let x = p[a].clamp(0.0, self.extent[a]);
+            let c = (x as usize).min(cells[a] - 1);
+            cell[a] = c;
+            u[a] = x - c as f32;
+        }
+        (cell, u)
+    }
+
+    fn macro_visible(&self, tables: &FrameTables, m: [usize; 3]) -> bool {
+        let d = self.minmax.dims();
+        tables.visible[(m[2] * d[1] + m[1]) * d[0] + m[0]]
+    }
+
+    fn macro_walk(&self, ray: &IndexRay, (t0, t1): (f32, f32)) -> GridWalk {
+        GridWalk::new(ray, MACRO_CELLS as f32, self.minmax.dims(), t0, t1)
+    }
+
+    /// Front-to-back composite (premultiplied colour, opacity) of the volume along
+    /// `origin + t · dir` for `t` in `interval`, sampled at `t = k · step`. Macro-cells the
+    /// transfer function makes invisible are skipped whole; the ray stops once
+    /// [`OPAQUE_ENOUGH`].
+    pub fn composite(
+        &self,
+        tables: &FrameTables,
+        origin: Vec3,
+        dir: Vec3,
+        interval: (f32, f32),
+    ) -> [f32; 4] {
+        let ray = self.index_ray(origin, dir);
+        let mut acc = [0f32; 4];
+        let Some(span) = clip_to_box(&ray, self.extent, interval.0, interval.1) else {
+            return acc;
+        };
+        let step = tables.step;
+        let mut budget = MAX_SAMPLES_PER_RAY;
+        for Segment { cell, t0, t1 } in self.macro_walk(&ray, span) {
+            if !self.macro_visible(tables, cell) {
+                continue;
+            }
+            let mut k = (t0 / step).ceil() as i64;
+            if (k as f32) * step < t0 {
+                k += 1;
+            }
+            loop {
+                let t = k as f32 * step;
+                if t >= t1 || budget == 0 {
+                    break;
+                }
+                budget -= 1;
+                k += 1;
+                let p = std::array::from_fn(|a| ray.origin[a] + ray.dir[a] * t);
+                let e = tables.table.lookup(self.sample(p));
+                let keep = 1.0 - acc[3];
+                for c in 0..4 {
+                    acc[c] += keep * e[c];
+                }
+                if acc[3] >= OPAQUE_ENOUGH {
+                    return acc;
+                }
+            }
+        }
+        acc
+    }
+
+    /// [`PreparedVolume::composite`] without skipping: every sample of the interval, for tests
+    /// that skipping changes nothing.
+    #[cfg(test)]
+    pub(crate) fn composite_every_sample(
+        &self,
+        tables: &FrameTables,
+        origin: Vec3,
+        dir: Vec3,
+        interval: (f32, f32),
+    ) -> [f32; 4] {
+        let everything = FrameTables {
+            key: tables.key,
+            step: tables.step,
+            table: tables.table.clone(),
+            visible: vec![true; tables.visible.len()],
+        };
+        self.composite(&everything, origin, dir, interval)
+    }
+
+    /// The nearest crossing of any of `iso` along the ray within `interval`: its `t` and which
+    /// value it is. Exact per cell: the trilinear field along the ray is a cubic, split where
+    /// it turns so that each piece crosses at most once, so no thin crossing is skipped.
+    pub fn iso_hit(
+        &self,
+        iso: &[f32],
+        origin: Vec3,
+        dir: Vec3,
+        interval: (f32, f32),
+    ) -> Option<(f32, u8)> {
+        if iso.is_empty() {
+            return None;
+        }
+        let ray = self.index_ray(origin, dir);
+        let span = clip_to_box(&ray, self.extent, interval.0, interval.1)?;
+        let cells = self.bricks.cells();
+        for outer in self.macro_walk(&ray, span) {
+            let (lo, hi) = self.minmax.range(outer.cell);
+            if !iso.iter().any(|&v| lo <= v && v <= hi) {
+                continue;
+            }
+            for seg in GridWalk::new(&ray, 1.0, cells, outer.t0, outer.t1) {
+                if let Some(hit) = cell_crossing(&self.bricks.corners(seg.cell), &ray, &seg, iso) {
+                    return Some(hit);
+                }
+            }
+        }
+        None
+    }
+
+    /// The unit normal of the field at render-space `point` (the gradient of the trilinear
+    /// interpolant of its cell); `fallback` where the field is flat.
+    pub fn normal_at(&self, point: Vec3, fallback: Vec3) -> Vec3 {
+        let p = (self.index_from_render * point + self.index_offset).to_array();
+        let (cell, u) = self.cell_of(p);
+        let g = Vec3::from_array(trilinear_gradient(&self.bricks.corners(cell), u));
+        let n = (self.gradient_to_render * g).normalize_or_zero();
+        if n == Vec3::ZERO || !n.is_finite() {
+            fallback
+        } else {
+            n
+        }
+    }
+
+    /// The value at render-space `point`, or None outside the volume.
+    pub fn value_at(&self, point: Vec3) -> Option<f32> {
+        let p = (self.index_from_render * point + self.index_offset).to_array();
+        let inside = (0..3).all(|a| (0.0..=self.extent[a]).contains(&p[a]));
+        inside.then(|| self.sample(p))
+    }
+}
+
+/// The first crossing of any of `iso` inside one cell, with `t` on the whole ray.
+fn cell_crossing(
+    corners: &[f32; 8],
+    ray: &IndexRay,
+    seg: &Segment,
+    iso: &[f32],
+) -> Option<(f32, u8)> {
+    let (lo, hi) = corners
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    let length = (seg.t1 - seg.t0) as f64;
+    // The field along the ray as a cubic in s = t - t0, in f64 (the cell's own coordinates,
+    // so large t far from the eye costs no digits).
+    let a: [f64; 3] = std::array::from_fn(|k| {
+        (ray.origin[k] as f64 + ray.dir[k] as f64 * seg.t0 as f64) - seg.cell[k] as f64
+    });
+    let b: [f64; 3] = ray.dir.map(|d| d as f64);
+    let cubic = field_cubic(corners, a, b);
+    let mut best: Option<(f64, u8)> = None;
+    for (index, &value) in iso.iter().enumerate() {
+        if value < lo || value > hi {
+            continue;
+        }
+        let mut c = cubic;
+        c[0] -= value as f64;
+        if let Some(s) = first_root(c, length) {
+            if best.is_none_or(|(t, _)| s < t) {
+                best = Some((s, index as u8));
+            }
+        }
+    }
+    best.map(|(s, i)| (seg.t0 + s as f32, i))
+}
+
+/// Coefficients `[c0, c1, c2, c3]` of the trilinear field at `a + s · b` (cell coordinates).
+fn field_cubic(corners: &[f32; 8], a: [f64; 3], b: [f64; 3]) -> [f64; 4] {
+    let mut c = [0f64; 4];
+    for (i, &value) in corners.iter().enumerate() {
+        // Each corner's weight is a product of three factors linear in s: p + s·q.
+        let factor = |axis: usize| {
+            if (i >> axis) & 1 == 1 {
+                (a[axis], b[axis])
+            } else {
+                (1.0 - a[axis], -b[axis])
+            }
+        };
+        let ((px, qx), (py, qy), (pz, qz)) = (factor(0), factor(1), factor(2));
+        let v = value as f64;
+        c[0] += v * px * py * pz;
+        c[1] += v * (qx * py * pz + px * qy * pz + px * py * qz);
+        c[2] += v * (qx * qy * pz + qx * py * qz + px * qy * qz);
+        c[3] += v * qx * qy * qz;
+    }
+    c
+}
+
+fn eval_cubic(c: &[f64; 4], s: f64) -> f64 {
+    ((c[3] * s + c[2]) * s + c[1]) * s + c[0]
+}
+
+/// The smallest root of the cubic `c` in `0..=length`: the interval is cut where the cubic's
+/// derivative vanishes, each piece is monotonic, and a piece whose ends differ in sign holds
+/// exactly one root, found by bisection.
+fn first_root(c: [f64; 4], length: f64) -> Option<f64> {
+    let mut knots = [0.0, length, length, length];
+    let mut n = 1;
+    // Roots of 3c3 s² + 2c2 s + c1.
+    let (qa, qb, qc) = (3.0 * c[3], 2.0 * c[2], c[1]);
+    let mut turning = [f64::NAN; 2];
+    if qa.abs() > 1e-300 {
+        let disc = qb * qb - 4.0 * qa * qc;
+        if disc >= 0.0 {
+            let root = disc.sqrt();
+            // The stable form: no cancellation between -qb and the root.
+            let q = -0.5 * (qb + qb.signum() * root);
+            turning = [q / qa, if q != 0.0 { qc / q } else { f64::NAN }];
+        }
+    } else if qb.abs() > 1e-300 {
+        turning[0] = -qc / qb;
+    }
+    turning.sort_by(|x, y| x.total_cmp(y));
+    for s in turning {
+        if s > 0.0 && s < length {
+            knots[n] = s;
+            n += 1;
+        }
+    }
+    knots[n] = length;
+    for w in knots[..=n].windows(2) {
+        let (s0, s1) = (w[0], w[1]);
+        let (g0, g1) = (eval_cubic(&c, s0), eval_cubic(&c, s1));
+        if g0 == 0.0 {
+            return Some(s0);
+        }
+        if g0.signum() != g1.signum() || g1 == 0.0 {
+            return Some(bisect(&c, s0, s1, g0));
+        }
+    }
+    None
+}
+
+fn bisect(c: &[f64; 4], mut lo: f64, mut hi: f64, g_lo: f64) -> f64 {
+    let below = g_lo < 0.0;
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if (eval_cubic(c, mid) < 0.0) == below {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The volume's dimensions, samples and origin with every axis at least 2 samples long: an
+/// axis of one sample becomes a slab one voxel thick around it, so a 1×1×1 volume is a cube.
+fn padded(volume: &Volume) -> ([usize; 3], Vec<f32>, [f64; 3]) {
+    let mut dims = volume.dims();
+    let mut values = volume.values().to_vec();
+    let mut origin = volume.origin();
+    let axes = volume.axes();
+    for a in 0..3 {
+        if dims[a] != 1 {
+            continue;
+        }
+        let mut wider = dims;
+        wider[a] = 2;
+        let mut out = Vec::with_capacity(values.len() * 2);
+        for z in 0..wider[2] {
+            for y in 0..wider[1] {
+                for x in 0..wider[0] {
+                    let mut src = [x, y, z];
+                    src[a] = 0;
+                    out.push(values[(src[2] * dims[1] + src[1]) * dims[0] + src[0]]);
+                }
+            }
+        }
+        for w in 0..3 {
+            origin[w] -= 0.5 * axes[a][w];
+        }
+        dims = wider;
+        values = out;
+    }
+    (dims, values, origin)
+}

@@ -1,0 +1,431 @@
+//! How volumes are drawn, per frame: the ray-marching step, the iso-values of direct
+//! iso-surfaces, and the transfer function. All of it is frame state, changed at the barrier
+//! like the camera, so the iso-value or the colours can change at any frame with no rebuild.
+//!
+//! Fixed-size and `Copy` like the rest of [`crate::params::RenderParams`]; on the wire each list
+//! is the used entries only, checked when it is read.
+
+use serde::{Deserialize, Serialize};
+
+/// Most iso-surfaces drawn at once.
+pub const MAX_ISO_VALUES: usize = 4;
+/// Most control points of a transfer function.
+pub const MAX_TRANSFER_POINTS: usize = 16;
+
+/// Why volume parameters were refused.
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
+pub enum VolumeParamsError {
+    #[error("at most {MAX_ISO_VALUES} iso-values are supported, got {0}")]
+    TooManyIso(usize),
+    #[error("iso-value {0} is not a finite number")]
+    BadIso(f32),
+    #[error("the volume step {0} must be finite and above 0 (or 0 for the default)")]
+    BadStep(f32),
+    #[error("the step factor {0} must be from 1 to 16")]
+    BadCoarsen(f32),
+    #[error("a transfer function needs 1 to {MAX_TRANSFER_POINTS} points, got {0}")]
+    TransferPointCount(usize),
+    #[error("transfer function point {index}: {why}")]
+    BadTransferPoint { index: usize, why: String },
+}
+
+/// Up to [`MAX_ISO_VALUES`] iso-values, in the data's own units.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[serde(into = "Vec<f32>")]
+pub struct IsoValues {
+    values: [f32; MAX_ISO_VALUES],
+    count: u8,
+}
+
+impl IsoValues {
+    pub const NONE: IsoValues = IsoValues {
+        values: [0.0; MAX_ISO_VALUES],
+        count: 0,
+    };
+
+    /// # Errors
+    /// More than [`MAX_ISO_VALUES`] values, or one that is not finite.
+    pub fn new(values: &[f32]) -> Result<Self, VolumeParamsError> {
+        if values.len() > MAX_ISO_VALUES {
+            return Err(VolumeParamsError::TooManyIso(values.len()));
+        }
+        let mut out = IsoValues::NONE;
+        for (slot, &v) in out.values.iter_mut().zip(values) {
+            if !v.is_finite() {
+                return Err(VolumeParamsError::BadIso(v));
+            }
+            *slot = v;
+        }
+        out.count = values.len() as u8;
+        Ok(out)
+    }
+
+    pub fn as_slice(&self) -> &[f32] {
+        &self.values[..self.count as usize]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+}
+
+impl TryFrom<Vec<f32>> for IsoValues {
+    type Error = VolumeParamsError;
+    fn try_from(values: Vec<f32>) -> Result<Self, VolumeParamsError> {
+        IsoValues::new(&values)
+    }
+}
+
+impl From<IsoValues> for Vec<f32> {
+    fn from(iso: IsoValues) -> Self {
+        iso.as_slice().to_vec()
+    }
+}
+
+impl<'de> Deserialize<'de> for IsoValues {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, Vec<f32>, Self>(d)
+    }
+}
+
+/// One control point: at data value `value`, colour `color` (linear RGB, not premultiplied)
+/// and opacity `opacity` per reference step (the volume's smallest voxel spacing).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TransferPoint {
+    pub value: f32,
+    pub color: [f32; 3],
+    pub opacity: f32,
+}
+
+/// Whether transfer-function values are the data's own units or fractions of its range.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TransferDomain {
+    /// 0 is the volume's smallest value, 1 its largest: one function fits any volume.
+    #[default]
+    Normalized,
+    /// The data's own units (Hounsfield units for CT).
+    Data,
+}
+
+/// A piecewise-linear map from data value to colour and opacity; constant beyond its ends.
+///
+/// # Examples
+///
+/// ```
+/// use tessera_wire::volume_params::{TransferFunction, TransferPoint, TransferDomain};
+///
+/// let ramp = TransferFunction::ramp();
+/// assert_eq!(ramp.domain(), TransferDomain::Normalized);
+/// let p = |value, opacity| TransferPoint { value, color: [1.0; 3], opacity };
+/// assert!(TransferFunction::new(TransferDomain::Data, &[p(1.0, 0.5), p(0.0, 0.5)]).is_err());
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(into = "TransferSpec")]
+pub struct TransferFunction {
+    domain: TransferDomain,
+    points: [TransferPoint; MAX_TRANSFER_POINTS],
+    count: u8,
+}
+
+/// [`TransferFunction`] as it travels: the used points only.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TransferSpec {
+    pub domain: TransferDomain,
+    pub points: Vec<TransferPoint>,
+}
+
+impl TransferFunction {
+    /// # Errors
+    /// No points or more than [`MAX_TRANSFER_POINTS`]; a value that is not finite or smaller
+    /// than the one before; a colour that is negative or not finite; an opacity outside 0..1.
+    pub fn new(
+        domain: TransferDomain,
+        points: &[TransferPoint],
+    ) -> Result<Self, VolumeParamsError> {
+        if points.is_empty() || points.len() > MAX_TRANSFER_POINTS {
+            return Err(VolumeParamsError::TransferPointCount(points.len()));
+        }
+        let bad = |index, why: String| VolumeParamsError::BadTransferPoint { index, why };
+        for (index, p) in points.iter().enumerate() {
+            if !p.value.is_finite() {
+                return Err(bad(index, format!("value {} is not finite", p.value)));
+            }
+            if index > 0 && p.value < points[index - 1].value {
+                return Err(bad(
+                    index,
+                    format!(
+                        "value {} is below the previous point's {}",
+                        p.value,
+                        points[index - 1].value
+                    ),
+                ));
+            }
+            if !p.color.iter().all(|c| c.is_finite() && *c >= 0.0) {
+                return Err(bad(
+                    index,
+                    format!("colour {:?} is not finite and >= 0", p.color),
+                ));
+            }
+            if !(0.0..=1.0).contains(&p.opacity) {
+                return Err(bad(index, format!("opacity {} is outside 0..1", p.opacity)));
+            }
+        }
+        let mut out = TransferFunction {
+            domain,
+            points: [TransferPoint::default(); MAX_TRANSFER_POINTS],
+            count: points.len() as u8,
+        };
+        out.points[..points.len()].copy_from_slice(points);
+        Ok(out)
+    }
+
+    pub fn domain(&self) -> TransferDomain {
+        self.domain
+    }
+
+    pub fn points(&self) -> &[TransferPoint] {
+        &self.points[..self.count as usize]
+    }
+
+    /// Colour and opacity at `x` (in the function's domain): linear between points, the end
+    /// points' beyond them.
+    pub fn eval(&self, x: f32) -> ([f32; 3], f32) {
+        let points = self.points();
+        let first = points[0];
+        if x <= first.value {
+            return (first.color, first.opacity);
+        }
+        for pair in points.windows(2) {
+            let (a, b) = (pair[0], pair[1]);
+            if x <= b.value {
+                let span = b.value - a.value;
+                let f = if span > 0.0 {
+                    (x - a.value) / span
+                } else {
+                    1.0
+                };
+                let color = std::array::from_fn(|c| a.color[c] + (b.color[c] - a.color[c]) * f);
+                return (color, a.opacity + (b.opacity - a.opacity) * f);
+            }
+        }
+        let last = points[points.len() - 1];
+        (last.color, last.opacity)
+    }
+
+    /// The default: transparent at the bottom of the data's range, a warm grey ramp in colour
+    /// and opacity to its top, so that any volume shows its structure.
+    pub const fn ramp() -> Self {
+        Self::preset(
+            TransferDomain::Normalized,
+            &[
+                point(0.0, [0.0, 0.0, 0.0], 0.0),
+                point(0.1, [0.2, 0.25, 0.5], 0.0),
+                point(0.5, [0.9, 0.6, 0.3], 0.05),
+                point(1.0, [1.0, 1.0, 0.95], 0.4),
+            ],
+        )
+    }
+
+    /// CT bone, in Hounsfield units: soft tissue transparent, bone from about 200 HU opaque
+    /// and ivory.
+    pub const fn ct_bone() -> Self {
+        Self::preset(
+            TransferDomain::Data,
+            &[
+                point(150.0, [0.6, 0.3, 0.2], 0.0),
+                point(250.0, [0.9, 0.75, 0.6], 0.3),
+                point(600.0, [1.0, 0.95, 0.85], 0.8),
+                point(2000.0, [1.0, 1.0, 1.0], 0.95),
+            ],
+        )
+    }
+
+    /// CT skin, in Hounsfield units: a faint skin surface (about -500..0 HU) over opaque bone.
+    pub const fn ct_skin() -> Self {
+        Self::preset(
+            TransferDomain::Data,
+            &[
+                point(-600.0, [0.9, 0.6, 0.5], 0.0),
+                point(-400.0, [0.95, 0.7, 0.6], 0.08),
+                point(100.0, [0.9, 0.55, 0.45], 0.02),
+                point(250.0, [0.95, 0.85, 0.7], 0.5),
+                point(1000.0, [1.0, 1.0, 0.95], 0.9),
+            ],
+        )
+    }
+
+    /// The preset named `name` (`ramp`, `ct-bone`, `ct-skin`).
+    pub fn preset_named(name: &str) -> Option<Self> {
+        match name {
+            "ramp" => Some(Self::ramp()),
+            "ct-bone" => Some(Self::ct_bone()),
+            "ct-skin" => Some(Self::ct_skin()),
+            _ => None,
+        }
+    }
+
+    /// The names [`TransferFunction::preset_named`] knows.
+    pub const PRESET_NAMES: [&'static str; 3] = ["ramp", "ct-bone", "ct-skin"];
+
+    const fn preset(domain: TransferDomain, points: &[TransferPoint]) -> Self {
+        let mut out = TransferFunction {
+            domain,
+            points: [point(0.0, [0.0; 3], 0.0); MAX_TRANSFER_POINTS],
+            count: points.len() as u8,
+        };
+        let mut i = 0;
+        while i < points.len() {
+            out.points[i] = points[i];
+            i += 1;
+        }
+        out
+    }
+}
+
+const fn point(value: f32, color: [f32; 3], opacity: f32) -> TransferPoint {
+    TransferPoint {
+        value,
+        color,
+        opacity,
+    }
+}
+
+impl Default for TransferFunction {
+    fn default() -> Self {
+        Self::ramp()
+    }
+}
+
+impl TryFrom<TransferSpec> for TransferFunction {
+    type Error = VolumeParamsError;
+    fn try_from(spec: TransferSpec) -> Result<Self, VolumeParamsError> {
+        TransferFunction::new(spec.domain, &spec.points)
+    }
+}
+
+impl From<TransferFunction> for TransferSpec {
+    fn from(tf: TransferFunction) -> Self {
+        TransferSpec {
+            domain: tf.domain,
+            points: tf.points().to_vec(),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for TransferFunction {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::checked::deserialize::<D, TransferSpec, Self>(d)
+    }
+}
+
+/// The volume knobs of a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VolumeParams {
+    /// Ray-marching step in world units (those of the volume's spacing); 0 picks half the
+    /// smallest voxel spacing.
+    pub step: f32,
+    /// Iso-values of direct iso-surfaces; none draws the volume through its transfer function.
+    pub iso: IsoValues,
+    pub transfer: TransferFunction,
+    /// Factor on the step: progressive refinement renders frames of a moving view with a
+    /// larger step (opacity correction keeps their look) and the still view with the full
+    /// step, 1.
+    pub coarsen: f32,
+}
+
+impl VolumeParams {
+    pub const DEFAULT: VolumeParams = VolumeParams {
+        step: 0.0,
+        iso: IsoValues::NONE,
+        transfer: TransferFunction::ramp(),
+        coarsen: 1.0,
+    };
+
+    /// Most [`VolumeParams::coarsen`] allowed.
+    pub const MAX_COARSEN: f32 = 16.0;
+
+    /// # Errors
+    /// A step that is negative or not finite, or a coarsening outside 1..=16.
+    pub fn check(&self) -> Result<(), VolumeParamsError> {
+        if !(self.step.is_finite() && self.step >= 0.0) {
+            return Err(VolumeParamsError::BadStep(self.step));
+        }
+        if !(1.0..=Self::MAX_COARSEN).contains(&self.coarsen) {
+            return Err(VolumeParamsError::BadCoarsen(self.coarsen));
+        }
+        Ok(())
+    }
+}
+
+impl Default for VolumeParams {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(value: f32, opacity: f32) -> TransferPoint {
+        point(value, [0.5; 3], opacity)
+    }
+
+    #[test]
+    fn presets_are_valid_transfer_functions() {
+        for name in TransferFunction::PRESET_NAMES {
+            let tf = TransferFunction::preset_named(name).unwrap();
+            assert_eq!(TransferFunction::new(tf.domain(), tf.points()), Ok(tf));
+        }
+    }
+
+    #[test]
+    fn eval_is_piecewise_linear_and_constant_beyond_the_ends() {
+        let tf = TransferFunction::new(TransferDomain::Data, &[p(0.0, 0.0), p(10.0, 1.0)]).unwrap();
+        assert_eq!(tf.eval(-5.0).1, 0.0);
+        assert_eq!(tf.eval(2.5).1, 0.25);
+        assert_eq!(tf.eval(50.0).1, 1.0);
+        // A step (two points at one value) is allowed and jumps there.
+        let step = TransferFunction::new(
+            TransferDomain::Data,
+            &[p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0), p(2.0, 1.0)],
+        )
+        .unwrap();
+        assert_eq!(step.eval(0.999).1, 0.0);
+        assert_eq!(step.eval(1.001).1, 1.0);
+    }
+
+    #[test]
+    fn bad_points_are_refused_by_index() {
+        let err = TransferFunction::new(TransferDomain::Data, &[p(0.0, 0.5), p(1.0, 1.5)]);
+        assert!(matches!(
+            err,
+            Err(VolumeParamsError::BadTransferPoint { index: 1, .. })
+        ));
+        assert!(TransferFunction::new(TransferDomain::Data, &[]).is_err());
+        assert!(TransferFunction::new(TransferDomain::Data, &[p(f32::NAN, 0.5)]).is_err());
+        assert!(IsoValues::new(&[1.0; 5]).is_err());
+        assert!(IsoValues::new(&[f32::INFINITY]).is_err());
+    }
+
+    #[test]
+    fn deserializing_checks_the_lists() {
+        let bad = TransferSpec {
+            domain: TransferDomain::Data,
+            points: vec![p(2.0, 0.5), p(1.0, 0.5)],
+        };
+        let bytes = postcard::to_allocvec(&bad).unwrap();
+        let err = crate::protocol::codec::decode::<TransferFunction>(&bytes).unwrap_err();
+        assert!(err.to_string().contains("below the previous"), "{err}");
+        let bytes = postcard::to_allocvec(&vec![1.0f32; 9]).unwrap();
+        assert!(crate::protocol::codec::decode::<IsoValues>(&bytes).is_err());
+        let good = VolumeParams {
+            step: 0.5,
+            iso: IsoValues::new(&[100.0, 300.0]).unwrap(),
+            transfer: TransferFunction::ct_bone(),
+            coarsen: 2.0,
+        };
+        let bytes = postcard::to_allocvec(&good).unwrap();
+        assert_eq!(postcard::from_bytes::<VolumeParams>(&bytes).unwrap(), good);
+    }
+}
