@@ -152,19 +152,25 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub quality: QualityArgs,
     /// Also write an output value per pixel: `depth` → DIR/depth.pfm (distance along the ray,
-    /// +inf for none), `prim` → DIR/prim.pfm (triangle index, -1 for none). Repeatable.
+    /// +inf for none), `prim` → DIR/prim.pfm (triangle index, -1 for none), `color` →
+    /// DIR/color.pfm (linear RGB, what wall.png encodes, for error measurements). Repeatable.
     #[arg(long, value_enum)]
     pub aov: Vec<Aov>,
     /// Render --frame K of a recorded session (`--record`): its camera, quality and lights
     /// at that frame, in place of the camera and quality flags.
     #[arg(long, value_name = "FILE")]
     pub replay: Option<PathBuf>,
+    /// Render the frame this many times and report the median and fastest render time (for
+    /// benchmarks: the first render also fills the frame's tables).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub repeat: u32,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq, Debug)]
 pub enum Aov {
     Depth,
     Prim,
+    Color,
 }
 
 #[derive(clap::Args)]

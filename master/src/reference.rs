@@ -4,9 +4,9 @@
 use crate::args::{Aov, RenderArgs};
 use anyhow::{Context, Result};
 use std::time::Instant;
-use tessera_render::aov::{primary_aovs, write_pfm};
+use tessera_render::aov::{primary_aovs, write_pfm, write_pfm_rgb};
 use tessera_render::scene::Scene;
-use tessera_render::{orbit_of, render_wall, FrameView, PreparedScene};
+use tessera_render::{orbit_of, render_wall, render_wall_linear, FrameView, PreparedScene};
 use tessera_wire::wall::TileGrid;
 
 pub fn render_reference(args: RenderArgs) -> Result<()> {
@@ -39,17 +39,44 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
         },
         None => FrameView::new(args.frame, &camera, params, w, h),
     };
-    let image = render_wall(&prepared, &view, &TileGrid::new(wall));
+    let mut times = Vec::with_capacity(args.repeat as usize);
+    let mut image = None;
+    for _ in 0..args.repeat {
+        let start = Instant::now();
+        image = Some(render_wall(&prepared, &view, &TileGrid::new(wall)));
+        times.push(start.elapsed().as_secs_f64());
+    }
+    let image = image.expect("--repeat is at least 1");
+    let rendered = times[0];
+    if args.repeat > 1 {
+        let mut sorted = times.clone();
+        sorted.sort_by(f64::total_cmp);
+        eprintln!(
+            "render times over {} runs: median {:.4} s, fastest {:.4} s, first {:.4} s",
+            args.repeat,
+            sorted[sorted.len() / 2],
+            sorted[0],
+            times[0]
+        );
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create --out {}", args.out.display()))?;
     let path = args.out.join("wall.png");
     image.save_png(&path)?;
-    if !args.aov.is_empty() {
+    if args.aov.contains(&Aov::Color) {
+        let p = args.out.join("color.pfm");
+        let colors = render_wall_linear(&prepared, &view, &TileGrid::new(wall));
+        write_pfm_rgb(&p, wall.width(), wall.height(), &colors)
+            .with_context(|| format!("cannot write {}", p.display()))?;
+        eprintln!("wrote {}", p.display());
+    }
+    if args.aov.iter().any(|a| *a != Aov::Color) {
         let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall));
         for aov in &args.aov {
             let (name, values) = match aov {
                 Aov::Depth => ("depth.pfm", &aovs.depth),
                 Aov::Prim => ("prim.pfm", &aovs.prim),
+                Aov::Color => continue,
             };
             let p = args.out.join(name);
             write_pfm(&p, aovs.width, aovs.height, values)
@@ -58,13 +85,17 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
         }
     }
     eprintln!(
-        "rendered frame {} of a {}x{} wall ({} triangles): BVH {:.2} s, render {:.2} s; wrote {}",
+        "rendered frame {} of a {}x{} wall ({} triangles{}): prepare {:.2} s, render {:.3} s; wrote {}",
         args.frame,
         wall.width(),
         wall.height(),
         scene.triangles.len(),
+        scene.volume.as_ref().map_or(String::new(), |v| {
+            let d = v.dims();
+            format!(", a {}x{}x{} volume", d[0], d[1], d[2])
+        }),
         built.as_secs_f64(),
-        (t0.elapsed() - built).as_secs_f64(),
+        rendered,
         path.display()
     );
     Ok(())

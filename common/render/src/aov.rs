@@ -89,6 +89,26 @@ pub fn write_pfm(
     out.flush()
 }
 
+/// Writes linear RGB as a little-endian colour PFM (rows bottom to top).
+pub fn write_pfm_rgb(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    colors: &[glam::Vec3],
+) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+    write!(out, "PF\n{width} {height}\n-1.0\n")?;
+    for row in (0..height as usize).rev() {
+        for c in &colors[row * width as usize..(row + 1) * width as usize] {
+            for v in c.to_array() {
+                out.write_all(&v.to_le_bytes())?;
+            }
+        }
+    }
+    out.flush()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -220,15 +220,7 @@ pub(crate) fn render_tiles_with(
         let images = tiles.iter().map(|t| rgb.repeat(t.pixel_count())).collect();
         return (images, RayCounts::default());
     }
-    let packets: Vec<(usize, u32, u32)> = tiles
-        .iter()
-        .enumerate()
-        .flat_map(|(i, t)| {
-            (0..t.height.div_ceil(PACKET)).flat_map(move |py| {
-                (0..t.width.div_ceil(PACKET)).map(move |px| (i, px * PACKET, py * PACKET))
-            })
-        })
-        .collect();
+    let packets = packets_of(tiles);
     let traced: Vec<([u8; (PACKET * PACKET * 3) as usize], RayCounts)> = packets
         .par_iter()
         .map_init(
@@ -254,6 +246,55 @@ pub(crate) fn render_tiles_with(
     (images, counts)
 }
 
+/// Renders `tiles` as linear colour (what [`render_tiles`] encodes to 8 bits, before encoding),
+/// row-major per tile: for error measurements against a converged reference.
+pub fn render_tiles_linear(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tiles: &[Tile],
+) -> (Vec<Vec<Vec3>>, RayCounts) {
+    let packets = packets_of(tiles);
+    let spp = view.params.spp().max(1) as f32;
+    let traced: Vec<([Vec3; 64], RayCounts)> = packets
+        .par_iter()
+        .map_init(
+            || scene.accel.new_stack(),
+            |stack, &(i, px, py)| {
+                packet_sum(scene, view, &tiles[i], (px, py), ShadowRays::Packets, stack)
+            },
+        )
+        .collect();
+    let mut images: Vec<Vec<Vec3>> = tiles
+        .iter()
+        .map(|t| vec![Vec3::ZERO; t.pixel_count()])
+        .collect();
+    let mut counts = RayCounts::default();
+    for (&(i, px, py), (sum, c)) in packets.iter().zip(&traced) {
+        counts = counts.add(*c);
+        let tile = &tiles[i];
+        let w = PACKET.min(tile.width - px);
+        for lane in 0..(w * PACKET.min(tile.height - py)) {
+            let at = ((py + lane / w) * tile.width + px + lane % w) as usize;
+            // Per channel, as the 8-bit encoding divides.
+            images[i][at] = Vec3::from_array(sum[lane as usize].to_array().map(|c| c / spp));
+        }
+    }
+    (images, counts)
+}
+
+/// Every 8×8 packet of `tiles`: its tile and its corner in the tile.
+fn packets_of(tiles: &[Tile]) -> Vec<(usize, u32, u32)> {
+    tiles
+        .iter()
+        .enumerate()
+        .flat_map(|(i, t)| {
+            (0..t.height.div_ceil(PACKET)).flat_map(move |py| {
+                (0..t.width.div_ceil(PACKET)).map(move |px| (i, px * PACKET, py * PACKET))
+            })
+        })
+        .collect()
+}
+
 /// Samples of supersampling and of ambient occlusion are drawn from one key space per pixel:
 /// sample `s` of the pixel's jitter has key `JITTER_KEYS + s`, ambient-occlusion ray `k` of
 /// supersample `s` has key `s · ao_samples + k`.
@@ -270,6 +311,37 @@ fn trace_packet(
     stack: &mut Vec<u32>,
 ) -> ([u8; (PACKET * PACKET * 3) as usize], RayCounts) {
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
+    let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
+    let spp = view.params.spp().max(1);
+    let (sum, counts) = packet_sum(scene, view, tile, (px, py), shadow_rays, stack);
+    if w == PACKET {
+        // Lane i is pixel (i % 8, i / 8), so the channels lie in `out`'s order: encoded in
+        // one flat loop that runs several channels at once.
+        let flat: &[f32] = bytemuck::cast_slice(&sum[..]);
+        let n = (w * h * 3) as usize;
+        for (o, &c) in out[..n].iter_mut().zip(&flat[..n]) {
+            *o = shade::encode_channel(c / spp as f32);
+        }
+    } else {
+        for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
+            let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
+            out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
+        }
+    }
+    (out, counts)
+}
+
+/// The colours of the packet at `(px, py)` in `tile`, summed over the frame's samples (lane i
+/// is pixel (i % 8, i / 8) of the block), and the rays traced.
+#[inline(always)]
+fn packet_sum(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tile: &Tile,
+    (px, py): (u32, u32),
+    shadow_rays: ShadowRays,
+    stack: &mut Vec<u32>,
+) -> ([Vec3; 64], RayCounts) {
     let (x0, y0) = (tile.x + px, tile.y + py);
     let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
     let mut counts = RayCounts::default();
@@ -296,21 +368,7 @@ fn trace_packet(
         );
         counts = counts.add(c);
     }
-    if w == PACKET {
-        // Lane i is pixel (i % 8, i / 8), so the channels lie in `out`'s order: encoded in
-        // one flat loop that runs several channels at once.
-        let flat: &[f32] = bytemuck::cast_slice(&sum[..]);
-        let n = (w * h * 3) as usize;
-        for (o, &c) in out[..n].iter_mut().zip(&flat[..n]) {
-            *o = shade::encode_channel(c / spp as f32);
-        }
-    } else {
-        for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
-            let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
-            out[o..o + 3].copy_from_slice(&encode_srgb_ish(*color / spp as f32));
-        }
-    }
-    (out, counts)
+    (sum, counts)
 }
 
 /// Traces `packet` (the rays of the block at `x0, y0`, `w` wide) and adds each ray's colour to

@@ -389,3 +389,26 @@ fn shadow_packets_give_the_pixels_of_single_shadow_rays() {
         assert_eq!(packets, single);
     }
 }
+
+#[test]
+fn the_linear_image_is_what_the_8_bit_image_encodes() {
+    let scene = knot_scene(64, 8);
+    let prepared = PreparedScene::new(&scene);
+    let wall = WallSpec::grid(2, 1, 40, 28).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall);
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(1);
+    let params = RenderParamsSpec {
+        spp: 3,
+        ao_samples: 2,
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .unwrap();
+    let view = FrameView::new(1, &camera, params, wall.width(), wall.height());
+    let rgb8 = render_wall(&prepared, &view, &grid);
+    let linear = render_wall_linear(&prepared, &view, &grid);
+    assert_eq!(linear.len() * 3, rgb8.rgb.len());
+    for (c, px) in linear.iter().zip(rgb8.rgb.chunks(3)) {
+        assert_eq!(&encode_srgb_ish(*c)[..], px);
+    }
+}

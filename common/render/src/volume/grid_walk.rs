@@ -28,7 +28,9 @@ pub struct GridWalk {
     step: [i64; 3],
     next: [f32; 3],
     origin: [f32; 3],
-    dir: [f32; 3],
+    /// 1 / direction (infinite along an axis the ray does not move on, never used there): a
+    /// multiply a segment instead of a divide.
+    inv_dir: [f32; 3],
     size: f32,
     counts: [i64; 3],
     t: f32,
@@ -50,10 +52,10 @@ impl GridWalk {
             let d = ray.dir[a];
             if d > 0.0 {
                 step[a] = 1;
-                next[a] = ((cell[a] + 1) as f32 * size - ray.origin[a]) / d;
+                next[a] = ((cell[a] + 1) as f32 * size - ray.origin[a]) * (1.0 / d);
             } else if d < 0.0 {
                 step[a] = -1;
-                next[a] = (cell[a] as f32 * size - ray.origin[a]) / d;
+                next[a] = (cell[a] as f32 * size - ray.origin[a]) * (1.0 / d);
             }
         }
         GridWalk {
@@ -61,7 +63,7 @@ impl GridWalk {
             step,
             next,
             origin: ray.origin,
-            dir: ray.dir,
+            inv_dir: ray.dir.map(|d| 1.0 / d),
             size,
             counts: counts.map(|c| c as i64),
             t: t_start,
@@ -98,7 +100,7 @@ impl Iterator for GridWalk {
         // Accumulating deltas drifts; computing each boundary from its cell keeps it one value
         // whichever walk reaches it.
         let boundary = self.cell[axis] + (self.step[axis] > 0) as i64;
-        self.next[axis] = (boundary as f32 * self.size - self.origin[axis]) / self.dir[axis];
+        self.next[axis] = (boundary as f32 * self.size - self.origin[axis]) * self.inv_dir[axis];
         Some(segment)
     }
 }

@@ -2,7 +2,7 @@
 //! its index space, and the two ways a ray sees it: composited through the transfer function,
 //! or stopped at the first direct iso-surface.
 
-use super::bricks::{trilinear, trilinear_gradient, Bricks, MinMaxGrid, MACRO_CELLS};
+use super::bricks::{trilinear, trilinear_at, trilinear_gradient, Bricks, MinMaxGrid, MACRO_CELLS};
 use super::grid_walk::{clip_to_box, GridWalk, IndexRay, Segment};
 use super::transfer::TransferTable;
 use super::Volume;
@@ -206,15 +206,21 @@ impl PreparedVolume {
             return acc;
         };
         let step = tables.step;
+        let (origin_index, dir_index) = (Vec3::from_array(ray.origin), Vec3::from_array(ray.dir));
         let mut budget = MAX_SAMPLES_PER_RAY;
         for Segment { cell, t0, t1 } in self.macro_walk(&ray, span) {
             if !self.macro_visible(tables, cell) {
                 continue;
             }
-            let mut k = (t0 / step).ceil() as i64;
-            if (k as f32) * step < t0 {
+            // The first k with k · step >= t0, without `ceil` (a libm call on baseline x86-64).
+            let mut k = (t0 / step) as i64 - 1;
+            while (k as f32) * step < t0 {
                 k += 1;
             }
+            // A macro-cell lies in one brick (8 divides 32): found once, and the corners of a
+            // cell read once for the samples that fall in it (two or more at the default step).
+            let first_cell = cell.map(|m| m * MACRO_CELLS);
+            let brick = self.bricks.brick_of(first_cell);
             loop {
                 let t = k as f32 * step;
                 if t >= t1 || budget == 0 {
@@ -222,8 +228,8 @@ impl PreparedVolume {
                 }
                 budget -= 1;
                 k += 1;
-                let p = std::array::from_fn(|a| ray.origin[a] + ray.dir[a] * t);
-                let e = tables.table.lookup(self.sample(p));
+                let (c, u) = brick.locate(origin_index + dir_index * t);
+                let e = tables.table.lookup(trilinear_at(&brick.corners(c), u));
                 let keep = 1.0 - acc[3];
                 for c in 0..4 {
                     acc[c] += keep * e[c];
