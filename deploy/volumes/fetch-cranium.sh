@@ -1,6 +1,10 @@
 #!/usr/bin/env bash
 # The CT head of Debian's invesalius-examples as a Tessera volume: unpacks Cranium.inv3 (a tar.gz
-# of InVesalius' project files) and writes a raw-with-sidecar description of its CT matrix.
+# of InVesalius' project files) and writes a raw-with-sidecar description of its CT matrix
+# (cranium.vol.toml), the same data as a detached NRRD header placed as InVesalius places its
+# surfaces (cranium.nhdr: y runs negative), and, where Python's vtk is at hand (VTK_PYTHON,
+# default the venv deploy/bench/vtk-compare.sh makes), the skull surface InVesalius extracted
+# as skull.ply with a scene of both (cranium-skull.scene.toml). Prints the sidecar's path.
 #
 #   deploy/volumes/fetch-cranium.sh [DIR]    (default ~/.cache/tessera-volumes/cranium)
 #
@@ -40,4 +44,35 @@ type = "i16"
 spacing = [0.9570312, 0.9570312, 1.5]
 endian = "little"
 TOML
+cat > "$dir/cranium.nhdr" <<NHDR
+NRRD0004
+type: short
+dimension: 3
+sizes: 256 256 108
+space dimension: 3
+space directions: (0.9570312,0,0) (0,-0.9570312,0) (0,0,1.5)
+space origin: (0,0,0)
+endian: little
+encoding: raw
+data file: cranium.raw
+NHDR
+py=${VTK_PYTHON:-${XDG_CACHE_HOME:-$HOME/.cache}/tessera-bench/vtk-venv/bin/python}
+surface="$(find "$tmp" -name surface_0.vtp | head -n 1)"
+if [ -x "$py" ] && "$py" -c 'import vtk' 2>/dev/null && [ -n "$surface" ]; then
+    "$py" - "$surface" "$dir/skull.ply" <<'PY' 2>/dev/null
+import sys, vtk
+reader = vtk.vtkXMLPolyDataReader()
+reader.SetFileName(sys.argv[1])
+triangles = vtk.vtkTriangleFilter()
+triangles.SetInputConnection(reader.GetOutputPort())
+writer = vtk.vtkPLYWriter()
+writer.SetFileName(sys.argv[2])
+writer.SetInputConnection(triangles.GetOutputPort())
+writer.SetFileTypeToBinary()
+writer.Write()
+PY
+    printf 'meshes = ["skull.ply"]\nvolume = "cranium.nhdr"\n' > "$dir/cranium-skull.scene.toml"
+else
+    echo "fetch-cranium: no Python vtk ($py): skipping skull.ply and the mesh + volume scene" >&2
+fi
 echo "$dir/cranium.vol.toml"

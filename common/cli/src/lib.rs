@@ -94,8 +94,8 @@ impl WallArgs {
 pub struct SceneArgs {
     /// `builtin` (a procedural knot over a floor), `gallery` (the knot among a mirror and
     /// glass), `empty` (a flat backdrop, nothing traced), `knot:SEGMENTS:SIDES`, a mesh path
-    /// (OBJ, PLY, glTF/GLB), particles (.csv, .tpart) or a volume (.nrrd, .nhdr, .nii,
-    /// .nii.gz, .vol.toml; see --iso and --transfer).
+    /// (OBJ, PLY, glTF/GLB), particles (.csv, .tpart), a volume (.nrrd, .nhdr, .nii, .nii.gz,
+    /// .vol.toml; see --iso and --transfer) or a .scene.toml naming several of them.
     #[arg(long, default_value = "builtin")]
     pub scene: String,
     /// Camera position X,Y,Z. With --target, fixes the camera; without, the camera orbits.

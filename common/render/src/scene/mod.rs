@@ -6,6 +6,7 @@
 //! loaded the same bytes as the master, since identical input is what makes tiles bit-identical
 //! on any node.
 
+pub mod composite;
 mod files;
 pub mod gltf;
 pub mod particles;
@@ -140,7 +141,7 @@ pub use tessera_wire::light::Light;
 pub enum SceneError {
     #[error("scene file {path}: {message}")]
     File { path: String, message: String },
-    #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf or .glb)")]
+    #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf, .glb, .csv, .tpart, .nrrd, .nhdr, .nii, .nii.gz, .vol.toml or .scene.toml)")]
     UnknownFormat { path: String },
     #[error("scene {origin}: vertex {index} has a non-finite coordinate {value:?}")]
     NonFinite {
@@ -199,6 +200,9 @@ impl Scene {
                 lights: vec![default_light()],
                 ..Scene::default()
             },
+            SceneSpec::File(path) if composite::is_scene_file(path) => {
+                composite::load_scene_file(path)?
+            }
             SceneSpec::File(path) if volume::is_volume_path(path) => {
                 from_volume(volume::load(path)?)
             }
@@ -398,14 +402,19 @@ pub const NEUTRAL: Material = Material::lambert(Vec3::new(0.8, 0.78, 0.74));
 /// front left. Its vertices are moved to a local origin at their middle before they become
 /// f32, and triangles with no area there are dropped (counted in the log): they can never be
 /// hit, and a million of them would only slow the BVH build.
-fn from_mesh(mut mesh: Mesh, path: &Path) -> Scene {
+fn from_mesh(mesh: Mesh, path: &Path) -> Scene {
+    let frame = RenderFromWorld::centred_on(&mesh.positions);
+    from_mesh_in(mesh, path, frame)
+}
+
+/// [`from_mesh`] in a given render frame (a scene of several parts centres it on all of them).
+fn from_mesh_in(mut mesh: Mesh, path: &Path, render_from_world: RenderFromWorld) -> Scene {
     let count = mesh.triangles.len();
     if mesh.materials.is_empty() {
         mesh.triangle_material = vec![0; count];
         mesh.materials = vec![NEUTRAL];
         mesh.material_names = vec!["neutral".into()];
     }
-    let render_from_world = RenderFromWorld::centred_on(&mesh.positions);
     let positions: Vec<Vec3> = mesh
         .positions
         .iter()

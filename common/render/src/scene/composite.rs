@@ -1,0 +1,169 @@
+//! A scene of several files, named by a small TOML file (`NAME.scene.toml`): meshes, particles
+//! and a volume together, in one world. Paths are relative to the scene file.
+//!
+//! ```toml
+//! meshes = ["skull.obj", "implant.ply"]
+//! volume = "head.nii.gz"
+//! particles = "tracers.csv"
+//! ```
+//!
+//! Every part keeps its world coordinates; the render frame is centred on all of them together
+//! (in f64, as for one mesh), so a mesh drawn inside a CT volume sits where it should.
+
+use super::{default_light, from_mesh_in, particles, Mesh, Scene, SceneError, NEUTRAL};
+use crate::volume::{self, Volume};
+use glam::DVec3;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+use tessera_wire::local_frame::RenderFromWorld;
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    #[serde(default)]
+    meshes: Vec<PathBuf>,
+    particles: Option<PathBuf>,
+    volume: Option<PathBuf>,
+}
+
+/// Whether `path` names a scene file (`.scene.toml`).
+pub fn is_scene_file(path: &Path) -> bool {
+    path.to_string_lossy()
+        .to_ascii_lowercase()
+        .ends_with(".scene.toml")
+}
+
+/// Loads every part the scene file at `path` names.
+///
+/// # Errors
+/// An unreadable or malformed scene file (naming the field), a file that names no part, or any
+/// part's own load error (which names that part's file).
+pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    let bad = |message: String| SceneError::File {
+        path: path.display().to_string(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+    let file: SceneFile = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    if file.meshes.is_empty() && file.particles.is_none() && file.volume.is_none() {
+        return Err(bad("names no meshes, particles or volume".into()));
+    }
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut mesh = Mesh::default();
+    for part in &file.meshes {
+        append(
+            &mut mesh,
+            super::load_mesh_file(&dir.join(part))?,
+            &dir.join(part),
+        )?;
+    }
+    let volume: Option<Volume> = file
+        .volume
+        .as_ref()
+        .map(|v| volume::load(&dir.join(v)))
+        .transpose()?;
+    let mut particles = match &file.particles {
+        Some(p) => particles::load_particles(&dir.join(p))?,
+        None => Vec::new(),
+    };
+    let mut extent: Vec<DVec3> = mesh.positions.clone();
+    if let Some(v) = &volume {
+        extent.extend(v.world_corners().map(DVec3::from_array));
+    }
+    extent.extend(particles.iter().map(|p| p.center.as_dvec3()));
+    let frame = RenderFromWorld::centred_on(&extent);
+    for p in &mut particles {
+        p.center = frame.point(p.center.as_dvec3());
+    }
+    let mut scene = if mesh.triangles.is_empty() {
+        Scene {
+            lights: vec![default_light()],
+            render_from_world: frame,
+            ..Scene::default()
+        }
+    } else {
+        from_mesh_in(mesh, path, frame)
+    };
+    scene.volume = volume;
+    scene.particles = particles;
+    Ok(scene)
+}
+
+/// Adds `part` to `mesh`: its vertices after the ones there, its materials after theirs (a part
+/// without materials gets the neutral one).
+fn append(mesh: &mut Mesh, mut part: Mesh, path: &Path) -> Result<(), SceneError> {
+    if part.materials.is_empty() {
+        part.triangle_material = vec![0; part.triangles.len()];
+        part.materials = vec![NEUTRAL];
+        part.material_names = vec!["neutral".into()];
+    }
+    let too_many = |what: &str| SceneError::File {
+        path: path.display().to_string(),
+        message: format!("the scene's meshes have more {what} than one scene holds"),
+    };
+    let first_vertex = u32::try_from(mesh.positions.len()).map_err(|_| too_many("vertices"))?;
+    let first_material = u16::try_from(mesh.materials.len()).map_err(|_| too_many("materials"))?;
+    if mesh.materials.len() + part.materials.len() > u16::MAX as usize {
+        return Err(too_many("materials"));
+    }
+    mesh.positions.extend(part.positions);
+    mesh.triangles.extend(
+        part.triangles
+            .iter()
+            .map(|t| t.map(|v| v.saturating_add(first_vertex))),
+    );
+    mesh.triangle_material
+        .extend(part.triangle_material.iter().map(|m| m + first_material));
+    mesh.materials.extend(part.materials);
+    mesh.material_names.extend(part.material_names);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scene_file_puts_a_mesh_inside_a_volume_in_one_frame() {
+        let dir = tempfile::tempdir().unwrap();
+        let obj = "v 10 10 10\nv 12 10 10\nv 10 12 10\nf 1 2 3\n";
+        std::fs::write(dir.path().join("tri.obj"), obj).unwrap();
+        std::fs::write(dir.path().join("tri2.obj"), obj).unwrap();
+        std::fs::write(dir.path().join("v.raw"), vec![7u8; 27]).unwrap();
+        std::fs::write(
+            dir.path().join("v.vol.toml"),
+            "data = \"v.raw\"\ndims = [3, 3, 3]\ntype = \"u8\"\nspacing = [10.0, 10.0, 10.0]\n",
+        )
+        .unwrap();
+        let path = dir.path().join("both.scene.toml");
+        std::fs::write(
+            &path,
+            "meshes = [\"tri.obj\", \"tri2.obj\"]\nvolume = \"v.vol.toml\"\n",
+        )
+        .unwrap();
+        let scene = load_scene_file(&path).unwrap();
+        assert_eq!(scene.triangles, vec![[0, 1, 2], [3, 4, 5]]);
+        assert!(scene.volume.is_some());
+        // The frame is centred on the volume's box (0..20), which holds the triangles.
+        assert_eq!(scene.render_from_world.world_origin, DVec3::splat(10.0));
+        assert_eq!(scene.positions[1], glam::Vec3::new(2.0, 0.0, 0.0));
+        let bounds = scene.bounds();
+        assert_eq!(
+            (bounds.min, bounds.max),
+            (glam::Vec3::splat(-10.0), glam::Vec3::splat(10.0))
+        );
+        scene.validate("both").unwrap();
+
+        std::fs::write(&path, "meshes = [\"missing.obj\"]\n").unwrap();
+        let err = load_scene_file(&path).unwrap_err().to_string();
+        assert!(err.contains("missing.obj"), "{err}");
+        std::fs::write(&path, "mesh = \"tri.obj\"\n").unwrap();
+        let err = load_scene_file(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("unknown field") && err.contains("mesh"),
+            "{err}"
+        );
+        std::fs::write(&path, "").unwrap();
+        assert!(load_scene_file(&path).is_err());
+    }
+}
