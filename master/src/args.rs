@@ -250,6 +250,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         (glam::Vec3::ZERO, 1.0)
     };
     Ok(RunConfig {
+        probe: crate::probe::Prober::of_scene(&scene),
         wall,
         refinement,
         windows: wall_file.windows,

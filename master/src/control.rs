@@ -118,6 +118,9 @@ pub enum Command {
     },
     /// Have the displays save the next frame; prints its number.
     Snapshot,
+    /// Print the volume's value and world position under wall pixel X Y (of the whole wall,
+    /// bezels included, 0,0 at the top left) as JSON: null where the pixel shows no volume.
+    Probe { x: u32, y: u32 },
     /// Run control commands from FILE (`-`: standard input), one per line, as written after
     /// `control ... ` on the command line; blank lines and lines starting with # are skipped.
     Script { file: PathBuf },
@@ -320,6 +323,7 @@ impl ControlClient {
             Command::Views => ControlRequest::Views,
             Command::Overlay { on } => ControlRequest::Overlay(*on),
             Command::Snapshot => ControlRequest::Snapshot,
+            Command::Probe { x, y } => ControlRequest::Probe { x: *x, y: *y },
             Command::Script { .. } => bail!("a script cannot run a script"),
         };
         self.ask(request).await
@@ -371,6 +375,7 @@ fn print(reply: &ControlReply) -> Result<bool> {
             println!("{}", serde_json::to_string_pretty(reply)?);
         }
         ControlReply::Snapshot { frame } => println!("{frame}"),
+        ControlReply::Probe(hit) => println!("{}", serde_json::to_string_pretty(hit)?),
         ControlReply::Queued { .. } | ControlReply::Done | ControlReply::Clock { .. } => {}
     }
     Ok(false)

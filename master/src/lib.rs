@@ -13,6 +13,7 @@ mod bench;
 mod control;
 mod launcher;
 mod peers;
+mod probe;
 mod record;
 mod reference;
 mod report;

@@ -211,3 +211,65 @@ fn only_a_control_certificate_may_control() {
         .assert_refused("overlay maybe", &["on or off"]);
     wall.stop();
 }
+
+#[test]
+fn the_probe_reads_the_volume_under_a_pixel_and_follows_the_iso_value() {
+    let dir = tempfile::tempdir().unwrap();
+    // 8³ voxels whose value is 10 × their x index, 1 mm apart.
+    let values: Vec<u8> = (0..512).map(|i| (i % 8) as u8 * 10).collect();
+    std::fs::write(dir.path().join("ramp.raw"), values).unwrap();
+    let sidecar = dir.path().join("ramp.vol.toml");
+    std::fs::write(
+        &sidecar,
+        "data = \"ramp.raw\"\ndims = [8, 8, 8]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    // Looking down -x at the middle of the volume: the centre of the 2x1 wall enters it at
+    // x = 7 (value 70) and runs down the ramp.
+    let wall = start_wall(
+        dir.path(),
+        &[
+            "--scene",
+            sidecar.to_str().unwrap(),
+            "--eye",
+            "20,3.5,3.5",
+            "--target",
+            "3.5,3.5,3.5",
+        ],
+    );
+    let probe = |x: &str, y: &str| {
+        let o = wall.control(&["probe", x, y]);
+        o.assert_success("probe");
+        serde_json::from_str::<serde_json::Value>(&o.stdout).expect("probe JSON")
+    };
+    // Through the default ramp the ray turns half opaque some way into the volume, at a
+    // point whose value is ten times its x.
+    let hit = probe("164", "45");
+    let value = hit["value"].as_f64().expect("the centre shows the volume");
+    let x = hit["world"][0].as_f64().unwrap();
+    assert!(
+        (x - value / 10.0).abs() < 0.05 && (3.0..7.0).contains(&x),
+        "{hit}"
+    );
+    assert!(
+        (hit["distance"].as_f64().unwrap() - (20.0 - x)).abs() < 0.05,
+        "{hit}"
+    );
+    assert!(probe("0", "0").is_null(), "a corner looks past the volume");
+    wall.control(&["probe", "9999", "0"])
+        .assert_refused("probe outside", &["outside"]);
+
+    // An iso-surface at 52: once a frame with it has started, the probe finds x = 5.2 on it.
+    wall.control(&["volume", "--iso", "52"])
+        .assert_success("volume --iso");
+    let on_iso = wait_for(LIMIT, || {
+        let hit = probe("164", "45");
+        let x = hit["world"][0].as_f64().unwrap_or(0.0);
+        hit["value"]
+            .as_f64()
+            .is_some_and(|v| (v - 52.0).abs() < 0.01)
+            && (x - 5.2).abs() < 1e-3
+    });
+    assert!(on_iso, "the probe never saw the iso-surface");
+    wall.stop();
+}

@@ -80,6 +80,20 @@ pub enum ControlRequest {
     /// Have every display save the next frame to start as `display-<id>-frame-<K>.png` in
     /// its `--out` directory (the master puts them together as `wall-frame-<K>.png`).
     Snapshot,
+    /// The volume's data value and world position under wall pixel `(x, y)` (the virtual wall,
+    /// bezels included, row 0 at the top), as the frames starting now show it.
+    Probe { x: u32, y: u32 },
+}
+
+/// What a probe found under a pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProbeHit {
+    /// World coordinates of the point the ray sees.
+    pub world: [f64; 3],
+    /// The volume's value there, in the data's own units.
+    pub value: f32,
+    /// Distance from the eye along the ray.
+    pub distance: f32,
 }
 
 /// The master's answer to one request.
@@ -107,6 +121,8 @@ pub enum ControlReply {
     Snapshot {
         frame: u64,
     },
+    /// What the probed pixel shows of the volume; None where its ray sees none.
+    Probe(Option<ProbeHit>),
     /// Done, nothing to say.
     Done,
     /// Not done, and why.

@@ -97,6 +97,22 @@ impl Wall {
                 }
                 ControlReply::Snapshot { frame: frame.0 }
             }
+            ControlRequest::Probe { x, y } => {
+                let prober = self
+                    .cfg
+                    .probe
+                    .as_ref()
+                    .ok_or("the scene has no volume to probe")?;
+                // What the wall shows: the last frame started, else the state the first will have.
+                let (camera, params) = match self.live.last_start {
+                    Some(start) => (start.camera, start.params),
+                    None => (
+                        self.frame_state.camera.camera_for_frame(0),
+                        self.frame_state.params,
+                    ),
+                };
+                ControlReply::Probe(prober.probe(&camera, &params, &self.cfg.wall, (x, y))?)
+            }
         })
     }
 

@@ -60,6 +60,8 @@ pub struct RunConfig {
     /// Where input from the windows orbits about, and the scene's size (half its diagonal).
     pub pivot: glam::Vec3,
     pub scene_size: f32,
+    /// The scene's volume, for the control interface's probe (None: no volume).
+    pub probe: Option<std::sync::Arc<crate::probe::Prober>>,
 }
 
 enum PeerRole {

@@ -305,6 +305,43 @@ impl PreparedVolume {
         }
     }
 
+    /// What a viewer sees of the volume along the ray within `interval`: its `t` and the value
+    /// there. With iso-values, the first iso-surface; through the transfer function, the first
+    /// sample at which the ray's composited opacity reaches one half. None where neither is.
+    pub fn probe(
+        &self,
+        params: &VolumeParams,
+        origin: Vec3,
+        dir: Vec3,
+        interval: (f32, f32),
+    ) -> Option<(f32, f32)> {
+        let at = |t: f32| self.value_at(origin + dir * t);
+        if !params.iso.is_empty() {
+            let (t, _) = self.iso_hit(params.iso.as_slice(), origin, dir, interval)?;
+            return Some((t, at(t)?));
+        }
+        let tables = self.tables(params);
+        let ray = self.index_ray(origin, dir);
+        let (t0, t1) = clip_to_box(&ray, self.extent, interval.0, interval.1)?;
+        let step = tables.step;
+        let mut alpha = 0f32;
+        let first = (t0 / step) as i64;
+        let count = (((t1 - t0) / step) as i64 + 2).min(MAX_SAMPLES_PER_RAY as i64);
+        for k in first..first + count {
+            let t = k as f32 * step;
+            if t < t0 || t >= t1 {
+                continue;
+            }
+            let p = std::array::from_fn(|a| ray.origin[a] + ray.dir[a] * t);
+            let value = self.sample(p);
+            alpha += (1.0 - alpha) * tables.table.lookup(value)[3];
+            if alpha >= 0.5 {
+                return Some((t, value));
+            }
+        }
+        None
+    }
+
     /// The value at render-space `point`, or None outside the volume.
     pub fn value_at(&self, point: Vec3) -> Option<f32> {
         let p = (self.index_from_render * point + self.index_offset).to_array();

@@ -439,3 +439,39 @@ fn a_volume_scene_renders_and_a_mesh_inside_it_hides_what_is_behind() {
             > 20
     );
 }
+
+#[test]
+fn the_probe_finds_the_iso_surface_or_where_the_volume_turns_opaque() {
+    let volume = PreparedVolume::new(&field(33, |p| p.length()), &RenderFromWorld::IDENTITY);
+    let eye = Vec3::new(0.0, 0.0, 3.0);
+    let iso = VolumeParams {
+        iso: IsoValues::new(&[0.5]).unwrap(),
+        ..VolumeParams::DEFAULT
+    };
+    let (t, value) = volume.probe(&iso, eye, -Vec3::Z, (0.0, 10.0)).unwrap();
+    assert!(
+        (t - 2.5).abs() < 0.01 && (value - 0.5).abs() < 1e-3,
+        "{t} {value}"
+    );
+    // Opaque below 0.3 (the middle of the sphere), clear above: half opacity inside |p| < 0.3.
+    let p = |value, opacity| TransferPoint {
+        value,
+        color: [1.0; 3],
+        opacity,
+    };
+    let transfer = TransferFunction::new(
+        TransferDomain::Data,
+        &[p(0.0, 1.0), p(0.3, 1.0), p(0.31, 0.0)],
+    )
+    .unwrap();
+    let dvr = VolumeParams {
+        transfer,
+        ..VolumeParams::DEFAULT
+    };
+    let (t, value) = volume.probe(&dvr, eye, -Vec3::Z, (0.0, 10.0)).unwrap();
+    assert!(value <= 0.31 && (t - 2.7).abs() < 0.05, "{t} {value}");
+    assert_eq!(
+        volume.probe(&dvr, Vec3::new(5.0, 0.0, 3.0), -Vec3::Z, (0.0, 10.0)),
+        None
+    );
+}

@@ -1,0 +1,67 @@
+//! The probe of the control interface: the volume's value and world position under a wall
+//! pixel. The master keeps the scene's volume (bricked, as the render nodes hold it) for it;
+//! a scene without a volume keeps nothing and refuses probes.
+
+use std::sync::Arc;
+use tessera_render::scene::Scene;
+use tessera_render::volume::PreparedVolume;
+use tessera_render::PixelRays;
+use tessera_wire::camera::Camera;
+use tessera_wire::control::ProbeHit;
+use tessera_wire::local_frame::RenderFromWorld;
+use tessera_wire::params::RenderParams;
+use tessera_wire::wall::WallLayout;
+
+/// The scene's volume, for probing.
+pub struct Prober {
+    volume: PreparedVolume,
+    frame: RenderFromWorld,
+}
+
+impl std::fmt::Debug for Prober {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Prober").finish_non_exhaustive()
+    }
+}
+
+impl Prober {
+    /// A prober for `scene`'s volume; None for a scene without one.
+    pub fn of_scene(scene: &Scene) -> Option<Arc<Self>> {
+        let volume = scene.volume.as_ref()?;
+        Some(Arc::new(Prober {
+            volume: PreparedVolume::new(volume, &scene.render_from_world),
+            frame: scene.render_from_world,
+        }))
+    }
+
+    /// What pixel `(x, y)` of `wall` shows of the volume, seen by `camera` with `params`.
+    ///
+    /// # Errors
+    /// A pixel outside the wall.
+    pub fn probe(
+        &self,
+        camera: &Camera,
+        params: &RenderParams,
+        wall: &WallLayout,
+        (x, y): (u32, u32),
+    ) -> Result<Option<ProbeHit>, String> {
+        let (w, h) = (wall.width(), wall.height());
+        if x >= w || y >= h {
+            return Err(format!("pixel {x},{y} is outside the {w}x{h} wall"));
+        }
+        let rays = PixelRays::new(camera, w, h);
+        let dir = rays.direction_at(x, y, 0.5, 0.5);
+        let interval = params.cuts().interval(rays.eye, dir);
+        if interval.0 > interval.1 {
+            return Ok(None);
+        }
+        Ok(self
+            .volume
+            .probe(params.volume(), rays.eye, dir, interval)
+            .map(|(t, value)| ProbeHit {
+                world: self.frame.world_point(rays.eye + dir * t).to_array(),
+                value,
+                distance: t,
+            }))
+    }
+}
