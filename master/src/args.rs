@@ -55,6 +55,10 @@ pub struct RunArgs {
     /// (`--frames 0`) that replay nothing.
     #[arg(long, value_enum, default_value_t = RefineArg::Auto)]
     pub refine: RefineArg,
+    /// Play the scene's time series (`series` in a .scene.toml): one step a frame from
+    /// --time-step, looping; each step is state, changed at the frame barrier.
+    #[arg(long)]
+    pub play: bool,
     /// Samples per pixel of the final quality.
     #[arg(long, default_value_t = 8)]
     pub final_spp: u32,
@@ -225,6 +229,9 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     let refinement = run.refinement()?;
     let scene = Scene::load(&spec)?;
     let params = run.quality.params(&scene.render_from_world)?;
+    if run.play && scene.series.is_empty() {
+        bail!("--play needs a scene with a time series (`series` in a .scene.toml)");
+    }
     if let Some(dir) = &run.out {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create --out {}", dir.display()))?;
@@ -250,6 +257,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         (glam::Vec3::ZERO, 1.0)
     };
     Ok(RunConfig {
+        play_steps: run.play.then_some(scene.series.len() as u32),
         probe: crate::probe::Prober::of_scene(&scene),
         wall,
         refinement,

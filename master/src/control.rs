@@ -99,6 +99,9 @@ pub enum Command {
         /// A transfer-function preset (ramp, ct-bone, ct-skin) or TOML file.
         #[arg(long)]
         transfer: Option<String>,
+        /// Which step of a time series to show.
+        #[arg(long)]
+        time_step: Option<u32>,
     },
     /// Print the wall's state (now and after the next barrier) as JSON.
     State,
@@ -302,8 +305,12 @@ impl ControlClient {
                 no_iso,
                 step,
                 transfer,
+                time_step,
             } => {
                 let mut volume = *self.state_and_frame().await?.0.params.volume();
+                if let Some(t) = time_step {
+                    volume.time_step = *t;
+                }
                 if !iso.is_empty() || *no_iso {
                     volume.iso = IsoValues::new(iso).context("--iso")?;
                 }

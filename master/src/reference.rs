@@ -29,7 +29,16 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
     }
     .camera_for_frame(args.frame);
     let t0 = Instant::now();
-    let prepared = PreparedScene::new(&scene);
+    let mut prepared = PreparedScene::new(&scene);
+    if !scene.series.is_empty() {
+        // The step the frame shows, placed in the series' frame (its first step's).
+        let shown = replayed.as_ref().map_or(params, |state| state.params);
+        let step = shown.volume().time_step as usize % scene.series.len();
+        let volume = tessera_render::volume::load(&scene.series[step])?;
+        prepared.set_volume(std::sync::Arc::new(
+            tessera_render::volume::PreparedVolume::new(&volume, &scene.render_from_world),
+        ));
+    }
     let built = t0.elapsed();
     let (w, h) = (wall.width(), wall.height());
     let view = match replayed {

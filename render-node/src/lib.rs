@@ -43,6 +43,9 @@ pub struct Cli {
     /// Always build the BVH; neither read nor write the cache.
     #[arg(long)]
     no_bvh_cache: bool,
+    /// Memory for the steps of a time-varying volume read ahead of the one shown, in MiB.
+    #[arg(long, default_value_t = 2048)]
+    volume_cache_mb: usize,
 }
 
 fn parse_threads(text: &str) -> Result<usize, String> {
@@ -100,6 +103,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 cert_dir,
                 threads: cli.threads,
                 bvh_cache: cache_dir(cli.bvh_cache, cli.no_bvh_cache),
+                volume_cache_bytes: cli.volume_cache_mb.saturating_mul(1 << 20),
             };
             tessera_net::link::node_runtime()?.block_on(node::run(options))
         }

@@ -8,13 +8,16 @@ use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 use tessera_core::worker::{BatchSizer, RenderWorker};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::MasterLink;
 use tessera_net::quic;
 use tessera_render::scene::Scene;
+use tessera_render::volume::SeriesCache;
 use tessera_render::{render_tiles, FrameView, PreparedScene, RayCounts};
 use tessera_wire::protocol::pixels::BatchSource;
 use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, Session, ToNode};
@@ -22,12 +25,22 @@ use tessera_wire::state::StateId;
 use tessera_wire::wall::{TileGrid, TileId};
 use tokio::sync::mpsc;
 
+fn read(scene: &RwLock<PreparedScene>) -> RwLockReadGuard<'_, PreparedScene> {
+    scene.read().unwrap_or_else(|e| e.into_inner())
+}
+
+fn write(scene: &RwLock<PreparedScene>) -> RwLockWriteGuard<'_, PreparedScene> {
+    scene.write().unwrap_or_else(|e| e.into_inner())
+}
+
 /// What the node was started with.
 pub struct Options {
     pub master: String,
     pub cert_dir: PathBuf,
     pub threads: Option<usize>,
     pub bvh_cache: Option<PathBuf>,
+    /// Bytes a time series' read-ahead steps may take.
+    pub volume_cache_bytes: usize,
 }
 
 /// A batch the render threads finished.
@@ -70,7 +83,14 @@ pub async fn run(options: Options) -> Result<()> {
         .context("is tessera-master running there? see --help")?;
     let (node, session) = (welcome.node, welcome.session);
     tracing::info!("render node {}: joined, loading the scene", node.0);
-    let prepared = match prepare(&session, pool.clone(), options.bvh_cache).await {
+    let prepared = match prepare(
+        &session,
+        pool.clone(),
+        options.bvh_cache,
+        options.volume_cache_bytes,
+    )
+    .await
+    {
         Ok(p) => p,
         Err(e) => {
             link.fail(format!("{e:#}")).await;
@@ -86,15 +106,19 @@ pub async fn run(options: Options) -> Result<()> {
     tracing::info!(
         "render node {}: ready ({} triangles, {threads} threads)",
         node.0,
-        prepared.accel.triangles.len()
+        prepared.0.accel.triangles.len()
     );
+    let (prepared, series) = prepared;
 
     let grid = Arc::new(TileGrid::new(*session.wall()));
     let compression = session.compression();
-    let prepared = Arc::new(prepared);
+    // Batches render one at a time: the lock is taken for writing only between them, when a
+    // time series moves to another step.
+    let prepared = Arc::new(RwLock::new(prepared));
+    let shown_step = Arc::new(AtomicUsize::new(0));
     let mut sizer = BatchSizer::new(threads);
     let mut worker = RenderWorker::new(grid.len() as u32, sizer.low_water(None));
-    let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Rendered>();
+    let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Result<Rendered, String>>();
     let (delivered_tx, mut delivered_rx) = mpsc::unbounded_channel::<Delivery>();
     let mut rendering = false;
     let mut stats = RenderStats::default();
@@ -109,10 +133,24 @@ pub async fn run(options: Options) -> Result<()> {
                     pool.clone(),
                     done_tx.clone(),
                 );
+                let (series, shown_step) = (series.clone(), shown_step.clone());
                 tokio::task::spawn_blocking(move || {
                     let t0 = Instant::now();
                     let view =
                         FrameView::of_start(&start, grid.layout().width(), grid.layout().height());
+                    if let Some(series) = &series {
+                        let step = view.params.volume().time_step as usize % series.len();
+                        if shown_step.swap(step, Ordering::Relaxed) != step {
+                            match series.get(step) {
+                                Ok(volume) => write(&prepared).set_volume(volume),
+                                Err(e) => {
+                                    let _ = done_tx.send(Err(e.to_string()));
+                                    return;
+                                }
+                            }
+                        }
+                    }
+                    let prepared = read(&prepared);
                     let geometry: Vec<_> = tiles
                         .iter()
                         .map(|t| {
@@ -130,7 +168,7 @@ pub async fn run(options: Options) -> Result<()> {
                             .map(|rgb| compression.encode_tile(rgb))
                             .collect()
                     });
-                    let _ = done_tx.send(Rendered {
+                    let _ = done_tx.send(Ok(Rendered {
                         frame: start.frame,
                         state: start.state,
                         tiles,
@@ -138,7 +176,7 @@ pub async fn run(options: Options) -> Result<()> {
                         rays,
                         took,
                         batch_took: t0.elapsed(),
-                    });
+                    }));
                 });
             }
             if let Some(request) = worker.poll_request(Instant::now()) {
@@ -149,6 +187,13 @@ pub async fn run(options: Options) -> Result<()> {
             msg = link.recv() => match msg? {
                 ToNode::Shutdown => {
                     stats.elapsed_s = first_frame.elapsed().as_secs_f64();
+                    if let Some(series) = &series {
+                        let s = series.stats();
+                        stats.volume_load_s = s.load_seconds;
+                        stats.volume_load_s.truncate(tessera_wire::protocol::MAX_REPORTED_LOADS);
+                        (stats.prefetch_hits, stats.prefetch_misses) = (s.hits, s.misses);
+                        stats.volume_stall_s = s.stall_seconds;
+                    }
                     let summary = format!("{} tiles, {} rays", stats.tiles, stats.rays);
                     link.finish(NodeStats::Render(stats)).await?;
                     tracing::info!("render node {}: done, {summary}", node.0);
@@ -158,7 +203,14 @@ pub async fn run(options: Options) -> Result<()> {
                     .handle_message(&msg, Instant::now())
                     .context("the master broke the protocol")?,
             },
-            Some(Rendered { frame, state, tiles, payloads, rays, took, batch_took }) = done_rx.recv() => {
+            Some(done) = done_rx.recv() => {
+                let Rendered { frame, state, tiles, payloads, rays, took, batch_took } = match done {
+                    Ok(r) => r,
+                    Err(e) => {
+                        link.fail(format!("cannot load the volume's time step: {e}")).await;
+                        bail!("cannot load the volume's time step: {e}");
+                    }
+                };
                 rendering = false;
                 sizer.record(tiles.len(), batch_took);
                 worker.set_low_water(sizer.low_water(worker.round_trip()));
@@ -185,11 +237,15 @@ pub async fn run(options: Options) -> Result<()> {
     }
 }
 
+/// The scene, prepared, and for a time series the cache its steps are read through.
+type Prepared = (PreparedScene, Option<Arc<SeriesCache>>);
+
 async fn prepare(
     session: &Session,
     pool: Arc<rayon::ThreadPool>,
     bvh_cache: Option<PathBuf>,
-) -> Result<PreparedScene> {
+    volume_cache_bytes: usize,
+) -> Result<Prepared> {
     let spec = session.scene().clone();
     let expected = session.scene_hash();
     tokio::task::spawn_blocking(move || {
@@ -202,10 +258,19 @@ async fn prepare(
         tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
         let mut prepared = PreparedScene::from_accel(&scene, accel);
         prepared.slim_for_rendering();
+        // Two readers: one step ahead while the next loads, on a node whose cores render.
+        let series = (!scene.series.is_empty()).then(|| {
+            Arc::new(SeriesCache::new(
+                scene.series.clone(),
+                scene.render_from_world,
+                volume_cache_bytes,
+                2,
+            ))
+        });
         // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
         drop(scene);
         crate::memory::release_freed();
-        Ok(prepared)
+        Ok((prepared, series))
     })
     .await?
 }

@@ -225,6 +225,9 @@ pub struct QualityArgs {
     /// points (see deploy/volumes/README.md).
     #[arg(long, default_value = "ramp")]
     pub transfer: String,
+    /// Volumes: which step of a time series to show (see `series` in a .scene.toml).
+    #[arg(long, default_value_t = 0)]
+    pub time_step: u32,
 }
 
 impl QualityArgs {
@@ -248,6 +251,7 @@ impl QualityArgs {
                 step: self.volume_step,
                 iso: IsoValues::new(&self.iso).map_err(ParamsError::from)?,
                 transfer: transfer_file::transfer_function(&self.transfer)?,
+                time_step: self.time_step,
                 ..VolumeParams::DEFAULT
             },
             ..RenderParamsSpec::INTERACTIVE

@@ -16,6 +16,7 @@ use crate::volume::PreparedVolume;
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use tessera_wire::camera::Camera;
 use tessera_wire::light::Lights;
 use tessera_wire::params::RenderParams;
@@ -40,8 +41,9 @@ pub struct PreparedScene {
     pub spheres: Option<SphereAccel>,
     /// Attribute values mapped to the two ends of the colour map.
     pub(crate) attribute_range: (f32, f32),
-    /// The scene's volume, bricked, if it has one.
-    pub volume: Option<PreparedVolume>,
+    /// The scene's volume, bricked, if it has one: for a time series, the step being shown
+    /// (see [`PreparedScene::set_volume`]).
+    pub volume: Option<Arc<PreparedVolume>>,
 }
 
 impl PreparedScene {
@@ -74,7 +76,7 @@ impl PreparedScene {
             volume: scene
                 .volume
                 .as_ref()
-                .map(|v| PreparedVolume::new(v, &scene.render_from_world)),
+                .map(|v| Arc::new(PreparedVolume::new(v, &scene.render_from_world))),
         }
     }
 
@@ -90,6 +92,11 @@ impl PreparedScene {
     /// Bytes of the per-slot material indices (for memory reports).
     pub fn slot_material_bytes(&self) -> usize {
         std::mem::size_of_val(&self.slot_material[..])
+    }
+
+    /// Shows `volume` from now on: a time series' next step, from a [`crate::volume::SeriesCache`].
+    pub fn set_volume(&mut self, volume: Arc<PreparedVolume>) {
+        self.volume = Some(volume);
     }
 
     /// No triangles, particles or volume: every pixel is the backdrop.

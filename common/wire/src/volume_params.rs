@@ -331,6 +331,9 @@ pub struct VolumeParams {
     /// larger step (opacity correction keeps their look) and the still view with the full
     /// step, 1.
     pub coarsen: f32,
+    /// Which volume of a time series is shown (modulo the series' length; a single volume
+    /// ignores it).
+    pub time_step: u32,
 }
 
 impl VolumeParams {
@@ -339,6 +342,7 @@ impl VolumeParams {
         iso: IsoValues::NONE,
         transfer: TransferFunction::ramp(),
         coarsen: 1.0,
+        time_step: 0,
     };
 
     /// Most [`VolumeParams::coarsen`] allowed.
@@ -424,6 +428,7 @@ mod tests {
             iso: IsoValues::new(&[100.0, 300.0]).unwrap(),
             transfer: TransferFunction::ct_bone(),
             coarsen: 2.0,
+            time_step: 3,
         };
         let bytes = postcard::to_allocvec(&good).unwrap();
         assert_eq!(postcard::from_bytes::<VolumeParams>(&bytes).unwrap(), good);

@@ -167,6 +167,18 @@ impl Wall {
         })
     }
 
+    /// Playing a time series: the next barrier shows the step after the one queued last.
+    pub(super) fn advance_time_step(&mut self, steps: u32) {
+        let mut volume = *self.coordinator.next_state().params.volume();
+        volume.time_step = (volume.time_step + 1) % steps.max(1);
+        if let Err(e) =
+            self.coordinator
+                .queue_change(StateChange::Volume(volume), unix_ns(), Instant::now())
+        {
+            tracing::warn!("playing the series: {e}");
+        }
+    }
+
     /// The camera on the wall now, as a fixed camera: what a saved view keeps and where
     /// steering starts from (an orbit frozen at its last frame).
     pub(super) fn current_camera(&self) -> CameraMode {

@@ -60,6 +60,8 @@ pub struct RunConfig {
     /// Where input from the windows orbits about, and the scene's size (half its diagonal).
     pub pivot: glam::Vec3,
     pub scene_size: f32,
+    /// Steps of the time series the wall plays, one a frame (None: it does not play).
+    pub play_steps: Option<u32>,
     /// The scene's volume, for the control interface's probe (None: no volume).
     pub probe: Option<std::sync::Arc<crate::probe::Prober>>,
 }
@@ -402,6 +404,9 @@ impl Wall {
                 Output::FrameStarted(frame) => {
                     self.frame_started.insert(frame, Instant::now());
                     self.timing.frame_started(frame, unix_ns());
+                    if let Some(steps) = self.cfg.play_steps {
+                        self.advance_time_step(steps);
+                    }
                 }
                 Output::FramePresented(frame) => {
                     self.presents.push((frame, Instant::now()));

@@ -7,6 +7,9 @@
 //! particles = "tracers.csv"
 //! ```
 //!
+//! A time series takes the place of `volume`: `series = ["t0.nrrd", "t1.nrrd"]`, or a pattern
+//! with one `*` in the file name, `series = "flow/t*.nrrd"`, its matches in name order.
+//!
 //! Every part keeps its world coordinates; the render frame is centred on all of them together
 //! (in f64, as for one mesh), so a mesh drawn inside a CT volume sits where it should.
 
@@ -24,6 +27,49 @@ struct SceneFile {
     meshes: Vec<PathBuf>,
     particles: Option<PathBuf>,
     volume: Option<PathBuf>,
+    series: Option<Series>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Series {
+    List(Vec<PathBuf>),
+    Pattern(String),
+}
+
+/// The files of a series: the list as given, or the pattern's matches in name order.
+fn series_paths(dir: &Path, series: &Series, scene: &Path) -> Result<Vec<PathBuf>, SceneError> {
+    let bad = |message: String| SceneError::File {
+        path: scene.display().to_string(),
+        message,
+    };
+    let paths: Vec<PathBuf> = match series {
+        Series::List(list) => list.iter().map(|p| dir.join(p)).collect(),
+        Series::Pattern(pattern) => {
+            let full = dir.join(pattern);
+            let folder = full.parent().unwrap_or(dir).to_path_buf();
+            let name = full.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            let Some((head, tail)) = name.split_once('*') else {
+                return Err(bad(format!(
+                    "series pattern {pattern:?} has no * in its file name"
+                )));
+            };
+            let entries = std::fs::read_dir(&folder)
+                .map_err(|e| bad(format!("series folder {}: {e}", folder.display())))?;
+            let mut names: Vec<String> = entries
+                .filter_map(|e| e.ok()?.file_name().into_string().ok())
+                .filter(|n| {
+                    n.len() >= head.len() + tail.len() && n.starts_with(head) && n.ends_with(tail)
+                })
+                .collect();
+            names.sort();
+            names.into_iter().map(|n| folder.join(n)).collect()
+        }
+    };
+    if paths.is_empty() {
+        return Err(bad("the series names no files".into()));
+    }
+    Ok(paths)
 }
 
 /// Whether `path` names a scene file (`.scene.toml`).
@@ -45,10 +91,21 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     };
     let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
     let file: SceneFile = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
-    if file.meshes.is_empty() && file.particles.is_none() && file.volume.is_none() {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    if file.volume.is_some() && file.series.is_some() {
+        return Err(bad("give a volume or a series, not both".into()));
+    }
+    let series = match &file.series {
+        Some(series) => series_paths(dir, series, path)?,
+        None => Vec::new(),
+    };
+    if file.meshes.is_empty()
+        && file.particles.is_none()
+        && file.volume.is_none()
+        && series.is_empty()
+    {
         return Err(bad("names no meshes, particles or volume".into()));
     }
-    let dir = path.parent().unwrap_or(Path::new("."));
     let mut mesh = Mesh::default();
     for part in &file.meshes {
         append(
@@ -57,11 +114,13 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
             &dir.join(part),
         )?;
     }
-    let volume: Option<Volume> = file
+    // A series is placed, bounded and hashed by its first step.
+    let first = file
         .volume
         .as_ref()
-        .map(|v| volume::load(&dir.join(v)))
-        .transpose()?;
+        .map(|v| dir.join(v))
+        .or(series.first().cloned());
+    let volume: Option<Volume> = first.as_deref().map(volume::load).transpose()?;
     let mut particles = match &file.particles {
         Some(p) => particles::load_particles(&dir.join(p))?,
         None => Vec::new(),
@@ -85,6 +144,7 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
         from_mesh_in(mesh, path, frame)
     };
     scene.volume = volume;
+    scene.series = series;
     scene.particles = particles;
     Ok(scene)
 }
@@ -153,6 +213,32 @@ mod tests {
             (glam::Vec3::splat(-10.0), glam::Vec3::splat(10.0))
         );
         scene.validate("both").unwrap();
+
+        // A series by pattern: its matches in name order, the first step loaded.
+        std::fs::copy(
+            dir.path().join("v.vol.toml"),
+            dir.path().join("s1.vol.toml"),
+        )
+        .unwrap();
+        std::fs::copy(
+            dir.path().join("v.vol.toml"),
+            dir.path().join("s0.vol.toml"),
+        )
+        .unwrap();
+        std::fs::write(&path, "series = \"s*.vol.toml\"\n").unwrap();
+        let scene = load_scene_file(&path).unwrap();
+        let names: Vec<_> = scene
+            .series
+            .iter()
+            .map(|p| p.file_name().unwrap().to_owned())
+            .collect();
+        assert_eq!(names, ["s0.vol.toml", "s1.vol.toml"]);
+        assert!(scene.volume.is_some());
+        std::fs::write(&path, "series = \"q*.vol.toml\"\n").unwrap();
+        assert!(load_scene_file(&path)
+            .unwrap_err()
+            .to_string()
+            .contains("no files"));
 
         std::fs::write(&path, "meshes = [\"missing.obj\"]\n").unwrap();
         let err = load_scene_file(&path).unwrap_err().to_string();

@@ -127,8 +127,11 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
     pub particles: Vec<particles::Particle>,
-    /// A volume of samples, placed in the world; a scene without one builds no bricks.
+    /// A volume of samples, placed in the world; a scene without one builds no bricks. For a
+    /// time series, its first step.
     pub volume: Option<Volume>,
+    /// The files of a time series (empty: none); its steps are loaded as frames show them.
+    pub series: Vec<std::path::PathBuf>,
     /// Where the render coordinates sit in the world (identity for built-in scenes): a file's
     /// mesh is moved to its middle, in f64, before it becomes f32.
     pub render_from_world: RenderFromWorld,
@@ -358,6 +361,13 @@ impl Scene {
             hasher.update(bytemuck::cast_slice(&volume.origin()));
             hasher.update(bytemuck::cast_slice(volume.values()));
         }
+        // The steps after the first by name and size: nodes load them as frames show them.
+        for path in &self.series {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            hasher.update(name.unwrap_or_default().as_bytes());
+            let size = std::fs::metadata(path).map_or(u64::MAX, |m| m.len());
+            hasher.update(&size.to_le_bytes());
+        }
         for light in &self.lights {
             let (tag, v, i) = match *light {
                 Light::Directional { towards, intensity } => (0u8, towards, intensity),
@@ -438,6 +448,7 @@ fn from_mesh_in(mut mesh: Mesh, path: &Path, render_from_world: RenderFromWorld)
         lights: vec![default_light()],
         particles: Vec::new(),
         volume: None,
+        series: Vec::new(),
         render_from_world,
     }
 }

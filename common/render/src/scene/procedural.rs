@@ -78,6 +78,7 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
         lights: vec![default_light()],
         particles: Vec::new(),
         volume: None,
+        series: Vec::new(),
         render_from_world: Default::default(),
     }
 }

@@ -22,10 +22,12 @@ mod nifti;
 mod nrrd;
 mod prepared;
 mod raw;
+mod series;
 mod transfer;
 
 pub use bricks::{Bricks, BRICK_CELLS, MACRO_CELLS};
 pub use prepared::{FrameTables, PreparedVolume, MIN_STEP_FRACTION, OPAQUE_ENOUGH};
+pub use series::{SeriesCache, SeriesStats};
 pub use transfer::{corrected_opacity, TransferTable};
 
 use std::path::Path;

@@ -125,6 +125,10 @@ mod tests {
                 rays: 1 << 40,
                 busy_s: 1.5,
                 elapsed_s: 2.0,
+                volume_load_s: vec![0.25, 0.5],
+                prefetch_hits: 7,
+                prefetch_misses: 1,
+                volume_stall_s: 0.25,
             })),
         ]
     }

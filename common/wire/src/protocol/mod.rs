@@ -480,7 +480,17 @@ pub struct RenderStats {
     pub busy_s: f64,
     /// Seconds from the first frame start to shutdown.
     pub elapsed_s: f64,
+    /// A time series' steps this node loaded, and the seconds each took (load and brick).
+    pub volume_load_s: Vec<f64>,
+    /// Step changes whose step the readers had ready, and those the node waited for.
+    pub prefetch_hits: u64,
+    pub prefetch_misses: u64,
+    /// Seconds the node waited for steps not yet loaded.
+    pub volume_stall_s: f64,
 }
+
+/// Most per-step load times a node reports: a longer run reports its first ones.
+pub const MAX_REPORTED_LOADS: usize = 4096;
 
 #[derive(Deserialize)]
 struct RenderStatsRaw {
@@ -488,22 +498,42 @@ struct RenderStatsRaw {
     rays: u64,
     busy_s: f64,
     elapsed_s: f64,
+    volume_load_s: Vec<f64>,
+    prefetch_hits: u64,
+    prefetch_misses: u64,
+    volume_stall_s: f64,
 }
 
 impl TryFrom<RenderStatsRaw> for RenderStats {
     type Error = ProtocolError;
 
     fn try_from(raw: RenderStatsRaw) -> Result<Self, ProtocolError> {
-        for (field, value) in [("busy_s", raw.busy_s), ("elapsed_s", raw.elapsed_s)] {
+        let seconds = [
+            ("busy_s", raw.busy_s),
+            ("elapsed_s", raw.elapsed_s),
+            ("volume_stall_s", raw.volume_stall_s),
+        ];
+        let loads = raw.volume_load_s.iter().map(|&v| ("volume_load_s", v));
+        for (field, value) in seconds.into_iter().chain(loads) {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(ProtocolError::BadSeconds { field, value });
             }
+        }
+        if raw.volume_load_s.len() > MAX_REPORTED_LOADS {
+            return Err(ProtocolError::BadSeconds {
+                field: "volume_load_s (too many)",
+                value: raw.volume_load_s.len() as f64,
+            });
         }
         Ok(RenderStats {
             tiles: raw.tiles,
             rays: raw.rays,
             busy_s: raw.busy_s,
             elapsed_s: raw.elapsed_s,
+            volume_load_s: raw.volume_load_s,
+            prefetch_hits: raw.prefetch_hits,
+            prefetch_misses: raw.prefetch_misses,
+            volume_stall_s: raw.volume_stall_s,
         })
     }
 }
@@ -622,8 +652,13 @@ mod tests {
     #[test]
     fn stats_with_nan_seconds_are_refused() {
         #[derive(Serialize)]
-        struct Raw(u64, u64, f64, f64);
-        let err = decode_err::<RenderStats>(&Raw(1, 2, f64::NAN, 1.0));
+        struct Raw(u64, u64, f64, f64, Vec<f64>, u64, u64, f64);
+        let err = decode_err::<RenderStats>(&Raw(1, 2, f64::NAN, 1.0, vec![], 0, 0, 0.0));
         assert!(err.contains("busy_s"), "{err}");
+        let err = decode_err::<RenderStats>(&Raw(1, 2, 1.0, 1.0, vec![0.5, -1.0], 0, 0, 0.0));
+        assert!(err.contains("volume_load_s"), "{err}");
+        let many = vec![0.1; MAX_REPORTED_LOADS + 1];
+        let err = decode_err::<RenderStats>(&Raw(1, 2, 1.0, 1.0, many, 0, 0, 0.0));
+        assert!(err.contains("too many"), "{err}");
     }
 }
