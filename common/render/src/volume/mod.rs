@@ -17,6 +17,7 @@
 //! ```
 
 mod bricks;
+mod dicom;
 mod grid_walk;
 mod nifti;
 mod nrrd;
@@ -315,10 +316,14 @@ enum Format {
     Nrrd,
     Nifti,
     RawWithSidecar,
+    DicomSeries,
 }
 
 /// The format `path`'s name says, if it names a volume this module loads.
 fn format_of(path: &Path) -> Option<Format> {
+    if path.is_dir() {
+        return Some(Format::DicomSeries);
+    }
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
     let lower = name.to_ascii_lowercase();
     if lower.ends_with(".nrrd") || lower.ends_with(".nhdr") {
@@ -339,8 +344,8 @@ pub fn is_volume_path(path: &Path) -> bool {
 
 /// Loads the volume at `path`, choosing the reader by extension: `.nrrd` / `.nhdr` (NRRD,
 /// raw or gzip encoding, data attached or in a detached file), `.nii` / `.nii.gz` / `.hdr`
-/// (NIfTI-1, placed by its sform or qform) and `.vol.toml` (raw voxels described by a small
-/// TOML sidecar, see `raw`).
+/// (NIfTI-1, placed by its sform or qform), `.vol.toml` (raw voxels described by a small TOML
+/// sidecar, see `raw`) and a folder (a DICOM series of uncompressed slices).
 ///
 /// # Errors
 /// An unknown extension, an unreadable file, a bad header field (named), or data cut short.
@@ -348,6 +353,7 @@ pub fn load(path: &Path) -> Result<Volume, VolumeError> {
     match format_of(path) {
         Some(Format::Nrrd) => nrrd::load(path),
         Some(Format::Nifti) => nifti::load(path),
+        Some(Format::DicomSeries) => dicom::load(path),
         Some(Format::RawWithSidecar) => raw::load(path),
         None => Err(VolumeError::UnknownFormat {
             path: path.display().to_string(),
