@@ -189,6 +189,45 @@ fn error_falls_as_each_knob_spends_more_time() {
 }
 
 #[test]
+fn a_volume_scene_adds_the_step_knob_whose_error_falls_with_the_step() {
+    let dir = tempfile::tempdir().unwrap();
+    // A 24³ Gaussian ball, f32, 1 mm apart.
+    let values: Vec<u8> = (0..24 * 24 * 24)
+        .flat_map(|i: usize| {
+            let (x, y, z) = (i % 24, i / 24 % 24, i / 576);
+            let d2 = [x, y, z]
+                .iter()
+                .map(|&c| (c as f32 - 11.5).powi(2))
+                .sum::<f32>();
+            (-d2 / 40.0).exp().to_le_bytes()
+        })
+        .collect();
+    std::fs::write(dir.path().join("ball.raw"), values).unwrap();
+    let side = dir.path().join("ball.vol.toml");
+    std::fs::write(
+        &side,
+        "data = \"ball.raw\"\ndims = [24, 24, 24]\ntype = \"f32\"\nspacing = [1.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let r = bench("error-vs-time", &["--scene", side.to_str().unwrap()], &out);
+    let errors: Vec<(f64, f64)> = r["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["knob"] == "step")
+        .map(|p| (p["value"].as_f64().unwrap(), p["rmse"].as_f64().unwrap()))
+        .collect();
+    assert_eq!(errors.len(), 6, "{r}");
+    // Each halving of the step lowers the error against the 1/32 reference; four of them cut
+    // it at least fourfold.
+    for pair in errors.windows(2) {
+        assert!(pair[1].0 < pair[0].0 && pair[1].1 < pair[0].1, "{errors:?}");
+    }
+    assert!(errors[0].1 > 4.0 * errors[4].1, "{errors:?}");
+}
+
+#[test]
 fn bench_without_out_is_refused_with_a_reason() {
     let o = run(
         "tessera-master",

@@ -2,9 +2,11 @@
 //! reference, against the time a frame takes. Rendered in this process (the render nodes'
 //! code, on all of this machine's cores), so the times are what one node spends per frame.
 //!
-//! Knobs: ambient-occlusion rays per hit (`ao`), samples per pixel (`spp`), and progressive
+//! Knobs: ambient-occlusion rays per hit (`ao`), samples per pixel (`spp`), progressive
 //! passes (`passes`: pass k traces one new jittered sample per pixel and the display averages
-//! all passes so far, in linear light, so error falls with the cumulative time).
+//! all passes so far, in linear light, so error falls with the cumulative time), and for a
+//! volume scene the ray-marching step (`step`, in units of the smallest voxel spacing, against
+//! a reference at 1/32 of it).
 
 use super::plot::{line_plot, Series};
 use super::{write_csv, write_json, wrote, BenchArgs};
@@ -22,6 +24,9 @@ use tessera_wire::wall::{TileGrid, WallLayout};
 const AO_STEPS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
 const SPP_STEPS: [u32; 5] = [1, 2, 4, 8, 16];
 const PASSES: u32 = 16;
+/// Volume steps, in smallest voxel spacings; the reference marches at 1/32.
+const STEP_FRACTIONS: [f64; 6] = [2.0, 1.0, 0.5, 0.25, 0.125, 0.0625];
+const REFERENCE_STEP_FRACTION: f64 = 1.0 / 32.0;
 /// Frame key of the references' samples (the camera is frame 0's either way).
 const REFERENCE_KEY: u64 = 0x5eed_0000_0000;
 
@@ -53,7 +58,7 @@ pub fn psnr(rmse: f64) -> f64 {
 
 struct Point {
     knob: &'static str,
-    value: u32,
+    value: f64,
     ms: f64,
     rmse: f64,
 }
@@ -96,9 +101,22 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
             orbit_of(&scene.bounds(), fov)
         })?
         .camera_for_frame(0);
+    // The volume's step knob: steps in world units, checked like the others.
+    let spacing = scene
+        .volume
+        .as_ref()
+        .map(|v| v.spacing().into_iter().fold(f64::INFINITY, f64::min));
+    let step_params = match spacing {
+        Some(unit) => STEP_FRACTIONS
+            .iter()
+            .chain([&REFERENCE_STEP_FRACTION])
+            .map(|f| knobs(&|s| s.volume.step = (unit * f) as f32))
+            .collect::<Result<Vec<_>>>()?,
+        None => Vec::new(),
+    };
     let prepared = PreparedScene::new(&scene);
     let grid = TileGrid::new(wall);
-    let renders = 2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize;
+    let renders = 2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize + step_params.len();
     let bar = indicatif::ProgressBar::new(renders as u64).with_style(
         indicatif::ProgressStyle::with_template(
             "{spinner} {msg} {pos}/{len} renders {elapsed_precise}",
@@ -133,7 +151,7 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
         let (image, ms) = render(params, format!("ao {ao}"));
         points.push(Point {
             knob: "ao",
-            value: ao,
+            value: ao as f64,
             ms,
             rmse: rmse(&wall, &image, &ao_reference),
         });
@@ -142,7 +160,7 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
         let (image, ms) = render(params, format!("spp {spp}"));
         points.push(Point {
             knob: "spp",
-            value: spp,
+            value: spp as f64,
             ms,
             rmse: rmse(&wall, &image, &spp_reference),
         });
@@ -167,10 +185,22 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
         };
         points.push(Point {
             knob: "passes",
-            value: pass + 1,
+            value: (pass + 1) as f64,
             ms: total_ms,
             rmse: rmse(&wall, &shown, &spp_reference),
         });
+    }
+    if let Some((reference_params, steps)) = step_params.split_last() {
+        let step_reference = render(*reference_params, "step reference".into()).0;
+        for (fraction, params) in STEP_FRACTIONS.iter().zip(steps) {
+            let (image, ms) = render(*params, format!("step {fraction}"));
+            points.push(Point {
+                knob: "step",
+                value: *fraction,
+                ms,
+                rmse: rmse(&wall, &image, &step_reference),
+            });
+        }
     }
     bar.finish_and_clear();
 
@@ -189,8 +219,9 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
         .collect();
     let csv = out.join("error-vs-time.csv");
     write_csv(&csv, "knob,value,time_ms,rmse,psnr_db", &rows)?;
-    let series: Vec<Series> = ["ao", "spp", "passes"]
+    let series: Vec<Series> = ["ao", "spp", "passes", "step"]
         .iter()
+        .filter(|k| points.iter().any(|p| p.knob == **k))
         .map(|&k| Series {
             name: k.into(),
             points: points
@@ -213,7 +244,11 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
         &json!({
             "experiment": "error-vs-time",
             "wall": { "width": wall.width(), "height": wall.height() },
-            "reference": { "ao": args.reference_ao, "spp": args.reference_spp },
+            "reference": {
+                "ao": args.reference_ao,
+                "spp": args.reference_spp,
+                "step_spacings": spacing.map(|_| REFERENCE_STEP_FRACTION),
+            },
             "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
             "points": points.iter().map(|p| json!({
                 "knob": p.knob, "value": p.value, "time_ms": p.ms, "rmse": p.rmse,
