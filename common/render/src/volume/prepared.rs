@@ -212,22 +212,16 @@ impl PreparedVolume {
             if !self.macro_visible(tables, cell) {
                 continue;
             }
-            // The first k with k · step >= t0, without `ceil` (a libm call on baseline x86-64).
-            let mut k = (t0 / step) as i64 - 1;
-            while (k as f32) * step < t0 {
-                k += 1;
-            }
-            // A macro-cell lies in one brick (8 divides 32): found once, and the corners of a
-            // cell read once for the samples that fall in it (two or more at the default step).
+            // The samples k · step in t0..t1, counted before the loop so that it runs without a
+            // test of t (and without `ceil`, a libm call on baseline x86-64).
+            let first = first_sample_at(t0, step);
+            let end = first_sample_at(t1, step).min(first + budget as i64);
+            budget -= (end - first).max(0) as u32;
+            // A macro-cell lies in one brick (8 divides 32): found once per macro-cell.
             let first_cell = cell.map(|m| m * MACRO_CELLS);
             let brick = self.bricks.brick_of(first_cell);
-            loop {
+            for k in first..end {
                 let t = k as f32 * step;
-                if t >= t1 || budget == 0 {
-                    break;
-                }
-                budget -= 1;
-                k += 1;
                 let (c, u) = brick.locate(origin_index + dir_index * t);
                 let e = tables.table.lookup(trilinear_at(&brick.corners(c), u));
                 let keep = 1.0 - acc[3];
@@ -348,6 +342,17 @@ impl PreparedVolume {
         let inside = (0..3).all(|a| (0.0..=self.extent[a]).contains(&p[a]));
         inside.then(|| self.sample(p))
     }
+}
+
+/// The first k with `k as f32 * step >= t`: the same comparison on either side of a segment
+/// boundary, so every sample falls in exactly one segment.
+#[inline]
+fn first_sample_at(t: f32, step: f32) -> i64 {
+    let mut k = (t / step) as i64 - 1;
+    while (k as f32) * step < t {
+        k += 1;
+    }
+    k
 }
 
 /// The first crossing of any of `iso` inside one cell, with `t` on the whole ray.

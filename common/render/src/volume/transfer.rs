@@ -25,7 +25,8 @@ pub fn corrected_opacity(alpha: f64, step_over_ref: f64) -> f64 {
 pub struct TransferTable {
     lo: f32,
     per_unit: f32,
-    entries: Vec<[f32; 4]>,
+    /// A fixed-size array, so that lookups need no bounds check.
+    entries: Box<[[f32; 4]; TABLE_ENTRIES]>,
     /// How many entries below each index have a non-zero opacity: a value range is invisible
     /// iff the count does not change across it.
     visible_before: Vec<u32>,
@@ -58,6 +59,10 @@ impl TransferTable {
             count += (e[3] > 0.0) as u32;
         }
         visible_before.push(count);
+        let entries: Box<[[f32; 4]; TABLE_ENTRIES]> = entries
+            .into_boxed_slice()
+            .try_into()
+            .expect("TABLE_ENTRIES entries");
         TransferTable {
             lo,
             // One value: every sample reads entry 0 (the whole table is that value's).
