@@ -100,6 +100,7 @@ pub fn window_presenter(
         error: None,
         buttons: BTreeSet::new(),
         cursor: None,
+        dragged: false,
     };
     Ok((sender, WindowRunner { event_loop, app }))
 }
@@ -150,6 +151,9 @@ struct App {
     /// Mouse buttons held, and where the cursor last was (to turn moves into drags).
     buttons: BTreeSet<Button>,
     cursor: Option<(f64, f64)>,
+    /// Whether the cursor moved while a button was held: a release then ends a drag, not a
+    /// click.
+    dragged: bool,
 }
 
 impl App {
@@ -273,10 +277,12 @@ impl App {
 
     /// Turns a window event into an input event for the master, if it is one.
     fn input(&mut self, event: &WindowEvent) -> Option<InputEvent> {
-        let screen_height = self
+        let (screen_width, screen_height) = self
             .state
             .as_ref()
-            .map_or(self.height.get(), |s| s.size.1.get()) as f64;
+            .map_or((self.width.get() as f64, self.height.get() as f64), |s| {
+                (s.size.0.get() as f64, s.size.1.get() as f64)
+            });
         match event {
             WindowEvent::KeyboardInput { event, .. } => {
                 let PhysicalKey::Code(code) = event.physical_key else {
@@ -290,16 +296,26 @@ impl App {
             WindowEvent::MouseInput { state, button, .. } => {
                 let button = button_of(*button)?;
                 if *state == ElementState::Pressed {
+                    if self.buttons.is_empty() {
+                        self.dragged = false;
+                    }
                     self.buttons.insert(button);
-                } else {
-                    self.buttons.remove(&button);
+                    return None;
                 }
-                None
+                self.buttons.remove(&button);
+                // Released where it was pressed: a click, at its place on the screen.
+                let (x, y) = self.cursor?;
+                (!self.dragged && self.buttons.is_empty()).then(|| InputEvent::Click {
+                    button,
+                    fx: (x / screen_width).clamp(0.0, 1.0) as f32,
+                    fy: (y / screen_height).clamp(0.0, 1.0) as f32,
+                })
             }
             WindowEvent::CursorMoved { position, .. } => {
                 let now = (position.x, position.y);
                 let last = self.cursor.replace(now)?;
                 let button = *self.buttons.iter().next()?;
+                self.dragged |= now != last;
                 let (dx, dy) = (
                     (now.0 - last.0) / screen_height,
                     (now.1 - last.1) / screen_height,

@@ -162,3 +162,74 @@ fn frame_of_state(state: &str) -> Option<u64> {
     let json: serde_json::Value = serde_json::from_str(state).ok()?;
     json["State"]["frame"].as_u64()
 }
+
+#[test]
+fn a_click_in_a_window_probes_the_volume_under_it() {
+    let Some(xvfb) = Xvfb::start(
+        "a_click_in_a_window_probes_the_volume_under_it",
+        "400x300",
+        &["xwininfo", "xdotool"],
+    ) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // 8³ voxels whose value is 10 × their x index; the camera looks down -x at its middle.
+    let values: Vec<u8> = (0..512).map(|i| (i % 8) as u8 * 10).collect();
+    std::fs::write(dir.path().join("ramp.raw"), values).unwrap();
+    let sidecar = dir.path().join("ramp.vol.toml");
+    std::fs::write(
+        &sidecar,
+        "data = \"ramp.raw\"\ndims = [8, 8, 8]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    let master = Proc::start_with_env(
+        "tessera-master",
+        &[
+            "local",
+            "--wall",
+            "1x1",
+            "--screen",
+            "160x120",
+            "--window",
+            "--frames",
+            "0",
+            "--refine",
+            "off",
+            "--scene",
+            sidecar.to_str().unwrap(),
+            "--iso",
+            "52",
+            "--eye",
+            "20,3.5,3.5",
+            "--target",
+            "3.5,3.5,3.5",
+        ],
+        &[("DISPLAY", xvfb.display.as_str()), ("RUST_LOG", "info")],
+    );
+    let connect = control_args(&master, LIMIT);
+    let running = wait_for(LIMIT, || {
+        let o = control(&connect, &["state"], LIMIT);
+        o.status.success() && frame_of_state(&o.stdout).is_some_and(|f| f >= 3)
+    });
+    assert!(running, "the wall never reached frame 3");
+    let id = xvfb
+        .client("xdotool", &["search", "--name", "^Tessera display 0$"])
+        .trim()
+        .lines()
+        .next()
+        .expect("xdotool finds the window")
+        .to_string();
+    // A click (no move between press and release) in the middle of the window.
+    xvfb.client(
+        "xdotool",
+        &["mousemove", "--sync", "--window", &id, "80", "60"],
+    );
+    xvfb.client("xdotool", &["click", "1"]);
+    let line = master.wait_for_stderr("probe at wall pixel 80,60", LIMIT);
+    // The iso-surface at 52 lies at x = 5.2.
+    eprintln!("{line}");
+    assert!(line.contains("value 52") && line.contains("[5.2"), "{line}");
+    master.signal(libc::SIGINT);
+    let o = master.wait(LIMIT);
+    assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
+}

@@ -24,6 +24,11 @@ pub enum NavAction {
     Change(StateChange),
     /// Show or hide the overlay on every display.
     ToggleOverlay,
+    /// Probe what the screen shows at `(fx, fy)` (fractions of its width and height).
+    Probe {
+        fx: f32,
+        fy: f32,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -139,6 +144,7 @@ impl Navigator {
                 (_, Button::Right | Button::Middle) => moved(pan(camera, dx, dy)),
             },
             InputEvent::Scroll { lines } => moved(self.zoom(camera, lines)),
+            InputEvent::Click { fx, fy, .. } => Some(NavAction::Probe { fx, fy }),
         }
     }
 

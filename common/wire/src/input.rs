@@ -55,6 +55,13 @@ pub enum InputEvent {
     Scroll {
         lines: f32,
     },
+    /// A button pressed and released without a drag, at `(fx, fy)` of the screen (fractions
+    /// of its width and height from the top left, each in 0..=1): the probe's click.
+    Click {
+        button: Button,
+        fx: f32,
+        fy: f32,
+    },
 }
 
 #[derive(Deserialize)]
@@ -62,6 +69,7 @@ enum InputEventRaw {
     Key { key: Key, pressed: bool },
     Drag { button: Button, dx: f32, dy: f32 },
     Scroll { lines: f32 },
+    Click { button: Button, fx: f32, fy: f32 },
 }
 
 /// An input event with a movement that is not a finite number within [`MAX_MOVE`].
@@ -91,6 +99,14 @@ impl TryFrom<InputEventRaw> for InputEvent {
             InputEventRaw::Scroll { lines } => InputEvent::Scroll {
                 lines: check_move(lines)?,
             },
+            InputEventRaw::Click { button, fx, fy } => {
+                for v in [fx, fy] {
+                    if !(0.0..=1.0).contains(&v) {
+                        return Err(BadMove(v));
+                    }
+                }
+                InputEvent::Click { button, fx, fy }
+            }
         })
     }
 }
@@ -118,5 +134,12 @@ mod tests {
         let bytes = postcard::to_allocvec(&bad).unwrap();
         let err = crate::protocol::codec::decode::<InputEvent>(&bytes).unwrap_err();
         assert!(err.to_string().contains("NaN"), "{err}");
+        let outside = InputEvent::Click {
+            button: Button::Left,
+            fx: 1.5,
+            fy: 0.5,
+        };
+        let bytes = postcard::to_allocvec(&outside).unwrap();
+        assert!(crate::protocol::codec::decode::<InputEvent>(&bytes).is_err());
     }
 }

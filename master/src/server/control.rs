@@ -119,7 +119,12 @@ impl Wall {
     /// A person's input at a display window: what the navigator makes of it, queued for the
     /// next barrier like a control command (and refused in the log, not on the wall, if the
     /// knobs it turns would leave their bounds).
-    pub(super) fn handle_input(&mut self, event: tessera_wire::input::InputEvent, stamp: u64) {
+    pub(super) fn handle_input(
+        &mut self,
+        display: DisplayId,
+        event: tessera_wire::input::InputEvent,
+        stamp: u64,
+    ) {
         use tessera_core::navigate::NavAction;
         let current = self.current_camera();
         let frame = self.live.last_start.map_or(0, |s| s.frame.0);
@@ -134,7 +139,31 @@ impl Wall {
                 }
             }
             Some(NavAction::ToggleOverlay) => self.set_overlay(!self.live.overlay),
+            Some(NavAction::Probe { fx, fy }) => self.probe_click(display, fx, fy),
             None => {}
+        }
+    }
+
+    /// A click in display `display`'s window at `(fx, fy)` of its screen: the probe there, on
+    /// the master's log (where whoever runs the wall reads it).
+    fn probe_click(&mut self, display: DisplayId, fx: f32, fy: f32) {
+        let shown_on = display.0;
+        let Some(screen) = self.cfg.wall.screen(display) else {
+            return;
+        };
+        let x = screen.x + ((fx * screen.width as f32) as u32).min(screen.width - 1);
+        let y = screen.y + ((fy * screen.height as f32) as u32).min(screen.height - 1);
+        match self.answer(ControlRequest::Probe { x, y }, 0) {
+            Ok(ControlReply::Probe(Some(hit))) => tracing::info!(
+                "probe at wall pixel {x},{y} (display {shown_on}): value {} at world {:.3?}, {:.3} from the eye",
+                hit.value,
+                hit.world,
+                hit.distance
+            ),
+            Ok(_) => tracing::info!(
+                "probe at wall pixel {x},{y} (display {shown_on}): no volume there"
+            ),
+            Err(why) => tracing::info!("probe at wall pixel {x},{y}: {why}"),
         }
     }
 

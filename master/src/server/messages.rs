@@ -63,10 +63,10 @@ impl Wall {
                     stamp_ns,
                 },
             ) => self.handle_control(peer, id, request, stamp_ns),
-            (PeerRole::Display(d), FromNode::Input { event, clock_ns }) => {
+            (&PeerRole::Display(d), FromNode::Input { event, clock_ns }) => {
                 // On the master's clock, as present stamps are mapped.
-                let stamp = (clock_ns as i64 - self.timing.offset(*d)).max(1) as u64;
-                self.handle_input(event, stamp);
+                let stamp = (clock_ns as i64 - self.timing.offset(d)).max(1) as u64;
+                self.handle_input(d, event, stamp);
             }
             (_, other) => bail!("sent {other:?}, which its role never sends"),
         }
