@@ -421,3 +421,17 @@ pub fn wait_for(limit: Duration, mut check: impl FnMut() -> bool) -> bool {
     }
     check()
 }
+
+/// Writes `DIR/ramp.vol.toml`: 8³ u8 voxels 1 mm apart whose value is 10 × their x index, a
+/// volume whose value under any point is known. Returns the sidecar's path.
+pub fn write_ramp_volume(dir: &Path) -> PathBuf {
+    let values: Vec<u8> = (0..512).map(|i| (i % 8) as u8 * 10).collect();
+    std::fs::write(dir.join("ramp.raw"), values).unwrap();
+    let sidecar = dir.join("ramp.vol.toml");
+    std::fs::write(
+        &sidecar,
+        "data = \"ramp.raw\"\ndims = [8, 8, 8]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    sidecar
+}

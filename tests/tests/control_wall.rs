@@ -215,15 +215,7 @@ fn only_a_control_certificate_may_control() {
 #[test]
 fn the_probe_reads_the_volume_under_a_pixel_and_follows_the_iso_value() {
     let dir = tempfile::tempdir().unwrap();
-    // 8³ voxels whose value is 10 × their x index, 1 mm apart.
-    let values: Vec<u8> = (0..512).map(|i| (i % 8) as u8 * 10).collect();
-    std::fs::write(dir.path().join("ramp.raw"), values).unwrap();
-    let sidecar = dir.path().join("ramp.vol.toml");
-    std::fs::write(
-        &sidecar,
-        "data = \"ramp.raw\"\ndims = [8, 8, 8]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
-    )
-    .unwrap();
+    let sidecar = write_ramp_volume(dir.path());
     // Looking down -x at the middle of the volume: the centre of the 2x1 wall enters it at
     // x = 7 (value 70) and runs down the ramp.
     let wall = start_wall(

@@ -98,13 +98,7 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
     }
 
     // A drag in the right window...
-    let id = xvfb
-        .client("xdotool", &["search", "--name", "^Tessera display 1$"])
-        .trim()
-        .lines()
-        .next()
-        .expect("xdotool finds the window")
-        .to_string();
+    let id = xdotool_window(&xvfb, "Tessera display 1");
     xvfb.client(
         "xdotool",
         &["mousemove", "--sync", "--window", &id, "60", "68"],
@@ -157,6 +151,16 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
     );
 }
 
+/// xdotool's id of the window titled exactly `title`.
+fn xdotool_window(xvfb: &Xvfb, title: &str) -> String {
+    xvfb.client("xdotool", &["search", "--name", &format!("^{title}$")])
+        .trim()
+        .lines()
+        .next()
+        .expect("xdotool finds the window")
+        .to_string()
+}
+
 /// The frame number in `control state`'s JSON.
 fn frame_of_state(state: &str) -> Option<u64> {
     let json: serde_json::Value = serde_json::from_str(state).ok()?;
@@ -173,15 +177,8 @@ fn a_click_in_a_window_probes_the_volume_under_it() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    // 8³ voxels whose value is 10 × their x index; the camera looks down -x at its middle.
-    let values: Vec<u8> = (0..512).map(|i| (i % 8) as u8 * 10).collect();
-    std::fs::write(dir.path().join("ramp.raw"), values).unwrap();
-    let sidecar = dir.path().join("ramp.vol.toml");
-    std::fs::write(
-        &sidecar,
-        "data = \"ramp.raw\"\ndims = [8, 8, 8]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
-    )
-    .unwrap();
+    // Values 10 × x; the camera looks down -x at the volume's middle.
+    let sidecar = write_ramp_volume(dir.path());
     let master = Proc::start_with_env(
         "tessera-master",
         &[
@@ -212,13 +209,7 @@ fn a_click_in_a_window_probes_the_volume_under_it() {
         o.status.success() && frame_of_state(&o.stdout).is_some_and(|f| f >= 3)
     });
     assert!(running, "the wall never reached frame 3");
-    let id = xvfb
-        .client("xdotool", &["search", "--name", "^Tessera display 0$"])
-        .trim()
-        .lines()
-        .next()
-        .expect("xdotool finds the window")
-        .to_string();
+    let id = xdotool_window(&xvfb, "Tessera display 0");
     // A click (no move between press and release) in the middle of the window.
     xvfb.client(
         "xdotool",
