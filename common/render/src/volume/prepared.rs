@@ -319,13 +319,11 @@ impl PreparedVolume {
         let (t0, t1) = clip_to_box(&ray, self.extent, interval.0, interval.1)?;
         let step = tables.step;
         let mut alpha = 0f32;
-        let first = (t0 / step) as i64;
-        let count = (((t1 - t0) / step) as i64 + 2).min(MAX_SAMPLES_PER_RAY as i64);
-        for k in first..first + count {
+        // The very samples `composite` takes.
+        let first = first_sample_at(t0, step);
+        let end = first_sample_at(t1, step).min(first + MAX_SAMPLES_PER_RAY as i64);
+        for k in first..end {
             let t = k as f32 * step;
-            if t < t0 || t >= t1 {
-                continue;
-            }
             let p = std::array::from_fn(|a| ray.origin[a] + ray.dir[a] * t);
             let value = self.sample(p);
             alpha += (1.0 - alpha) * tables.table.lookup(value)[3];
