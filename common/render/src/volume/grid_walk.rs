@@ -28,6 +28,7 @@ pub struct GridWalk {
     step: [i64; 3],
     next: [f32; 3],
     origin: [f32; 3],
+    dir: [f32; 3],
     /// 1 / direction (infinite along an axis the ray does not move on, never used there): a
     /// multiply a segment instead of a divide.
     inv_dir: [f32; 3],
@@ -65,6 +66,7 @@ impl GridWalk {
             step,
             next,
             origin: ray.origin,
+            dir: ray.dir,
             inv_dir: ray.dir.map(|d| 1.0 / d),
             size,
             counts: counts.map(|c| c as i64),
@@ -74,24 +76,94 @@ impl GridWalk {
     }
 }
 
+impl GridWalk {
+    /// Leaves the cube of cells within `radius` (L∞) of `centre` at once, when the caller knows
+    /// it holds nothing to see: the walk goes on from where the ray crosses the cube's far face,
+    /// in the cell beyond it. The crossing is computed as the walk computes every boundary, so
+    /// the segments after a leap start where they would have without it.
+    pub fn leap_out_of(&mut self, centre: [usize; 3], radius: usize) {
+        let mut exit = self.t_end;
+        let mut exit_axis = None;
+        let mut beyond = [0i64; 3];
+        for a in 0..3 {
+            let step = self.step[a];
+            if step == 0 {
+                continue;
+            }
+            let c = centre[a] as i64;
+            let last = if step > 0 {
+                (c + radius as i64).min(self.counts[a] - 1)
+            } else {
+                (c - radius as i64).max(0)
+            };
+            beyond[a] = last + step;
+            let t = self.boundary_t(a, last + (step > 0) as i64);
+            if t < exit {
+                (exit, exit_axis) = (t, Some(a));
+            }
+        }
+        let Some(axis) = exit_axis else {
+            // The cube reaches past the end of the ray: nothing is left to walk.
+            self.t = self.t_end;
+            return;
+        };
+        if exit <= self.t {
+            return;
+        }
+        self.t = exit;
+        for a in 0..3 {
+            self.cell[a] = if a == axis {
+                beyond[a]
+            } else {
+                // Inside the cube on this axis at the crossing: the cell from the position,
+                // kept within the cube (and the grid) against rounding.
+                let p = self.origin[a] + self.dir[a] * exit;
+                let c = centre[a] as i64;
+                ((p / self.size).max(0.0) as i64)
+                    .clamp(c - radius as i64, c + radius as i64)
+                    .clamp(0, self.counts[a] - 1)
+            };
+            if self.step[a] != 0 {
+                let boundary = self.cell[a] + (self.step[a] > 0) as i64;
+                self.next[a] = self.boundary_t(a, boundary);
+            }
+        }
+    }
+
+    /// Where the ray crosses the plane `boundary · size` of `axis`.
+    #[inline]
+    fn boundary_t(&self, axis: usize, boundary: i64) -> f32 {
+        (boundary as f32 * self.size - self.origin[axis]) * self.inv_dir[axis]
+    }
+}
+
 impl Iterator for GridWalk {
     type Item = Segment;
 
     fn next(&mut self) -> Option<Segment> {
-        if self.t >= self.t_end || self.cell.iter().any(|&c| c < 0) {
+        // One unsigned compare per axis covers both ends; `|` rather than `||` keeps it one
+        // branch.
+        let outside = (0..3).fold(false, |out, a| {
+            out | (self.cell[a] as u64 >= self.counts[a] as u64)
+        });
+        if self.t >= self.t_end || outside {
             return None;
         }
-        if (0..3).any(|a| self.cell[a] >= self.counts[a]) {
-            return None;
-        }
-        let axis = if self.next[0] <= self.next[1] && self.next[0] <= self.next[2] {
-            0
-        } else if self.next[1] <= self.next[2] {
-            1
+        // The axis of the nearest boundary, chosen without branches: which one it is changes
+        // from step to step without a pattern, and a mispredicted branch cost more than the
+        // rest of the step.
+        let [n0, n1, n2] = self.next;
+        let not_x = !((n0 <= n1) & (n0 <= n2));
+        let axis = not_x as usize * (1 + (n2 < n1) as usize);
+        // Comparisons rather than `f32::min`/`max`, whose NaN handling doubled the work (no
+        // value here is NaN).
+        let boundary_t = self.next[axis];
+        let t1 = if boundary_t < self.t_end {
+            boundary_t
         } else {
-            2
+            self.t_end
         };
-        let t1 = self.next[axis].min(self.t_end).max(self.t);
+        let t1 = if t1 > self.t { t1 } else { self.t };
         let segment = Segment {
             cell: self.cell.map(|c| c as usize),
             t0: self.t,
@@ -102,7 +174,7 @@ impl Iterator for GridWalk {
         // Accumulating deltas drifts; computing each boundary from its cell keeps it one value
         // whichever walk reaches it.
         let boundary = self.cell[axis] + (self.step[axis] > 0) as i64;
-        self.next[axis] = (boundary as f32 * self.size - self.origin[axis]) * self.inv_dir[axis];
+        self.next[axis] = self.boundary_t(axis, boundary);
         Some(segment)
     }
 }
@@ -172,5 +244,48 @@ mod tests {
             dir: [1.0, 0.0, 0.0],
         };
         assert_eq!(clip_to_box(&miss, [4.0; 3], 0.0, 100.0), None);
+    }
+
+    #[test]
+    fn a_leap_lands_where_the_step_by_step_walk_leaves_the_cube() {
+        let counts = [13, 9, 11];
+        let extent = counts.map(|c| c as f32 * 2.0);
+        let nonzero = |walk: GridWalk| -> Vec<Segment> { walk.filter(|s| s.t1 > s.t0).collect() };
+        let mut leaps = 0;
+        for k in 0..300u32 {
+            // Rays from a fixed scatter of origins outside the grid towards points inside it.
+            let h = |i: u32| ((k * 7 + i).wrapping_mul(2654435761) % 1000) as f32 / 1000.0;
+            let target = [h(1) * extent[0], h(2) * extent[1], h(3) * extent[2]];
+            let origin = [-5.0 + 3.0 * h(4), 30.0 * h(5) - 5.0, 40.0 * h(6) - 8.0];
+            let dir = std::array::from_fn(|a| target[a] - origin[a]);
+            let ray = IndexRay { origin, dir };
+            let Some((t0, t1)) = clip_to_box(&ray, extent, 0.0, 100.0) else {
+                continue;
+            };
+            let plain = nonzero(GridWalk::new(&ray, 2.0, counts, t0, t1));
+            let Some(centre) = plain.get(1 + k as usize % 3).map(|s| s.cell) else {
+                continue;
+            };
+            let radius = 1 + k as usize % 4;
+            let mut leaping = GridWalk::new(&ray, 2.0, counts, t0, t1);
+            while let Some(s) = leaping.next() {
+                if s.cell == centre {
+                    leaping.leap_out_of(centre, radius);
+                    break;
+                }
+            }
+            let after_leap = nonzero(leaping);
+            let in_cube = |c: [usize; 3]| (0..3).all(|a| c[a].abs_diff(centre[a]) <= radius);
+            // A ray leaves a cube once: what follows the leap is what follows the first
+            // segment outside the cube after the centre.
+            let at = plain.iter().position(|s| s.cell == centre).unwrap();
+            let first_out = plain[at..]
+                .iter()
+                .position(|s| !in_cube(s.cell))
+                .map_or(plain.len(), |i| at + i);
+            assert_eq!(after_leap, plain[first_out..], "ray {k}");
+            leaps += 1;
+        }
+        assert!(leaps > 150, "only {leaps} rays leapt");
     }
 }

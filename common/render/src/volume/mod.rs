@@ -17,7 +17,9 @@
 //! ```
 
 mod bricks;
+mod cell_mask;
 mod dicom;
+mod empty_space;
 mod grid_walk;
 mod nifti;
 mod nrrd;

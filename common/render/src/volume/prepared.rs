@@ -2,11 +2,15 @@
 //! its index space, and the two ways a ray sees it: composited through the transfer function,
 //! or stopped at the first direct iso-surface.
 
-use super::bricks::{trilinear, trilinear_at, trilinear_gradient, Bricks, MinMaxGrid, MACRO_CELLS};
+use super::bricks::{
+    trilinear, trilinear_gradient, whole4, Bricks, MinMaxGrid, BRICK_CELLS, MACRO_CELLS,
+};
+use super::cell_mask::{is_set, CellMask};
+use super::empty_space::chebyshev_distance;
 use super::grid_walk::{clip_to_box, GridWalk, IndexRay, Segment};
 use super::transfer::TransferTable;
 use super::Volume;
-use glam::{DMat3, DVec3, Mat3, Vec3};
+use glam::{DMat3, DVec3, Mat3, Vec3, Vec4};
 use std::sync::{Arc, Mutex};
 use tessera_wire::local_frame::RenderFromWorld;
 use tessera_wire::volume_params::{TransferFunction, VolumeParams};
@@ -24,8 +28,11 @@ pub struct FrameTables {
     key: (TransferFunction, f32),
     pub step: f32,
     pub table: TransferTable,
-    /// Per macro-cell: whether any of its values is visible.
-    visible: Vec<bool>,
+    /// Per macro-cell: how far (in macro-cells, L∞) the nearest one with a visible value is;
+    /// 0 where it has one itself.
+    leap: Vec<u8>,
+    /// Per voxel cell: whether the transfer function can show anything in it.
+    cells: Arc<CellMask>,
 }
 
 /// A volume in render coordinates, bricked, with its min/max grid.
@@ -61,6 +68,9 @@ pub struct PreparedVolume {
     reference_step: f32,
     corners: [Vec3; 8],
     frame: Mutex<Option<Arc<FrameTables>>>,
+    /// The cell mask of the last transfer function, kept across steps (it does not depend on
+    /// them).
+    cell_mask: Mutex<Option<Arc<CellMask>>>,
 }
 
 impl PreparedVolume {
@@ -94,6 +104,7 @@ impl PreparedVolume {
             reference_step: spacing[0].min(spacing[1]).min(spacing[2]) as f32,
             corners,
             frame: Mutex::new(None),
+            cell_mask: Mutex::new(None),
         }
     }
 
@@ -136,7 +147,7 @@ impl PreparedVolume {
             self.range,
             step as f64 / self.reference_step as f64,
         );
-        let visible = self
+        let visible: Vec<bool> = self
             .minmax
             .ranges()
             .iter()
@@ -146,10 +157,22 @@ impl PreparedVolume {
             key,
             step,
             table,
-            visible,
+            leap: chebyshev_distance(self.minmax.dims(), &visible),
+            cells: self.cell_mask(&params.transfer),
         });
         *cached = Some(tables.clone());
         tables
+    }
+
+    fn cell_mask(&self, transfer: &TransferFunction) -> Arc<CellMask> {
+        let mut cached = self.cell_mask.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(mask) = cached.as_ref().filter(|m| m.transfer() == transfer) {
+            return mask.clone();
+        }
+        let bricks = self.bricks.brick_counts().iter().product();
+        let mask = Arc::new(CellMask::new(*transfer, self.range, bricks));
+        *cached = Some(mask.clone());
+        mask
     }
 
     fn index_ray(&self, origin: Vec3, dir: Vec3) -> IndexRay {
@@ -180,9 +203,9 @@ impl PreparedVolume {
         (cell, u)
     }
 
-    fn macro_visible(&self, tables: &FrameTables, m: [usize; 3]) -> bool {
+    fn macro_leap(&self, tables: &FrameTables, m: [usize; 3]) -> u8 {
         let d = self.minmax.dims();
-        tables.visible[(m[2] * d[1] + m[1]) * d[0] + m[0]]
+        tables.leap[(m[2] * d[1] + m[1]) * d[0] + m[0]]
     }
 
     fn macro_walk(&self, ray: &IndexRay, (t0, t1): (f32, f32)) -> GridWalk {
@@ -191,8 +214,8 @@ impl PreparedVolume {
 
     /// Front-to-back composite (premultiplied colour, opacity) of the volume along
     /// `origin + t · dir` for `t` in `interval`, sampled at `t = k · step`. Macro-cells the
-    /// transfer function makes invisible are skipped whole; the ray stops once
-    /// [`OPAQUE_ENOUGH`].
+    /// transfer function makes invisible are skipped whole, and a cube of them at once where
+    /// the ray is far from anything visible; the ray stops once [`OPAQUE_ENOUGH`].
     pub fn composite(
         &self,
         tables: &FrameTables,
@@ -201,39 +224,79 @@ impl PreparedVolume {
         interval: (f32, f32),
     ) -> [f32; 4] {
         let ray = self.index_ray(origin, dir);
-        let mut acc = [0f32; 4];
+        let mut acc = Vec4::ZERO;
         let Some(span) = clip_to_box(&ray, self.extent, interval.0, interval.1) else {
-            return acc;
+            return [0.0; 4];
         };
         let step = tables.step;
         let (origin_index, dir_index) = (Vec3::from_array(ray.origin), Vec3::from_array(ray.dir));
         let mut budget = MAX_SAMPLES_PER_RAY;
-        for Segment { cell, t0, t1 } in self.macro_walk(&ray, span) {
-            if !self.macro_visible(tables, cell) {
-                continue;
+        let mut walk = self.macro_walk(&ray, span);
+        while let Some(Segment { cell, t0, t1 }) = walk.next() {
+            match self.macro_leap(tables, cell) {
+                0 => {}
+                1 => continue,
+                far => {
+                    walk.leap_out_of(cell, far as usize - 1);
+                    continue;
+                }
             }
             // The samples k · step in t0..t1, counted before the loop so that it runs without a
             // test of t (and without `ceil`, a libm call on baseline x86-64).
             let first = first_sample_at(t0, step);
             let end = first_sample_at(t1, step).min(first + budget as i64);
             budget -= (end - first).max(0) as u32;
-            // A macro-cell lies in one brick (8 divides 32): found once per macro-cell.
-            let first_cell = cell.map(|m| m * MACRO_CELLS);
-            let brick = self.bricks.brick_of(first_cell);
-            for k in first..end {
-                let t = k as f32 * step;
-                let (c, u) = brick.locate(origin_index + dir_index * t);
-                let e = tables.table.lookup(trilinear_at(&brick.corners(c), u));
-                let keep = 1.0 - acc[3];
-                for c in 0..4 {
-                    acc[c] += keep * e[c];
-                }
-                if acc[3] >= OPAQUE_ENOUGH {
-                    return acc;
+            if self.march_macro_cell(
+                tables,
+                (origin_index, dir_index),
+                cell,
+                first..end,
+                &mut acc,
+            ) {
+                break;
+            }
+        }
+        acc.to_array()
+    }
+
+    /// Composites the samples `ks` (at `t = k · step`) of macro-cell `cell` into `acc`; true
+    /// once it is [`OPAQUE_ENOUGH`].
+    ///
+    /// Four samples at a time: located, tested against the cell mask, and where any may show,
+    /// interpolated and looked up (independent work, four lanes wide), then composited one by
+    /// one (each depends on the one before). Lanes past the end are located (clamped into the
+    /// brick) and dropped; lanes in invisible cells beside visible ones add exactly zero.
+    #[inline(always)]
+    fn march_macro_cell(
+        &self,
+        tables: &FrameTables,
+        (origin, dir): (Vec3, Vec3),
+        cell: [usize; 3],
+        ks: std::ops::Range<i64>,
+        acc: &mut Vec4,
+    ) -> bool {
+        // A macro-cell lies in one brick (8 divides 32): found once per macro-cell.
+        let brick = self.bricks.brick_of(cell.map(|m| m * MACRO_CELLS));
+        let mask = tables.cells.of_brick(&brick);
+        let edge = BRICK_CELLS as f32;
+        for k in ks.clone().step_by(4) {
+            let lanes = (ks.end - k).min(4) as usize;
+            let t = Vec4::from_array([0, 1, 2, 3].map(|i| (k + i) as f32 * tables.step));
+            let at = brick.locate4(origin, dir, t);
+            let [cx, cy, cz] = at.cell;
+            // Exact in f32 (below 2^15): the cells' bits.
+            let bits = whole4((cz * edge + cy) * edge + cx);
+            if !bits[..lanes].iter().any(|&b| is_set(mask, b as usize)) {
+                continue;
+            }
+            for e in &tables.table.lookup4(brick.interpolate4(&at))[..lanes] {
+                *acc += (1.0 - acc.w) * *e;
+                if acc.w >= OPAQUE_ENOUGH {
+                    return true;
                 }
             }
         }
-        acc
+        false
     }
 
     /// [`PreparedVolume::composite`] without skipping: every sample of the interval, for tests
@@ -250,7 +313,11 @@ impl PreparedVolume {
             key: tables.key,
             step: tables.step,
             table: tables.table.clone(),
-            visible: vec![true; tables.visible.len()],
+            leap: vec![0; tables.leap.len()],
+            cells: Arc::new(CellMask::everything(
+                tables.key.0,
+                self.bricks.brick_counts().iter().product(),
+            )),
         };
         self.composite(&everything, origin, dir, interval)
     }

@@ -105,8 +105,9 @@ fn a_sixteenth_of_the_step_changes_the_image_by_under_1e_3_rmse() {
 }
 
 #[test]
-fn skipping_empty_macro_cells_changes_no_sample() {
-    // A transfer function that hides everything below 0.3: most macro-cells are skipped.
+fn skipping_empty_space_changes_no_sample() {
+    // A transfer function that hides everything below 0.3: most macro-cells are skipped, many
+    // leapt over, and most samples in the rest fall in cells the cell mask rejects.
     let p = |value, opacity| TransferPoint {
         value,
         color: [1.0, 0.7, 0.4],

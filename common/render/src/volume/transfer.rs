@@ -7,6 +7,8 @@
 //! f64 results are rounded to f32 once, so two CPUs whose libm differ in the last f64 bit still
 //! agree on the table, and tiles stay byte-identical on any node.
 
+use super::bricks::whole4;
+use glam::Vec4;
 use tessera_wire::volume_params::{TransferDomain, TransferFunction};
 
 /// Entries of the table; between them colour and opacity are interpolated linearly.
@@ -88,11 +90,33 @@ impl TransferTable {
         std::array::from_fn(|c| a[c] + (b[c] - a[c]) * f)
     }
 
+    /// [`TransferTable::lookup`] of four values, as four `[r, g, b, a]` vectors; each is what
+    /// `lookup` gives, bit for bit.
+    #[inline(always)]
+    pub fn lookup4(&self, values: Vec4) -> [Vec4; 4] {
+        let last = (TABLE_ENTRIES - 1) as f32;
+        let x =
+            ((values - Vec4::splat(self.lo)) * self.per_unit).clamp(Vec4::ZERO, Vec4::splat(last));
+        // The table index of each lane (x >= 0, so truncation is floor).
+        let whole = whole4(x.trunc());
+        let x = x.to_array();
+        std::array::from_fn(|lane| {
+            let i = (whole[lane] as usize).min(TABLE_ENTRIES - 2);
+            let f = x[lane] - i as f32;
+            let (a, b) = (
+                Vec4::from_array(self.entries[i]),
+                Vec4::from_array(self.entries[i + 1]),
+            );
+            a + (b - a) * f
+        })
+    }
+
     /// Whether any value in `lo..=hi` has a non-zero opacity (conservatively: the entries
-    /// around both ends count).
+    /// around both ends count, one more each side than interpolation reads, against a value
+    /// interpolated an ulp outside its corners).
     pub fn any_visible(&self, (lo, hi): (f32, f32)) -> bool {
-        let first = self.position(lo) as usize;
-        let last = (self.position(hi) as usize + 1).min(TABLE_ENTRIES - 1);
+        let first = (self.position(lo) as usize).saturating_sub(1);
+        let last = (self.position(hi) as usize + 2).min(TABLE_ENTRIES - 1);
         self.visible_before[last + 1] > self.visible_before[first]
     }
 }
