@@ -117,6 +117,10 @@ pub struct LocalArgs {
     /// Threads per render node (default: this machine's cores shared among the render nodes).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=tessera_render_node::MAX_THREADS as i64))]
     pub threads: Option<u32>,
+    /// Memory per render node for the steps of a time-varying volume read ahead of the one
+    /// shown, in MiB (default: the render node's own, 2048).
+    #[arg(long, value_name = "MIB")]
+    pub volume_cache_mb: Option<usize>,
     /// Show each display in a window (needs a display server); otherwise headless.
     #[arg(long)]
     pub window: bool,

@@ -129,7 +129,7 @@ pub async fn run_local_driven(
     }
     for r in 0..args.render_nodes {
         let name = format!("render-{r}");
-        let a = vec![
+        let mut a = vec![
             "render-node".into(),
             "--master".into(),
             master_addr.clone(),
@@ -138,6 +138,9 @@ pub async fn run_local_driven(
             "--threads".into(),
             threads.to_string(),
         ];
+        if let Some(mb) = args.volume_cache_mb {
+            a.extend(["--volume-cache-mb".into(), mb.to_string()]);
+        }
         children.push(spawn(format!("render node {r}"), false, &this, &a)?);
     }
 

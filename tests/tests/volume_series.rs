@@ -57,6 +57,9 @@ fn a_played_series_changes_at_the_barrier_and_is_read_ahead() {
     args.extend([
         "--render-nodes",
         "1",
+        // A step is 16 KiB: 1 MiB holds the whole series ahead (the flag reaches the node).
+        "--volume-cache-mb",
+        "1",
         "--frames",
         "12",
         "--play",
