@@ -33,6 +33,11 @@ pub struct RunArgs {
     /// How long to wait for all nodes to join, in seconds (1 to 86400).
     #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub join_timeout: u64,
+    /// A render node silent this many ms (no heartbeat, no report) is treated as dead and its
+    /// tiles go to the others, without waiting for the network's 10 s timeout. Render nodes
+    /// beat every 50 ms; 150 to 60000.
+    #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(150..=60_000))]
+    pub node_deadline_ms: u64,
     /// Displays present this many ms after the frame barrier, all at the same instant by
     /// their clocks (0: each presents when the message arrives, which lets them drift apart
     /// by however late each is scheduled).
@@ -281,6 +286,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         save_frame: run.save_frame.map(FrameId),
         compression: run.compress.into(),
         join_timeout: Duration::from_secs(run.join_timeout),
+        node_deadline: Duration::from_millis(run.node_deadline_ms),
         show_progress,
         present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
             .ok()

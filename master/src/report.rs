@@ -26,6 +26,9 @@ pub struct Report {
     pub timing: crate::timing::TimingSummary,
     pub elapsed_s: f64,
     pub render_nodes_lost: u32,
+    /// Tiles given to a second render node because the first was late with them (past its
+    /// lease): the price of not waiting on a slow, hung or dead node.
+    pub tiles_speculated: u64,
     /// State changes (input events, control commands) the frame barrier applied.
     pub changes_applied: u64,
     /// Frames a control client had the displays save (`wall-frame-<K>.png`).

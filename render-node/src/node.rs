@@ -123,6 +123,10 @@ pub async fn run(options: Options) -> Result<()> {
     let mut rendering = false;
     let mut stats = RenderStats::default();
     let first_frame = Instant::now();
+    // The master declares a node silent past its deadline dead: the driver loop beats
+    // whatever the render threads are doing (a hung loop stops beating, and is dead too).
+    let mut heartbeat = tokio::time::interval(tessera_wire::protocol::HEARTBEAT_INTERVAL);
+    heartbeat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         if !rendering {
             if let Some((start, tiles)) = worker.next_batch(sizer.batch()) {
@@ -226,6 +230,7 @@ pub async fn run(options: Options) -> Result<()> {
                 let batch = Batch { frame, state, source, tiles, payloads };
                 send_pixels(&displays, &grid, compression, batch, delivered_tx.clone());
             }
+            _ = heartbeat.tick() => link.send(&FromNode::Heartbeat).await?,
             Some(delivery) = delivered_rx.recv() => match delivery {
                 Delivery::Delivered { frame, tiles } => {
                     let report = worker.handle_delivered(frame, &tiles, Instant::now());

@@ -45,6 +45,11 @@ impl Wall {
                 let done: usize = tiles.iter().map(|r| r.len()).sum();
                 *self.live.tiles.entry(node).or_default() += done as u64;
             }
+            (&PeerRole::Render { node, .. }, FromNode::Heartbeat) => {
+                // From a node not (or no longer) in the run, a beat in flight when it was
+                // declared gone or one before it is ready: nothing to keep alive.
+                let _ = self.coordinator.handle_heartbeat(node, now);
+            }
             (PeerRole::Display(d), FromNode::FrameComplete { frame }) => {
                 let d = *d;
                 self.coordinator.handle_frame_complete(d, frame, now)?;

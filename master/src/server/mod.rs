@@ -49,6 +49,8 @@ pub struct RunConfig {
     /// How render nodes pack tiles for the displays.
     pub compression: Compression,
     pub join_timeout: Duration,
+    /// A render node silent this long is treated as gone.
+    pub node_deadline: Duration,
     pub show_progress: bool,
     /// Displays present this long after the master's barrier decision, all at the same
     /// instant; zero presents on arrival.
@@ -135,7 +137,10 @@ pub async fn run_wall(
         cfg.camera,
         cfg.params,
         cfg.frames,
-        BalanceConfig::default(),
+        BalanceConfig {
+            node_deadline: cfg.node_deadline,
+            ..BalanceConfig::default()
+        },
     );
     coordinator.set_refinement(cfg.refinement);
     if let Some(session) = &cfg.replay {
@@ -187,9 +192,24 @@ pub async fn run_wall(
                 wall.missing_summary()
             ));
         }
+        // The coordinator's own timer (render nodes' deadlines); far off when it has none.
+        let timer = wall.coordinator.poll_timeout();
+        let timer_at = timer.map_or(join_deadline + Duration::from_secs(86_400), |t| {
+            tokio::time::Instant::from_std(t)
+        });
         let event = tokio::select! {
             e = events.recv() => e,
             _ = tokio::time::sleep_until(join_deadline), if wall.started.is_none() => continue,
+            _ = tokio::time::sleep_until(timer_at), if timer.is_some() => {
+                wall.coordinator.handle_timeout(Instant::now());
+                if let Err(e) = wall.pump() {
+                    break Err(e);
+                }
+                if wall.finished {
+                    break Ok(());
+                }
+                continue;
+            }
             changed = stop.changed(), if !stopping => {
                 stopping = true;
                 if changed.is_err() && !*stop.borrow() {
@@ -437,6 +457,19 @@ impl Wall {
                     )
                 }
                 Output::Finished => self.finished = true,
+                Output::RenderTimedOut { node, silent } => {
+                    if let Some(peer) = self.render_peer(node) {
+                        if let Some(p) = self.peers.get(&peer) {
+                            p.conn.close(5u32.into(), b"silent past the deadline");
+                        }
+                        let reason = format!(
+                            "silent for {} ms, past the {} ms deadline",
+                            silent.as_millis(),
+                            self.cfg.node_deadline.as_millis()
+                        );
+                        self.drop_peer(peer, Instant::now(), &reason)?;
+                    }
+                }
                 Output::Stalled => {
                     bail!("every render node is gone; the frames in flight cannot complete")
                 }

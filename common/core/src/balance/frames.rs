@@ -11,6 +11,9 @@ pub(super) struct InFlight {
     pool: VecDeque<TileId>,
     /// Tiles given to each node and not yet reported done.
     assigned: BTreeMap<RenderNodeId, BTreeSet<TileId>>,
+    /// Tiles also given to a second node because the first was late with them: each is
+    /// copied once at most.
+    speculated: BTreeSet<TileId>,
     done: Vec<bool>,
     done_count: u32,
     /// Tiles each node rendered of this frame: how fast it is, against the others.
@@ -24,6 +27,7 @@ impl InFlight {
             start,
             pool: (0..tile_count).map(TileId).collect(),
             assigned: BTreeMap::new(),
+            speculated: BTreeSet::new(),
             done: vec![false; tile_count as usize],
             done_count: 0,
             done_by: BTreeMap::new(),
@@ -140,14 +144,70 @@ impl InFlight {
         Ok(())
     }
 
-    /// A node left: what it had not finished goes back to the front of the pool.
+    /// A node left: what it had not finished goes back to the front of the pool (unless
+    /// another node holds a copy already).
     pub fn reclaim(&mut self, node: RenderNodeId) {
         if let Some(tiles) = self.assigned.remove(&node) {
             for tile in tiles.into_iter().rev() {
-                if !self.done[tile.0 as usize] {
+                let copied = self.assigned.values().any(|held| held.contains(&tile));
+                if !self.done[tile.0 as usize] && !copied {
                     self.pool.push_front(tile);
                 }
             }
         }
+    }
+
+    /// Whether `node` holds unfinished tiles of this frame.
+    pub fn holds(&self, node: RenderNodeId) -> bool {
+        self.assigned
+            .get(&node)
+            .is_some_and(|held| !held.is_empty())
+    }
+
+    /// How many unfinished tiles `node` holds that nobody else has a copy of.
+    pub fn uncopied(&self, node: RenderNodeId) -> usize {
+        self.assigned.get(&node).map_or(0, |held| {
+            held.iter().filter(|t| !self.speculated.contains(t)).count()
+        })
+    }
+
+    /// The nodes holding unfinished tiles.
+    pub fn holders(&self) -> impl Iterator<Item = RenderNodeId> + '_ {
+        self.assigned
+            .iter()
+            .filter(|(_, held)| !held.is_empty())
+            .map(|(node, _)| *node)
+    }
+
+    /// Whether `node` holds unfinished tiles nobody else has a copy of.
+    pub fn has_uncopied(&self, node: RenderNodeId) -> bool {
+        self.assigned
+            .get(&node)
+            .is_some_and(|held| held.iter().any(|t| !self.speculated.contains(t)))
+    }
+
+    /// Gives `to` a copy of up to `max` of `from`'s unfinished tiles that nobody has a copy of
+    /// yet (the last ones first: `from` renders its tiles in order, so those are the furthest
+    /// from done). Whichever node reports a tile first counts; the other's report is a
+    /// harmless duplicate.
+    pub fn speculate(&mut self, from: RenderNodeId, to: RenderNodeId, max: usize) -> Vec<TileId> {
+        let Some(held) = self.assigned.get(&from) else {
+            return Vec::new();
+        };
+        let copies: Vec<TileId> = held
+            .iter()
+            .rev()
+            .filter(|t| !self.speculated.contains(t))
+            .take(max)
+            .copied()
+            .collect();
+        self.speculated.extend(copies.iter().copied());
+        self.assigned
+            .entry(to)
+            .or_default()
+            .extend(copies.iter().copied());
+        let mut copies = copies;
+        copies.reverse();
+        copies
     }
 }

@@ -19,18 +19,24 @@
 //!   whose slowest node is ten times slower than its fastest waited on the slow nodes' shares
 //!   (79.8 % efficiency in the simulator, 512 nodes).
 //! * **Failures.** When a render node leaves, its unfinished tiles go back to the pool and to the
-//!   nodes that are waiting for work, so the frame still completes.
+//!   nodes that are waiting for work, so the frame still completes. A node that is silent for
+//!   `node_deadline` (no heartbeat, no report) is treated as gone at once, without waiting for
+//!   the transport to notice: the driver asks [`Coordinator::poll_timeout`] when to call
+//!   [`Coordinator::handle_timeout`], quinn's convention for time in a state machine.
 //! * **Swap barrier.** When every display has every tile of the oldest unpresented frame, all
 //!   displays are told to present it at once.
 
 mod frames;
+mod liveness;
 mod refine;
+mod speculate;
 
 pub use refine::Refinement;
 
 use frames::InFlight;
+use liveness::Liveness;
 use std::collections::{BTreeMap, VecDeque};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 use tessera_wire::camera::CameraMode;
 use tessera_wire::params::{ParamsError, RenderParams};
 use tessera_wire::protocol::{to_ranges, FrameId, FrameStart, RenderNodeId, TileRange, ToNode};
@@ -44,13 +50,19 @@ pub struct BalanceConfig {
     pub static_fraction: f32,
     /// Smallest batch handed out on request.
     pub min_batch: u32,
+    /// A render node silent this long is gone: its tiles go to the others.
+    pub node_deadline: Duration,
 }
+
+/// The default [`BalanceConfig::node_deadline`]: six heartbeats, a few frame periods.
+pub const DEFAULT_NODE_DEADLINE: Duration = Duration::from_millis(300);
 
 impl Default for BalanceConfig {
     fn default() -> Self {
         BalanceConfig {
             static_fraction: 0.5,
             min_batch: 1,
+            node_deadline: DEFAULT_NODE_DEADLINE,
         }
     }
 }
@@ -86,6 +98,12 @@ pub enum Output {
     Finished,
     /// Frames are in flight but no render node is left to render them.
     Stalled,
+    /// `node` was silent for `silent` (past the deadline) and is treated as gone; the driver
+    /// should close its connection.
+    RenderTimedOut {
+        node: RenderNodeId,
+        silent: Duration,
+    },
 }
 
 /// A message that does not fit the coordinator's state: a buggy or hostile peer.
@@ -107,10 +125,14 @@ pub enum BalanceError {
     },
 }
 
-#[derive(Default)]
 struct RenderNode {
     /// Asked for work and got none; gets returned tiles first.
     waiting: bool,
+    /// When it last showed progress on its tiles: a report of tiles done, or being given
+    /// work while it held none. A node late by its lease has its tiles copied to idle nodes.
+    last_progress: Instant,
+    /// Smoothed time between its progress reports while it holds work.
+    progress_gap: Option<Duration>,
 }
 
 /// The master's load balancer and frame barrier, as a state machine: inputs are `handle_*`
@@ -186,12 +208,15 @@ pub struct Coordinator {
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
+    liveness: Liveness,
     /// Tiles each node rendered per frame, smoothed over the presented frames.
     tiles_per_frame: BTreeMap<RenderNodeId, f64>,
     in_flight: BTreeMap<FrameId, InFlight>,
     next_frame: FrameId,
     next_present: FrameId,
     stalled: bool,
+    /// Tiles copied to a second node because the first was late with them.
+    speculated_tiles: u64,
     outputs: VecDeque<Output>,
 }
 
@@ -230,11 +255,13 @@ impl Coordinator {
             frame_limit,
             running: false,
             nodes: BTreeMap::new(),
+            liveness: Liveness::new(config.node_deadline),
             tiles_per_frame: BTreeMap::new(),
             in_flight: BTreeMap::new(),
             next_frame: FrameId(0),
             next_present: FrameId(0),
             stalled: false,
+            speculated_tiles: 0,
             outputs: VecDeque::new(),
         }
     }
@@ -363,9 +390,12 @@ impl Coordinator {
             node,
             RenderNode {
                 waiting: !joined_frames,
+                last_progress: now,
+                progress_gap: None,
             },
         );
-        self.feed_waiting();
+        self.liveness.heard(node, now);
+        self.feed_waiting(now);
         self.try_start_frames(now);
     }
 
@@ -374,11 +404,12 @@ impl Coordinator {
         if self.nodes.remove(&node).is_none() {
             return;
         }
+        self.liveness.forget(node);
         self.tiles_per_frame.remove(&node);
         for frame in self.in_flight.values_mut() {
             frame.reclaim(node);
         }
-        self.feed_waiting();
+        self.feed_waiting(now);
         self.check_stalled();
         self.try_start_frames(now);
     }
@@ -395,8 +426,12 @@ impl Coordinator {
         if !self.nodes.contains_key(&node) {
             return Err(BalanceError::UnknownNode(node));
         }
+        self.liveness.heard(node, now);
         if frame >= self.next_frame {
             return Err(BalanceError::FutureFrame(frame));
+        }
+        if !tiles.is_empty() {
+            self.note_progress(node, now);
         }
         if let Some(state) = self.in_flight.get_mut(&frame) {
             let was_rendered = state.all_rendered();
@@ -416,10 +451,50 @@ impl Coordinator {
         }
         // A frame already presented needs nothing more: its tiles all arrived.
         if want_more {
-            self.assign_batch(node);
+            self.assign_batch(node, now);
         }
         self.try_start_frames(now);
         Ok(())
+    }
+
+    /// `node` said it is alive.
+    ///
+    /// # Errors
+    /// A node that is not (or no longer) part of the run.
+    pub fn handle_heartbeat(
+        &mut self,
+        node: RenderNodeId,
+        now: Instant,
+    ) -> Result<(), BalanceError> {
+        if !self.nodes.contains_key(&node) {
+            return Err(BalanceError::UnknownNode(node));
+        }
+        self.liveness.heard(node, now);
+        Ok(())
+    }
+
+    /// When [`Coordinator::handle_timeout`] is next due (`None`: nothing is timed, as once
+    /// the run is finished): a node's deadline, or a late node's lease that an idle node
+    /// could take over.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        if self.is_finished() {
+            return None;
+        }
+        [self.liveness.next_deadline(), self.next_speculation()]
+            .into_iter()
+            .flatten()
+            .min()
+    }
+
+    /// Time passed: nodes silent past the deadline are gone, as if they had left, and idle
+    /// nodes get copies of the tiles of nodes late past their lease.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        for (node, silent) in self.liveness.expired(now) {
+            self.outputs
+                .push_back(Output::RenderTimedOut { node, silent });
+            self.handle_render_left(node, now);
+        }
+        self.feed_speculation(now);
     }
 
     /// Display `display` has every tile of `frame`.
@@ -529,7 +604,7 @@ impl Coordinator {
         }
     }
 
-    fn try_start_frames(&mut self, _now: Instant) {
+    fn try_start_frames(&mut self, now: Instant) {
         while self.can_start_next() {
             let frame = self.next_frame;
             self.next_frame = FrameId(frame.0 + 1);
@@ -571,6 +646,9 @@ impl Coordinator {
             let nodes = self.weighted_nodes();
             let shares = state.static_shares(&nodes, self.config.static_fraction);
             for ((node, _), tiles) in nodes.iter().zip(shares) {
+                if !tiles.is_empty() {
+                    self.note_given(*node, now);
+                }
                 self.outputs
                     .push_back(Output::ToRender(*node, ToNode::FrameStart(start)));
                 self.outputs.push_back(Output::ToRender(
@@ -590,9 +668,12 @@ impl Coordinator {
 
     /// Hands `node` the next batch from the oldest frame that has unassigned tiles, or marks it
     /// waiting and tells it there is nothing for now.
-    fn assign_batch(&mut self, node: RenderNodeId) {
+    fn assign_batch(&mut self, node: RenderNodeId, now: Instant) {
         let node_count = self.nodes.len().max(1) as u32;
         let min_batch = self.config.min_batch;
+        if self.in_flight.values().any(|f| !f.pool_is_empty()) {
+            self.note_given(node, now);
+        }
         for (frame, state) in self.in_flight.iter_mut() {
             let batch = state.take_batch(node, node_count, min_batch);
             if !batch.is_empty() {
@@ -608,6 +689,9 @@ impl Coordinator {
                 }
                 return;
             }
+        }
+        if self.speculate_for(node, now) {
+            return;
         }
         if let Some(n) = self.nodes.get_mut(&node) {
             // Always answer, so the node knows its request is settled.
@@ -655,7 +739,7 @@ impl Coordinator {
     }
 
     /// Gives reclaimed tiles to nodes that are idle.
-    fn feed_waiting(&mut self) {
+    fn feed_waiting(&mut self, now: Instant) {
         let waiting: Vec<RenderNodeId> = self
             .nodes
             .iter()
@@ -669,7 +753,7 @@ impl Coordinator {
             if let Some(n) = self.nodes.get_mut(&node) {
                 n.waiting = false;
             }
-            self.assign_batch(node);
+            self.assign_batch(node, now);
         }
     }
 
@@ -681,5 +765,7 @@ impl Coordinator {
     }
 }
 
+#[cfg(test)]
+mod liveness_tests;
 #[cfg(test)]
 mod tests;

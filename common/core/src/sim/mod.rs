@@ -25,8 +25,11 @@
 //!   Pixel batches and the acknowledgements that tell a render node its pixels arrived each go
 //!   on a stream of their own and may overtake each other.
 //! * **Deaths.** A render node killed with [`SimWall::kill_at`] dies shortly after the frame
-//!   starts, with tiles in hand; the master learns at once (its connection closes). Messages
-//!   to and from it are dropped from then on.
+//!   starts, with tiles in hand. Messages to and from it are dropped from then on, and the
+//!   master learns of the death as the real one does: live nodes send a heartbeat every
+//!   [`HEARTBEAT_INTERVAL`], over the simulated network, and the coordinator declares a node
+//!   gone once it has been silent for its deadline (its `poll_timeout` is one of the
+//!   simulation's events).
 //!
 //! # Balance efficiency
 //!
@@ -50,6 +53,9 @@ use net::{Network, Rng, Stream};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
 use std::time::{Duration, Instant};
+use tessera_wire::protocol::HEARTBEAT_INTERVAL;
+
+const HEARTBEAT_US: u64 = HEARTBEAT_INTERVAL.as_micros() as u64;
 use tessera_wire::camera::{Camera, CameraMode};
 use tessera_wire::params::RenderParams;
 use tessera_wire::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
@@ -166,6 +172,8 @@ enum Event {
     Rendered(RenderNodeId, FrameId, StateId, Vec<TileId>),
     Delivered(RenderNodeId, FrameId, Vec<TileId>),
     Kill(RenderNodeId),
+    /// A live render node's heartbeat timer fired.
+    Heartbeat(RenderNodeId),
 }
 
 struct SimNode {
@@ -440,6 +448,12 @@ impl SimWall {
         self.base + Duration::from_micros(self.now_us)
     }
 
+    /// When the coordinator asked to be called back, in simulated microseconds.
+    fn coordinator_timeout_us(&self) -> Option<u64> {
+        let due = self.coordinator.poll_timeout()?;
+        Some(due.saturating_duration_since(self.base).as_micros() as u64)
+    }
+
     fn schedule_at(&mut self, at: u64, event: Event) {
         let slot = match self.free_slots.pop() {
             Some(slot) => {
@@ -480,18 +494,38 @@ impl SimWall {
         }
         self.coordinator.start(now);
         self.pump();
+        for node in self.nodes.keys().copied().collect::<Vec<_>>() {
+            self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
+        }
         let budget = 200u64
             .saturating_mul(frames)
             .saturating_mul(self.grid.len() as u64 + 10)
             .saturating_mul(self.nodes.len() as u64 + 1);
-        while let Some(Reverse((at, _, slot))) = self.events.pop() {
+        while let Some(&Reverse((at, _, slot))) = self.events.peek() {
             self.processed += 1;
             if self.processed > budget {
                 break;
             }
-            self.now_us = at;
+            // The coordinator's own timer is an event too, due before or with the next one.
+            if let Some(due) = self.coordinator_timeout_us().filter(|&due| due <= at) {
+                self.now_us = due.max(self.now_us);
+                self.coordinator.handle_timeout(self.now());
+                self.pump();
+                continue;
+            }
+            self.events.pop();
             let event = self.slab[slot].take().expect("each event runs once");
             self.free_slots.push(slot);
+            // Heartbeats still on their way when the run ends are not part of it: they would
+            // stretch its virtual time to the next beat.
+            let beat = matches!(
+                event,
+                Event::Heartbeat(_) | Event::FromRender(_, FromNode::Heartbeat)
+            );
+            if beat && self.coordinator.is_finished() {
+                continue;
+            }
+            self.now_us = at;
             self.handle(event);
             self.pump();
         }
@@ -508,22 +542,34 @@ impl SimWall {
                         clock.busy_us += self.now_us - since;
                     }
                     clock.died_at = Some(self.now_us);
-                    self.coordinator.handle_render_left(node, now);
+                }
+            }
+            Event::Heartbeat(node) => {
+                // A dead node's timer dies with it; a finished run needs no more.
+                if self.nodes.contains_key(&node) && !self.coordinator.is_finished() {
+                    self.send(Event::FromRender(node, FromNode::Heartbeat));
+                    self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
                 }
             }
             Event::FromRender(node, msg) => {
                 if !self.nodes.contains_key(&node) {
                     return;
                 }
-                if let FromNode::TilesDone {
-                    frame,
-                    tiles,
-                    want_more,
-                } = msg
-                {
-                    self.coordinator
+                match msg {
+                    FromNode::TilesDone {
+                        frame,
+                        tiles,
+                        want_more,
+                    } => self
+                        .coordinator
                         .handle_tiles_done(node, frame, &tiles, want_more, now)
-                        .expect("render nodes only report their own tiles");
+                        .expect("render nodes only report their own tiles"),
+                    // A heartbeat that arrives after a late one declared the node gone finds
+                    // it unknown: the real master drops that connection.
+                    FromNode::Heartbeat => {
+                        let _ = self.coordinator.handle_heartbeat(node, now);
+                    }
+                    _ => {}
                 }
             }
             Event::FromDisplay(display, msg) => {
@@ -743,6 +789,7 @@ impl SimWall {
                 Output::FramePresented(_)
                 | Output::Finished
                 | Output::Stalled
+                | Output::RenderTimedOut { .. }
                 | Output::Converged(_)
                 | Output::Refused { .. } => {}
             }

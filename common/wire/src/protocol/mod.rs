@@ -461,7 +461,13 @@ pub enum FromNode {
         event: InputEvent,
         clock_ns: u64,
     },
+    /// A render node is alive (sent every [`HEARTBEAT_INTERVAL`], whatever it is doing).
+    Heartbeat,
 }
+
+/// How often a render node says it is alive. The master's deadline for a silent node
+/// (`--node-deadline`) must be several of these, so that a late packet or two is not a death.
+pub const HEARTBEAT_INTERVAL: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// Measured by a node, reported at shutdown.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

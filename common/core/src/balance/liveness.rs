@@ -1,0 +1,52 @@
+//! Which render nodes still show signs of life, by the coordinator's own clock.
+//!
+//! A node that dies without closing its connection (killed, its host gone, its cable pulled)
+//! is otherwise noticed only when the transport's idle timeout fires: ten seconds in which its
+//! tiles stay assigned and every display waits on them. Render nodes send a heartbeat every
+//! [`HEARTBEAT_INTERVAL`](tessera_wire::protocol::HEARTBEAT_INTERVAL); anything a node sends
+//! counts, and a node silent for the deadline is declared gone, so its tiles go elsewhere after
+//! the deadline and not after the transport's timeout.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+use tessera_wire::protocol::RenderNodeId;
+
+/// The last time each node was heard from, and how long a silence is allowed.
+#[derive(Debug)]
+pub(super) struct Liveness {
+    deadline: Duration,
+    last_heard: BTreeMap<RenderNodeId, Instant>,
+}
+
+impl Liveness {
+    pub fn new(deadline: Duration) -> Self {
+        Liveness {
+            deadline,
+            last_heard: BTreeMap::new(),
+        }
+    }
+
+    /// `node` said something at `now` (a later message never moves the clock back).
+    pub fn heard(&mut self, node: RenderNodeId, now: Instant) {
+        let last = self.last_heard.entry(node).or_insert(now);
+        *last = (*last).max(now);
+    }
+
+    pub fn forget(&mut self, node: RenderNodeId) {
+        self.last_heard.remove(&node);
+    }
+
+    /// When the quietest node's silence reaches the deadline.
+    pub fn next_deadline(&self) -> Option<Instant> {
+        self.last_heard.values().min().map(|&t| t + self.deadline)
+    }
+
+    /// The nodes silent for the deadline or longer at `now`, with how long each was silent.
+    pub fn expired(&self, now: Instant) -> Vec<(RenderNodeId, Duration)> {
+        self.last_heard
+            .iter()
+            .filter(|(_, &t)| now.saturating_duration_since(t) >= self.deadline)
+            .map(|(&node, &t)| (node, now.saturating_duration_since(t)))
+            .collect()
+    }
+}

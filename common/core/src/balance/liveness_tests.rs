@@ -1,0 +1,179 @@
+//! Deaths noticed by the coordinator's own clock: a virtual one, no sleep anywhere.
+
+use super::*;
+use tessera_wire::camera::Camera;
+use tessera_wire::protocol::TileRange;
+
+fn coordinator(tiles: u32, frames: u64) -> Coordinator {
+    let camera = CameraMode::fixed(
+        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+    );
+    Coordinator::new(
+        tiles,
+        1,
+        camera,
+        RenderParams::interactive(),
+        Some(frames),
+        BalanceConfig::default(),
+    )
+}
+
+fn drain(c: &mut Coordinator) -> Vec<Output> {
+    std::iter::from_fn(|| c.poll_output()).collect()
+}
+
+fn assigned_to(outputs: &[Output], node: RenderNodeId) -> Vec<TileRange> {
+    outputs
+        .iter()
+        .filter_map(|o| match o {
+            Output::ToRender(n, ToNode::Assign { tiles, .. }) if *n == node => Some(tiles.clone()),
+            _ => None,
+        })
+        .flatten()
+        .collect()
+}
+
+#[test]
+fn a_silent_node_is_gone_at_the_deadline_and_its_tiles_move_to_the_living() {
+    let (alive, silent) = (RenderNodeId(0), RenderNodeId(1));
+    let mut c = coordinator(16, 1);
+    let t0 = Instant::now();
+    let ms = |n: u64| t0 + Duration::from_millis(n);
+    c.handle_render_joined(alive, t0);
+    c.handle_render_joined(silent, t0);
+    c.start(t0);
+    let out = drain(&mut c);
+    let mut mine = assigned_to(&out, alive);
+    assert!(
+        !assigned_to(&out, silent).is_empty(),
+        "the silent node holds a share"
+    );
+
+    c.handle_heartbeat(alive, ms(100)).unwrap();
+    // The quietest node sets the deadline: the silent one, heard last at the start.
+    assert_eq!(c.poll_timeout(), Some(t0 + DEFAULT_NODE_DEADLINE));
+    c.handle_timeout(ms(299));
+    assert!(drain(&mut c).is_empty(), "nobody is late yet");
+    c.handle_timeout(ms(300));
+    let out = drain(&mut c);
+    assert!(
+        out.contains(&Output::RenderTimedOut {
+            node: silent,
+            silent: Duration::from_millis(300)
+        }),
+        "{out:?}"
+    );
+    // Now only the living node is timed, from its heartbeat.
+    assert_eq!(c.poll_timeout(), Some(ms(100) + DEFAULT_NODE_DEADLINE));
+    assert_eq!(
+        c.handle_heartbeat(silent, ms(301)),
+        Err(BalanceError::UnknownNode(silent))
+    );
+
+    // The living node renders everything, the silent node's share included.
+    let mut rendered = 0;
+    for step in 0..64 {
+        if mine.is_empty() {
+            break;
+        }
+        rendered += mine.iter().map(|r| r.len()).sum::<usize>();
+        let at = ms(310 + step);
+        c.handle_tiles_done(alive, FrameId(0), &mine, true, at)
+            .unwrap();
+        mine = assigned_to(&drain(&mut c), alive);
+    }
+    assert_eq!(rendered, 16);
+    c.handle_frame_complete(DisplayId(0), FrameId(0), ms(400))
+        .unwrap();
+    assert!(drain(&mut c).contains(&Output::Finished));
+    assert_eq!(c.poll_timeout(), None, "a finished run times nothing");
+}
+
+#[test]
+fn heartbeats_keep_a_busy_node_alive_however_long_its_batch_takes() {
+    let node = RenderNodeId(0);
+    let mut c = coordinator(4, 1);
+    let t0 = Instant::now();
+    c.handle_render_joined(node, t0);
+    c.start(t0);
+    let _ = drain(&mut c);
+    // Ten seconds of rendering one batch, a heartbeat every 50 ms, the driver calling back
+    // whenever the coordinator asked.
+    let beat = tessera_wire::protocol::HEARTBEAT_INTERVAL;
+    let mut now = t0;
+    for _ in 0..200 {
+        now += beat;
+        let due = c.poll_timeout().expect("a live node is timed");
+        assert!(due > now, "the deadline stays ahead of the beats");
+        c.handle_heartbeat(node, now).unwrap();
+        c.handle_timeout(now);
+        assert!(!drain(&mut c)
+            .iter()
+            .any(|o| matches!(o, Output::RenderTimedOut { .. })));
+    }
+    assert_eq!(c.render_nodes().count(), 1);
+}
+
+#[test]
+fn a_hung_node_that_still_beats_has_its_tiles_copied_after_its_lease() {
+    let (quick, hung) = (RenderNodeId(0), RenderNodeId(1));
+    let mut c = coordinator(16, 1);
+    let t0 = Instant::now();
+    let ms = |n: u64| t0 + Duration::from_millis(n);
+    c.handle_render_joined(quick, t0);
+    c.handle_render_joined(hung, t0);
+    c.start(t0);
+    let out = drain(&mut c);
+    let mut mine = assigned_to(&out, quick);
+    let held = assigned_to(&out, hung);
+    // The quick node renders its share and everything left in the pool, in 2 ms steps,
+    // before the hung node's lease ends.
+    let mut at = 0;
+    while !mine.is_empty() {
+        at += 2;
+        c.handle_tiles_done(quick, FrameId(0), &mine, true, ms(at))
+            .unwrap();
+        mine = assigned_to(&drain(&mut c), quick);
+    }
+    // Now it waits; the hung node beats but reports nothing. Its lease (the shortest, since it
+    // never reported) ends 40 ms after it was given its share, long before the deadline.
+    c.handle_heartbeat(hung, ms(at)).unwrap();
+    let due = c.poll_timeout().unwrap();
+    assert_eq!(
+        due,
+        t0 + speculate::MIN_LEASE.max(Duration::from_millis(at))
+    );
+    c.handle_timeout(due);
+    let out = drain(&mut c);
+    let copies = assigned_to(&out, quick);
+    assert!(!copies.is_empty(), "{out:?}");
+    assert!(!out
+        .iter()
+        .any(|o| matches!(o, Output::RenderTimedOut { .. })));
+    // The quick node renders the copies (asking for more: the rest of the hung node's tiles).
+    let mut copies = copies;
+    for step in 0..32 {
+        if copies.is_empty() {
+            break;
+        }
+        c.handle_tiles_done(
+            quick,
+            FrameId(0),
+            &copies,
+            true,
+            due + Duration::from_millis(step),
+        )
+        .unwrap();
+        copies = assigned_to(&drain(&mut c), quick);
+    }
+    assert_eq!(
+        c.speculated_tiles(),
+        held.iter().map(|r| r.len()).sum::<usize>() as u64
+    );
+    c.handle_frame_complete(DisplayId(0), FrameId(0), due + Duration::from_millis(50))
+        .unwrap();
+    assert!(drain(&mut c).contains(&Output::Finished));
+    // The hung node's report, when it comes, is a duplicate, not a protocol violation.
+    c.handle_tiles_done(hung, FrameId(0), &held, false, ms(500))
+        .unwrap();
+}
