@@ -1,11 +1,13 @@
-//! A render node killed in the middle of a local wall's run: the wall goes on, and its stall
-//! is bounded by the master's node deadline, not by the network's ten-second idle timeout.
+//! Deaths in the middle of a local wall's run. A render node killed: the wall goes on, and its
+//! stall is bounded by the master's node deadline, not by the network's idle timeout. The
+//! master killed: every node notices within the idle timeout and exits, with a message.
 
 use std::time::Duration;
 use tessera_tests::*;
 
-/// The render nodes `parent` started: its children whose command line runs `render-node`.
-fn render_children(parent: u32) -> Vec<u32> {
+/// The nodes `parent` started as `role` (`render-node`, `display-node`): its children whose
+/// command line runs that subcommand.
+fn children(parent: u32, role: &str) -> Vec<u32> {
     let mut found = Vec::new();
     for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
         let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
@@ -18,10 +20,10 @@ fn render_children(parent: u32) -> Vec<u32> {
         let after = stat.rsplit_once(") ").map_or("", |(_, rest)| rest);
         let ppid: Option<u32> = after.split_whitespace().nth(1).and_then(|p| p.parse().ok());
         let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
-        let runs_render_node = String::from_utf8_lossy(&cmdline)
+        let runs_role = String::from_utf8_lossy(&cmdline)
             .split('\0')
-            .any(|arg| arg == "render-node");
-        if ppid == Some(parent) && runs_render_node {
+            .any(|arg| arg == role);
+        if ppid == Some(parent) && runs_role {
             found.push(pid);
         }
     }
@@ -62,7 +64,7 @@ fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_deadline() {
             || master.has_exited()),
         "the wall never presented frame 3"
     );
-    let nodes = render_children(master.pid());
+    let nodes = children(master.pid(), "render-node");
     assert_eq!(
         nodes.len(),
         3,
@@ -101,4 +103,159 @@ fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_deadline() {
         longest < (deadline_ms + 2_000) as f64,
         "the wall froze for {longest} ms"
     );
+}
+
+/// Whether process `pid` is still running (a zombie is not).
+fn running(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| !s.contains(") Z "))
+}
+
+#[test]
+fn a_killed_local_master_leaves_no_node_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let master = Proc::start(
+        "tessera-master",
+        &[
+            "local",
+            "--wall",
+            "2x1",
+            "--screen",
+            "160x90",
+            "--render-nodes",
+            "2",
+            "--threads",
+            "1",
+            "--frames",
+            "100000",
+            "--save-frame",
+            "2",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert!(
+        wait_for(Duration::from_secs(90), || out
+            .join("display-1.png")
+            .exists()
+            || master.has_exited()),
+        "the wall never presented frame 2"
+    );
+    let mut nodes = children(master.pid(), "render-node");
+    nodes.extend(children(master.pid(), "display-node"));
+    assert_eq!(nodes.len(), 4, "{nodes:?}");
+    master.signal(libc::SIGKILL);
+    // The launcher's children die with it (PR_SET_PDEATHSIG), before any timeout.
+    assert!(
+        wait_for(Duration::from_secs(5), || nodes
+            .iter()
+            .all(|&p| !running(p))),
+        "orphans: {:?}",
+        nodes.iter().filter(|&&p| running(p)).collect::<Vec<_>>()
+    );
+    let _ = master.wait(Duration::from_secs(10));
+}
+
+fn issue(cluster: &std::path::Path, name: &str) -> String {
+    let out = cluster.join(name);
+    run(
+        "tessera-master",
+        &[
+            "issue-cert",
+            "--cluster-dir",
+            cluster.to_str().unwrap(),
+            "--name",
+            name,
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        Duration::from_secs(30),
+    )
+    .assert_success("issue-cert");
+    out.to_str().unwrap().to_string()
+}
+
+#[test]
+fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let cluster = dir.path().join("cluster");
+    let out = dir.path().join("out");
+    let (d0, d1, r0) = (
+        issue(&cluster, "display-0"),
+        issue(&cluster, "display-1"),
+        issue(&cluster, "render-0"),
+    );
+    let master = Proc::start(
+        "tessera-master",
+        &[
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--cluster-dir",
+            cluster.to_str().unwrap(),
+            "--render-nodes",
+            "1",
+            "--wall",
+            "2x1",
+            "--screen",
+            "160x90",
+            "--frames",
+            "0",
+            "--save-frame",
+            "3",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    let listening = master.wait_for_stderr("listening on", Duration::from_secs(60));
+    let addr = listening
+        .rsplit(' ')
+        .next()
+        .expect("an address")
+        .to_string();
+    let display = |id: &str, certs: &str| {
+        Proc::start(
+            "tessera-display-node",
+            &[
+                "--master",
+                &addr,
+                "--display",
+                id,
+                "--cert-dir",
+                certs,
+                "--listen",
+                "127.0.0.1:0",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        )
+    };
+    let nodes = [
+        display("0", &d0),
+        display("1", &d1),
+        Proc::start(
+            "tessera-render-node",
+            &["--master", &addr, "--cert-dir", &r0, "--threads", "1"],
+        ),
+    ];
+    assert!(
+        wait_for(Duration::from_secs(60), || out
+            .join("display-1.png")
+            .exists()),
+        "the wall never presented frame 3"
+    );
+    // SIGKILL, and another host's nodes: no goodbye, no parent to take them along.
+    let killed = std::time::Instant::now();
+    master.signal(libc::SIGKILL);
+    let bound = tessera_net::quic::IDLE_TIMEOUT + Duration::from_secs(3);
+    for node in nodes {
+        let o = node.wait(bound);
+        assert_eq!(o.status.code(), Some(1), "{}", o.stderr);
+        assert!(o.stderr.contains("lost the master"), "{}", o.stderr);
+    }
+    eprintln!(
+        "every node exited {:?} after the master was killed",
+        killed.elapsed()
+    );
+    let _ = master.wait(Duration::from_secs(10));
 }

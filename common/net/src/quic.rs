@@ -38,6 +38,13 @@ pub const MAX_UDP_PAYLOAD: u16 = 8972;
 /// black hole that drops the packet size to 1200 bytes.
 const SOCKET_BUFFER: usize = 16 << 20;
 
+/// A peer silent this long is gone: its connection closes, and a node whose master died exits
+/// (a wall must not hang on a dead master, nor a master keep a dead node's connection for the
+/// default ten seconds). Keep-alives come from quinn's own task, so a node busy loading or
+/// rendering still sends them; six of them lost in a row are needed for a false death.
+pub const IDLE_TIMEOUT: Duration = Duration::from_millis(1500);
+const KEEP_ALIVE: Duration = Duration::from_millis(250);
+
 /// Window sizes sized for pixel traffic: a 4K screen's frame is 25 MB, and a window much smaller
 /// than bandwidth × RTT caps throughput.
 fn transport() -> Arc<quinn::TransportConfig> {
@@ -52,8 +59,8 @@ fn transport() -> Arc<quinn::TransportConfig> {
         .stream_receive_window((32u32 << 20).into())
         .receive_window((256u32 << 20).into())
         .send_window(256 << 20)
-        .keep_alive_interval(Some(Duration::from_secs(1)))
-        .max_idle_timeout(Some(Duration::from_secs(10).try_into().expect("10 s fits")));
+        .keep_alive_interval(Some(KEEP_ALIVE))
+        .max_idle_timeout(Some(IDLE_TIMEOUT.try_into().expect("1.5 s fits")));
     Arc::new(t)
 }
 
