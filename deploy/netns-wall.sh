@@ -347,12 +347,15 @@ for ((i = 0; i < DISPLAYS; i++)); do add_node "d$i" $((100 + i)); done
 
 # --- Certificates ------------------------------------------------------------------------------
 CLUSTER=$WORK/cluster
+# issue NAME ROLE-ARGS...: a certificate bound to its role (and a display's to its id).
 issue() {
-    "$BIN_DIR/tessera-master" issue-cert --cluster-dir "$CLUSTER" --name "$1" --out "$WORK/$1" \
-        >>"$OUT/logs/issue-cert.log" 2>&1 || die "issue-cert $1 failed: see $OUT/logs/issue-cert.log"
+    local name=$1
+    shift
+    "$BIN_DIR/tessera-master" issue-cert --cluster-dir "$CLUSTER" --name "$name" --out "$WORK/$name" \
+        "$@" >>"$OUT/logs/issue-cert.log" 2>&1 || die "issue-cert $name failed: see $OUT/logs/issue-cert.log"
 }
-for ((i = 0; i < RENDER_NODES; i++)); do issue "render-$i"; done
-for ((i = 0; i < DISPLAYS; i++)); do issue "display-$i"; done
+for ((i = 0; i < RENDER_NODES; i++)); do issue "render-$i" --role render; done
+for ((i = 0; i < DISPLAYS; i++)); do issue "display-$i" --role display --display "$i"; done
 
 # start NAME NAMESPACE COMMAND...: runs COMMAND in NAMESPACE, output to OUT/logs/NAME.log.
 # `ip netns exec` execs the command, so the PID is the node's own.

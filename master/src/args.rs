@@ -197,16 +197,18 @@ pub struct IssueCertArgs {
     /// Directory to write node.pem, node.key and ca.pem into; give it to the node's --cert-dir.
     #[arg(long)]
     pub out: PathBuf,
-    /// What the certificate lets its holder be: `render`, `display`, `control` (a control
-    /// client) or `master`; `node` is a render or display node (as certificates without a
-    /// role were). The master refuses a peer whose certificate does not name its role.
-    #[arg(long, value_enum, default_value_t = RoleArg::Node)]
+    /// What the certificate lets its holder be: `render`, `display` (with --display), `control`
+    /// (a control client) or `master`. The master refuses a peer whose certificate does not
+    /// name the role it joins as, and a display whose certificate is for another display.
+    #[arg(long, value_enum)]
     pub role: RoleArg,
+    /// With --role display: the display id the certificate is for (the one it may join as).
+    #[arg(long, value_name = "ID", required_if_eq("role", "display"))]
+    pub display: Option<u32>,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RoleArg {
-    Node,
     Render,
     Display,
     Control,
@@ -214,14 +216,13 @@ pub enum RoleArg {
 }
 
 impl RoleArg {
-    pub fn cert_role(self) -> Option<tessera_net::cluster::CertRole> {
+    pub fn cert_role(self) -> tessera_net::cluster::CertRole {
         use tessera_net::cluster::CertRole;
         match self {
-            RoleArg::Node => None,
-            RoleArg::Render => Some(CertRole::Render),
-            RoleArg::Display => Some(CertRole::Display),
-            RoleArg::Control => Some(CertRole::Control),
-            RoleArg::Master => Some(CertRole::Master),
+            RoleArg::Render => CertRole::Render,
+            RoleArg::Display => CertRole::Display,
+            RoleArg::Control => CertRole::Control,
+            RoleArg::Master => CertRole::Master,
         }
     }
 }

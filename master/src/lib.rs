@@ -85,7 +85,16 @@ fn run(command: Command) -> Result<ExitCode> {
         Command::Render(args) => reference::render_reference(args).map(|()| ExitCode::SUCCESS),
         Command::IssueCert(args) => {
             let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
-            ca.issue(&args.name, &args.out, args.role.cert_role())?;
+            match (args.role, args.display) {
+                (args::RoleArg::Display, Some(display)) => {
+                    ca.issue_display(&args.name, &args.out, display)?
+                }
+                (args::RoleArg::Display, None) => {
+                    anyhow::bail!("--role display needs --display ID")
+                }
+                (role, None) => ca.issue(&args.name, &args.out, Some(role.cert_role()))?,
+                (_, Some(_)) => anyhow::bail!("--display is for --role display only"),
+            }
             println!(
                 "wrote the certificate of `{}` to {} (give it to the node with --cert-dir)",
                 args.name,

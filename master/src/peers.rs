@@ -18,6 +18,10 @@ pub type PeerSender = mpsc::Sender<ToNode>;
 /// Messages one peer may have waiting before it counts as not reading.
 pub const PEER_QUEUE: usize = 4096;
 
+/// Events from all peers that may wait for the driver loop. Bounded: a peer that sends faster
+/// than the master handles (a flood, a hostile client) is slowed down, not buffered.
+pub const EVENT_QUEUE: usize = 4096;
+
 pub enum Event {
     Joined {
         peer: PeerId,
@@ -31,11 +35,7 @@ pub enum Event {
 
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
-pub async fn accept_peer(
-    incoming: quinn::Incoming,
-    peer: PeerId,
-    events: mpsc::UnboundedSender<Event>,
-) {
+pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::Sender<Event>) {
     let remote = incoming.remote_address();
     let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
         Ok(Ok(conn)) => conn,
@@ -101,6 +101,7 @@ pub async fn accept_peer(
             conn: conn.clone(),
             tx,
         })
+        .await
         .is_err()
     {
         return;
@@ -108,7 +109,9 @@ pub async fn accept_peer(
     let reason = loop {
         match read_msg::<FromNode>(&mut recv).await {
             Ok(Some(msg)) => {
-                if events.send(Event::Msg(peer, msg)).is_err() {
+                // Waits while the driver is behind: the peer's stream stops being read, and
+                // QUIC's flow control holds the peer back instead of the master's memory.
+                if events.send(Event::Msg(peer, msg)).await.is_err() {
                     return;
                 }
             }
@@ -125,5 +128,5 @@ pub async fn accept_peer(
             }
         }
     };
-    let _ = events.send(Event::Closed(peer, reason));
+    let _ = events.send(Event::Closed(peer, reason)).await;
 }

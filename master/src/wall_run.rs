@@ -92,6 +92,11 @@ pub async fn run_local_driven(
         ca.issue(name, &dir, Some(role))?;
         Ok(dir)
     };
+    let display_cert_dir = |display: u32| -> Result<PathBuf> {
+        let dir = certs.path().join(format!("display-{display}"));
+        ca.issue_display(&format!("display-{display}"), &dir, display)?;
+        Ok(dir)
+    };
     let identity = NodeIdentity::load(&cert_dir("master", CertRole::Master)?)?;
     let endpoint = bind("127.0.0.1:0".parse()?, &identity)?;
     let master_addr = endpoint.local_addr()?.to_string();
@@ -106,7 +111,6 @@ pub async fn run_local_driven(
 
     let mut children = Vec::new();
     for d in 0..cfg.wall.display_count() {
-        let name = format!("display-{d}");
         let mut a = vec![
             "display-node".into(),
             "--master".into(),
@@ -114,7 +118,7 @@ pub async fn run_local_driven(
             "--display".into(),
             d.to_string(),
             "--cert-dir".into(),
-            cert_dir(&name, CertRole::Display)?.display().to_string(),
+            display_cert_dir(d)?.display().to_string(),
             "--listen".into(),
             "127.0.0.1:0".into(),
         ];

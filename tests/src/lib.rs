@@ -435,3 +435,28 @@ pub fn write_ramp_volume(dir: &Path) -> PathBuf {
     .unwrap();
     sidecar
 }
+
+/// Issues the certificate of node `name` from the cluster CA in `cluster` with
+/// `tessera-master issue-cert`, its role read from the name: `display-N` is display N's,
+/// `control...` a control client's, anything else a render node's. Returns its directory.
+pub fn issue_cert(cluster: &Path, name: &str) -> String {
+    let out = cluster.join(name);
+    let mut args = vec![
+        "issue-cert".to_string(),
+        "--cluster-dir".into(),
+        cluster.display().to_string(),
+        "--name".into(),
+        name.into(),
+        "--out".into(),
+        out.display().to_string(),
+        "--role".into(),
+    ];
+    match name.strip_prefix("display-") {
+        Some(id) => args.extend(["display".into(), "--display".into(), id.into()]),
+        None if name.starts_with("control") => args.push("control".into()),
+        None => args.push("render".into()),
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    run("tessera-master", &args, Duration::from_secs(30)).assert_success("issue-cert");
+    out.display().to_string()
+}

@@ -156,34 +156,15 @@ fn a_killed_local_master_leaves_no_node_behind() {
     let _ = master.wait(Duration::from_secs(10));
 }
 
-fn issue(cluster: &std::path::Path, name: &str) -> String {
-    let out = cluster.join(name);
-    run(
-        "tessera-master",
-        &[
-            "issue-cert",
-            "--cluster-dir",
-            cluster.to_str().unwrap(),
-            "--name",
-            name,
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        Duration::from_secs(30),
-    )
-    .assert_success("issue-cert");
-    out.to_str().unwrap().to_string()
-}
-
 #[test]
 fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
     let dir = tempfile::tempdir().unwrap();
     let cluster = dir.path().join("cluster");
     let out = dir.path().join("out");
     let (d0, d1, r0) = (
-        issue(&cluster, "display-0"),
-        issue(&cluster, "display-1"),
-        issue(&cluster, "render-0"),
+        issue_cert(&cluster, "display-0"),
+        issue_cert(&cluster, "display-1"),
+        issue_cert(&cluster, "render-0"),
     );
     let master = Proc::start(
         "tessera-master",

@@ -9,25 +9,6 @@ use tessera_net::quic;
 use tessera_tests::*;
 use tessera_wire::protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
 
-fn issue(cluster: &Path, name: &str) -> String {
-    let out = cluster.join(name);
-    run(
-        "tessera-master",
-        &[
-            "issue-cert",
-            "--cluster-dir",
-            cluster.to_str().unwrap(),
-            "--name",
-            name,
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        Duration::from_secs(30),
-    )
-    .assert_success("issue-cert");
-    out.to_str().unwrap().to_string()
-}
-
 /// Hostile and foreign peers, in-process. Returns what each attempt ended with.
 async fn knock(master: std::net::SocketAddr, cluster: &Path, foreign: &Path) -> Vec<String> {
     let mut seen = Vec::new();
@@ -107,12 +88,12 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
     let foreign = dir.path().join("foreign-cluster");
     let out = dir.path().join("serve-out");
     let (d0, d1, r0, r1) = (
-        issue(&cluster, "display-0"),
-        issue(&cluster, "display-1"),
-        issue(&cluster, "render-0"),
-        issue(&cluster, "render-1"),
+        issue_cert(&cluster, "display-0"),
+        issue_cert(&cluster, "display-1"),
+        issue_cert(&cluster, "render-0"),
+        issue_cert(&cluster, "render-1"),
     );
-    issue(&cluster, "intruder");
+    issue_cert(&cluster, "intruder");
     ClusterCa::open_or_create(&foreign)
         .unwrap()
         .issue("stranger", &foreign.join("stranger"), None)
@@ -177,6 +158,32 @@ fn serve_wall_survives_hostile_peers_and_a_dead_render_node() {
         "{}",
         stranger.stderr
     );
+
+    // A render node's certificate cannot join as display 0, nor display 1's as display 0.
+    for (certs, why) in [(&r0, "render"), (&d1, "another display")] {
+        let impostor = run(
+            "tessera-display-node",
+            &[
+                "--master",
+                &addr,
+                "--display",
+                "0",
+                "--cert-dir",
+                certs,
+                "--listen",
+                "127.0.0.1:0",
+            ],
+            Duration::from_secs(30),
+        );
+        assert!(!impostor.status.success(), "{}", impostor.stderr);
+        assert!(
+            impostor
+                .stderr
+                .contains(&format!("certificate is for {why}")),
+            "{}",
+            impostor.stderr
+        );
+    }
 
     let _displays = [
         Proc::start(

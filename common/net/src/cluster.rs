@@ -51,8 +51,23 @@ impl CertRole {
     }
 }
 
+/// The name a display certificate carries for its display id: the master lets a display
+/// certificate join as that display only.
+fn display_subject_name(display: u32) -> String {
+    format!("{display}.display.{CLUSTER_SERVER_NAME}")
+}
+
+/// Whether a (verified) certificate was issued for display `display`.
+pub fn cert_is_for_display(cert: &CertificateDer<'_>, display: u32) -> bool {
+    let Ok(parsed) = webpki::EndEntityCert::try_from(cert) else {
+        return false;
+    };
+    rustls_pki_types::ServerName::try_from(display_subject_name(display))
+        .is_ok_and(|name| parsed.verify_is_valid_for_subject_name(&name).is_ok())
+}
+
 /// The roles a (verified) certificate names; empty for a certificate from before roles, which
-/// may be a render or a display node.
+/// the master refuses.
 pub fn cert_roles(cert: &CertificateDer<'_>) -> Vec<CertRole> {
     let Ok(parsed) = webpki::EndEntityCert::try_from(cert) else {
         return Vec::new();
@@ -178,9 +193,26 @@ impl ClusterCa {
     /// Writes a node identity (`node.pem`, `node.key`, `ca.pem`) signed by this CA into `out`,
     /// for the role `role` (`None`: a render or display node, as before roles existed).
     pub fn issue(&self, name: &str, out: &Path, role: Option<CertRole>) -> Result<(), CertError> {
+        self.issue_names(
+            name,
+            out,
+            role.map(CertRole::subject_name).into_iter().collect(),
+        )
+    }
+
+    /// Issues a display node's certificate, for display `display` only.
+    pub fn issue_display(&self, name: &str, out: &Path, display: u32) -> Result<(), CertError> {
+        let names = vec![
+            CertRole::Display.subject_name(),
+            display_subject_name(display),
+        ];
+        self.issue_names(name, out, names)
+    }
+
+    fn issue_names(&self, name: &str, out: &Path, grants: Vec<String>) -> Result<(), CertError> {
         let issuer = Issuer::new(ca_params()?, &self.key);
         let mut names = vec![CLUSTER_SERVER_NAME.to_string()];
-        names.extend(role.map(CertRole::subject_name));
+        names.extend(grants);
         let mut params = CertificateParams::new(names)?;
         let mut dn = DistinguishedName::new();
         dn.push(DnType::CommonName, name);
@@ -255,5 +287,23 @@ mod tests {
         ca.issue("old", &dir.path().join("old"), None).unwrap();
         let id = NodeIdentity::load(&dir.path().join("old")).unwrap();
         assert!(cert_roles(&id.cert).is_empty());
+    }
+
+    #[test]
+    fn a_display_certificate_names_its_display_and_no_other() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca = ClusterCa::open_or_create(&dir.path().join("ca")).unwrap();
+        let out = dir.path().join("d3");
+        ca.issue_display("d3", &out, 3).unwrap();
+        let id = NodeIdentity::load(&out).unwrap();
+        assert_eq!(cert_roles(&id.cert), vec![CertRole::Display]);
+        assert!(cert_is_for_display(&id.cert, 3));
+        assert!(!cert_is_for_display(&id.cert, 0));
+        assert!(!cert_is_for_display(&id.cert, 30));
+        // A role certificate without an id is for no display.
+        ca.issue("any", &dir.path().join("any"), Some(CertRole::Display))
+            .unwrap();
+        let any = NodeIdentity::load(&dir.path().join("any")).unwrap();
+        assert!(!cert_is_for_display(&any.cert, 0));
     }
 }

@@ -130,6 +130,18 @@ pub fn endpoint(bind: SocketAddr, id: &NodeIdentity, accept: bool) -> Result<qui
 
 /// The roles the certificate a connected peer presented names (see [`cert_roles`]); empty if
 /// it presented none, which mutual TLS does not let happen.
+/// Whether the peer's certificate was issued for display `display`.
+pub fn peer_is_display(conn: &quinn::Connection, display: u32) -> bool {
+    conn.peer_identity()
+        .and_then(|id| id.downcast::<Vec<CertificateDer<'static>>>().ok())
+        .and_then(|certs| {
+            certs
+                .first()
+                .map(|c| crate::cluster::cert_is_for_display(c, display))
+        })
+        .unwrap_or(false)
+}
+
 pub fn peer_roles(conn: &quinn::Connection) -> Vec<CertRole> {
     conn.peer_identity()
         .and_then(|id| id.downcast::<Vec<CertificateDer<'static>>>().ok())

@@ -7,13 +7,15 @@ use tessera_wire::protocol::Hello;
 
 /// Whether a certificate naming `roles` may join as `role`. Certificates from before roles
 /// (naming none) may be render or display nodes, never control clients.
-fn allowed(role: &Role, roles: &[CertRole]) -> bool {
-    let needed = match role {
-        Role::Render { .. } => CertRole::Render,
-        Role::Display { .. } => CertRole::Display,
-        Role::Control => CertRole::Control,
-    };
-    roles.contains(&needed) || (roles.is_empty() && needed != CertRole::Control)
+/// Whether a certificate naming `roles` may join as `role` (a display certificate also names
+/// its display: `for_display` says whether it names the one claimed). A certificate from
+/// before roles may not join at all: any node of the cluster could claim any place with it.
+fn allowed(role: &Role, roles: &[CertRole], for_display: bool) -> bool {
+    match role {
+        Role::Render { .. } => roles.contains(&CertRole::Render),
+        Role::Display { .. } => roles.contains(&CertRole::Display) && for_display,
+        Role::Control => roles.contains(&CertRole::Control),
+    }
 }
 
 impl Wall {
@@ -44,11 +46,21 @@ impl Wall {
     fn join(&mut self, peer: PeerId, hello: Hello, conn: quinn::Connection, tx: PeerSender) {
         let remote = conn.remote_address();
         let roles = tessera_net::quic::peer_roles(&conn);
-        if !allowed(&hello.role, &roles) {
+        let for_display = match hello.role {
+            Role::Display { display, .. } => tessera_net::quic::peer_is_display(&conn, display.0),
+            _ => false,
+        };
+        if !allowed(&hello.role, &roles, for_display) {
             let named: Vec<&str> = roles.iter().map(|r| r.name()).collect();
+            let what = match (&hello.role, named.is_empty()) {
+                (_, true) => "no role (issued before roles)".to_string(),
+                (Role::Display { .. }, false) if roles.contains(&CertRole::Display) => {
+                    "another display".to_string()
+                }
+                _ => named.join(", "),
+            };
             let reason = format!(
-                "its certificate is for {}, not for joining as {}; issue one with `tessera-master issue-cert --role ...`",
-                if named.is_empty() { "a render or display node".to_string() } else { named.join(", ") },
+                "its certificate is for {what}, not for joining as {}; issue one with `tessera-master issue-cert --role ...`",
                 role_name(&hello.role)
             );
             tracing::warn!("refused {} from {remote}: {reason}", hello.host);
@@ -195,14 +207,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_certificate_lets_its_holder_join_only_as_its_role() {
+    fn a_certificate_lets_its_holder_join_only_as_its_role_and_display() {
         let render = Role::Render { cores: 1 };
-        assert!(allowed(&render, &[CertRole::Render]));
-        assert!(allowed(&render, &[]), "certificates from before roles");
-        assert!(!allowed(&render, &[CertRole::Control]));
-        assert!(allowed(&Role::Control, &[CertRole::Control]));
-        assert!(!allowed(&Role::Control, &[]));
-        assert!(!allowed(&Role::Control, &[CertRole::Render]));
-        assert!(!allowed(&Role::Control, &[CertRole::Master]));
+        assert!(allowed(&render, &[CertRole::Render], false));
+        assert!(
+            !allowed(&render, &[], false),
+            "certificates from before roles"
+        );
+        assert!(!allowed(&render, &[CertRole::Control], false));
+        assert!(!allowed(&render, &[CertRole::Display], true));
+        let display = Role::Display {
+            display: DisplayId(0),
+            pixel_addr: "127.0.0.1:9".parse().unwrap(),
+        };
+        assert!(allowed(&display, &[CertRole::Display], true));
+        assert!(
+            !allowed(&display, &[CertRole::Display], false),
+            "another display's"
+        );
+        assert!(
+            !allowed(&display, &[CertRole::Render], false),
+            "a render node's"
+        );
+        assert!(!allowed(&display, &[], false));
+        assert!(allowed(&Role::Control, &[CertRole::Control], false));
+        assert!(!allowed(&Role::Control, &[], false));
+        assert!(!allowed(&Role::Control, &[CertRole::Render], false));
+        assert!(!allowed(&Role::Control, &[CertRole::Master], false));
     }
 }

@@ -119,7 +119,7 @@ pub async fn run_wall(
     started: Arc<AtomicBool>,
     mut stop: tokio::sync::watch::Receiver<bool>,
 ) -> Result<Report> {
-    let (events_tx, mut events) = mpsc::unbounded_channel();
+    let (events_tx, mut events) = mpsc::channel(crate::peers::EVENT_QUEUE);
     let acceptor = {
         let endpoint = endpoint.clone();
         tokio::spawn(async move {
@@ -479,7 +479,7 @@ impl Wall {
     }
 
     /// Asks every node for its stats and waits for them (bounded).
-    async fn shutdown(&mut self, events: &mut mpsc::UnboundedReceiver<Event>) {
+    async fn shutdown(&mut self, events: &mut mpsc::Receiver<Event>) {
         for peer in self.peers.keys() {
             self.send(*peer, ToNode::Shutdown);
         }
