@@ -205,6 +205,9 @@ pub struct IssueCertArgs {
     /// With --role display: the display id the certificate is for (the one it may join as).
     #[arg(long, value_name = "ID", required_if_eq("role", "display"))]
     pub display: Option<u32>,
+    /// Days the certificate is valid for; the master refuses it once it has expired.
+    #[arg(long, default_value_t = 3650, value_parser = clap::value_parser!(i64).range(1..=36_500))]
+    pub valid_days: i64,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]

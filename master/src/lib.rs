@@ -84,7 +84,7 @@ fn run(command: Command) -> Result<ExitCode> {
     match command {
         Command::Render(args) => reference::render_reference(args).map(|()| ExitCode::SUCCESS),
         Command::IssueCert(args) => {
-            let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
+            let ca = ClusterCa::open_or_create(&args.cluster_dir)?.valid_for(args.valid_days);
             match (args.role, args.display) {
                 (args::RoleArg::Display, Some(display)) => {
                     ca.issue_display(&args.name, &args.out, display)?

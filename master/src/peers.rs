@@ -40,7 +40,13 @@ pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::
     let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
         Ok(Ok(conn)) => conn,
         Ok(Err(e)) => {
-            tracing::warn!("refused a connection from {remote}: {e} (is its certificate from this cluster's CA?)");
+            let text = e.to_string();
+            let hint = if text.contains("expired") {
+                "issue the node a new certificate with `tessera-master issue-cert`"
+            } else {
+                "is its certificate from this cluster's CA?"
+            };
+            tracing::warn!("refused a connection from {remote}: {text} ({hint})");
             return;
         }
         Err(_) => {

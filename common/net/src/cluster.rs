@@ -91,7 +91,12 @@ pub struct ClusterCa {
     dir: PathBuf,
     key: KeyPair,
     cert_pem: String,
+    /// Days a certificate issued from now on is valid for.
+    valid_days: i64,
 }
+
+/// How long a node certificate is valid unless told otherwise: ten years.
+pub const DEFAULT_VALID_DAYS: i64 = 3650;
 
 /// Why a certificate or key could not be made, read or written.
 #[derive(Debug, thiserror::Error)]
@@ -183,6 +188,7 @@ impl ClusterCa {
             dir: dir.to_path_buf(),
             key,
             cert_pem,
+            valid_days: DEFAULT_VALID_DAYS,
         })
     }
 
@@ -209,11 +215,23 @@ impl ClusterCa {
         self.issue_names(name, out, names)
     }
 
+    /// Certificates issued from now on are valid for `days` from now (a negative number
+    /// issues one that has already expired, for testing that it is refused).
+    pub fn valid_for(mut self, days: i64) -> Self {
+        self.valid_days = days;
+        self
+    }
+
     fn issue_names(&self, name: &str, out: &Path, grants: Vec<String>) -> Result<(), CertError> {
         let issuer = Issuer::new(ca_params()?, &self.key);
         let mut names = vec![CLUSTER_SERVER_NAME.to_string()];
         names.extend(grants);
         let mut params = CertificateParams::new(names)?;
+        let now = time::OffsetDateTime::now_utc();
+        params.not_after = now + time::Duration::days(self.valid_days);
+        // An hour back, against clocks a little behind the master's.
+        params.not_before =
+            (now - time::Duration::hours(1)).min(params.not_after - time::Duration::days(1));
         let mut dn = DistinguishedName::new();
         dn.push(DnType::CommonName, name);
         params.distinguished_name = dn;
