@@ -137,6 +137,10 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         sources: BTreeMap::new(),
         present_times: VecDeque::new(),
     };
+    // The master goes on without a display silent past its deadline: beat, whatever the
+    // window and the tiles are doing.
+    let mut heartbeat = tokio::time::interval(tessera_wire::protocol::HEARTBEAT_INTERVAL);
+    heartbeat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tokio::select! {
             // The master's messages first: a Present waiting behind a burst of tiles would let
@@ -180,6 +184,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     anyhow::bail!("the master broke the protocol: it sent a display a {} message", other.kind())
                 }
             },
+            _ = heartbeat.tick() => link.send(&FromNode::Heartbeat).await?,
             Some((frame, clock_ns)) = async { window_presents.as_mut()?.recv().await } => {
                 link.send(&FromNode::Presented { frame: FrameId(frame), clock_ns }).await?;
             }

@@ -38,6 +38,11 @@ pub struct RunArgs {
     /// beat every 50 ms; 150 to 60000.
     #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(150..=60_000))]
     pub node_deadline_ms: u64,
+    /// What a display's loss (its connection closed, or silent past --node-deadline-ms) does:
+    /// `go-on` presents on the other displays (the lost display's tiles are no longer
+    /// rendered); `stop` ends the run with an error.
+    #[arg(long, value_enum, default_value_t = DisplayLoss::GoOn)]
+    pub display_loss: DisplayLoss,
     /// Displays present this many ms after the frame barrier, all at the same instant by
     /// their clocks (0: each presents when the message arrives, which lets them drift apart
     /// by however late each is scheduled).
@@ -210,6 +215,13 @@ pub struct IssueCertArgs {
     pub valid_days: i64,
 }
 
+/// What the wall does when it loses a display.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DisplayLoss {
+    GoOn,
+    Stop,
+}
+
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RoleArg {
     Render,
@@ -291,6 +303,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         compression: run.compress.into(),
         join_timeout: Duration::from_secs(run.join_timeout),
         node_deadline: Duration::from_millis(run.node_deadline_ms),
+        display_loss: run.display_loss,
         show_progress,
         present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
             .ok()

@@ -74,7 +74,12 @@ pub async fn watch(
             if c.essential || !started.load(Ordering::SeqCst) {
                 return anyhow::anyhow!("{what}; stopping the wall (see its log lines above)");
             }
-            tracing::error!("{what}; the other render nodes take over its tiles");
+            let rest = if c.name.starts_with("display") {
+                "the other displays go on without it"
+            } else {
+                "the other render nodes take over its tiles"
+            };
+            tracing::error!("{what}; {rest}");
             lost.push(what);
             continue;
         }

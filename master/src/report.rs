@@ -26,6 +26,8 @@ pub struct Report {
     pub timing: crate::timing::TimingSummary,
     pub elapsed_s: f64,
     pub render_nodes_lost: u32,
+    /// Displays lost while the others went on (`--display-loss go-on`).
+    pub displays_lost: u32,
     /// Tiles given to a second render node because the first was late with them (past its
     /// lease): the price of not waiting on a slow, hung or dead node.
     pub tiles_speculated: u64,

@@ -129,7 +129,9 @@ pub async fn run_local_driven(
             a.push("--window".into());
             a.extend(["--linger".into(), args.linger.to_string()]);
         }
-        children.push(spawn(format!("display node {d}"), true, &this, &a)?);
+        // Essential only if losing it ends the run.
+        let essential = args.run.display_loss == crate::args::DisplayLoss::Stop;
+        children.push(spawn(format!("display node {d}"), essential, &this, &a)?);
     }
     for r in 0..args.render_nodes {
         let name = format!("render-{r}");

@@ -231,13 +231,21 @@ pub async fn run(options: Options) -> Result<()> {
                 send_pixels(&displays, &grid, compression, batch, delivered_tx.clone());
             }
             _ = heartbeat.tick() => link.send(&FromNode::Heartbeat).await?,
-            Some(delivery) = delivered_rx.recv() => match delivery {
-                Delivery::Delivered { frame, tiles } => {
-                    let report = worker.handle_delivered(frame, &tiles, Instant::now());
-                    link.send(&report).await?;
+            Some(Delivery { frame, delivered, lost }) = delivered_rx.recv() => {
+                for (gone, e) in lost {
+                    // Once: later batches skip it, and the master, which hears from every
+                    // display, decides whether it is gone.
+                    if displays.remove(&gone).is_some() {
+                        tracing::warn!(
+                            "render node {}: display {} unreachable ({e}); its tiles go back undelivered",
+                            node.0,
+                            gone.0
+                        );
+                    }
                 }
-                Delivery::Failed(e) => bail!("cannot deliver pixels: {e}"),
-            },
+                let report = worker.handle_delivered(frame, &delivered, Instant::now());
+                link.send(&report).await?;
+            }
         }
     }
 }

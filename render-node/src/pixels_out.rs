@@ -1,5 +1,5 @@
 //! Sending a batch's pixels to the displays that own its tiles: one QUIC stream per (frame,
-//! batch, display). The report goes back only once every display has acknowledged its
+//! batch, display). A tile is reported done only once its display has acknowledged its
 //! stream, so tiles lost with a display connection are never counted as done.
 
 use std::collections::BTreeMap;
@@ -18,14 +18,14 @@ pub struct Batch {
     pub payloads: Vec<Vec<u8>>,
 }
 
-/// How a batch's delivery ended.
-pub enum Delivery {
-    /// Every display has its tiles of the batch.
-    Delivered {
-        frame: FrameId,
-        tiles: Vec<TileId>,
-    },
-    Failed(String),
+/// How a batch's delivery ended: the tiles that reached their displays, and the displays that
+/// could not be reached. Tiles of an unreachable display are not reported done, so the master
+/// still holds them against this node: it copies them to another, or settles them once it
+/// knows the display is gone.
+pub struct Delivery {
+    pub frame: FrameId,
+    pub delivered: Vec<TileId>,
+    pub lost: Vec<(DisplayId, String)>,
 }
 
 pub fn send_pixels(
@@ -49,14 +49,14 @@ pub fn send_pixels(
             .expect("the worker checked every assigned tile");
         by_display.entry(tile.display).or_default().push(i);
     }
-    let mut sends = Vec::new();
+    // One task per display, all at once: a display that stalls holds back only its own tiles.
+    let mut sends = tokio::task::JoinSet::new();
+    let mut lost = Vec::new();
     for (display, indices) in by_display {
+        let ids: Vec<TileId> = indices.iter().map(|&i| tiles[i]).collect();
         let Some(conn) = displays.get(&display).cloned() else {
-            let _ = done.send(Delivery::Failed(format!(
-                "no connection to display {}",
-                display.0
-            )));
-            return;
+            lost.push((display, "no connection to it".to_string()));
+            continue;
         };
         let bytes = encode_batch(
             (frame, state),
@@ -64,21 +64,31 @@ pub fn send_pixels(
             compression,
             indices.iter().map(|&i| (tiles[i], payloads[i].as_slice())),
         );
-        sends.push(async move {
-            let mut stream = conn.open_uni().await?;
-            stream.write_all(&bytes).await?;
-            stream.finish()?;
-            stream.stopped().await?;
-            anyhow::Ok(())
+        sends.spawn(async move {
+            let sent = async {
+                let mut stream = conn.open_uni().await?;
+                stream.write_all(&bytes).await?;
+                stream.finish()?;
+                stream.stopped().await?;
+                anyhow::Ok(())
+            };
+            (display, ids, sent.await)
         });
     }
     tokio::spawn(async move {
-        for s in sends {
-            if let Err(e) = s.await {
-                let _ = done.send(Delivery::Failed(format!("{e:#}")));
-                return;
+        let mut delivered = Vec::new();
+        while let Some(joined) = sends.join_next().await {
+            match joined {
+                Ok((_, ids, Ok(()))) => delivered.extend(ids),
+                Ok((display, _, Err(e))) => lost.push((display, format!("{e:#}"))),
+                Err(e) => lost.push((DisplayId(u32::MAX), format!("the send task failed: {e}"))),
             }
         }
-        let _ = done.send(Delivery::Delivered { frame, tiles });
+        delivered.sort();
+        let _ = done.send(Delivery {
+            frame,
+            delivered,
+            lost,
+        });
     });
 }

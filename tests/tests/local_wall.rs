@@ -276,24 +276,23 @@ fn bad_inputs_fail_with_clear_errors() {
 
 /// A 2x1 local wall of many frames writing into `out`, returned once frames are flowing: a
 /// display has saved frame 2 (an event to wait for, not a time to guess).
-fn flowing_wall(out: &std::path::Path) -> Proc {
+fn flowing_wall(out: &std::path::Path, extra: &[&str]) -> Proc {
     let out_s = out.to_str().unwrap();
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "local",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--frames",
-            "100000",
-            "--save-frame",
-            "2",
-            "--out",
-            out_s,
-        ],
-    );
+    let mut args = vec![
+        "local",
+        "--wall",
+        "2x1",
+        "--screen",
+        "160x90",
+        "--frames",
+        "100000",
+        "--save-frame",
+        "2",
+        "--out",
+        out_s,
+    ];
+    args.extend(extra);
+    let master = Proc::start("tessera-master", &args);
     let saved = out.join("display-1.png");
     assert!(
         wait_for(Duration::from_secs(60), || saved.exists()
@@ -319,7 +318,7 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("interrupted-run");
     let out_s = out.to_str().unwrap().to_string();
-    let master = flowing_wall(&out);
+    let master = flowing_wall(&out, &[]);
     assert!(
         processes_mentioning(&out_s).len() >= 2,
         "the displays run with --out {out_s}"
@@ -340,11 +339,11 @@ fn ctrl_c_stops_the_wall_and_leaves_no_process_behind() {
 }
 
 #[test]
-fn a_dead_display_stops_the_wall_with_an_error_and_no_orphans() {
+fn with_display_loss_stop_a_dead_display_stops_the_wall_with_an_error_and_no_orphans() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("display-dies");
     let out_s = out.to_str().unwrap().to_string();
-    let master = flowing_wall(&out);
+    let master = flowing_wall(&out, &["--display-loss", "stop"]);
     let victim = process_with(&[&out_s, "--display 1 "]).expect("display 1 is running");
     unsafe { libc::kill(victim as i32, libc::SIGKILL) };
     let o = master.wait(Duration::from_secs(60));

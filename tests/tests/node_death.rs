@@ -240,3 +240,77 @@ fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
     );
     let _ = master.wait(Duration::from_secs(10));
 }
+
+#[test]
+fn a_killed_display_leaves_the_others_presenting_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let frames = 300;
+    let master = Proc::start(
+        "tessera-master",
+        &[
+            "local",
+            "--wall",
+            "3x1",
+            "--screen",
+            "96x64",
+            "--render-nodes",
+            "2",
+            "--threads",
+            "1",
+            "--frames",
+            &frames.to_string(),
+            "--save-frame",
+            "3",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert!(
+        wait_for(Duration::from_secs(90), || out
+            .join("display-2.png")
+            .exists()
+            || master.has_exited()),
+        "the wall never presented frame 3"
+    );
+    let displays = children(master.pid(), "display-node");
+    assert_eq!(displays.len(), 3, "{displays:?}");
+    let victim = displays
+        .iter()
+        .copied()
+        .find(|p| {
+            std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
+                let line = String::from_utf8_lossy(&c).into_owned();
+                let args: Vec<&str> = line.split('\0').collect();
+                args.windows(2).any(|w| w == ["--display", "1"])
+            })
+        })
+        .expect("display 1 runs");
+    unsafe { libc::kill(victim as i32, libc::SIGKILL) };
+    let o = master.wait(Duration::from_secs(120));
+    assert!(
+        o.stderr.contains("the other displays go on without it"),
+        "{}",
+        o.stderr
+    );
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["frames"].as_u64(), Some(frames), "{report}");
+    assert_eq!(report["displays_lost"], 1, "{report}");
+    let presented: Vec<u64> = report["displays"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["frames_presented"].as_u64().unwrap())
+        .collect();
+    assert_eq!(
+        presented,
+        vec![frames, frames],
+        "the two living displays showed every frame"
+    );
+    let longest = report["frame_ms"]["max"].as_f64().unwrap();
+    eprintln!(
+        "killed display: longest frame {longest:.0} ms (median {:.0} ms)",
+        report["frame_ms"]["p50"].as_f64().unwrap()
+    );
+    assert!(longest < 2_300.0, "the wall froze for {longest} ms");
+}

@@ -170,10 +170,19 @@ impl Wall {
         match p.role {
             PeerRole::Display(d) => {
                 self.displays.remove(&d);
-                self.display_endpoints.remove(&d);
-                bail!(
-                    "{who} disconnected ({reason}); a wall cannot go on without one of its screens"
+                let going_on = self.started.is_some()
+                    && self.cfg.display_loss == crate::args::DisplayLoss::GoOn;
+                if !going_on {
+                    self.display_endpoints.remove(&d);
+                    bail!(
+                        "{who} disconnected ({reason}); the wall stops (--display-loss stop, or it had not started)"
+                    );
+                }
+                self.lost_displays += 1;
+                tracing::error!(
+                    "{who} disconnected ({reason}); the other displays go on without it (--display-loss stop ends the run instead)"
                 );
+                self.coordinator.handle_display_left(d, now);
             }
             PeerRole::Render { node, .. } => {
                 if p.ready && self.started.is_some() {

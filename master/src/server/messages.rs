@@ -45,6 +45,9 @@ impl Wall {
                 let done: usize = tiles.iter().map(|r| r.len()).sum();
                 *self.live.tiles.entry(node).or_default() += done as u64;
             }
+            (&PeerRole::Display(d), FromNode::Heartbeat) => {
+                self.coordinator.handle_display_heartbeat(d, now);
+            }
             (&PeerRole::Render { node, .. }, FromNode::Heartbeat) => {
                 // From a node not (or no longer) in the run, a beat in flight when it was
                 // declared gone or one before it is ready: nothing to keep alive.

@@ -26,7 +26,7 @@ use tessera_wire::protocol::{
 };
 use tessera_wire::scene_spec::SceneSpec;
 use tessera_wire::state::{StateChange, WallState};
-use tessera_wire::wall::{DisplayId, TileGrid, WallLayout};
+use tessera_wire::wall::{DisplayId, TileGrid, TileId, WallLayout};
 use tokio::sync::mpsc;
 
 /// What a run needs to know.
@@ -49,8 +49,10 @@ pub struct RunConfig {
     /// How render nodes pack tiles for the displays.
     pub compression: Compression,
     pub join_timeout: Duration,
-    /// A render node silent this long is treated as gone.
+    /// A render node or display silent this long is treated as gone.
     pub node_deadline: Duration,
+    /// Whether the wall goes on without a lost display.
+    pub display_loss: crate::args::DisplayLoss,
     pub show_progress: bool,
     /// Displays present this long after the master's barrier decision, all at the same
     /// instant; zero presents on arrival.
@@ -96,6 +98,8 @@ struct Wall {
     presents: Vec<(FrameId, Instant)>,
     timing: Timing,
     lost_render_nodes: u32,
+    /// Displays lost while the wall went on without them.
+    lost_displays: u32,
     /// State changes the barrier applied.
     changes_applied: u64,
     finished: bool,
@@ -143,6 +147,11 @@ pub async fn run_wall(
         },
     );
     coordinator.set_refinement(cfg.refinement);
+    coordinator.set_tile_displays(
+        (0..grid.len() as u32)
+            .map(|t| grid.tile(TileId(t)).expect("every id below len").display)
+            .collect(),
+    );
     if let Some(session) = &cfg.replay {
         for line in &session.lines {
             coordinator.schedule_change(FrameId(line.frame), StateChange::All(line.wall))?;
@@ -161,6 +170,7 @@ pub async fn run_wall(
         presents: Vec::new(),
         timing: Timing::default(),
         lost_render_nodes: 0,
+        lost_displays: 0,
         changes_applied: 0,
         finished: false,
         progress: None,
@@ -457,6 +467,19 @@ impl Wall {
                     )
                 }
                 Output::Finished => self.finished = true,
+                Output::DisplayTimedOut { display, silent } => {
+                    if let Some(&peer) = self.displays.get(&display) {
+                        if let Some(p) = self.peers.get(&peer) {
+                            p.conn.close(5u32.into(), b"silent past the deadline");
+                        }
+                        let reason = format!(
+                            "silent for {} ms, past the {} ms deadline",
+                            silent.as_millis(),
+                            self.cfg.node_deadline.as_millis()
+                        );
+                        self.drop_peer(peer, Instant::now(), &reason)?;
+                    }
+                }
                 Output::RenderTimedOut { node, silent } => {
                     if let Some(peer) = self.render_peer(node) {
                         if let Some(p) = self.peers.get(&peer) {
@@ -471,7 +494,7 @@ impl Wall {
                     }
                 }
                 Output::Stalled => {
-                    bail!("every render node is gone; the frames in flight cannot complete")
+                    bail!("every render node or every display is gone; the frames in flight cannot complete")
                 }
             }
         }

@@ -81,6 +81,7 @@ impl Wall {
             timing: self.timing.summary(self.cfg.wall.display_count()),
             elapsed_s: elapsed,
             render_nodes_lost: self.lost_render_nodes,
+            displays_lost: self.lost_displays,
             tiles_speculated: self.coordinator.speculated_tiles(),
             changes_applied: self.changes_applied,
             snapshots: self.live.snapshots.iter().map(|f| f.0).collect(),

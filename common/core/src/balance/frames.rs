@@ -166,9 +166,9 @@ impl InFlight {
 
     /// How many unfinished tiles `node` holds that nobody else has a copy of.
     pub fn uncopied(&self, node: RenderNodeId) -> usize {
-        self.assigned.get(&node).map_or(0, |held| {
-            held.iter().filter(|t| !self.speculated.contains(t)).count()
-        })
+        self.assigned
+            .get(&node)
+            .map_or(0, |held| held.iter().filter(|t| self.copyable(**t)).count())
     }
 
     /// The nodes holding unfinished tiles.
@@ -179,11 +179,32 @@ impl InFlight {
             .map(|(node, _)| *node)
     }
 
+    /// Tiles no display will show (theirs is gone): settled without rendering, taken out of
+    /// the pool; a node that holds one may still report it, as a duplicate.
+    pub fn drop_tiles(&mut self, tiles: &[TileId]) {
+        let mut dropped = 0;
+        for t in tiles {
+            let slot = &mut self.done[t.0 as usize];
+            if !*slot {
+                *slot = true;
+                dropped += 1;
+            }
+        }
+        self.done_count += dropped;
+        let done = &self.done;
+        self.pool.retain(|t| !done[t.0 as usize]);
+    }
+
     /// Whether `node` holds unfinished tiles nobody else has a copy of.
     pub fn has_uncopied(&self, node: RenderNodeId) -> bool {
         self.assigned
             .get(&node)
-            .is_some_and(|held| held.iter().any(|t| !self.speculated.contains(t)))
+            .is_some_and(|held| held.iter().any(|t| self.copyable(*t)))
+    }
+
+    /// Neither done nor copied already.
+    fn copyable(&self, tile: TileId) -> bool {
+        !self.done[tile.0 as usize] && !self.speculated.contains(&tile)
     }
 
     /// Gives `to` a copy of up to `max` of `from`'s unfinished tiles that nobody has a copy of
@@ -197,7 +218,7 @@ impl InFlight {
         let copies: Vec<TileId> = held
             .iter()
             .rev()
-            .filter(|t| !self.speculated.contains(t))
+            .filter(|t| self.copyable(**t))
             .take(max)
             .copied()
             .collect();

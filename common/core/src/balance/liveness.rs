@@ -1,4 +1,4 @@
-//! Which render nodes still show signs of life, by the coordinator's own clock.
+//! Which nodes still show signs of life, by the coordinator's own clock.
 //!
 //! A node that dies without closing its connection (killed, its host gone, its cable pulled)
 //! is otherwise noticed only when the transport's idle timeout fires: ten seconds in which its
@@ -9,16 +9,16 @@
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
-use tessera_wire::protocol::RenderNodeId;
 
-/// The last time each node was heard from, and how long a silence is allowed.
+/// The last time each node (a render node's or a display's id) was heard from, and how long a
+/// silence is allowed.
 #[derive(Debug)]
-pub(super) struct Liveness {
+pub(super) struct Liveness<K> {
     deadline: Duration,
-    last_heard: BTreeMap<RenderNodeId, Instant>,
+    last_heard: BTreeMap<K, Instant>,
 }
 
-impl Liveness {
+impl<K: Ord + Copy> Liveness<K> {
     pub fn new(deadline: Duration) -> Self {
         Liveness {
             deadline,
@@ -27,12 +27,12 @@ impl Liveness {
     }
 
     /// `node` said something at `now` (a later message never moves the clock back).
-    pub fn heard(&mut self, node: RenderNodeId, now: Instant) {
+    pub fn heard(&mut self, node: K, now: Instant) {
         let last = self.last_heard.entry(node).or_insert(now);
         *last = (*last).max(now);
     }
 
-    pub fn forget(&mut self, node: RenderNodeId) {
+    pub fn forget(&mut self, node: K) {
         self.last_heard.remove(&node);
     }
 
@@ -42,7 +42,7 @@ impl Liveness {
     }
 
     /// The nodes silent for the deadline or longer at `now`, with how long each was silent.
-    pub fn expired(&self, now: Instant) -> Vec<(RenderNodeId, Duration)> {
+    pub fn expired(&self, now: Instant) -> Vec<(K, Duration)> {
         self.last_heard
             .iter()
             .filter(|(_, &t)| now.saturating_duration_since(t) >= self.deadline)

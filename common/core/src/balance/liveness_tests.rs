@@ -3,6 +3,7 @@
 use super::*;
 use tessera_wire::camera::Camera;
 use tessera_wire::protocol::TileRange;
+use tessera_wire::wall::TileId;
 
 fn coordinator(tiles: u32, frames: u64) -> Coordinator {
     let camera = CameraMode::fixed(
@@ -50,6 +51,7 @@ fn a_silent_node_is_gone_at_the_deadline_and_its_tiles_move_to_the_living() {
     );
 
     c.handle_heartbeat(alive, ms(100)).unwrap();
+    c.handle_display_heartbeat(DisplayId(0), ms(100));
     // The quietest node sets the deadline: the silent one, heard last at the start.
     assert_eq!(c.poll_timeout(), Some(t0 + DEFAULT_NODE_DEADLINE));
     c.handle_timeout(ms(299));
@@ -106,6 +108,7 @@ fn heartbeats_keep_a_busy_node_alive_however_long_its_batch_takes() {
         let due = c.poll_timeout().expect("a live node is timed");
         assert!(due > now, "the deadline stays ahead of the beats");
         c.handle_heartbeat(node, now).unwrap();
+        c.handle_display_heartbeat(DisplayId(0), now);
         c.handle_timeout(now);
         assert!(!drain(&mut c)
             .iter()
@@ -138,6 +141,7 @@ fn a_hung_node_that_still_beats_has_its_tiles_copied_after_its_lease() {
     // Now it waits; the hung node beats but reports nothing. Its lease (the shortest, since it
     // never reported) ends 40 ms after it was given its share, long before the deadline.
     c.handle_heartbeat(hung, ms(at)).unwrap();
+    c.handle_display_heartbeat(DisplayId(0), ms(at));
     let due = c.poll_timeout().unwrap();
     assert_eq!(
         due,
@@ -175,5 +179,72 @@ fn a_hung_node_that_still_beats_has_its_tiles_copied_after_its_lease() {
     assert!(drain(&mut c).contains(&Output::Finished));
     // The hung node's report, when it comes, is a duplicate, not a protocol violation.
     c.handle_tiles_done(hung, FrameId(0), &held, false, ms(500))
+        .unwrap();
+}
+
+#[test]
+fn a_lost_display_settles_its_tiles_and_the_others_go_on_presenting() {
+    let camera = CameraMode::fixed(
+        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+    );
+    // 8 tiles: 0..4 on display 0, 4..8 on display 1; two frames.
+    let mut c = Coordinator::new(
+        8,
+        2,
+        camera,
+        RenderParams::interactive(),
+        Some(2),
+        BalanceConfig::default(),
+    );
+    c.set_tile_displays((0..8).map(|t| DisplayId(t / 4)).collect());
+    let node = RenderNodeId(0);
+    let t0 = Instant::now();
+    c.handle_render_joined(node, t0);
+    c.start(t0);
+    let in_frame = |out: &[Output], frame: FrameId| -> Vec<TileRange> {
+        out.iter()
+            .filter_map(|o| match o {
+                Output::ToRender(_, ToNode::Assign { frame: f, tiles }) if *f == frame => {
+                    Some(tiles.clone())
+                }
+                _ => None,
+            })
+            .flatten()
+            .collect()
+    };
+    let mut later = Vec::new();
+    let first = in_frame(&drain(&mut c), FrameId(0));
+    // Display 1 dies before the frame is rendered: the barrier waits for display 0 only.
+    c.handle_display_left(DisplayId(1), t0);
+    assert_eq!(c.live_displays().collect::<Vec<_>>(), vec![DisplayId(0)]);
+    let mut mine = first;
+    let mut rendered: Vec<TileId> = Vec::new();
+    for _ in 0..16 {
+        if mine.is_empty() {
+            break;
+        }
+        rendered.extend(mine.iter().flat_map(|r| r.tiles()));
+        c.handle_tiles_done(node, FrameId(0), &mine, true, t0)
+            .unwrap();
+        let out = drain(&mut c);
+        later.extend(in_frame(&out, FrameId(1)));
+        mine = in_frame(&out, FrameId(0));
+    }
+    assert!(rendered.len() <= 8);
+    c.handle_frame_complete(DisplayId(0), FrameId(0), t0)
+        .unwrap();
+    let out = drain(&mut c);
+    assert!(
+        out.contains(&Output::ToDisplays(ToNode::Present { frame: FrameId(0) })),
+        "{out:?}"
+    );
+    // Frame 1 hands out display 0's tiles only.
+    let second: Vec<TileId> = assigned_to(&out, node)
+        .iter()
+        .flat_map(|r| r.tiles())
+        .collect();
+    assert!(second.iter().all(|t| t.0 < 4), "{second:?}");
+    // What display 1 still says counts for nothing, and no error.
+    c.handle_frame_complete(DisplayId(1), FrameId(0), t0)
         .unwrap();
 }

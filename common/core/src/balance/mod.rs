@@ -26,6 +26,7 @@
 //! * **Swap barrier.** When every display has every tile of the oldest unpresented frame, all
 //!   displays are told to present it at once.
 
+mod failures;
 mod frames;
 mod liveness;
 mod refine;
@@ -35,13 +36,13 @@ pub use refine::Refinement;
 
 use frames::InFlight;
 use liveness::Liveness;
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 use tessera_wire::camera::CameraMode;
 use tessera_wire::params::{ParamsError, RenderParams};
 use tessera_wire::protocol::{to_ranges, FrameId, FrameStart, RenderNodeId, TileRange, ToNode};
 use tessera_wire::state::{StateChange, StateId, WallState};
-use tessera_wire::wall::DisplayId;
+use tessera_wire::wall::{DisplayId, TileId};
 
 /// Tuning of the load balancer.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,6 +103,12 @@ pub enum Output {
     /// should close its connection.
     RenderTimedOut {
         node: RenderNodeId,
+        silent: Duration,
+    },
+    /// `display` was silent past the deadline and the wall goes on without it; the driver
+    /// should close its connection.
+    DisplayTimedOut {
+        display: DisplayId,
         silent: Duration,
     },
 }
@@ -189,6 +196,11 @@ pub struct Coordinator {
     tile_count: u32,
     display_count: u32,
     config: BalanceConfig,
+    /// Displays the swap barrier waits for: every one, until one is gone.
+    live_displays: BTreeSet<DisplayId>,
+    display_liveness: Liveness<DisplayId>,
+    /// The display of each tile, where the driver said (see [`Coordinator::set_tile_displays`]).
+    tile_displays: Vec<DisplayId>,
     /// The state frames start with now, and its id.
     state: WallState,
     state_id: StateId,
@@ -208,7 +220,7 @@ pub struct Coordinator {
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
-    liveness: Liveness,
+    liveness: Liveness<RenderNodeId>,
     /// Tiles each node rendered per frame, smoothed over the presented frames.
     tiles_per_frame: BTreeMap<RenderNodeId, f64>,
     in_flight: BTreeMap<FrameId, InFlight>,
@@ -235,6 +247,9 @@ impl Coordinator {
             tile_count,
             display_count,
             config,
+            live_displays: (0..display_count).map(DisplayId).collect(),
+            display_liveness: Liveness::new(config.node_deadline),
+            tile_displays: Vec::new(),
             state: WallState {
                 camera,
                 params,
@@ -348,20 +363,10 @@ impl Coordinator {
     /// Allows frames to start (call once the expected nodes have joined).
     pub fn start(&mut self, now: Instant) {
         self.running = true;
-        self.try_start_frames(now);
-    }
-
-    /// Sets how many frames the run has in all (`None`: until stopped).
-    pub fn set_frame_limit(&mut self, limit: Option<u64>) {
-        self.frame_limit = limit;
-    }
-
-    /// Stops starting new frames; frames in flight still finish.
-    pub fn stop_after_in_flight(&mut self) {
-        self.frame_limit = Some(self.next_frame.0);
-        if self.is_finished() {
-            self.outputs.push_back(Output::Finished);
+        for &d in &self.live_displays {
+            self.display_liveness.heard(d, now);
         }
+        self.try_start_frames(now);
     }
 
     // ---- inputs ----
@@ -457,46 +462,6 @@ impl Coordinator {
         Ok(())
     }
 
-    /// `node` said it is alive.
-    ///
-    /// # Errors
-    /// A node that is not (or no longer) part of the run.
-    pub fn handle_heartbeat(
-        &mut self,
-        node: RenderNodeId,
-        now: Instant,
-    ) -> Result<(), BalanceError> {
-        if !self.nodes.contains_key(&node) {
-            return Err(BalanceError::UnknownNode(node));
-        }
-        self.liveness.heard(node, now);
-        Ok(())
-    }
-
-    /// When [`Coordinator::handle_timeout`] is next due (`None`: nothing is timed, as once
-    /// the run is finished): a node's deadline, or a late node's lease that an idle node
-    /// could take over.
-    pub fn poll_timeout(&self) -> Option<Instant> {
-        if self.is_finished() {
-            return None;
-        }
-        [self.liveness.next_deadline(), self.next_speculation()]
-            .into_iter()
-            .flatten()
-            .min()
-    }
-
-    /// Time passed: nodes silent past the deadline are gone, as if they had left, and idle
-    /// nodes get copies of the tiles of nodes late past their lease.
-    pub fn handle_timeout(&mut self, now: Instant) {
-        for (node, silent) in self.liveness.expired(now) {
-            self.outputs
-                .push_back(Output::RenderTimedOut { node, silent });
-            self.handle_render_left(node, now);
-        }
-        self.feed_speculation(now);
-    }
-
     /// Display `display` has every tile of `frame`.
     pub fn handle_frame_complete(
         &mut self,
@@ -507,6 +472,11 @@ impl Coordinator {
         if display.0 >= self.display_count {
             return Err(BalanceError::UnknownDisplay(display));
         }
+        if !self.live_displays.contains(&display) {
+            // Gone already: what it still says counts for nothing.
+            return Ok(());
+        }
+        self.display_liveness.heard(display, now);
         if frame >= self.next_frame {
             return Err(BalanceError::FutureFrame(frame));
         }
@@ -528,7 +498,11 @@ impl Coordinator {
 
     fn try_present(&mut self) {
         while let Some(state) = self.in_flight.get(&self.next_present) {
-            if state.displays_complete.len() < self.display_count as usize {
+            if !self
+                .live_displays
+                .iter()
+                .all(|d| state.displays_complete.contains(d))
+            {
                 return;
             }
             let frame = self.next_present;
@@ -640,6 +614,12 @@ impl Coordinator {
                 lights: self.state.lights,
             };
             let mut state = InFlight::new(start, self.tile_count);
+            for d in 0..self.display_count {
+                let display = DisplayId(d);
+                if !self.live_displays.contains(&display) {
+                    state.drop_tiles(&self.tiles_of(display));
+                }
+            }
             self.outputs.push_back(Output::FrameStarted(frame));
             self.outputs
                 .push_back(Output::ToDisplays(ToNode::FrameStart(start)));

@@ -174,6 +174,8 @@ enum Event {
     Kill(RenderNodeId),
     /// A live render node's heartbeat timer fired.
     Heartbeat(RenderNodeId),
+    /// A display's heartbeat timer fired.
+    DisplayBeat(DisplayId),
 }
 
 struct SimNode {
@@ -497,6 +499,9 @@ impl SimWall {
         for node in self.nodes.keys().copied().collect::<Vec<_>>() {
             self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
         }
+        for d in 0..self.displays.len() as u32 {
+            self.schedule_at(self.now_us + HEARTBEAT_US, Event::DisplayBeat(DisplayId(d)));
+        }
         let budget = 200u64
             .saturating_mul(frames)
             .saturating_mul(self.grid.len() as u64 + 10)
@@ -520,7 +525,10 @@ impl SimWall {
             // stretch its virtual time to the next beat.
             let beat = matches!(
                 event,
-                Event::Heartbeat(_) | Event::FromRender(_, FromNode::Heartbeat)
+                Event::Heartbeat(_)
+                    | Event::DisplayBeat(_)
+                    | Event::FromRender(_, FromNode::Heartbeat)
+                    | Event::FromDisplay(_, FromNode::Heartbeat)
             );
             if beat && self.coordinator.is_finished() {
                 continue;
@@ -542,6 +550,12 @@ impl SimWall {
                         clock.busy_us += self.now_us - since;
                     }
                     clock.died_at = Some(self.now_us);
+                }
+            }
+            Event::DisplayBeat(display) => {
+                if !self.coordinator.is_finished() {
+                    self.send(Event::FromDisplay(display, FromNode::Heartbeat));
+                    self.schedule_at(self.now_us + HEARTBEAT_US, Event::DisplayBeat(display));
                 }
             }
             Event::Heartbeat(node) => {
@@ -572,13 +586,14 @@ impl SimWall {
                     _ => {}
                 }
             }
-            Event::FromDisplay(display, msg) => {
-                if let FromNode::FrameComplete { frame } = msg {
-                    self.coordinator
-                        .handle_frame_complete(display, frame, now)
-                        .expect("displays report frames in flight");
-                }
-            }
+            Event::FromDisplay(display, msg) => match msg {
+                FromNode::FrameComplete { frame } => self
+                    .coordinator
+                    .handle_frame_complete(display, frame, now)
+                    .expect("displays report frames in flight"),
+                FromNode::Heartbeat => self.coordinator.handle_display_heartbeat(display, now),
+                _ => {}
+            },
             Event::ToRender(node, msg) => {
                 let Some(n) = self.nodes.get_mut(&node) else {
                     return;
@@ -790,6 +805,7 @@ impl SimWall {
                 | Output::Finished
                 | Output::Stalled
                 | Output::RenderTimedOut { .. }
+                | Output::DisplayTimedOut { .. }
                 | Output::Converged(_)
                 | Output::Refused { .. } => {}
             }

@@ -1,0 +1,118 @@
+//! Failures, by the coordinator's own clock or as the driver reports them: heartbeats and
+//! their deadlines (render nodes and displays), and a display that is gone.
+
+use super::*;
+
+impl Coordinator {
+    /// `node` said it is alive.
+    ///
+    /// # Errors
+    /// A node that is not (or no longer) part of the run.
+    pub fn handle_heartbeat(
+        &mut self,
+        node: RenderNodeId,
+        now: Instant,
+    ) -> Result<(), BalanceError> {
+        if !self.nodes.contains_key(&node) {
+            return Err(BalanceError::UnknownNode(node));
+        }
+        self.liveness.heard(node, now);
+        Ok(())
+    }
+
+    /// When [`Coordinator::handle_timeout`] is next due (`None`: nothing is timed, as once
+    /// the run is finished): a node's deadline, or a late node's lease that an idle node
+    /// could take over.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        if self.is_finished() {
+            return None;
+        }
+        [
+            self.liveness.next_deadline(),
+            self.display_liveness.next_deadline(),
+            self.next_speculation(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+    }
+
+    /// Time passed: nodes silent past the deadline are gone, as if they had left, and idle
+    /// nodes get copies of the tiles of nodes late past their lease.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        for (node, silent) in self.liveness.expired(now) {
+            self.outputs
+                .push_back(Output::RenderTimedOut { node, silent });
+            self.handle_render_left(node, now);
+        }
+        for (display, silent) in self.display_liveness.expired(now) {
+            self.outputs
+                .push_back(Output::DisplayTimedOut { display, silent });
+            self.handle_display_left(display, now);
+        }
+        self.feed_speculation(now);
+    }
+
+    /// Which display each tile is on (`tiles[t]` for tile `t`), so that a display's loss
+    /// also settles its tiles: nobody renders what nobody will show. Without it a lost
+    /// display's tiles are still rendered and delivered to no one.
+    pub fn set_tile_displays(&mut self, tiles: Vec<DisplayId>) {
+        if tiles.len() == self.tile_count as usize {
+            self.tile_displays = tiles;
+        }
+    }
+
+    /// The displays the swap barrier waits for.
+    pub fn live_displays(&self) -> impl Iterator<Item = DisplayId> + '_ {
+        self.live_displays.iter().copied()
+    }
+
+    /// Display `display` is gone (its connection closed, or it was silent past the deadline):
+    /// the barrier stops waiting for it and its tiles are settled in every frame, so the
+    /// other displays go on.
+    pub fn handle_display_left(&mut self, display: DisplayId, now: Instant) {
+        if !self.live_displays.remove(&display) {
+            return;
+        }
+        self.display_liveness.forget(display);
+        let gone = self.tiles_of(display);
+        for frame in self.in_flight.values_mut() {
+            frame.drop_tiles(&gone);
+            frame.displays_complete.remove(&display);
+        }
+        if self.live_displays.is_empty() && !self.in_flight.is_empty() {
+            self.outputs.push_back(Output::Stalled);
+        }
+        self.try_present();
+        self.try_start_frames(now);
+    }
+
+    /// `display` said it is alive (a display's heartbeat).
+    pub fn handle_display_heartbeat(&mut self, display: DisplayId, now: Instant) {
+        if self.live_displays.contains(&display) {
+            self.display_liveness.heard(display, now);
+        }
+    }
+
+    pub(super) fn tiles_of(&self, display: DisplayId) -> Vec<TileId> {
+        self.tile_displays
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| **d == display)
+            .map(|(t, _)| TileId(t as u32))
+            .collect()
+    }
+
+    /// Sets how many frames the run has in all (`None`: until stopped).
+    pub fn set_frame_limit(&mut self, limit: Option<u64>) {
+        self.frame_limit = limit;
+    }
+
+    /// Stops starting new frames; frames in flight still finish.
+    pub fn stop_after_in_flight(&mut self) {
+        self.frame_limit = Some(self.next_frame.0);
+        if self.is_finished() {
+            self.outputs.push_back(Output::Finished);
+        }
+    }
+}
