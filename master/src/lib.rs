@@ -16,6 +16,7 @@ mod peers;
 mod probe;
 mod record;
 mod reference;
+mod relay;
 mod report;
 mod server;
 mod simulate;
@@ -55,6 +56,9 @@ enum Command {
     /// Steer a running wall: camera, quality, cuts, crop, lights, saved views, overlay; query
     /// its state and live figures (needs a certificate from `issue-cert --role control`).
     Control(control::ControlArgs),
+    /// Relay UDP between nodes, impaired (loss, delay, jitter, reordering, duplication, a
+    /// partition that heals): a bad network on loopback, for tests and trials.
+    Relay(relay::RelayArgs),
     /// Run as a render node, exactly as `tessera-render-node` does (see its --help): one
     /// executable can serve every host of a wall.
     RenderNode(tessera_render_node::Cli),
@@ -107,6 +111,7 @@ fn run(command: Command) -> Result<ExitCode> {
         Command::Simulate(args) => simulate::simulate(args),
         Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
         Command::Control(args) => runtime()?.block_on(control::control(args)),
+        Command::Relay(args) => runtime()?.block_on(relay::relay(args)),
         Command::RenderNode(node) => tessera_render_node::run(node).map(|()| ExitCode::SUCCESS),
         Command::DisplayNode(node) => tessera_display_node::run(node).map(|()| ExitCode::SUCCESS),
     }

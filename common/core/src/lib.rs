@@ -6,13 +6,15 @@
 //! to state changes) take messages and `now` and return messages, following quinn-proto's
 //! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
 //! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
-//! in thin tokio + quinn driver loops.
+//! in thin tokio + quinn driver loops. [`impair::Impairment`] is the model of the UDP
+//! relay that impairs a test wall's network.
 //!
 //! It depends on `tessera-wire` for the messages and on nothing that does I/O: no tokio,
 //! quinn, socket or clap crate may enter its dependency tree (a test in `tests/` checks).
 
 pub mod assemble;
 pub mod balance;
+pub mod impair;
 pub mod navigate;
 pub mod sim;
 pub mod worker;

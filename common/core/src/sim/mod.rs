@@ -43,13 +43,14 @@ mod net;
 mod tests;
 
 pub use metrics::{SimReport, Spread};
+pub use net::Rng;
 
 use crate::assemble::FrameAssembler;
 use crate::balance::{BalanceConfig, Coordinator, Output};
 use crate::worker::{BatchSizer, RenderWorker};
 use glam::Vec3;
 use metrics::{busy_fractions, NodeClock};
-use net::{Network, Rng, Stream};
+use net::{Network, Stream};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
 use std::time::{Duration, Instant};

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 /// Deterministic pseudo-random numbers (xorshift64): the same seed replays the same run.
 #[derive(Clone, Debug)]
-pub(super) struct Rng(u64);
+pub struct Rng(u64);
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
