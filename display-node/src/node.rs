@@ -178,9 +178,10 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
                     .assembler
                     .handle_frame_start(start.frame, start.state)
                     .map_err(|e| anyhow::anyhow!("the master broke the frame barrier: {e}"))?,
+                ToNode::StartAt { frame } => display.assembler.start_at(frame),
                 ToNode::Overlay { on } => display.overlay = on,
                 ToNode::SaveFrame { frame } => display.snapshots.push(frame),
-                other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. } | ToNode::ControlReply { .. }) => {
+                other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. } | ToNode::ControlReply { .. } | ToNode::DisplayAt { .. }) => {
                     anyhow::bail!("the master broke the protocol: it sent a display a {} message", other.kind())
                 }
             },

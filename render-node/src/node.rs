@@ -120,6 +120,8 @@ pub async fn run(options: Options) -> Result<()> {
     let mut worker = RenderWorker::new(grid.len() as u32, sizer.low_water(None));
     let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Result<Rendered, String>>();
     let (delivered_tx, mut delivered_rx) = mpsc::unbounded_channel::<Delivery>();
+    let (reconnected_tx, mut reconnected_rx) =
+        mpsc::unbounded_channel::<(tessera_wire::wall::DisplayId, quinn::Connection)>();
     let mut rendering = false;
     let mut stats = RenderStats::default();
     let first_frame = Instant::now();
@@ -203,6 +205,19 @@ pub async fn run(options: Options) -> Result<()> {
                     tracing::info!("render node {}: done, {summary}", node.0);
                     return Ok(());
                 }
+                ToNode::DisplayAt { display: moved, addr } => {
+                    // Connected off the loop: a display that does not answer holds up nothing.
+                    let (endpoint, reconnected) = (endpoint.clone(), reconnected_tx.clone());
+                    tokio::spawn(async move {
+                        let id = moved.0;
+                        match quic::connect(&endpoint, addr, &format!("display {id}")).await {
+                            Ok(conn) => {
+                                let _ = reconnected.send((moved, conn));
+                            }
+                            Err(e) => tracing::warn!("cannot reach display {id} at {addr}: {e:#}"),
+                        }
+                    });
+                }
                 msg => worker
                     .handle_message(&msg, Instant::now())
                     .context("the master broke the protocol")?,
@@ -231,7 +246,11 @@ pub async fn run(options: Options) -> Result<()> {
                 send_pixels(&displays, &grid, compression, batch, delivered_tx.clone());
             }
             _ = heartbeat.tick() => link.send(&FromNode::Heartbeat).await?,
-            Some(Delivery { frame, delivered, lost }) = delivered_rx.recv() => {
+            Some((moved, conn)) = reconnected_rx.recv() => {
+                tracing::info!("render node {}: display {} reached at its new address", node.0, moved.0);
+                displays.insert(moved, conn);
+            }
+            Some(Delivery { frame, delivered, undelivered, lost }) = delivered_rx.recv() => {
                 for (gone, e) in lost {
                     // Once: later batches skip it, and the master, which hears from every
                     // display, decides whether it is gone.
@@ -242,6 +261,10 @@ pub async fn run(options: Options) -> Result<()> {
                             gone.0
                         );
                     }
+                }
+                if !undelivered.is_empty() {
+                    let tiles = tessera_wire::protocol::to_ranges(undelivered);
+                    link.send(&FromNode::TilesReturned { frame, tiles }).await?;
                 }
                 let report = worker.handle_delivered(frame, &delivered, Instant::now());
                 link.send(&report).await?;

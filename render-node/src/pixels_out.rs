@@ -25,6 +25,8 @@ pub struct Batch {
 pub struct Delivery {
     pub frame: FrameId,
     pub delivered: Vec<TileId>,
+    /// The tiles of the unreachable displays.
+    pub undelivered: Vec<TileId>,
     pub lost: Vec<(DisplayId, String)>,
 }
 
@@ -52,10 +54,12 @@ pub fn send_pixels(
     // One task per display, all at once: a display that stalls holds back only its own tiles.
     let mut sends = tokio::task::JoinSet::new();
     let mut lost = Vec::new();
+    let mut undelivered = Vec::new();
     for (display, indices) in by_display {
         let ids: Vec<TileId> = indices.iter().map(|&i| tiles[i]).collect();
         let Some(conn) = displays.get(&display).cloned() else {
             lost.push((display, "no connection to it".to_string()));
+            undelivered.extend(ids);
             continue;
         };
         let bytes = encode_batch(
@@ -80,14 +84,20 @@ pub fn send_pixels(
         while let Some(joined) = sends.join_next().await {
             match joined {
                 Ok((_, ids, Ok(()))) => delivered.extend(ids),
-                Ok((display, _, Err(e))) => lost.push((display, format!("{e:#}"))),
+                Ok((display, ids, Err(e))) => {
+                    lost.push((display, format!("{e:#}")));
+                    undelivered.extend(ids);
+                }
+                // A send task cannot panic short of a bug; its tiles stay with the master.
                 Err(e) => lost.push((DisplayId(u32::MAX), format!("the send task failed: {e}"))),
             }
         }
         delivered.sort();
+        undelivered.sort();
         let _ = done.send(Delivery {
             frame,
             delivered,
+            undelivered,
             lost,
         });
     });

@@ -314,3 +314,108 @@ fn a_killed_display_leaves_the_others_presenting_every_frame() {
     );
     assert!(longest < 2_300.0, "the wall froze for {longest} ms");
 }
+
+#[test]
+fn a_restarted_display_rejoins_the_running_wall_and_shows_its_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let cluster = dir.path().join("cluster");
+    let out = dir.path().join("out");
+    let (d0, d1, r0, c0) = (
+        issue_cert(&cluster, "display-0"),
+        issue_cert(&cluster, "display-1"),
+        issue_cert(&cluster, "render-0"),
+        issue_cert(&cluster, "control-0"),
+    );
+    let master = Proc::start(
+        "tessera-master",
+        &[
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--cluster-dir",
+            cluster.to_str().unwrap(),
+            "--render-nodes",
+            "1",
+            "--wall",
+            "2x1",
+            "--screen",
+            "160x90",
+            "--frames",
+            "0",
+            "--save-frame",
+            "2",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    let listening = master.wait_for_stderr("listening on", Duration::from_secs(60));
+    let addr = listening
+        .rsplit(' ')
+        .next()
+        .expect("an address")
+        .to_string();
+    let display = |id: &str, certs: &str| {
+        Proc::start(
+            "tessera-display-node",
+            &[
+                "--master",
+                &addr,
+                "--display",
+                id,
+                "--cert-dir",
+                certs,
+                "--listen",
+                "127.0.0.1:0",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        )
+    };
+    let _d0 = display("0", &d0);
+    let first = display("1", &d1);
+    let _render = Proc::start(
+        "tessera-render-node",
+        &["--master", &addr, "--cert-dir", &r0, "--threads", "1"],
+    );
+    assert!(
+        wait_for(Duration::from_secs(60), || out
+            .join("display-1.png")
+            .exists()),
+        "the wall never presented frame 2"
+    );
+    first.signal(libc::SIGKILL);
+    master.wait_for_stderr(
+        "the other displays go on without it",
+        Duration::from_secs(30),
+    );
+    // The same display, restarted: same certificate, a new address.
+    let _again = display("1", &d1);
+    master.wait_for_stderr(
+        "display 1 rejoined the running wall",
+        Duration::from_secs(30),
+    );
+    let rejoined = std::time::Instant::now();
+    let connect = vec![
+        "--connect".to_string(),
+        addr.clone(),
+        "--cert-dir".to_string(),
+        c0.clone(),
+    ];
+    let snap = control(&connect, &["snapshot"], Duration::from_secs(30));
+    snap.assert_success("snapshot");
+    let frame: u64 = snap.stdout.trim().parse().expect("a frame number");
+    let shown = out.join(format!("display-1-frame-{frame}.png"));
+    assert!(
+        wait_for(Duration::from_secs(30), || shown.exists()),
+        "the rejoined display never showed frame {frame}"
+    );
+    eprintln!(
+        "rejoined display: showed frame {frame} {:?} after the master logged its rejoining",
+        rejoined.elapsed()
+    );
+    master.signal(libc::SIGINT);
+    let o = master.wait(Duration::from_secs(60));
+    assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["displays_lost"], 1, "{report}");
+}

@@ -141,6 +141,15 @@ impl FrameAssembler {
         self.next_present
     }
 
+    /// The first frame this display will show is `frame` (it joined a running wall): frames
+    /// before it are stale, and the window of frames accepted ahead starts there. Only ever
+    /// moves forward, and only before any frame started here.
+    pub fn start_at(&mut self, frame: FrameId) {
+        if self.states.is_empty() && self.frames.is_empty() && frame > self.next_present {
+            self.next_present = frame;
+        }
+    }
+
     /// The frame to report complete to the master, once each: the next frame to present, when
     /// every tile of it is here. Call it after every tile and every present. A later frame that
     /// completes first is held back until it is next, so the master cannot start frames further

@@ -97,7 +97,11 @@ impl Wall {
         let welcome_now = !matches!(role, PeerRole::Render { .. }) || self.all_displays_known();
         let is_display = matches!(role, PeerRole::Display(_));
         if let PeerRole::Display(display) = role {
-            self.displays.insert(display, peer);
+            // A display rejoining a running wall is shown frames only once it is ready: see
+            // `display_ready`.
+            if self.started.is_none() {
+                self.displays.insert(display, peer);
+            }
         }
         self.peers.insert(
             peer,
@@ -142,7 +146,11 @@ impl Wall {
                 display.0
             ));
         }
-        if self.displays.contains_key(&display) {
+        let joining = self
+            .peers
+            .values()
+            .any(|p| matches!(p.role, PeerRole::Display(d) if d == display));
+        if self.displays.contains_key(&display) || joining {
             return Err(format!("display {} has already joined", display.0));
         }
         let addr = if pixel_addr.ip().is_unspecified() {
@@ -159,6 +167,34 @@ impl Wall {
         Ok(())
     }
 
+    /// A display that rejoined the running wall is ready: it is shown the frames that start
+    /// from now on, and render nodes are told where its pixels go.
+    pub(super) fn display_ready(&mut self, peer: PeerId, display: DisplayId, now: Instant) {
+        if self.started.is_none() || self.displays.contains_key(&display) {
+            return;
+        }
+        let from = self.coordinator.next_frame();
+        // Before anything of those frames can reach it: render nodes learn its address only
+        // after this, and must connect before they send it a tile.
+        self.send(peer, ToNode::StartAt { frame: from });
+        self.displays.insert(display, peer);
+        self.display_since.insert(display, from);
+        self.coordinator.handle_display_joined(display, now);
+        let (id, first) = (display.0, from.0);
+        tracing::info!("display {id} rejoined the running wall; it shows frames from {first} on");
+        if let Some(&addr) = self.display_endpoints.get(&display) {
+            let renders: Vec<PeerId> = self
+                .peers
+                .iter()
+                .filter(|(_, p)| matches!(p.role, PeerRole::Render { .. }) && p.ready)
+                .map(|(id, _)| *id)
+                .collect();
+            for r in renders {
+                self.send(r, ToNode::DisplayAt { display, addr });
+            }
+        }
+    }
+
     pub(super) fn drop_peer(&mut self, peer: PeerId, now: Instant, reason: &str) -> Result<()> {
         let who = self.describe(peer);
         let Some(p) = self.peers.remove(&peer) else {
@@ -170,6 +206,7 @@ impl Wall {
         match p.role {
             PeerRole::Display(d) => {
                 self.displays.remove(&d);
+                self.display_since.remove(&d);
                 let going_on = self.started.is_some()
                     && self.cfg.display_loss == crate::args::DisplayLoss::GoOn;
                 if !going_on {

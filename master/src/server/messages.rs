@@ -26,6 +26,7 @@ impl Wall {
             (PeerRole::Display(d), FromNode::Ready) => {
                 let d = *d;
                 p.ready = true;
+                self.display_ready(peer, d, now);
                 for seq in 0..PINGS {
                     self.timing.ping_sent(d, seq, unix_ns());
                     self.send(peer, ToNode::Ping { seq });
@@ -52,6 +53,10 @@ impl Wall {
                 // From a node not (or no longer) in the run, a beat in flight when it was
                 // declared gone or one before it is ready: nothing to keep alive.
                 let _ = self.coordinator.handle_heartbeat(node, now);
+            }
+            (&PeerRole::Render { node, .. }, FromNode::TilesReturned { frame, tiles }) => {
+                self.coordinator
+                    .handle_tiles_returned(node, frame, &tiles, now)?;
             }
             (PeerRole::Display(d), FromNode::FrameComplete { frame }) => {
                 let d = *d;

@@ -100,6 +100,8 @@ struct Wall {
     lost_render_nodes: u32,
     /// Displays lost while the wall went on without them.
     lost_displays: u32,
+    /// For a display that rejoined the running wall, the first frame it is shown.
+    display_since: BTreeMap<DisplayId, FrameId>,
     /// State changes the barrier applied.
     changes_applied: u64,
     finished: bool,
@@ -171,6 +173,7 @@ pub async fn run_wall(
         timing: Timing::default(),
         lost_render_nodes: 0,
         lost_displays: 0,
+        display_since: BTreeMap::new(),
         changes_applied: 0,
         finished: false,
         progress: None,
@@ -416,8 +419,20 @@ impl Wall {
                 {
                     let at = unix_ns() + self.cfg.present_margin.as_nanos() as u64;
                     for (&d, peer) in &self.displays {
+                        if self.display_since.get(&d).is_some_and(|&f| frame < f) {
+                            continue;
+                        }
                         let clock_ns = (at as i64 + self.timing.offset(d)) as u64;
                         self.send(*peer, ToNode::PresentAt { frame, clock_ns });
+                    }
+                }
+                // A rejoined display never saw the frames before its first: not theirs to show.
+                Output::ToDisplays(ToNode::Present { frame }) => {
+                    for (&d, peer) in &self.displays {
+                        if self.display_since.get(&d).is_some_and(|&f| frame < f) {
+                            continue;
+                        }
+                        self.send(*peer, ToNode::Present { frame });
                     }
                 }
                 Output::ToDisplays(msg) => {

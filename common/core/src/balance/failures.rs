@@ -87,6 +87,39 @@ impl Coordinator {
         self.try_start_frames(now);
     }
 
+    /// Display `display` is back (a restarted display rejoined): frames that start from now
+    /// on include it and its tiles; frames in flight go on without it.
+    pub fn handle_display_joined(&mut self, display: DisplayId, now: Instant) {
+        if display.0 < self.display_count && self.live_displays.insert(display) {
+            self.display_liveness.heard(display, now);
+        }
+    }
+
+    /// `node` could not deliver `tiles` of `frame` (their display was unreachable): they are
+    /// rendered again, by whichever node asks next.
+    ///
+    /// # Errors
+    /// A node not part of the run.
+    pub fn handle_tiles_returned(
+        &mut self,
+        node: RenderNodeId,
+        frame: FrameId,
+        tiles: &[TileRange],
+        now: Instant,
+    ) -> Result<(), BalanceError> {
+        if !self.nodes.contains_key(&node) {
+            return Err(BalanceError::UnknownNode(node));
+        }
+        self.liveness.heard(node, now);
+        if let Some(state) = self.in_flight.get_mut(&frame) {
+            let in_range = |t: &TileId| t.0 < self.tile_count;
+            state.give_back(node, tiles.iter().flat_map(|r| r.tiles()).filter(in_range));
+        }
+        self.feed_waiting(now);
+        self.try_start_frames(now);
+        Ok(())
+    }
+
     /// `display` said it is alive (a display's heartbeat).
     pub fn handle_display_heartbeat(&mut self, display: DisplayId, now: Instant) {
         if self.live_displays.contains(&display) {

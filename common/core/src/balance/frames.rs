@@ -19,6 +19,9 @@ pub(super) struct InFlight {
     /// Tiles each node rendered of this frame: how fast it is, against the others.
     done_by: BTreeMap<RenderNodeId, u32>,
     pub displays_complete: BTreeSet<DisplayId>,
+    /// The displays that were there when the frame started: only they show it (one that
+    /// rejoins later starts with a later frame).
+    pub displays_expected: BTreeSet<DisplayId>,
 }
 
 impl InFlight {
@@ -32,6 +35,7 @@ impl InFlight {
             done_count: 0,
             done_by: BTreeMap::new(),
             displays_complete: BTreeSet::new(),
+            displays_expected: BTreeSet::new(),
         }
     }
 
@@ -177,6 +181,21 @@ impl InFlight {
             .iter()
             .filter(|(_, held)| !held.is_empty())
             .map(|(node, _)| *node)
+    }
+
+    /// `node` gives back `tiles` it could not deliver: those it held and nobody finished go
+    /// to the front of the pool (unless another node holds a copy).
+    pub fn give_back(&mut self, node: RenderNodeId, tiles: impl Iterator<Item = TileId>) {
+        let Some(held) = self.assigned.get_mut(&node) else {
+            return;
+        };
+        let returned: Vec<TileId> = tiles.filter(|t| held.remove(t)).collect();
+        for tile in returned.into_iter().rev() {
+            let copied = self.assigned.values().any(|h| h.contains(&tile));
+            if !self.done[tile.0 as usize] && !copied {
+                self.pool.push_front(tile);
+            }
+        }
     }
 
     /// Tiles no display will show (theirs is gone): settled without rendering, taken out of

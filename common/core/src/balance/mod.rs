@@ -498,11 +498,12 @@ impl Coordinator {
 
     fn try_present(&mut self) {
         while let Some(state) = self.in_flight.get(&self.next_present) {
-            if !self
-                .live_displays
+            let waiting = state
+                .displays_expected
                 .iter()
-                .all(|d| state.displays_complete.contains(d))
-            {
+                .filter(|d| self.live_displays.contains(d))
+                .any(|d| !state.displays_complete.contains(d));
+            if waiting {
                 return;
             }
             let frame = self.next_present;
@@ -614,6 +615,7 @@ impl Coordinator {
                 lights: self.state.lights,
             };
             let mut state = InFlight::new(start, self.tile_count);
+            state.displays_expected = self.live_displays.clone();
             for d in 0..self.display_count {
                 let display = DisplayId(d);
                 if !self.live_displays.contains(&display) {

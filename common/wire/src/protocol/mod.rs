@@ -397,6 +397,15 @@ pub enum ToNode {
     SaveFrame {
         frame: FrameId,
     },
+    /// A display (re)joined the running wall: its pixels go to `addr` now (render nodes).
+    DisplayAt {
+        display: DisplayId,
+        addr: SocketAddr,
+    },
+    /// A display that rejoined a running wall shows frames from `frame` on (displays).
+    StartAt {
+        frame: FrameId,
+    },
 }
 
 impl ToNode {
@@ -414,6 +423,8 @@ impl ToNode {
             ToNode::ControlReply { .. } => "control reply",
             ToNode::Overlay { .. } => "overlay",
             ToNode::SaveFrame { .. } => "save frame",
+            ToNode::DisplayAt { .. } => "display at",
+            ToNode::StartAt { .. } => "start at",
         }
     }
 }
@@ -461,8 +472,15 @@ pub enum FromNode {
         event: InputEvent,
         clock_ns: u64,
     },
-    /// A render node is alive (sent every [`HEARTBEAT_INTERVAL`], whatever it is doing).
+    /// A render node or display is alive (sent every [`HEARTBEAT_INTERVAL`], whatever it is
+    /// doing).
     Heartbeat,
+    /// A render node could not deliver these tiles (their display was unreachable): they go
+    /// back to the master, to be rendered again, by this node or another.
+    TilesReturned {
+        frame: FrameId,
+        tiles: Vec<TileRange>,
+    },
 }
 
 /// How often a render node says it is alive. The master's deadline for a silent node
