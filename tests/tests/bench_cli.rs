@@ -228,6 +228,40 @@ fn a_volume_scene_adds_the_step_knob_whose_error_falls_with_the_step() {
 }
 
 #[test]
+fn soak_kills_and_replaces_render_nodes_and_loses_no_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let report = bench(
+        "soak",
+        &[
+            "--minutes",
+            "0.12",
+            "--kill-every",
+            "2",
+            "--render-nodes",
+            "2",
+            "--threads",
+            "1",
+        ],
+        dir.path(),
+    );
+    assert_eq!(report["frames_lost"], 0, "{report}");
+    assert!(positive(&report["frames"]) > 10.0, "{report}");
+    let killed = report["render_nodes_killed"].as_u64().unwrap();
+    assert!(killed >= 2, "{report}");
+    let recoveries = report["recovery_s"].as_array().unwrap();
+    assert_eq!(recoveries.len() as u64, killed);
+    for r in recoveries {
+        positive(r);
+    }
+    // The master and both displays, measured from warm-up to the end.
+    let memory = report["memory"].as_array().unwrap();
+    assert_eq!(memory.len(), 3, "{report}");
+    for m in memory {
+        positive(&m["mib_at_end"]);
+    }
+}
+
+#[test]
 fn bench_without_out_is_refused_with_a_reason() {
     let o = run(
         "tessera-master",

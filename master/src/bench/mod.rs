@@ -3,6 +3,7 @@
 
 mod error;
 mod plot;
+mod soak;
 mod transport;
 
 use crate::args::LocalArgs;
@@ -31,6 +32,9 @@ pub enum Experiment {
     Scaling,
     /// Image error (RMSE, PSNR) against render time for each quality knob.
     ErrorVsTime,
+    /// A wall at full rate for --minutes with a render node killed and replaced every
+    /// --kill-every seconds: frames lost, resident memory over time, recovery times.
+    Soak,
 }
 
 #[derive(clap::Args)]
@@ -59,6 +63,21 @@ pub struct BenchArgs {
     /// latency: milliseconds between the scripted camera path's control commands.
     #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u64).range(1..=10_000))]
     command_ms: u64,
+    /// soak: how long to run, in minutes.
+    #[arg(long, default_value_t = 1.0, value_parser = parse_minutes)]
+    minutes: f64,
+    /// soak: seconds between render-node kills.
+    #[arg(long, default_value_t = 10.0, value_parser = parse_transport_seconds)]
+    kill_every: f64,
+}
+
+fn parse_minutes(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(m) if (0.05..=1440.0).contains(&m) => Ok(m),
+        _ => Err(format!(
+            "`{text}` is not a number of minutes from 0.05 to 1440"
+        )),
+    }
 }
 
 impl BenchArgs {
@@ -90,6 +109,7 @@ pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
         Experiment::Scaling => scaling(&args, &out).await?,
         Experiment::MaxFps => max_fps(&args, &out).await?,
         Experiment::ErrorVsTime => error::error_vs_time(&args, &out)?,
+        Experiment::Soak => soak::soak(&args, &out).await?,
     }
     Ok(ExitCode::SUCCESS)
 }
