@@ -156,78 +156,117 @@ fn a_killed_local_master_leaves_no_node_behind() {
     let _ = master.wait(Duration::from_secs(10));
 }
 
-#[test]
-fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
-    let dir = tempfile::tempdir().unwrap();
-    let cluster = dir.path().join("cluster");
-    let out = dir.path().join("out");
-    let (d0, d1, r0) = (
-        issue_cert(&cluster, "display-0"),
-        issue_cert(&cluster, "display-1"),
-        issue_cert(&cluster, "render-0"),
-    );
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--cluster-dir",
-            cluster.to_str().unwrap(),
-            "--render-nodes",
-            "1",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--frames",
-            "0",
-            "--save-frame",
-            "3",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
-    let listening = master.wait_for_stderr("listening on", Duration::from_secs(60));
-    let addr = listening
-        .rsplit(' ')
-        .next()
-        .expect("an address")
-        .to_string();
-    let display = |id: &str, certs: &str| {
+/// A served 2x1 wall of 160x90 that runs until interrupted and saves frame 2 into `out`, its
+/// nodes started by hand as on hosts of their own.
+struct Served {
+    master: Proc,
+    addr: String,
+    cluster: std::path::PathBuf,
+    out: std::path::PathBuf,
+}
+
+impl Served {
+    fn start(dir: &std::path::Path) -> Served {
+        let (cluster, out) = (dir.join("cluster"), dir.join("out"));
+        let master = Proc::start(
+            "tessera-master",
+            &[
+                "serve",
+                "--listen",
+                "127.0.0.1:0",
+                "--cluster-dir",
+                cluster.to_str().unwrap(),
+                "--render-nodes",
+                "1",
+                "--wall",
+                "2x1",
+                "--screen",
+                "160x90",
+                "--frames",
+                "0",
+                "--save-frame",
+                "2",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        );
+        let listening = master.wait_for_stderr("listening on", Duration::from_secs(60));
+        let addr = listening
+            .rsplit(' ')
+            .next()
+            .expect("an address")
+            .to_string();
+        Served {
+            master,
+            addr,
+            cluster,
+            out,
+        }
+    }
+
+    /// The certificate directory of node `name`, issued on first use.
+    fn certs(&self, name: &str) -> String {
+        let dir = self.cluster.join(name);
+        if dir.exists() {
+            return dir.display().to_string();
+        }
+        issue_cert(&self.cluster, name)
+    }
+
+    fn display(&self, id: u32) -> Proc {
+        let certs = self.certs(&format!("display-{id}"));
         Proc::start(
             "tessera-display-node",
             &[
                 "--master",
-                &addr,
+                &self.addr,
                 "--display",
-                id,
+                &id.to_string(),
                 "--cert-dir",
-                certs,
+                &certs,
                 "--listen",
                 "127.0.0.1:0",
                 "--out",
-                out.to_str().unwrap(),
+                self.out.to_str().unwrap(),
             ],
         )
-    };
-    let nodes = [
-        display("0", &d0),
-        display("1", &d1),
+    }
+
+    fn render(&self) -> Proc {
+        let certs = self.certs("render-0");
         Proc::start(
             "tessera-render-node",
-            &["--master", &addr, "--cert-dir", &r0, "--threads", "1"],
-        ),
-    ];
-    assert!(
-        wait_for(Duration::from_secs(60), || out
-            .join("display-1.png")
-            .exists()),
-        "the wall never presented frame 3"
-    );
+            &[
+                "--master",
+                &self.addr,
+                "--cert-dir",
+                &certs,
+                "--threads",
+                "1",
+            ],
+        )
+    }
+
+    fn wait_for_frame_2(&self) {
+        assert!(
+            wait_for(Duration::from_secs(60), || self
+                .out
+                .join("display-1.png")
+                .exists()),
+            "the wall never presented frame 2"
+        );
+    }
+}
+
+#[test]
+fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = Served::start(dir.path());
+    let nodes = [wall.display(0), wall.display(1), wall.render()];
+    wall.wait_for_frame_2();
     // SIGKILL, and another host's nodes: no goodbye, no parent to take them along.
     let killed = std::time::Instant::now();
-    master.signal(libc::SIGKILL);
+    wall.master.signal(libc::SIGKILL);
     let bound = tessera_net::quic::IDLE_TIMEOUT + Duration::from_secs(3);
     for node in nodes {
         let o = node.wait(bound);
@@ -238,7 +277,7 @@ fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
         "every node exited {:?} after the master was killed",
         killed.elapsed()
     );
-    let _ = master.wait(Duration::from_secs(10));
+    let _ = wall.master.wait(Duration::from_secs(10));
 }
 
 #[test]
@@ -318,93 +357,28 @@ fn a_killed_display_leaves_the_others_presenting_every_frame() {
 #[test]
 fn a_restarted_display_rejoins_the_running_wall_and_shows_its_frames() {
     let dir = tempfile::tempdir().unwrap();
-    let cluster = dir.path().join("cluster");
-    let out = dir.path().join("out");
-    let (d0, d1, r0, c0) = (
-        issue_cert(&cluster, "display-0"),
-        issue_cert(&cluster, "display-1"),
-        issue_cert(&cluster, "render-0"),
-        issue_cert(&cluster, "control-0"),
-    );
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--cluster-dir",
-            cluster.to_str().unwrap(),
-            "--render-nodes",
-            "1",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--frames",
-            "0",
-            "--save-frame",
-            "2",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
-    let listening = master.wait_for_stderr("listening on", Duration::from_secs(60));
-    let addr = listening
-        .rsplit(' ')
-        .next()
-        .expect("an address")
-        .to_string();
-    let display = |id: &str, certs: &str| {
-        Proc::start(
-            "tessera-display-node",
-            &[
-                "--master",
-                &addr,
-                "--display",
-                id,
-                "--cert-dir",
-                certs,
-                "--listen",
-                "127.0.0.1:0",
-                "--out",
-                out.to_str().unwrap(),
-            ],
-        )
-    };
-    let _d0 = display("0", &d0);
-    let first = display("1", &d1);
-    let _render = Proc::start(
-        "tessera-render-node",
-        &["--master", &addr, "--cert-dir", &r0, "--threads", "1"],
-    );
-    assert!(
-        wait_for(Duration::from_secs(60), || out
-            .join("display-1.png")
-            .exists()),
-        "the wall never presented frame 2"
-    );
+    let wall = Served::start(dir.path());
+    let control_certs = wall.certs("control-0");
+    let (_d0, first, _render) = (wall.display(0), wall.display(1), wall.render());
+    wall.wait_for_frame_2();
     first.signal(libc::SIGKILL);
+    let master = &wall.master;
     master.wait_for_stderr(
         "the other displays go on without it",
         Duration::from_secs(30),
     );
     // The same display, restarted: same certificate, a new address.
-    let _again = display("1", &d1);
+    let _again = wall.display(1);
     master.wait_for_stderr(
         "display 1 rejoined the running wall",
         Duration::from_secs(30),
     );
     let rejoined = std::time::Instant::now();
-    let connect = vec![
-        "--connect".to_string(),
-        addr.clone(),
-        "--cert-dir".to_string(),
-        c0.clone(),
-    ];
+    let connect = ["--connect", &wall.addr, "--cert-dir", &control_certs].map(String::from);
     let snap = control(&connect, &["snapshot"], Duration::from_secs(30));
     snap.assert_success("snapshot");
     let frame: u64 = snap.stdout.trim().parse().expect("a frame number");
-    let shown = out.join(format!("display-1-frame-{frame}.png"));
+    let shown = wall.out.join(format!("display-1-frame-{frame}.png"));
     assert!(
         wait_for(Duration::from_secs(30), || shown.exists()),
         "the rejoined display never showed frame {frame}"
@@ -413,9 +387,9 @@ fn a_restarted_display_rejoins_the_running_wall_and_shows_its_frames() {
         "rejoined display: showed frame {frame} {:?} after the master logged its rejoining",
         rejoined.elapsed()
     );
-    master.signal(libc::SIGINT);
-    let o = master.wait(Duration::from_secs(60));
+    wall.master.signal(libc::SIGINT);
+    let o = wall.master.wait(Duration::from_secs(60));
     assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
-    let report = read_json(&out.join("report.json"));
+    let report = read_json(&wall.out.join("report.json"));
     assert_eq!(report["displays_lost"], 1, "{report}");
 }

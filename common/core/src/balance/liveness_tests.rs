@@ -1,37 +1,13 @@
 //! Deaths noticed by the coordinator's own clock: a virtual one, no sleep anywhere.
 
+use super::tests::{assigned_to, drain};
 use super::*;
 use tessera_wire::camera::Camera;
 use tessera_wire::protocol::TileRange;
 use tessera_wire::wall::TileId;
 
 fn coordinator(tiles: u32, frames: u64) -> Coordinator {
-    let camera = CameraMode::fixed(
-        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
-    );
-    Coordinator::new(
-        tiles,
-        1,
-        camera,
-        RenderParams::interactive(),
-        Some(frames),
-        BalanceConfig::default(),
-    )
-}
-
-fn drain(c: &mut Coordinator) -> Vec<Output> {
-    std::iter::from_fn(|| c.poll_output()).collect()
-}
-
-fn assigned_to(outputs: &[Output], node: RenderNodeId) -> Vec<TileRange> {
-    outputs
-        .iter()
-        .filter_map(|o| match o {
-            Output::ToRender(n, ToNode::Assign { tiles, .. }) if *n == node => Some(tiles.clone()),
-            _ => None,
-        })
-        .flatten()
-        .collect()
+    super::tests::coordinator(tiles, 1, frames)
 }
 
 #[test]

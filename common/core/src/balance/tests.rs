@@ -6,7 +6,7 @@ use tessera_wire::protocol::{TileRange, ToNode};
 use tessera_wire::state::StateId;
 use tessera_wire::wall::WallSpec;
 
-fn coordinator(tiles: u32, displays: u32, frames: u64) -> Coordinator {
+pub(super) fn coordinator(tiles: u32, displays: u32, frames: u64) -> Coordinator {
     let camera = CameraMode::fixed(Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap());
     Coordinator::new(
         tiles,
@@ -18,11 +18,11 @@ fn coordinator(tiles: u32, displays: u32, frames: u64) -> Coordinator {
     )
 }
 
-fn drain(c: &mut Coordinator) -> Vec<Output> {
+pub(super) fn drain(c: &mut Coordinator) -> Vec<Output> {
     std::iter::from_fn(|| c.poll_output()).collect()
 }
 
-fn assigned_to(outputs: &[Output], node: RenderNodeId) -> Vec<TileRange> {
+pub(super) fn assigned_to(outputs: &[Output], node: RenderNodeId) -> Vec<TileRange> {
     outputs
         .iter()
         .filter_map(|o| match o {
