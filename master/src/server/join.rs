@@ -94,7 +94,11 @@ impl Wall {
                 PeerRole::Control
             }
         };
-        let welcome_now = !matches!(role, PeerRole::Render { .. }) || self.all_displays_known();
+        // Render nodes wait for every display's address before the first frame; once the
+        // wall runs, a lost display's is not coming back until it rejoins (then they are told).
+        let welcome_now = !matches!(role, PeerRole::Render { .. })
+            || self.all_displays_known()
+            || self.started.is_some();
         let is_display = matches!(role, PeerRole::Display(_));
         if let PeerRole::Display(display) = role {
             // A display rejoining a running wall is shown frames only once it is ready: see
@@ -216,6 +220,8 @@ impl Wall {
                     );
                 }
                 self.lost_displays += 1;
+                // Render nodes that join from now on do not try to reach it.
+                self.display_endpoints.remove(&d);
                 tracing::error!(
                     "{who} disconnected ({reason}); the other displays go on without it (--display-loss stop ends the run instead)"
                 );
