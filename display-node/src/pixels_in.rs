@@ -28,14 +28,28 @@ pub struct IncomingTile {
 pub struct Intake {
     pub stream_bytes: AtomicU64,
     pub pixel_bytes: AtomicU64,
+    /// The render-node connections open now.
     pub connections: Mutex<Vec<quinn::Connection>>,
+    /// UDP bytes of the connections that closed: a closed connection is let go (a handle
+    /// keeps all its state, about a megabyte, alive; a wall whose render nodes come and go
+    /// grew by that much per node).
+    pub closed_wire_bytes: AtomicU64,
 }
 
 impl Intake {
     /// UDP bytes received on every render-node connection so far (closed ones included).
     pub fn wire_bytes(&self) -> u64 {
         let conns = self.connections.lock().expect("intake lock");
-        conns.iter().map(|c| c.stats().udp_rx.bytes).sum()
+        let open: u64 = conns.iter().map(|c| c.stats().udp_rx.bytes).sum();
+        open + self.closed_wire_bytes.load(Ordering::Relaxed)
+    }
+
+    /// `conn` ended: keep its byte count, drop the connection.
+    fn closed(&self, conn: &quinn::Connection) {
+        let mut conns = self.connections.lock().expect("intake lock");
+        conns.retain(|c| c.stable_id() != conn.stable_id());
+        self.closed_wire_bytes
+            .fetch_add(conn.stats().udp_rx.bytes, Ordering::Relaxed);
     }
 }
 
@@ -79,6 +93,7 @@ pub async fn accept_render_nodes(
                     }
                 });
             }
+            intake.closed(&conn);
         });
     }
 }
