@@ -128,6 +128,15 @@ enum Damage {
     Index,
 }
 
+/// Decodes a cache file already in memory, as [`load_or_build`] would read it from disk for a
+/// scene of `triangles` triangles; for the fuzz targets, which feed it bytes, not files.
+///
+/// # Errors
+/// Why the bytes are not a usable cache (the reason [`load_or_build`] logs before rebuilding).
+pub fn decode_bytes(bytes: &[u8], triangles: usize) -> Result<Accel, String> {
+    decode(bytes, bytes.len() as u64, triangles).map_err(|e| e.to_string())
+}
+
 /// Reads a cache file of `len` bytes straight into the arrays (no copy of the whole file is
 /// held: on a multi-million-triangle mesh that copy was the load's peak) and checks it.
 fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Accel, Damage> {
@@ -152,11 +161,12 @@ fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Ac
     let Some(((node_bytes, tri_bytes), index_bytes)) = sizes else {
         return Err(Damage::Length);
     };
-    if Some(len)
-        != HEADER
-            .checked_add(node_bytes + tri_bytes + index_bytes)
-            .map(|l| l as u64)
-    {
+    // Every sum checked: counts near 2^64 wrapped the total to the file's length once, and the
+    // arrays were then allocated from the counts.
+    let total = [node_bytes, tri_bytes, index_bytes]
+        .into_iter()
+        .try_fold(HEADER, usize::checked_add);
+    if total.map(|l| l as u64) != Some(len) {
         return Err(Damage::Length);
     }
     let mut hasher = blake3::Hasher::new();
@@ -174,20 +184,36 @@ fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Ac
     if hasher.finalize().as_bytes()[..] != header[HEADER - 32..] {
         return Err(Damage::Checksum);
     }
-    // Indices must stay in range: traversal trusts them.
-    let nodes_ok = nodes.iter().all(|n| {
-        if n.count == 0 {
-            (n.first as usize) + 1 < nodes.len()
-        } else {
-            (n.first as usize)
-                .checked_add(n.count as usize)
-                .is_some_and(|end| end <= leaf.len())
-        }
-    });
-    if !nodes_ok || scene_index.iter().any(|&i| i as usize >= triangles) {
+    if !is_tree(&nodes, leaf.len()) || scene_index.iter().any(|&i| i as usize >= triangles) {
         return Err(Damage::Index);
     }
     Ok(Accel::from_parts(nodes, leaf, scene_index, depth))
+}
+
+/// Whether `nodes` is a tree that traversal can trust: leaves within the `leaves` triangles,
+/// and an inner node's two children in range, neither the root nor another node's child (so
+/// what hangs from the root has no cycle and no shared subtree; children may sit before their
+/// parent, as reinsertion leaves them). In range alone was not enough: a node that was its own
+/// child sent the 8-wide collapse, and traversal, round for ever (found by
+/// `fuzz/fuzz_targets/bvh_cache.rs`).
+fn is_tree(nodes: &[BvhNode], leaves: usize) -> bool {
+    let mut has_parent = vec![false; nodes.len()];
+    for n in nodes {
+        if n.count > 0 {
+            let end = (n.first as usize).checked_add(n.count as usize);
+            if end.is_none_or(|end| end > leaves) {
+                return false;
+            }
+            continue;
+        }
+        let first = n.first as usize;
+        if first == 0 || first + 1 >= nodes.len() || has_parent[first] || has_parent[first + 1] {
+            return false;
+        }
+        has_parent[first] = true;
+        has_parent[first + 1] = true;
+    }
+    true
 }
 
 #[cfg(test)]
@@ -260,5 +286,54 @@ mod tests {
         // ...and the rebuild replaced the damaged file.
         assert_eq!(std::fs::read(&path).unwrap(), good);
         assert_eq!(load_or_build(&scene, Some(dir.path())).1, Source::Cached);
+    }
+
+    /// A cache file of `nodes` (first, count) and `triangles` zero triangles, its hash made to
+    /// match, so only the checks behind the hash can refuse it.
+    fn file_of(nodes: &[(u32, u32)], triangles: usize) -> Vec<u8> {
+        let mut payload = Vec::new();
+        for &(first, count) in nodes {
+            payload.extend([0u8; 24]);
+            payload.extend(first.to_le_bytes());
+            payload.extend(count.to_le_bytes());
+        }
+        payload.resize(payload.len() + triangles * (36 + 4), 0);
+        header(&[nodes.len() as u64, triangles as u64, 0], &payload)
+    }
+
+    fn header(counts: &[u64; 3], payload: &[u8]) -> Vec<u8> {
+        let mut file = MAGIC.to_vec();
+        file.extend(FORMAT.to_le_bytes());
+        counts.iter().for_each(|c| file.extend(c.to_le_bytes()));
+        file.extend(blake3::hash(payload).as_bytes());
+        file.extend(payload);
+        file
+    }
+
+    #[test]
+    fn a_node_that_is_its_own_child_is_refused_not_walked_for_ever() {
+        // The fuzzer's input: three nodes, the root its own first child. The collapse looped.
+        let looped = file_of(&[(0, 0), (0, 0), (0, 0)], 0);
+        let refused = Some("an index is out of range");
+        assert_eq!(decode_bytes(&looped, 0).err().as_deref(), refused);
+        // A child that is the root again, and two parents sharing children: a cycle, a blow-up.
+        let back = file_of(&[(1, 0), (0, 1), (0, 0)], 1);
+        assert_eq!(decode_bytes(&back, 1).err().as_deref(), refused);
+        let shared = file_of(&[(1, 0), (3, 0), (3, 0), (0, 1), (0, 1)], 1);
+        assert_eq!(decode_bytes(&shared, 1).err().as_deref(), refused);
+        let tree = file_of(&[(1, 0), (3, 0), (0, 1), (0, 1), (0, 1)], 1);
+        assert!(decode_bytes(&tree, 1).is_ok());
+    }
+
+    #[test]
+    fn counts_whose_byte_total_wraps_are_refused_before_allocating() {
+        // 2^59 - 1 nodes of 32 bytes and one triangle wrapped the total to 72 bytes: the file's
+        // own length, so the node array was allocated from the count.
+        let file = header(&[(1 << 59) - 1, 1, 0], &[0; 8]);
+        assert_eq!(file.len(), 72);
+        assert_eq!(
+            decode_bytes(&file, 1).err().as_deref(),
+            Some("its length does not match its counts")
+        );
     }
 }

@@ -24,6 +24,7 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
     let err = |message: String| file_error(path, message);
     let bytes = std::fs::read(path).map_err(|e| file_error(path, e))?;
     check_glb_header(&bytes).map_err(err)?;
+    check_attribute_accessors(&bytes).map_err(err)?;
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not a valid glTF file: {e}")))?;
     drop(bytes);
@@ -110,6 +111,33 @@ fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
         return Err(format!(
             "GLB header gives a total length of {length} bytes, under 12"
         ));
+    }
+    Ok(())
+}
+
+/// gltf-json 1.4 looks up a primitive's POSITION accessor while validating, before it checks
+/// that the index exists, and panics on one past the end (found by fuzzing): such a file is
+/// refused here first. Anything else that does not parse is left for the crate to report.
+fn check_attribute_accessors(bytes: &[u8]) -> Result<(), String> {
+    let json = match gltf::Glb::from_slice(bytes) {
+        Ok(glb) if bytes.starts_with(b"glTF") => glb.json,
+        _ => bytes.into(),
+    };
+    let Ok(root) = gltf::json::Root::from_slice(&json) else {
+        return Ok(());
+    };
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            for index in primitive.attributes.values() {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {m}, primitive {p}: accessor {} does not exist ({} accessors)",
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
     }
     Ok(())
 }
@@ -597,6 +625,12 @@ mod tests {
             ("nan.glb", glb(&doc(r#"{"byteLength":80}"#, 4), &nan),
                 "mesh 0 primitive 0: vertex 0 has a non-finite"),
             ("corrupt.glb", corrupt, "total length of 3 bytes"),
+            // Found by fuzzing: gltf-json indexed these accessors before checking them, and
+            // panicked.
+            ("a.gltf", edited(r#""POSITION":2"#, r#""POSITION":3"#),
+                "mesh 0, primitive 1: accessor 3 does not exist (3 accessors)"),
+            ("a.glb", glb(&doc(r#"{"byteLength":80}"#, 4).replace(r#""POSITION":0"#, r#""POSITION":4"#), &bin([0, 1, 2])),
+                "mesh 0, primitive 0: accessor 4 does not exist (3 accessors)"),
         ];
         for (name, bytes, want) in cases {
             let err = load(name, &bytes).unwrap_err();

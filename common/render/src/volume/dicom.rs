@@ -36,6 +36,10 @@ pub(super) fn load(dir: &Path) -> Result<Volume, VolumeError> {
     files.sort();
     let mut slices = Vec::new();
     for path in files {
+        // dicom-rs allocates whatever length a damaged header claims: those are refused first.
+        let bytes = std::fs::read(&path).map_err(|e| VolumeError::io(&path, e))?;
+        super::dicom_lengths::check(&bytes)
+            .map_err(|m| VolumeError::field(&path, "element length", m))?;
         // Not every file in a series folder is DICOM; those that are must be readable slices.
         if let Ok(object) = open_file(&path) {
             slices.push(read_slice(&path, &object)?);
@@ -171,6 +175,14 @@ fn read_slice(path: &Path, object: &DefaultDicomObject) -> Result<Slice, VolumeE
         int(tags::ROWS, "Rows")? as usize,
         int(tags::COLUMNS, "Columns")? as usize,
     );
+    // An empty slice made the series' depth a division by zero (found by fuzzing).
+    if rows == 0 || cols == 0 {
+        return Err(VolumeError::field(
+            path,
+            "Rows/Columns",
+            format!("{rows}×{cols}: a slice needs at least one pixel"),
+        ));
+    }
     if int(tags::SAMPLES_PER_PIXEL, "SamplesPerPixel").unwrap_or(1) != 1 {
         return Err(VolumeError::field(
             path,
@@ -196,7 +208,11 @@ fn read_slice(path: &Path, object: &DefaultDicomObject) -> Result<Slice, VolumeE
         .map_err(|_| VolumeError::field(path, "PixelData", "missing"))?
         .to_bytes()
         .map_err(|e| VolumeError::field(path, "PixelData", e.to_string()))?;
-    let expected = rows * cols * voxel_type.bytes();
+    // Checked: Rows and Columns may arrive as 32-bit values, whose product overflows.
+    let expected = rows
+        .checked_mul(cols)
+        .and_then(|n| n.checked_mul(voxel_type.bytes()))
+        .ok_or_else(|| VolumeError::field(path, "Rows/Columns", "the slice's size overflows"))?;
     if pixels.len() < expected {
         return Err(VolumeError::Truncated {
             path: path.display().to_string(),
@@ -325,5 +341,65 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("no DICOM"));
+    }
+
+    #[test]
+    fn a_slice_claiming_more_bytes_than_it_holds_is_refused_before_allocating() {
+        // The fuzzer's case: a 426-byte slice whose meta group claimed a 4 GB element, which
+        // dicom-object allocated and zeroed before finding the file short.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.dcm");
+        write_slice(&path, 0.0, 0);
+        let good = std::fs::read(&path).unwrap();
+        assert!(super::super::dicom_lengths::check(&good).is_ok());
+        let find =
+            |bytes: &[u8], what: &[u8]| bytes.windows(what.len()).position(|w| w == what).unwrap();
+        // Media Storage SOP Instance UID (0002,0003), VR UI: its u16 length, then the data set's
+        // pixel data (7FE0,0010), VR OW: its u32 length.
+        let mut meta = good.clone();
+        let at = find(&meta, &[2, 0, 3, 0, b'U', b'I']) + 6;
+        meta[at..at + 2].copy_from_slice(&0xfff0u16.to_le_bytes());
+        let mut pixels = good.clone();
+        let at = find(&pixels, &[0xe0, 0x7f, 0x10, 0, b'O', b'W']) + 8;
+        pixels[at..at + 4].copy_from_slice(&0xffff_fff0u32.to_le_bytes());
+        for (name, bytes, tag) in [
+            ("meta", meta, "(0002,0003)"),
+            ("pixels", pixels, "(7FE0,0010)"),
+        ] {
+            std::fs::write(&path, bytes).unwrap();
+            let err = load(dir.path()).unwrap_err().to_string();
+            assert!(
+                err.contains("a.dcm") && err.contains(tag) && err.contains("claims"),
+                "{name}: {err}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_slice_of_no_rows_is_refused_not_divided_by() {
+        // The fuzzer's case: Rows = 0 passed every check and the depth was values / (0 × cols).
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.dcm");
+        write_slice(&path, 0.0, 0);
+        let mut bytes = std::fs::read(&path).unwrap();
+        let rows = [0x28, 0, 0x10, 0, b'U', b'S', 2, 0];
+        let at = bytes.windows(8).position(|w| w == rows).unwrap() + 8;
+        bytes[at..at + 2].copy_from_slice(&0u16.to_le_bytes());
+        std::fs::write(&path, bytes).unwrap();
+        let err = load(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("Rows/Columns") && err.contains("0×4"), "{err}");
+    }
+
+    #[test]
+    fn a_data_set_behind_an_odd_meta_group_is_still_walked() {
+        // The fuzzer's second case: the transfer syntax UID ends in a no-break space, which
+        // dicom-rs trims and this pass did not (so it left the data set unwalked), and the meta
+        // group's last element runs past its group length (so the data set starts after it).
+        // There an element claims 4 GB, which dicom-parser allocated.
+        let dir = tempfile::tempdir().unwrap();
+        let bytes = include_bytes!("fuzz-cases/dicom-element-past-meta-group.dcm");
+        std::fs::write(dir.path().join("a.dcm"), bytes).unwrap();
+        let err = load(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("(FFFF,001A) claims 4294901760 bytes"), "{err}");
     }
 }

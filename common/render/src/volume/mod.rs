@@ -19,6 +19,7 @@
 mod bricks;
 mod cell_mask;
 mod dicom;
+mod dicom_lengths;
 mod empty_space;
 mod grid_walk;
 mod nifti;

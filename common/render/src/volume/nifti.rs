@@ -29,7 +29,9 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
 
 /// Three spatial dimensions; a fourth (time) of length 1 is allowed, a longer one is a series.
 fn dims_of(path: &Path, dim: &[u16]) -> Result<[usize; 3], VolumeError> {
-    if dim.is_empty() || dim.len() > 4 || dim[3..].iter().any(|&d| d != 1) {
+    // `get`, not `dim[3..]`: a 1-D or 2-D file has fewer than three (found by fuzzing).
+    let time = dim.get(3..).unwrap_or_default();
+    if dim.is_empty() || dim.len() > 4 || time.iter().any(|&d| d != 1) {
         return Err(VolumeError::field(
             path,
             "dim",

@@ -284,3 +284,18 @@ fn nifti_is_placed_by_its_sform_else_its_qform_and_rescaled() {
     std::fs::write(&short, bytes).unwrap();
     assert!(load(&short).is_err());
 }
+
+#[test]
+fn a_nifti_file_of_fewer_than_three_dimensions_is_read_not_a_panic() {
+    // The fuzzer's case: dim[0] = 1 made the time-axis check slice past the end of `dim`.
+    let dir = tempfile::tempdir().unwrap();
+    for (rank, dims) in [(1i16, [3, 1, 1]), (2, [3, 2, 1])] {
+        let path = dir.path().join(format!("rank{rank}.nii"));
+        let bytes = nifti_file(|h| h[40..42].copy_from_slice(&rank.to_le_bytes()));
+        std::fs::write(&path, bytes).unwrap();
+        match load(&path) {
+            Ok(v) => assert_eq!(v.dims(), dims),
+            Err(e) => panic!("rank {rank}: {e}"),
+        }
+    }
+}
