@@ -30,39 +30,56 @@ fn children(parent: u32, role: &str) -> Vec<u32> {
     found
 }
 
+/// A local wall of `wall` screens (`--wall`) with `render_nodes` one-thread render nodes and
+/// the extra flags `rest`, writing into `out`; returned once its last display has saved frame
+/// `saved` (an event to wait for, not a time to guess).
+fn local_wall(
+    out: &std::path::Path,
+    wall: &str,
+    render_nodes: u32,
+    rest: &[&str],
+    saved: u32,
+) -> Proc {
+    let (nodes, save) = (render_nodes.to_string(), saved.to_string());
+    let mut args = vec![
+        "local",
+        "--wall",
+        wall,
+        "--screen",
+        "96x64",
+        "--render-nodes",
+        &nodes,
+        "--threads",
+        "1",
+        "--save-frame",
+        &save,
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend(rest);
+    let master = Proc::start("tessera-master", &args);
+    let displays: u32 = wall.split('x').map(|n| n.parse::<u32>().unwrap()).product();
+    let last = out.join(format!("display-{}.png", displays - 1));
+    assert!(
+        wait_for(Duration::from_secs(90), || last.exists()
+            || master.has_exited()),
+        "the wall never presented frame {saved}"
+    );
+    master
+}
+
 #[test]
 fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_deadline() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let deadline_ms = 300;
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "local",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--render-nodes",
-            "3",
-            "--threads",
-            "1",
-            "--node-deadline-ms",
-            &deadline_ms.to_string(),
-            "--frames",
-            "100000",
-            "--save-frame",
-            "3",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
-    assert!(
-        wait_for(Duration::from_secs(90), || out
-            .join("display-1.png")
-            .exists()
-            || master.has_exited()),
-        "the wall never presented frame 3"
+    let deadline = deadline_ms.to_string();
+    let master = local_wall(
+        &out,
+        "2x1",
+        3,
+        &["--node-deadline-ms", &deadline, "--frames", "100000"],
+        3,
     );
     let nodes = children(master.pid(), "render-node");
     assert_eq!(
@@ -114,33 +131,7 @@ fn running(pid: u32) -> bool {
 fn a_killed_local_master_leaves_no_node_behind() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "local",
-            "--wall",
-            "2x1",
-            "--screen",
-            "160x90",
-            "--render-nodes",
-            "2",
-            "--threads",
-            "1",
-            "--frames",
-            "100000",
-            "--save-frame",
-            "2",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
-    assert!(
-        wait_for(Duration::from_secs(90), || out
-            .join("display-1.png")
-            .exists()
-            || master.has_exited()),
-        "the wall never presented frame 2"
-    );
+    let master = local_wall(&out, "2x1", 2, &["--frames", "100000"], 2);
     let mut nodes = children(master.pid(), "render-node");
     nodes.extend(children(master.pid(), "display-node"));
     assert_eq!(nodes.len(), 4, "{nodes:?}");
@@ -285,33 +276,7 @@ fn a_killed_display_leaves_the_others_presenting_every_frame() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let frames = 300;
-    let master = Proc::start(
-        "tessera-master",
-        &[
-            "local",
-            "--wall",
-            "3x1",
-            "--screen",
-            "96x64",
-            "--render-nodes",
-            "2",
-            "--threads",
-            "1",
-            "--frames",
-            &frames.to_string(),
-            "--save-frame",
-            "3",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
-    assert!(
-        wait_for(Duration::from_secs(90), || out
-            .join("display-2.png")
-            .exists()
-            || master.has_exited()),
-        "the wall never presented frame 3"
-    );
+    let master = local_wall(&out, "3x1", 2, &["--frames", &frames.to_string()], 3);
     let displays = children(master.pid(), "display-node");
     assert_eq!(displays.len(), 3, "{displays:?}");
     let victim = displays

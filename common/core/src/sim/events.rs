@@ -1,0 +1,297 @@
+//! What each simulated event does: the virtual nodes' side of the protocol, the pixels'
+//! journey to the assemblers, and the coordinator's outputs turned into events.
+
+use super::*;
+
+impl SimWall {
+    pub(super) fn handle(&mut self, event: Event) {
+        let now = self.now();
+        match event {
+            Event::Kill(node) => {
+                if self.nodes.remove(&node).is_some() {
+                    let clock = &mut self.clocks[node.0 as usize];
+                    if let Some(since) = clock.busy_since.take() {
+                        clock.busy_us += self.now_us - since;
+                    }
+                    clock.died_at = Some(self.now_us);
+                }
+            }
+            Event::DisplayBeat(display) => {
+                if !self.coordinator.is_finished() {
+                    self.send(Event::FromDisplay(display, FromNode::Heartbeat));
+                    self.schedule_at(self.now_us + HEARTBEAT_US, Event::DisplayBeat(display));
+                }
+            }
+            Event::Heartbeat(node) => {
+                // A dead node's timer dies with it; a finished run needs no more.
+                if self.nodes.contains_key(&node) && !self.coordinator.is_finished() {
+                    self.send(Event::FromRender(node, FromNode::Heartbeat));
+                    self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
+                }
+            }
+            Event::FromRender(node, msg) => {
+                if !self.nodes.contains_key(&node) {
+                    return;
+                }
+                match msg {
+                    FromNode::TilesDone {
+                        frame,
+                        tiles,
+                        want_more,
+                    } => self
+                        .coordinator
+                        .handle_tiles_done(node, frame, &tiles, want_more, now)
+                        .expect("render nodes only report their own tiles"),
+                    // A heartbeat that arrives after a late one declared the node gone finds
+                    // it unknown: the real master drops that connection.
+                    FromNode::Heartbeat => {
+                        let _ = self.coordinator.handle_heartbeat(node, now);
+                    }
+                    _ => {}
+                }
+            }
+            Event::FromDisplay(display, msg) => match msg {
+                FromNode::FrameComplete { frame } => self
+                    .coordinator
+                    .handle_frame_complete(display, frame, now)
+                    .expect("displays report frames in flight"),
+                FromNode::Heartbeat => self.coordinator.handle_display_heartbeat(display, now),
+                _ => {}
+            },
+            Event::ToRender(node, msg) => {
+                let Some(n) = self.nodes.get_mut(&node) else {
+                    return;
+                };
+                n.worker
+                    .handle_message(&msg, now)
+                    .expect("valid assignment");
+                self.start_rendering(node);
+            }
+            Event::ToDisplay(display, msg) => {
+                if let ToNode::FrameStart(start) = msg {
+                    self.displays[display.0 as usize]
+                        .handle_frame_start(start.frame, start.state)
+                        .expect("the master starts at most two frames ahead");
+                    self.states.insert(start.frame, start.state);
+                }
+                if let ToNode::Present { frame } = msg {
+                    let assembler = &mut self.displays[display.0 as usize];
+                    let shown = assembler
+                        .handle_present(frame)
+                        .expect("present only complete frames");
+                    if let Some(frame) = assembler.poll_complete() {
+                        self.send(Event::FromDisplay(
+                            display,
+                            FromNode::FrameComplete { frame },
+                        ));
+                    }
+                    let screen = self.pixel_grid.layout().screen(display).expect("display");
+                    if !self.frame_matches(screen, frame, self.states[&frame], &shown.rgb) {
+                        self.corrupt.push((display, frame));
+                    }
+                    self.presented[display.0 as usize].push(frame);
+                    self.last_present_us = self.now_us;
+                }
+            }
+            Event::Pixels {
+                from,
+                last_tx,
+                display,
+                frame,
+                state,
+                tiles,
+            } => self.handle_pixels(from, last_tx, display, (frame, state), &tiles),
+            Event::Rendered(node, frame, state, tiles) => {
+                let Some(n) = self.nodes.get_mut(&node) else {
+                    return;
+                };
+                n.busy = false;
+                let clock = &mut self.clocks[node.0 as usize];
+                if let Some(since) = clock.busy_since.take() {
+                    clock.busy_us += self.now_us - since;
+                    if let Some(sizer) = &mut n.sizer {
+                        sizer.record(tiles.len(), Duration::from_micros(self.now_us - since));
+                        n.worker
+                            .set_low_water(sizer.low_water(n.worker.round_trip()));
+                    }
+                }
+                // One pixel batch per display, as the real node batches its writes.
+                let mut arrived = self.now_us;
+                let mut rest = &tiles[..];
+                while let Some(first) = rest.first() {
+                    let display = self.grid.tile(*first).expect("tile").display;
+                    let n = rest
+                        .iter()
+                        .take_while(|t| self.grid.tile(**t).expect("tile").display == display)
+                        .count();
+                    let d = self.net.deliver(self.now_us, Stream::Own);
+                    arrived = arrived.max(d.at);
+                    self.schedule_at(
+                        d.at,
+                        Event::Pixels {
+                            from: node,
+                            last_tx: d.last_tx,
+                            display,
+                            frame,
+                            state,
+                            tiles: rest[..n].to_vec(),
+                        },
+                    );
+                    rest = &rest[n..];
+                }
+                // The node learns its pixels arrived from the displays' acknowledgements.
+                let ack = self.net.deliver(arrived, Stream::Own).at;
+                self.schedule_at(ack, Event::Delivered(node, frame, tiles));
+                self.start_rendering(node);
+            }
+            Event::Delivered(node, frame, tiles) => {
+                let Some(n) = self.nodes.get_mut(&node) else {
+                    return;
+                };
+                let report = n.worker.handle_delivered(frame, &tiles, now);
+                self.send(Event::FromRender(node, report));
+            }
+        }
+    }
+
+    fn handle_pixels(
+        &mut self,
+        from: RenderNodeId,
+        last_tx: u64,
+        display: DisplayId,
+        (frame, state): (FrameId, StateId),
+        tiles: &[TileId],
+    ) {
+        let alive = self.nodes.contains_key(&from);
+        if self.clocks[from.0 as usize]
+            .died_at
+            .is_some_and(|d| d < last_tx)
+        {
+            self.lost_with_sender += 1;
+            return;
+        }
+        for &tile in tiles {
+            // A re-rendered copy of a tile whose first copy completed the frame.
+            if frame < self.displays[display.0 as usize].next_present() {
+                self.late_tiles += 1;
+                if alive {
+                    self.late_from_live += 1;
+                }
+            }
+            let rgb = sim_pixels(&self.pixel_grid, frame, state, tile);
+            let assembler = &mut self.displays[display.0 as usize];
+            if let Err(e) = assembler.handle_tile(frame, state, tile, &rgb) {
+                panic!("display {} refused a tile: {e}", display.0);
+            }
+            if let Some(frame) = assembler.poll_complete() {
+                self.send(Event::FromDisplay(
+                    display,
+                    FromNode::FrameComplete { frame },
+                ));
+            }
+        }
+    }
+
+    fn start_rendering(&mut self, node: RenderNodeId) {
+        let now = self.now();
+        let Some(n) = self.nodes.get_mut(&node) else {
+            return;
+        };
+        if n.busy {
+            return;
+        }
+        let batch = n.sizer.as_ref().map_or(self.batch, BatchSizer::batch);
+        let request = n.worker.poll_request(now);
+        let Some((start, tiles)) = n.worker.next_batch(batch) else {
+            if let Some(r) = request {
+                self.send(Event::FromRender(node, r));
+            }
+            return;
+        };
+        n.busy = true;
+        let clock = &mut self.clocks[node.0 as usize];
+        clock.busy_since = Some(self.now_us);
+        let full = u64::from(self.grid.layout().tile_size()).pow(2).max(1);
+        let cost: u64 = tiles
+            .iter()
+            .map(|t| {
+                let pixels = self.grid.tile(*t).expect("tile").pixel_count() as u64;
+                (clock.tile_us * pixels).div_ceil(full)
+            })
+            .sum();
+        self.schedule_at(
+            self.now_us + cost,
+            Event::Rendered(node, start.frame, start.state, tiles),
+        );
+        if let Some(r) = request {
+            self.send(Event::FromRender(node, r));
+        }
+    }
+
+    pub(super) fn pump(&mut self) {
+        while let Some(out) = self.coordinator.poll_output() {
+            match out {
+                Output::ToRender(node, msg) => self.send(Event::ToRender(node, msg)),
+                Output::ToDisplays(msg) => {
+                    for d in 0..self.displays.len() as u32 {
+                        self.send(Event::ToDisplay(DisplayId(d), msg.clone()));
+                    }
+                }
+                Output::FrameStarted(frame) => {
+                    if frame.0 == 0 {
+                        self.span.0 = Some(self.now_us);
+                    }
+                    if self.change_every_frame {
+                        let spp = 1 + (frame.0 % 2) as u32;
+                        self.coordinator
+                            .queue_change(StateChange::Spp(spp), self.now_us, self.now())
+                            .expect("1 or 2 samples per pixel are always allowed");
+                    }
+                    let doomed: Vec<RenderNodeId> = self
+                        .kills
+                        .iter()
+                        .filter(|(_, f)| *f == frame)
+                        .map(|(n, _)| *n)
+                        .collect();
+                    for node in doomed {
+                        // Late enough that it holds tiles, early enough that they are unfinished.
+                        let at = self.now_us + self.net.latency_us() * 2 + 150;
+                        self.schedule_at(at, Event::Kill(node));
+                    }
+                }
+                Output::FrameRendered(frame) => {
+                    if frame.0 + 1 == self.frames {
+                        self.span.1 = Some(self.now_us);
+                    }
+                }
+                Output::StateApplied { changes, .. } => self.changes_applied += changes,
+                Output::FramePresented(_)
+                | Output::Finished
+                | Output::Stalled
+                | Output::RenderTimedOut { .. }
+                | Output::DisplayTimedOut { .. }
+                | Output::Converged(_)
+                | Output::Refused { .. } => {}
+            }
+        }
+    }
+
+    fn frame_matches(
+        &self,
+        screen: ScreenRect,
+        frame: FrameId,
+        state: StateId,
+        rgb: &[u8],
+    ) -> bool {
+        self.pixel_grid.display_tiles(screen.id).iter().all(|t| {
+            let expected = sim_pixels(&self.pixel_grid, frame, state, t.id);
+            let row = t.width as usize * 3;
+            (0..t.height as usize).all(|r| {
+                let at = (((t.y - screen.y) as usize + r) * screen.width as usize
+                    + (t.x - screen.x) as usize)
+                    * 3;
+                rgb[at..at + row] == expected[r * row..(r + 1) * row]
+            })
+        })
+    }
+}
