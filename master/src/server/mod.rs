@@ -484,28 +484,12 @@ impl Wall {
                 Output::Finished => self.finished = true,
                 Output::DisplayTimedOut { display, silent } => {
                     if let Some(&peer) = self.displays.get(&display) {
-                        if let Some(p) = self.peers.get(&peer) {
-                            p.conn.close(5u32.into(), b"silent past the deadline");
-                        }
-                        let reason = format!(
-                            "silent for {} ms, past the {} ms deadline",
-                            silent.as_millis(),
-                            self.cfg.node_deadline.as_millis()
-                        );
-                        self.drop_peer(peer, Instant::now(), &reason)?;
+                        self.drop_silent(peer, silent)?;
                     }
                 }
                 Output::RenderTimedOut { node, silent } => {
                     if let Some(peer) = self.render_peer(node) {
-                        if let Some(p) = self.peers.get(&peer) {
-                            p.conn.close(5u32.into(), b"silent past the deadline");
-                        }
-                        let reason = format!(
-                            "silent for {} ms, past the {} ms deadline",
-                            silent.as_millis(),
-                            self.cfg.node_deadline.as_millis()
-                        );
-                        self.drop_peer(peer, Instant::now(), &reason)?;
+                        self.drop_silent(peer, silent)?;
                     }
                 }
                 Output::Stalled => {
@@ -514,6 +498,20 @@ impl Wall {
             }
         }
         Ok(())
+    }
+
+    /// Closes the connection of a peer the coordinator found silent past the deadline, and
+    /// drops it as if it had left.
+    fn drop_silent(&mut self, peer: PeerId, silent: Duration) -> Result<()> {
+        if let Some(p) = self.peers.get(&peer) {
+            p.conn.close(5u32.into(), b"silent past the deadline");
+        }
+        let reason = format!(
+            "silent for {} ms, past the {} ms deadline",
+            silent.as_millis(),
+            self.cfg.node_deadline.as_millis()
+        );
+        self.drop_peer(peer, Instant::now(), &reason)
     }
 
     /// Asks every node for its stats and waits for them (bounded).
