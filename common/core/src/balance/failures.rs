@@ -79,6 +79,8 @@ impl Coordinator {
         for frame in self.in_flight.values_mut() {
             frame.drop_tiles(&gone);
             frame.displays_complete.remove(&display);
+            // For good: if it rejoins, it starts with a later frame, never with these.
+            frame.displays_expected.remove(&display);
         }
         if self.live_displays.is_empty() && !self.in_flight.is_empty() {
             self.outputs.push_back(Output::Stalled);

@@ -224,3 +224,63 @@ fn a_lost_display_settles_its_tiles_and_the_others_go_on_presenting() {
     c.handle_frame_complete(DisplayId(1), FrameId(0), t0)
         .unwrap();
 }
+
+#[test]
+fn a_rejoined_display_is_waited_for_from_the_next_frame_not_by_frames_in_flight() {
+    let camera = CameraMode::fixed(
+        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+    );
+    let config = BalanceConfig {
+        static_fraction: 1.0,
+        ..BalanceConfig::default()
+    };
+    let mut c = Coordinator::new(8, 2, camera, RenderParams::interactive(), Some(3), config);
+    c.set_tile_displays((0..8).map(|t| DisplayId(t / 4)).collect());
+    let node = RenderNodeId(0);
+    let t0 = Instant::now();
+    c.handle_render_joined(node, t0);
+    c.start(t0);
+    let all = [TileRange::new(0, 8).unwrap()];
+    // Frames 0 and 1 start with both displays (all tiles handed out at once); display 1 dies
+    // and is back before either is presented: a quick restart.
+    let _ = drain(&mut c);
+    c.handle_display_left(DisplayId(1), t0);
+    c.handle_display_joined(DisplayId(1), t0);
+    for f in 0..2 {
+        c.handle_tiles_done(node, FrameId(f), &all, false, t0)
+            .unwrap();
+        // The frames in flight present on display 0 alone: display 1 never saw them start.
+        c.handle_frame_complete(DisplayId(0), FrameId(f), t0)
+            .unwrap();
+        let out = drain(&mut c);
+        assert!(
+            out.contains(&Output::ToDisplays(ToNode::Present { frame: FrameId(f) })),
+            "{out:?}"
+        );
+        if f == 0 {
+            // Frame 2 starts with display 1 again: all 8 tiles.
+            let frame2: usize = out
+                .iter()
+                .filter_map(|o| match o {
+                    Output::ToRender(_, ToNode::Assign { frame, tiles })
+                        if *frame == FrameId(2) =>
+                    {
+                        Some(tiles.iter().map(|r| r.len()).sum::<usize>())
+                    }
+                    _ => None,
+                })
+                .sum();
+            assert_eq!(frame2, 8, "{out:?}");
+        }
+    }
+    // Frame 2 waits for both displays.
+    c.handle_tiles_done(node, FrameId(2), &all, false, t0)
+        .unwrap();
+    c.handle_frame_complete(DisplayId(0), FrameId(2), t0)
+        .unwrap();
+    let present2 = Output::ToDisplays(ToNode::Present { frame: FrameId(2) });
+    assert!(!drain(&mut c).contains(&present2));
+    c.handle_frame_complete(DisplayId(1), FrameId(2), t0)
+        .unwrap();
+    assert!(drain(&mut c).contains(&present2));
+}

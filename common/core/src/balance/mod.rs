@@ -501,7 +501,6 @@ impl Coordinator {
             let waiting = state
                 .displays_expected
                 .iter()
-                .filter(|d| self.live_displays.contains(d))
                 .any(|d| !state.displays_complete.contains(d));
             if waiting {
                 return;
