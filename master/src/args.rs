@@ -38,6 +38,10 @@ pub struct RunArgs {
     /// beat every 50 ms; 150 to 60000.
     #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(150..=60_000))]
     pub node_deadline_ms: u64,
+    /// Never give an idle render node copies of a late node's tiles: a late node then holds
+    /// its tiles until it reports them or its deadline passes, and no tile is sent twice.
+    #[arg(long)]
+    pub no_speculation: bool,
     /// What a display's loss (its connection closed, or silent past --node-deadline-ms) does:
     /// `go-on` presents on the other displays (the lost display's tiles are no longer
     /// rendered); `stop` ends the run with an error.
@@ -304,6 +308,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         join_timeout: Duration::from_secs(run.join_timeout),
         node_deadline: Duration::from_millis(run.node_deadline_ms),
         display_loss: run.display_loss,
+        speculate: !run.no_speculation,
         show_progress,
         present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
             .ok()

@@ -27,6 +27,9 @@ fn run_local_wall(out: &std::path::Path, extra: &[&str]) {
         "5",
         "--save-frame",
         "3",
+        // Each tile exactly once, which the byte counts below check: no copy of a late
+        // node's tiles, whatever the machine's load.
+        "--no-speculation",
         "--out",
         out.to_str().unwrap(),
     ]);

@@ -65,11 +65,20 @@ fn a_still_view_converges_to_the_reference_then_stops_rendering() {
         wait_for(LIMIT, || tiles(&figures(&connect)) >= 4 * 12),
         "the tiles of the 4 frames were never all reported"
     );
-    // Nothing renders while nothing changes: the counters stand still over a second.
+    // Nothing renders while nothing changes: the counters stand still over a second. A
+    // node late with its tiles has them copied to another (speculative re-issue), so a tile
+    // may be reported twice, and the late copy's report may land in the first second; over
+    // the next, nothing may move.
+    std::thread::sleep(Duration::from_secs(1));
+    let settled = figures(&connect);
     std::thread::sleep(Duration::from_secs(1));
     let later = figures(&connect);
     assert_eq!(presented(&later), 4, "{later}");
-    assert_eq!(tiles(&later), 4 * 12, "render nodes kept working: {later}");
+    assert_eq!(
+        tiles(&later),
+        tiles(&settled),
+        "render nodes kept working: {later}"
+    );
     // A change renders again.
     control(&connect, &["quality", "--shadows", "off"], LIMIT).assert_success("control quality");
     assert!(

@@ -53,6 +53,8 @@ pub struct RunConfig {
     pub node_deadline: Duration,
     /// Whether the wall goes on without a lost display.
     pub display_loss: crate::args::DisplayLoss,
+    /// Whether idle render nodes take over copies of a late node's tiles.
+    pub speculate: bool,
     pub show_progress: bool,
     /// Displays present this long after the master's barrier decision, all at the same
     /// instant; zero presents on arrival.
@@ -145,6 +147,7 @@ pub async fn run_wall(
         cfg.frames,
         BalanceConfig {
             node_deadline: cfg.node_deadline,
+            speculate: cfg.speculate,
             ..BalanceConfig::default()
         },
     );

@@ -284,3 +284,38 @@ fn a_rejoined_display_is_waited_for_from_the_next_frame_not_by_frames_in_flight(
         .unwrap();
     assert!(drain(&mut c).contains(&present2));
 }
+
+#[test]
+fn without_speculation_a_late_node_keeps_its_tiles_until_its_deadline() {
+    let camera = CameraMode::fixed(
+        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+    );
+    let config = BalanceConfig {
+        speculate: false,
+        ..BalanceConfig::default()
+    };
+    let mut c = Coordinator::new(16, 1, camera, RenderParams::interactive(), Some(1), config);
+    let (quick, late) = (RenderNodeId(0), RenderNodeId(1));
+    let t0 = Instant::now();
+    c.handle_render_joined(quick, t0);
+    c.handle_render_joined(late, t0);
+    c.start(t0);
+    let mut mine = assigned_to(&drain(&mut c), quick);
+    let mut at = t0;
+    while !mine.is_empty() {
+        at += Duration::from_millis(2);
+        c.handle_tiles_done(quick, FrameId(0), &mine, true, at)
+            .unwrap();
+        mine = assigned_to(&drain(&mut c), quick);
+    }
+    // Waiting, with the late node far past any lease: nothing is copied, and the next thing
+    // timed is a deadline.
+    let later = t0 + Duration::from_millis(200);
+    c.handle_heartbeat(late, later).unwrap();
+    c.handle_heartbeat(quick, later).unwrap();
+    c.handle_display_heartbeat(DisplayId(0), later);
+    c.handle_timeout(later);
+    assert!(assigned_to(&drain(&mut c), quick).is_empty());
+    assert_eq!(c.speculated_tiles(), 0);
+    assert_eq!(c.poll_timeout(), Some(later + DEFAULT_NODE_DEADLINE));
+}

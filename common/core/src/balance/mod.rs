@@ -53,6 +53,9 @@ pub struct BalanceConfig {
     pub min_batch: u32,
     /// A render node silent this long is gone: its tiles go to the others.
     pub node_deadline: Duration,
+    /// Whether idle nodes get copies of the tiles of a node late past its lease (off: they
+    /// wait for the deadline, and no tile is ever rendered twice).
+    pub speculate: bool,
 }
 
 /// The default [`BalanceConfig::node_deadline`]: six heartbeats, a few frame periods.
@@ -64,6 +67,7 @@ impl Default for BalanceConfig {
             static_fraction: 0.5,
             min_batch: 1,
             node_deadline: DEFAULT_NODE_DEADLINE,
+            speculate: true,
         }
     }
 }

@@ -51,6 +51,9 @@ impl Coordinator {
     /// ends: the oldest frame with uncopied tiles held by another node, and of its holders the
     /// one whose lease ends first.
     fn candidate(&self, taker: RenderNodeId) -> Option<(FrameId, RenderNodeId, Instant)> {
+        if !self.config.speculate {
+            return None;
+        }
         self.in_flight.iter().find_map(|(&frame, state)| {
             state
                 .holders()
