@@ -23,7 +23,9 @@ USAGE
 }
 
 cd "$(dirname "$0")"
-limit=(-max_total_time=5)
+# The smoke run is seeded: the same binary explores the same inputs on every CI run, so CI
+# fails on a regression, not on the luck of the draw (new finds are the long run's job).
+limit=(-max_total_time=5 -seed=1)
 seeds=false
 targets=()
 while [ $# -gt 0 ]; do

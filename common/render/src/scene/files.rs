@@ -315,6 +315,18 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
             one_line(&e.to_string())
         ))
     })?;
+    // Every row takes at least a byte (a property, or an ascii line's end), so a count beyond
+    // the file's length is a lie, and the crate would allocate for it before reading a row
+    // (found by fuzzing: an element of no properties and 10^16 rows).
+    let file_bytes = std::fs::metadata(path).map_or(u64::MAX, |m| m.len());
+    for (name, def) in &header.elements {
+        if def.count as u64 > file_bytes {
+            return Err(err(format!(
+                "element `{name}` claims {} rows, more than the file's {file_bytes} bytes hold",
+                def.count
+            )));
+        }
+    }
     // A missing property is a header fault: say so once rather than for every row.
     for element in ["vertex", "face"] {
         let Some(def) = header.elements.get(element) else {
@@ -596,6 +608,16 @@ end_header\n";
             "noz.ply",
             no_z.as_bytes(),
             "the `vertex` element has no `z` property",
+        );
+        // A count no file of this size could hold is refused before anything is allocated.
+        let huge = PLY_HEAD.replace(
+            "element face 1",
+            "element junk 11326434445538011\nelement face 1",
+        );
+        assert_fails(
+            "huge.ply",
+            huge.as_bytes(),
+            "element `junk` claims 11326434445538011 rows",
         );
         let no_face = PLY_HEAD.replace("element face 1", "element edge 1");
         assert_fails("noface.ply", no_face.as_bytes(), "has no `face` element");
