@@ -44,7 +44,9 @@ pub struct RunArgs {
     pub no_speculation: bool,
     /// What a display's loss (its connection closed, or silent past --node-deadline-ms) does:
     /// `go-on` presents on the other displays (the lost display's tiles are no longer
-    /// rendered); `stop` ends the run with an error.
+    /// rendered); `wait` pauses the wall, every screen holding its last frame, until the
+    /// display rejoins, and ends the run with an error if it is not back within
+    /// --join-timeout; `stop` ends the run with an error at once.
     #[arg(long, value_enum, default_value_t = DisplayLoss::GoOn)]
     pub display_loss: DisplayLoss,
     /// Displays present this many ms after the frame barrier, all at the same instant by
@@ -223,6 +225,7 @@ pub struct IssueCertArgs {
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DisplayLoss {
     GoOn,
+    Wait,
     Stop,
 }
 

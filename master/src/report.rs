@@ -26,8 +26,12 @@ pub struct Report {
     pub timing: crate::timing::TimingSummary,
     pub elapsed_s: f64,
     pub render_nodes_lost: u32,
-    /// Displays lost while the others went on (`--display-loss go-on`).
+    /// Displays lost while the others went on (`--display-loss go-on`) or waited for them
+    /// (`wait`).
     pub displays_lost: u32,
+    /// Frames presented while some display was not showing them: every frame from a loss to
+    /// the rejoin under `go-on`, at most the frames in flight at the loss under `wait`.
+    pub frames_short_of_displays: u64,
     /// Tiles given to a second render node because the first was late with them (past its
     /// lease): the price of not waiting on a slow, hung or dead node.
     pub tiles_speculated: u64,

@@ -211,9 +211,9 @@ impl Wall {
             PeerRole::Display(d) => {
                 self.displays.remove(&d);
                 self.display_since.remove(&d);
-                let going_on = self.started.is_some()
-                    && self.cfg.display_loss == crate::args::DisplayLoss::GoOn;
-                if !going_on {
+                use crate::args::DisplayLoss;
+                let policy = self.cfg.display_loss;
+                if self.started.is_none() || policy == DisplayLoss::Stop {
                     self.display_endpoints.remove(&d);
                     bail!(
                         "{who} disconnected ({reason}); the wall stops (--display-loss stop, or it had not started)"
@@ -222,9 +222,16 @@ impl Wall {
                 self.lost_displays += 1;
                 // Render nodes that join from now on do not try to reach it.
                 self.display_endpoints.remove(&d);
-                tracing::error!(
-                    "{who} disconnected ({reason}); the other displays go on without it (--display-loss stop ends the run instead)"
-                );
+                if policy == DisplayLoss::Wait {
+                    tracing::error!(
+                        "{who} disconnected ({reason}); the wall waits for it to rejoin, at most {} s (--display-loss wait)",
+                        self.cfg.join_timeout.as_secs()
+                    );
+                } else {
+                    tracing::error!(
+                        "{who} disconnected ({reason}); the other displays go on without it (--display-loss stop ends the run instead)"
+                    );
+                }
                 self.coordinator.handle_display_left(d, now);
             }
             PeerRole::Render { node, .. } => {

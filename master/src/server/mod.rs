@@ -100,8 +100,10 @@ struct Wall {
     presents: Vec<(FrameId, Instant)>,
     timing: Timing,
     lost_render_nodes: u32,
-    /// Displays lost while the wall went on without them.
+    /// Displays lost while the wall went on without them, or waited for them.
     lost_displays: u32,
+    /// Frames presented while some display was not showing them (lost, or not yet back).
+    frames_short_of_displays: u64,
     /// For a display that rejoined the running wall, the first frame it is shown.
     display_since: BTreeMap<DisplayId, FrameId>,
     /// State changes the barrier applied.
@@ -148,6 +150,8 @@ pub async fn run_wall(
         BalanceConfig {
             node_deadline: cfg.node_deadline,
             speculate: cfg.speculate,
+            wait_for_lost_displays: (cfg.display_loss == crate::args::DisplayLoss::Wait)
+                .then_some(cfg.join_timeout),
             ..BalanceConfig::default()
         },
     );
@@ -176,6 +180,7 @@ pub async fn run_wall(
         timing: Timing::default(),
         lost_render_nodes: 0,
         lost_displays: 0,
+        frames_short_of_displays: 0,
         display_since: BTreeMap::new(),
         changes_applied: 0,
         finished: false,
@@ -458,6 +463,13 @@ impl Wall {
                 }
                 Output::FramePresented(frame) => {
                     self.presents.push((frame, Instant::now()));
+                    let shown_by = |d: &DisplayId| {
+                        self.displays.contains_key(d)
+                            && self.display_since.get(d).is_none_or(|&f| frame >= f)
+                    };
+                    if !(0..self.cfg.wall.display_count()).all(|d| shown_by(&DisplayId(d))) {
+                        self.frames_short_of_displays += 1;
+                    }
                     if let Some(bar) = &self.progress {
                         bar.inc(1);
                     }
@@ -490,6 +502,11 @@ impl Wall {
                         self.drop_silent(peer, silent)?;
                     }
                 }
+                Output::DisplayNotBack { display, waited } => bail!(
+                    "display {} was not back {:.1} s after it was lost; the wall waited for it (--display-loss wait, at most --join-timeout)",
+                    display.0,
+                    waited.as_secs_f64()
+                ),
                 Output::RenderTimedOut { node, silent } => {
                     if let Some(peer) = self.render_peer(node) {
                         self.drop_silent(peer, silent)?;

@@ -82,6 +82,7 @@ impl Wall {
             elapsed_s: elapsed,
             render_nodes_lost: self.lost_render_nodes,
             displays_lost: self.lost_displays,
+            frames_short_of_displays: self.frames_short_of_displays,
             tiles_speculated: self.coordinator.speculated_tiles(),
             changes_applied: self.changes_applied,
             snapshots: self.live.snapshots.iter().map(|f| f.0).collect(),

@@ -31,6 +31,7 @@ impl Coordinator {
             self.liveness.next_deadline(),
             self.display_liveness.next_deadline(),
             self.next_speculation(),
+            self.next_wait_end(),
         ]
         .into_iter()
         .flatten()
@@ -50,7 +51,31 @@ impl Coordinator {
                 .push_back(Output::DisplayTimedOut { display, silent });
             self.handle_display_left(display, now);
         }
+        if let Some(limit) = self.config.wait_for_lost_displays {
+            let over: Vec<(DisplayId, Duration)> = self
+                .awaited_displays
+                .iter()
+                .map(|(&d, &since)| (d, now.saturating_duration_since(since)))
+                .filter(|&(_, waited)| waited >= limit)
+                .collect();
+            for (display, waited) in over {
+                self.awaited_displays.remove(&display);
+                self.outputs
+                    .push_back(Output::DisplayNotBack { display, waited });
+            }
+        }
         self.feed_speculation(now);
+    }
+
+    /// When the wait for the display lost first runs out.
+    fn next_wait_end(&self) -> Option<Instant> {
+        let limit = self.config.wait_for_lost_displays?;
+        self.awaited_displays.values().min().map(|&t| t + limit)
+    }
+
+    /// The lost displays the wall waits for before it starts another frame.
+    pub fn awaited_displays(&self) -> impl Iterator<Item = DisplayId> + '_ {
+        self.awaited_displays.keys().copied()
     }
 
     /// Which display each tile is on (`tiles[t]` for tile `t`), so that a display's loss
@@ -68,11 +93,15 @@ impl Coordinator {
     }
 
     /// Display `display` is gone (its connection closed, or it was silent past the deadline):
-    /// the barrier stops waiting for it and its tiles are settled in every frame, so the
-    /// other displays go on.
+    /// the barrier stops waiting for it and its tiles are settled in every frame in flight,
+    /// so the other displays present those. Then the others go on, or, under
+    /// [`BalanceConfig::wait_for_lost_displays`], no frame starts until it rejoins.
     pub fn handle_display_left(&mut self, display: DisplayId, now: Instant) {
         if !self.live_displays.remove(&display) {
             return;
+        }
+        if self.config.wait_for_lost_displays.is_some() {
+            self.awaited_displays.insert(display, now);
         }
         self.display_liveness.forget(display);
         let gone = self.tiles_of(display);
@@ -82,7 +111,9 @@ impl Coordinator {
             // For good: if it rejoins, it starts with a later frame, never with these.
             frame.displays_expected.remove(&display);
         }
-        if self.live_displays.is_empty() && !self.in_flight.is_empty() {
+        // Waiting, the frames in flight settle with no display left, and the wall waits.
+        let waiting = !self.awaited_displays.is_empty();
+        if self.live_displays.is_empty() && !self.in_flight.is_empty() && !waiting {
             self.outputs.push_back(Output::Stalled);
         }
         self.try_present();
@@ -90,10 +121,14 @@ impl Coordinator {
     }
 
     /// Display `display` is back (a restarted display rejoined): frames that start from now
-    /// on include it and its tiles; frames in flight go on without it.
+    /// on include it and its tiles; frames in flight go on without it. A wall that waited for
+    /// it goes on.
     pub fn handle_display_joined(&mut self, display: DisplayId, now: Instant) {
         if display.0 < self.display_count && self.live_displays.insert(display) {
             self.display_liveness.heard(display, now);
+        }
+        if self.awaited_displays.remove(&display).is_some() {
+            self.try_start_frames(now);
         }
     }
 

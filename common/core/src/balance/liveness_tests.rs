@@ -319,3 +319,107 @@ fn without_speculation_a_late_node_keeps_its_tiles_until_its_deadline() {
     assert_eq!(c.speculated_tiles(), 0);
     assert_eq!(c.poll_timeout(), Some(later + DEFAULT_NODE_DEADLINE));
 }
+
+#[test]
+fn waiting_for_a_lost_display_starts_no_frame_until_it_is_back() {
+    let camera = CameraMode::fixed(
+        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+    );
+    let limit = Duration::from_secs(5);
+    let config = BalanceConfig {
+        static_fraction: 1.0,
+        wait_for_lost_displays: Some(limit),
+        ..BalanceConfig::default()
+    };
+    let mut c = Coordinator::new(8, 2, camera, RenderParams::interactive(), Some(4), config);
+    c.set_tile_displays((0..8).map(|t| DisplayId(t / 4)).collect());
+    let node = RenderNodeId(0);
+    let t0 = Instant::now();
+    let ms = |n: u64| t0 + Duration::from_millis(n);
+    c.handle_render_joined(node, t0);
+    c.start(t0);
+    let all = [TileRange::new(0, 8).unwrap()];
+    let started = |out: &[Output]| -> Vec<FrameId> {
+        out.iter()
+            .filter_map(|o| match o {
+                Output::FrameStarted(f) => Some(*f),
+                _ => None,
+            })
+            .collect()
+    };
+    assert_eq!(started(&drain(&mut c)), vec![FrameId(0), FrameId(1)]);
+    // Display 1 is lost with frames 0 and 1 in flight: display 0 still shows both.
+    c.handle_display_left(DisplayId(1), ms(10));
+    assert_eq!(c.awaited_displays().collect::<Vec<_>>(), vec![DisplayId(1)]);
+    for f in 0..2 {
+        c.handle_tiles_done(node, FrameId(f), &all, true, ms(20))
+            .unwrap();
+        c.handle_frame_complete(DisplayId(0), FrameId(f), ms(20))
+            .unwrap();
+    }
+    let out = drain(&mut c);
+    assert!(out.contains(&Output::FramePresented(FrameId(1))), "{out:?}");
+    // ...and then nothing starts, however long the wait, short of the limit.
+    assert!(started(&out).is_empty(), "{out:?}");
+    assert!(c.poll_timeout().is_some_and(|t| t <= ms(10) + limit));
+    for at in [100, 1_000, 4_000] {
+        c.handle_heartbeat(node, ms(at)).unwrap();
+        c.handle_display_heartbeat(DisplayId(0), ms(at));
+        c.handle_timeout(ms(at));
+        let out = drain(&mut c);
+        assert!(started(&out).is_empty(), "at {at} ms: {out:?}");
+    }
+    // Back: the next frames start at once, with both displays' tiles, and wait for both.
+    c.handle_display_joined(DisplayId(1), ms(4_500));
+    let out = drain(&mut c);
+    assert_eq!(started(&out), vec![FrameId(2), FrameId(3)], "{out:?}");
+    let handed: usize = assigned_to(&out, node).iter().map(|r| r.len()).sum();
+    assert_eq!(handed, 16, "all 8 tiles of each frame");
+    c.handle_tiles_done(node, FrameId(2), &all, false, ms(4_510))
+        .unwrap();
+    c.handle_frame_complete(DisplayId(0), FrameId(2), ms(4_510))
+        .unwrap();
+    let present2 = Output::FramePresented(FrameId(2));
+    assert!(!drain(&mut c).contains(&present2));
+    c.handle_frame_complete(DisplayId(1), FrameId(2), ms(4_520))
+        .unwrap();
+    assert!(drain(&mut c).contains(&present2));
+}
+
+#[test]
+fn a_lost_display_not_back_within_the_wait_is_reported_once() {
+    let camera = CameraMode::fixed(
+        Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+    );
+    let limit = Duration::from_secs(2);
+    let config = BalanceConfig {
+        wait_for_lost_displays: Some(limit),
+        node_deadline: Duration::from_secs(60),
+        ..BalanceConfig::default()
+    };
+    let mut c = Coordinator::new(8, 2, camera, RenderParams::interactive(), None, config);
+    c.set_tile_displays((0..8).map(|t| DisplayId(t / 4)).collect());
+    let t0 = Instant::now();
+    c.handle_render_joined(RenderNodeId(0), t0);
+    c.start(t0);
+    let _ = drain(&mut c);
+    c.handle_display_left(DisplayId(0), t0);
+    assert_eq!(c.poll_timeout(), Some(t0 + limit));
+    c.handle_timeout(t0 + limit - Duration::from_millis(1));
+    assert!(!drain(&mut c)
+        .iter()
+        .any(|o| matches!(o, Output::DisplayNotBack { .. })));
+    c.handle_timeout(t0 + limit);
+    let out = drain(&mut c);
+    assert!(
+        out.contains(&Output::DisplayNotBack {
+            display: DisplayId(0),
+            waited: limit
+        }),
+        "{out:?}"
+    );
+    c.handle_timeout(t0 + limit * 2);
+    assert!(!drain(&mut c)
+        .iter()
+        .any(|o| matches!(o, Output::DisplayNotBack { .. })));
+}

@@ -24,7 +24,9 @@
 //!   the transport to notice: the driver asks [`Coordinator::poll_timeout`] when to call
 //!   [`Coordinator::handle_timeout`], quinn's convention for time in a state machine.
 //! * **Swap barrier.** When every display has every tile of the oldest unpresented frame, all
-//!   displays are told to present it at once.
+//!   displays are told to present it at once. A lost display is struck from the frames in
+//!   flight; then the others go on without it, or, with
+//!   [`BalanceConfig::wait_for_lost_displays`], no frame starts until it is back.
 
 mod failures;
 mod frames;
@@ -56,6 +58,10 @@ pub struct BalanceConfig {
     /// Whether idle nodes get copies of the tiles of a node late past its lease (off: they
     /// wait for the deadline, and no tile is ever rendered twice).
     pub speculate: bool,
+    /// What a lost display does to the wall. `None`: the others go on without it. `Some(at
+    /// most)`: the wall pauses, no frame starts until it rejoins, and if it is not back within
+    /// `at most`, [`Output::DisplayNotBack`] ends the wait (the driver ends the run).
+    pub wait_for_lost_displays: Option<Duration>,
 }
 
 /// The default [`BalanceConfig::node_deadline`]: six heartbeats, a few frame periods.
@@ -68,6 +74,7 @@ impl Default for BalanceConfig {
             min_batch: 1,
             node_deadline: DEFAULT_NODE_DEADLINE,
             speculate: true,
+            wait_for_lost_displays: None,
         }
     }
 }
@@ -114,6 +121,12 @@ pub enum Output {
     DisplayTimedOut {
         display: DisplayId,
         silent: Duration,
+    },
+    /// A display lost under [`BalanceConfig::wait_for_lost_displays`] was not back within
+    /// the limit; no frame has started since it was lost.
+    DisplayNotBack {
+        display: DisplayId,
+        waited: Duration,
     },
 }
 
@@ -203,6 +216,9 @@ pub struct Coordinator {
     /// Displays the swap barrier waits for: every one, until one is gone.
     live_displays: BTreeSet<DisplayId>,
     display_liveness: Liveness<DisplayId>,
+    /// Lost displays the wall waits for (under [`BalanceConfig::wait_for_lost_displays`]),
+    /// and since when: no frame starts while there is one.
+    awaited_displays: BTreeMap<DisplayId, Instant>,
     /// The display of each tile, where the driver said (see [`Coordinator::set_tile_displays`]).
     tile_displays: Vec<DisplayId>,
     /// The state frames start with now, and its id.
@@ -253,6 +269,7 @@ impl Coordinator {
             config,
             live_displays: (0..display_count).map(DisplayId).collect(),
             display_liveness: Liveness::new(config.node_deadline),
+            awaited_displays: BTreeMap::new(),
             tile_displays: Vec::new(),
             state: WallState {
                 camera,
@@ -567,7 +584,7 @@ impl Coordinator {
         {
             return false;
         }
-        if self.converged {
+        if self.converged || !self.awaited_displays.is_empty() {
             return false;
         }
         // At most two frames in flight, and every tile of the newer one handed out.

@@ -270,6 +270,7 @@ impl SimWall {
                 | Output::Stalled
                 | Output::RenderTimedOut { .. }
                 | Output::DisplayTimedOut { .. }
+                | Output::DisplayNotBack { .. }
                 | Output::Converged(_)
                 | Output::Refused { .. } => {}
             }
