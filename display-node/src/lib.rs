@@ -62,6 +62,8 @@ pub struct Cli {
     /// Directory for display-<id>.png when the master asks to save a frame.
     #[arg(long)]
     out: Option<PathBuf>,
+    #[command(flatten)]
+    reconnect: tessera_cli::reconnect::ReconnectArgs,
 }
 
 /// Longest `--linger`: an hour is a demo; more is a typo.

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_core::assemble::FrameAssembler;
 use tessera_net::cluster::NodeIdentity;
-use tessera_net::link::MasterLink;
+use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_wire::image::RgbImage;
 use tessera_wire::input::InputEvent;
@@ -65,6 +65,34 @@ async fn report_next_complete(assembler: &mut FrameAssembler, link: &mut MasterL
     Ok(())
 }
 
+/// The window, once open: it outlives a session, so a display that rejoins a restarted master
+/// keeps showing its last frame meanwhile.
+struct OpenWindow {
+    sender: WindowSender,
+    presents: mpsc::UnboundedReceiver<(u64, u64)>,
+    inputs: mpsc::UnboundedReceiver<(InputEvent, u64)>,
+    size: (u32, u32),
+}
+
+/// The window a display presents in: to be opened (once the first master says its size),
+/// open, or none (headless).
+enum WindowState {
+    ToOpen(WindowHandshake),
+    Open(OpenWindow),
+    Headless,
+}
+
+/// Aborts the task when a session ends, however it ends.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// Joins the master and shows frames until it shuts the wall down; with `--reconnect`, a lost
+/// master is waited for (bounded) and rejoined, the window holding its last frame meanwhile.
 pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let me = DisplayId(cli.display);
     let identity = NodeIdentity::load(&cli.cert_dir)?;
@@ -75,45 +103,107 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         display: me,
         pixel_addr,
     };
-    let (mut link, welcome) = MasterLink::join(&endpoint, master_addr, role)
+    let mut joined = MasterLink::join(&endpoint, master_addr, role.clone())
         .await
         .with_context(|| format!("display {} could not join", me.0))
         .context("is tessera-master running there? see --help")?;
-    let session = welcome.session;
-    let screen = session
-        .wall()
-        .screen(me)
-        .with_context(|| format!("the wall has no display {}", me.0))?;
-    let (window, mut window_presents, mut window_inputs) = match window {
-        Some(handshake) => {
-            let placement = cli.placement(session.window(me))?;
+    let mut window = window.map_or(WindowState::Headless, WindowState::ToOpen);
+    loop {
+        let (link, welcome) = joined;
+        let outcome = session(&cli, &endpoint, link, welcome, &mut window).await;
+        let within = match (outcome, cli.reconnect.wait()) {
+            (Ok(()), _) => return Ok(()),
+            (Err(e), Some(within)) if LinkError::lost_master_in(e.as_ref()) => {
+                tracing::warn!(
+                    "display {}: {e:#}; waiting up to {} s for it to come back (--reconnect)",
+                    me.0,
+                    within.as_secs()
+                );
+                within
+            }
+            (Err(e), _) => return Err(e),
+        };
+        joined = MasterLink::rejoin(&endpoint, master_addr, role.clone(), within).await?;
+        tracing::info!("display {}: the master is back; rejoined", me.0);
+    }
+}
+
+/// Opens the window at the first session's screen size; a later master must give the same.
+async fn open_window(
+    cli: &Cli,
+    state: &mut WindowState,
+    session: &tessera_wire::protocol::Session,
+    screen: ScreenRect,
+) -> Result<()> {
+    let size = (screen.width, screen.height);
+    match std::mem::replace(state, WindowState::Headless) {
+        WindowState::ToOpen(handshake) => {
+            let placement = cli.placement(session.window(DisplayId(cli.display)))?;
             handshake
                 .size
-                .send(((screen.width, screen.height), placement))
+                .send((size, placement))
                 .context("window thread is gone")?;
             let opened = handshake.sender;
             let sender = tokio::task::spawn_blocking(move || opened.recv())
                 .await?
                 .context("cannot open the window")?;
-            (
-                Some(sender),
-                Some(handshake.presents),
-                Some(handshake.inputs),
-            )
+            *state = WindowState::Open(OpenWindow {
+                sender,
+                presents: handshake.presents,
+                inputs: handshake.inputs,
+                size,
+            });
         }
-        None => (None, None, None),
+        WindowState::Open(open) => {
+            let was = open.size;
+            *state = WindowState::Open(open);
+            if was != size {
+                anyhow::bail!(
+                    "the master's wall gives display {} {}x{} pixels; its window shows {}x{} (restart the display for a wall of another shape)",
+                    cli.display, size.0, size.1, was.0, was.1
+                );
+            }
+        }
+        WindowState::Headless => {}
+    }
+    Ok(())
+}
+
+/// One master's wall, from the welcome to its shutdown (or the master's loss).
+async fn session(
+    cli: &Cli,
+    endpoint: &quinn::Endpoint,
+    mut link: MasterLink,
+    welcome: Welcome,
+    window_state: &mut WindowState,
+) -> Result<()> {
+    let me = DisplayId(cli.display);
+    let pixel_addr = cli.advertise.unwrap_or(endpoint.local_addr()?);
+    let session = welcome.session;
+    let screen = session
+        .wall()
+        .screen(me)
+        .with_context(|| format!("the wall has no display {}", me.0))?;
+    open_window(cli, window_state, &session, screen).await?;
+    let (window, mut window_presents, mut window_inputs) = match window_state {
+        WindowState::Open(open) => (
+            Some(open.sender.clone()),
+            Some(&mut open.presents),
+            Some(&mut open.inputs),
+        ),
+        _ => (None, None, None),
     };
     let grid = Arc::new(TileGrid::new(*session.wall()));
     let intake = Arc::new(Intake::default());
     let (tiles_tx, mut tiles) = mpsc::channel(1024);
-    tokio::spawn(accept_render_nodes(
+    let _acceptor = AbortOnDrop(tokio::spawn(accept_render_nodes(
         endpoint.clone(),
         grid.clone(),
         me,
         session.compression(),
         intake.clone(),
         tiles_tx,
-    ));
+    )));
     link.send(&FromNode::Ready).await?;
     tracing::info!(
         "display {}: ready, {}x{} pixels at {}",

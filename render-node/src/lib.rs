@@ -46,6 +46,8 @@ pub struct Cli {
     /// Memory for the steps of a time-varying volume read ahead of the one shown, in MiB.
     #[arg(long, default_value_t = 2048)]
     volume_cache_mb: usize,
+    #[command(flatten)]
+    reconnect: tessera_cli::reconnect::ReconnectArgs,
 }
 
 fn parse_threads(text: &str) -> Result<usize, String> {
@@ -104,6 +106,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 threads: cli.threads,
                 bvh_cache: cache_dir(cli.bvh_cache, cli.no_bvh_cache),
                 volume_cache_bytes: cli.volume_cache_mb.saturating_mul(1 << 20),
+                reconnect: cli.reconnect.wait(),
             };
             tessera_net::link::node_runtime()?.block_on(node::run(options))
         }

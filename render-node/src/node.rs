@@ -14,7 +14,7 @@ use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 use tessera_core::worker::{BatchSizer, RenderWorker};
 use tessera_net::cluster::NodeIdentity;
-use tessera_net::link::MasterLink;
+use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_render::scene::Scene;
 use tessera_render::volume::SeriesCache;
@@ -41,6 +41,29 @@ pub struct Options {
     pub bvh_cache: Option<PathBuf>,
     /// Bytes a time series' read-ahead steps may take.
     pub volume_cache_bytes: usize,
+    /// With `--reconnect`: how long to wait for a lost master to come back and rejoin it.
+    pub reconnect: Option<Duration>,
+}
+
+/// A scene prepared for rendering, kept across sessions: a node that rejoins a restarted
+/// master for the same scene does not load it again.
+struct Loaded {
+    hash: [u8; 32],
+    /// Batches render one at a time: the lock is taken for writing only between them, when a
+    /// time series moves to another step.
+    prepared: Arc<RwLock<PreparedScene>>,
+    series: Option<Arc<SeriesCache>>,
+    /// The step of the series `prepared` holds.
+    shown_step: Arc<AtomicUsize>,
+}
+
+/// What every session of a node shares: its cores, its identity, its socket.
+struct NodeSide {
+    pool: Arc<rayon::ThreadPool>,
+    threads: usize,
+    endpoint: quinn::Endpoint,
+    bvh_cache: Option<PathBuf>,
+    volume_cache_bytes: usize,
 }
 
 /// A batch the render threads finished.
@@ -57,6 +80,8 @@ struct Rendered {
     batch_took: Duration,
 }
 
+/// Joins the master and renders until it shuts the wall down; with `--reconnect`, a lost
+/// master is waited for (bounded) and rejoined, as often as it is lost.
 pub async fn run(options: Options) -> Result<()> {
     let threads = options
         .threads
@@ -78,44 +103,106 @@ pub async fn run(options: Options) -> Result<()> {
     let role = Role::Render {
         cores: threads as u32,
     };
-    let (mut link, welcome) = MasterLink::join(&endpoint, master_addr, role)
+    let mut joined = MasterLink::join(&endpoint, master_addr, role.clone())
         .await
         .context("is tessera-master running there? see --help")?;
-    let (node, session) = (welcome.node, welcome.session);
-    tracing::info!("render node {}: joined, loading the scene", node.0);
-    let prepared = match prepare(
-        &session,
-        pool.clone(),
-        options.bvh_cache,
-        options.volume_cache_bytes,
-    )
-    .await
-    {
-        Ok(p) => p,
-        Err(e) => {
-            link.fail(format!("{e:#}")).await;
-            return Err(e);
-        }
+    let side = NodeSide {
+        pool,
+        threads,
+        endpoint,
+        bvh_cache: options.bvh_cache,
+        volume_cache_bytes: options.volume_cache_bytes,
     };
+    let mut loaded = None;
+    loop {
+        let (link, welcome) = joined;
+        let outcome = session(&side, link, welcome, &mut loaded).await;
+        let within = match (outcome, options.reconnect) {
+            (Ok(()), _) => return Ok(()),
+            (Err(e), Some(within)) if LinkError::lost_master_in(e.as_ref()) => {
+                tracing::warn!(
+                    "render node: {e:#}; waiting up to {} s for it to come back (--reconnect)",
+                    within.as_secs()
+                );
+                within
+            }
+            (Err(e), _) => return Err(e),
+        };
+        joined = MasterLink::rejoin(&side.endpoint, master_addr, role.clone(), within).await?;
+        tracing::info!("render node: the master is back; rejoined");
+    }
+}
+
+/// One master's wall, from the welcome to its shutdown (or the master's loss).
+async fn session(
+    side: &NodeSide,
+    mut link: MasterLink,
+    welcome: Welcome,
+    loaded: &mut Option<Loaded>,
+) -> Result<()> {
+    let NodeSide {
+        pool,
+        threads,
+        endpoint,
+        ..
+    } = side;
+    let threads = *threads;
+    let (node, session) = (welcome.node, welcome.session);
+    let reusable = loaded
+        .as_ref()
+        .is_some_and(|l| l.hash == session.scene_hash());
+    if !reusable {
+        tracing::info!("render node {}: joined, loading the scene", node.0);
+        // The old scene goes first: two at once may not fit.
+        *loaded = None;
+        match prepare(
+            &session,
+            pool.clone(),
+            side.bvh_cache.clone(),
+            side.volume_cache_bytes,
+        )
+        .await
+        {
+            Ok((prepared, series)) => {
+                *loaded = Some(Loaded {
+                    hash: session.scene_hash(),
+                    prepared: Arc::new(RwLock::new(prepared)),
+                    series,
+                    shown_step: Arc::new(AtomicUsize::new(0)),
+                })
+            }
+            Err(e) => {
+                link.fail(format!("{e:#}")).await;
+                return Err(e);
+            }
+        }
+    } else {
+        tracing::info!(
+            "render node {}: joined, the scene is loaded already",
+            node.0
+        );
+    }
+    let Loaded {
+        prepared,
+        series,
+        shown_step,
+        ..
+    } = loaded.as_ref().expect("loaded above");
+    let (prepared, series, shown_step) = (prepared.clone(), series.clone(), shown_step.clone());
     let mut displays = BTreeMap::new();
     for d in session.displays() {
-        let c = quic::connect(&endpoint, d.addr, &format!("display {}", d.display.0)).await?;
+        let c = quic::connect(endpoint, d.addr, &format!("display {}", d.display.0)).await?;
         displays.insert(d.display, c);
     }
     link.send(&FromNode::Ready).await?;
     tracing::info!(
         "render node {}: ready ({} triangles, {threads} threads)",
         node.0,
-        prepared.0.accel.triangles.len()
+        read(&prepared).accel.triangles.len()
     );
-    let (prepared, series) = prepared;
 
     let grid = Arc::new(TileGrid::new(*session.wall()));
     let compression = session.compression();
-    // Batches render one at a time: the lock is taken for writing only between them, when a
-    // time series moves to another step.
-    let prepared = Arc::new(RwLock::new(prepared));
-    let shown_step = Arc::new(AtomicUsize::new(0));
     let mut sizer = BatchSizer::new(threads);
     let mut worker = RenderWorker::new(grid.len() as u32, sizer.low_water(None));
     let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Result<Rendered, String>>();

@@ -7,6 +7,7 @@
 //! without compiling the renderer.
 
 pub mod logging;
+pub mod reconnect;
 pub mod transfer_file;
 
 use clap::Args;

@@ -32,7 +32,42 @@ pub enum LinkError {
     Ended,
     #[error("lost the master: {0}")]
     Lost(NetError),
+    #[error("the master did not come back within {} s (--reconnect-timeout)", .0.as_secs())]
+    NotBack(Duration),
 }
+
+impl LinkError {
+    /// Whether the master is gone or not there (killed, crashed, its host down, not started
+    /// yet), rather than refusing this node or breaking the protocol: what a node started with
+    /// `--reconnect` waits out.
+    pub fn is_lost_master(&self) -> bool {
+        matches!(
+            self,
+            LinkError::Lost(_)
+                | LinkError::Ended
+                | LinkError::ClosedInHandshake
+                | LinkError::Net(NetError::Connect { .. })
+        )
+    }
+
+    /// Whether `error`, somewhere in its chain, is a lost master (see
+    /// [`LinkError::is_lost_master`]).
+    pub fn lost_master_in(error: &(dyn std::error::Error + 'static)) -> bool {
+        let mut cause = Some(error);
+        while let Some(e) = cause {
+            if e.downcast_ref::<LinkError>()
+                .is_some_and(LinkError::is_lost_master)
+            {
+                return true;
+            }
+            cause = e.source();
+        }
+        false
+    }
+}
+
+/// How often a node that waits for its master to come back knocks again.
+pub const REJOIN_INTERVAL: Duration = Duration::from_millis(250);
 
 /// What the master said when it took the node in.
 #[derive(Debug)]
@@ -84,6 +119,35 @@ impl MasterLink {
             control: spawn_reader::<ToNode>(recv),
         };
         Ok((link, welcome))
+    }
+
+    /// Joins a master that may not be up yet (one restarting after a crash): tries again every
+    /// [`REJOIN_INTERVAL`] while the master is not there, for at most `within`.
+    ///
+    /// # Errors
+    /// [`LinkError::NotBack`] once `within` has passed; a refusal or a broken handshake at
+    /// once.
+    pub async fn rejoin(
+        endpoint: &quinn::Endpoint,
+        master: SocketAddr,
+        role: Role,
+        within: Duration,
+    ) -> Result<(MasterLink, Welcome), LinkError> {
+        let give_up = tokio::time::Instant::now() + within;
+        let attempts = async {
+            loop {
+                match MasterLink::join(endpoint, master, role.clone()).await {
+                    Err(e) if e.is_lost_master() => {
+                        tracing::debug!("the master is not back yet: {e}");
+                        tokio::time::sleep(REJOIN_INTERVAL).await;
+                    }
+                    joined => return joined,
+                }
+            }
+        };
+        tokio::time::timeout_at(give_up, attempts)
+            .await
+            .unwrap_or(Err(LinkError::NotBack(within)))
     }
 
     pub async fn send(&mut self, msg: &FromNode) -> Result<(), LinkError> {

@@ -1,0 +1,27 @@
+//! `--reconnect`: what a render or display node does when its master is lost.
+
+use clap::Args;
+use std::time::Duration;
+
+/// Whether a node waits for a lost master to come back, and for how long.
+#[derive(Args, Debug, Clone, Copy)]
+pub struct ReconnectArgs {
+    /// When the master is lost (killed, crashed, its host down), wait for a restarted master
+    /// at the same address and rejoin it, instead of exiting; a node rejoins as often as the
+    /// master comes back. Without it the node exits with status 1, saying so.
+    #[arg(long)]
+    pub reconnect: bool,
+    /// With --reconnect: seconds to wait for the master each time it is lost before giving up
+    /// (1 to 86400).
+    #[arg(long, default_value_t = 60, requires = "reconnect",
+          value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub reconnect_timeout: u64,
+}
+
+impl ReconnectArgs {
+    /// How long to wait for a lost master, if the node waits at all.
+    pub fn wait(&self) -> Option<Duration> {
+        self.reconnect
+            .then(|| Duration::from_secs(self.reconnect_timeout))
+    }
+}
