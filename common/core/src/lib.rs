@@ -7,13 +7,16 @@
 //! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
 //! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
 //! in thin tokio + quinn driver loops. [`impair::Impairment`] is the model of the UDP
-//! relay that impairs a test wall's network.
+//! relay that impairs a test wall's network. [`dsm`] is the read-only distributed shared
+//! memory through which render nodes share a scene larger than any one node's memory: who
+//! holds which block, the cache their threads share, and the protocol that fetches the rest.
 //!
 //! It depends on `tessera-wire` for the messages and on nothing that does I/O: no tokio,
 //! quinn, socket or clap crate may enter its dependency tree (a test in `tests/` checks).
 
 pub mod assemble;
 pub mod balance;
+pub mod dsm;
 pub mod impair;
 pub mod navigate;
 pub mod sim;
