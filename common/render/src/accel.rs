@@ -8,6 +8,7 @@ use crate::accel_wide::NodeTest;
 use crate::geometry::{Bounds, Ray};
 use crate::isa::Isa;
 use crate::scene::Scene;
+use crate::tree_memory::{Resident, TreeMemory};
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::triangle::Triangle;
@@ -235,6 +236,15 @@ impl Accel {
         Vec::with_capacity(self.max_depth * 2)
     }
 
+    /// The tree and triangles as a traversal reads them.
+    #[inline(always)]
+    pub fn resident(&self) -> Resident<'_> {
+        Resident {
+            wide: &self.wide,
+            triangles: &self.triangles,
+        }
+    }
+
     /// The nearest triangle hit in `(t_min, t_max)`. Of hits at the same distance the lowest
     /// slot wins, so the answer depends on the tree, never on the order it is walked in.
     pub fn closest_hit(
@@ -244,33 +254,11 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> Option<Hit> {
-        #[cfg(target_arch = "x86_64")]
-        if Isa::best() != Isa::Portable {
-            // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
-            return unsafe { self.closest_hit_avx2(ray, t_min, t_max, stack) };
-        }
-        self.closest_hit_generic(ray, t_min, t_max, stack)
-    }
-
-    /// [`Accel::closest_hit`] with the wide node tests 8 lanes wide.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn closest_hit_avx2(
-        &self,
-        ray: &Ray,
-        t_min: f32,
-        t_max: f32,
-        stack: &mut Vec<u32>,
-    ) -> Option<Hit> {
-        self.closest_hit_with(ray, t_min, t_max, stack, |node, origin, inv, t_far| {
-            // SAFETY: this function runs only where the CPU has AVX2.
-            unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
-        })
+        closest_hit(&mut self.resident(), ray, (t_min, t_max), stack)
     }
 
     /// The portable build of [`Accel::closest_hit`], also what the SIMD builds are tested
     /// against.
-    #[inline(always)]
     pub fn closest_hit_generic(
         &self,
         ray: &Ray,
@@ -278,67 +266,21 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> Option<Hit> {
-        self.closest_hit_with(ray, t_min, t_max, stack, crate::accel_wide::enter_mask)
-    }
-
-    /// [`Accel::closest_hit`] with `enter` testing the ray against a wide node's children.
-    #[inline(always)]
-    fn closest_hit_with(
-        &self,
-        ray: &Ray,
-        t_min: f32,
-        t_max: f32,
-        stack: &mut Vec<u32>,
-        enter: impl NodeTest,
-    ) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
-        let mut t_far = t_max;
-        crate::accel_wide::traverse_wide::<true>(
-            &self.wide,
-            crate::accel_wide::leaf_bytes(&self.triangles),
-            enter,
+        closest_hit_with(
+            &mut self.resident(),
             ray,
+            (t_min, t_max),
             stack,
-            &mut t_far,
-            |slots, t_far| {
-                let tris = &self.triangles[slots.start as usize..slots.end as usize];
-                best = crate::ray_leaf::closest_hit(ray, tris, slots.start, (t_min, t_max), best);
-                if let Some(b) = best {
-                    *t_far = b.t;
-                }
-                false
-            },
-        );
-        best
+            crate::accel_wide::enter_mask,
+        )
     }
 
     /// Whether anything blocks the ray in `(t_min, t_max)`; stops at the first blocker.
     pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> bool {
-        #[cfg(target_arch = "x86_64")]
-        if Isa::best() != Isa::Portable {
-            // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
-            return unsafe { self.occluded_avx2(ray, t_min, t_max, stack) };
-        }
-        self.occluded_generic(ray, t_min, t_max, stack)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn occluded_avx2(
-        &self,
-        ray: &Ray,
-        t_min: f32,
-        t_max: f32,
-        stack: &mut Vec<u32>,
-    ) -> bool {
-        self.occluded_with(ray, t_min, t_max, stack, |node, origin, inv, t_far| {
-            // SAFETY: this function runs only where the CPU has AVX2.
-            unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
-        })
+        occluded(&mut self.resident(), ray, (t_min, t_max), stack)
     }
 
     /// The portable build of [`Accel::occluded`].
-    #[inline(always)]
     pub fn occluded_generic(
         &self,
         ray: &Ray,
@@ -346,36 +288,140 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> bool {
-        self.occluded_with(ray, t_min, t_max, stack, crate::accel_wide::enter_mask)
-    }
-
-    /// [`Accel::occluded`] with `enter` testing the ray against a wide node's children.
-    #[inline(always)]
-    fn occluded_with(
-        &self,
-        ray: &Ray,
-        t_min: f32,
-        t_max: f32,
-        stack: &mut Vec<u32>,
-        enter: impl NodeTest,
-    ) -> bool {
-        let mut t_far = t_max;
-        let mut blocked = false;
-        crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION>(
-            &self.wide,
-            crate::accel_wide::leaf_bytes(&self.triangles),
-            enter,
+        occluded_with(
+            &mut self.resident(),
             ray,
+            (t_min, t_max),
             stack,
-            &mut t_far,
-            |slots, _| {
-                let tris = &self.triangles[slots.start as usize..slots.end as usize];
-                blocked = crate::ray_leaf::any_hit(ray, tris, t_min, t_max);
-                blocked
-            },
-        );
-        blocked
+            crate::accel_wide::enter_mask,
+        )
     }
+}
+
+/// The nearest triangle hit in `interval` of a tree in `mem`, on the widest SIMD build this CPU
+/// runs (see [`Accel::closest_hit`]).
+pub fn closest_hit<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> Option<Hit> {
+    #[cfg(target_arch = "x86_64")]
+    if Isa::best() != Isa::Portable {
+        // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
+        return unsafe { closest_hit_avx2(mem, ray, interval, stack) };
+    }
+    closest_hit_with(mem, ray, interval, stack, crate::accel_wide::enter_mask)
+}
+
+/// [`closest_hit`] with the wide node tests 8 lanes wide.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn closest_hit_avx2<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> Option<Hit> {
+    closest_hit_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
+        // SAFETY: this function runs only where the CPU has AVX2.
+        unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
+    })
+}
+
+/// [`closest_hit`] with `enter` testing the ray against a wide node's children. A leaf is
+/// tested in the pieces the memory holds it in (one, unless it straddles two shared blocks):
+/// hits compare by distance and then slot, so the pieces give the whole leaf's answer.
+#[inline(always)]
+fn closest_hit_with<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    (t_min, t_max): (f32, f32),
+    stack: &mut Vec<u32>,
+    enter: impl NodeTest,
+) -> Option<Hit> {
+    let mut best: Option<Hit> = None;
+    let mut t_far = t_max;
+    crate::accel_wide::traverse_wide::<true, M>(
+        mem,
+        enter,
+        ray,
+        stack,
+        &mut t_far,
+        |mem, slots, t_far| {
+            let mut at = slots.start;
+            while at < slots.end {
+                let tris = mem.triangles(at..slots.end);
+                best = crate::ray_leaf::closest_hit(ray, tris, at, (t_min, t_max), best);
+                at += tris.len() as u32;
+            }
+            if let Some(b) = best {
+                *t_far = b.t;
+            }
+            false
+        },
+    );
+    best
+}
+
+/// Whether anything in `mem`'s tree blocks the ray in `interval`; stops at the first blocker
+/// (see [`Accel::occluded`]).
+pub fn occluded<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if Isa::best() != Isa::Portable {
+        // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
+        return unsafe { occluded_avx2(mem, ray, interval, stack) };
+    }
+    occluded_with(mem, ray, interval, stack, crate::accel_wide::enter_mask)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn occluded_avx2<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> bool {
+    occluded_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
+        // SAFETY: this function runs only where the CPU has AVX2.
+        unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
+    })
+}
+
+/// [`occluded`] with `enter` testing the ray against a wide node's children.
+#[inline(always)]
+fn occluded_with<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    (t_min, t_max): (f32, f32),
+    stack: &mut Vec<u32>,
+    enter: impl NodeTest,
+) -> bool {
+    let mut t_far = t_max;
+    let mut blocked = false;
+    crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION, M>(
+        mem,
+        enter,
+        ray,
+        stack,
+        &mut t_far,
+        |mem, slots, _| {
+            let mut at = slots.start;
+            while at < slots.end && !blocked {
+                let tris = mem.triangles(at..slots.end);
+                blocked = crate::ray_leaf::any_hit(ray, tris, t_min, t_max);
+                at += tris.len() as u32;
+            }
+            blocked
+        },
+    );
+    blocked
 }
 
 /// Whether occlusion rays visit nearer children first (see `traverse_wide`).

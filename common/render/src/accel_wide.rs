@@ -14,6 +14,7 @@
 
 use crate::accel::BvhNode;
 use crate::geometry::Ray;
+use crate::tree_memory::{ChildPrefetch, TreeMemory};
 
 /// Children per node.
 pub const WIDTH: usize = 8;
@@ -292,39 +293,38 @@ fn prefetch(start: *const u8, bytes: usize) {
 }
 
 /// Visits the leaves whose boxes `ray` enters before `t_far` (nearer children first when
-/// `ORDERED`: closest hits want that, any-hit rays do not); `visit` gets a leaf's slots, may
-/// shrink `t_far`, and returns `true` to stop. `leaves` locates the leaf items for the
-/// prefetcher (see [`prefetch_child`]).
+/// `ORDERED`: closest hits want that, any-hit rays do not); `visit` gets the memory and a
+/// leaf's slots, may shrink `t_far`, and returns `true` to stop.
 #[inline(always)]
-pub(crate) fn traverse_wide<const ORDERED: bool>(
-    nodes: &[WideNode],
-    leaves: (*const u8, usize),
+pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
+    mem: &mut M,
     enter: impl NodeTest,
     ray: &Ray,
     stack: &mut Vec<u32>,
     t_far: &mut f32,
-    mut visit: impl FnMut(std::ops::Range<u32>, &mut f32) -> bool,
+    mut visit: impl FnMut(&mut M, std::ops::Range<u32>, &mut f32) -> bool,
 ) {
     stack.clear();
-    if nodes.is_empty() {
+    if mem.is_empty() {
         return;
     }
     let origin = ray.origin.to_array();
     let inv = finite_inverse(ray);
     if !ORDERED {
-        traverse_unordered(nodes, leaves, enter, (origin, inv), stack, t_far, visit);
+        traverse_unordered(mem, enter, (origin, inv), stack, t_far, visit);
         return;
     }
+    let hints = mem.prefetcher();
     // Entries are (child, count) pairs: count 0 is an inner node.
     stack.extend([0, 0]);
     while let (Some(count), Some(child)) = (stack.pop(), stack.pop()) {
         if count > 0 {
-            if visit(child..child + count, t_far) {
+            if visit(mem, child..child + count, t_far) {
                 return;
             }
             continue;
         }
-        let node = &nodes[child as usize];
+        let node = mem.node(child);
         let (t, mut entered) = enter(node, origin, inv, *t_far);
         // The entered children, nearest first (an insertion sort of at most WIDTH).
         let mut order = [0usize; WIDTH];
@@ -341,7 +341,7 @@ pub(crate) fn traverse_wide<const ORDERED: bool>(
             n += 1;
         }
         for &k in order[..n].iter().rev() {
-            prefetch_child(nodes, leaves, node, k);
+            hints.prefetch_child(node, k);
             stack.extend([node.child[k], node.count[k]]);
         }
     }
@@ -352,24 +352,24 @@ pub(crate) fn traverse_wide<const ORDERED: bool>(
 /// without it on the bunny). One entered child is descended into at once instead of going
 /// through the stack.
 #[inline(always)]
-fn traverse_unordered(
-    nodes: &[WideNode],
-    leaves: (*const u8, usize),
+fn traverse_unordered<M: TreeMemory>(
+    mem: &mut M,
     enter: impl NodeTest,
     (origin, inv): ([f32; 3], [f32; 3]),
     stack: &mut Vec<u32>,
     t_far: &mut f32,
-    mut visit: impl FnMut(std::ops::Range<u32>, &mut f32) -> bool,
+    mut visit: impl FnMut(&mut M, std::ops::Range<u32>, &mut f32) -> bool,
 ) {
+    let hints = mem.prefetcher();
     // (child, count): count 0 is an inner node.
     let (mut child, mut count) = (0u32, 0u32);
     loop {
         if count > 0 {
-            if visit(child..child + count, t_far) {
+            if visit(mem, child..child + count, t_far) {
                 return;
             }
         } else {
-            let node = &nodes[child as usize];
+            let node = mem.node(child);
             let (_, mut entered) = enter(node, origin, inv, *t_far);
             if entered != 0 {
                 let next = (u32::BITS - 1 - entered.leading_zeros()) as usize;
@@ -377,7 +377,7 @@ fn traverse_unordered(
                 while entered != 0 {
                     let k = entered.trailing_zeros() as usize;
                     entered &= entered - 1;
-                    prefetch_child(nodes, leaves, node, k);
+                    hints.prefetch_child(node, k);
                     stack.extend([node.child[k], node.count[k]]);
                 }
                 (child, count) = (node.child[next], node.count[next]);

@@ -39,12 +39,12 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
     let traced: Vec<(RayPacket, [PacketHit; PACKET_RAYS])> = blocks
         .par_iter()
         .map_init(
-            || scene.accel.new_stack(),
-            |stack, &(x, y, w, h)| {
+            || scene.tracer(),
+            |tracer, &(x, y, w, h)| {
                 let mut packet = RayPacket::primary(&view.rays, x, y, w, h);
                 packet.clip(view.params.cuts());
                 let mut hits = [PacketHit::MISS; PACKET_RAYS];
-                scene.accel.closest_hits(&mut packet, &mut hits, stack);
+                tracer.closest_hits(&mut packet, &mut hits);
                 (packet, hits)
             },
         )
@@ -55,13 +55,13 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
         depth: vec![f32::INFINITY; (width * height) as usize],
         prim: vec![-1.0; (width * height) as usize],
     };
-    let mut stack = scene.accel.new_stack();
+    let mut tracer = scene.tracer();
     for (&(x, y, w, h), (packet, hits)) in blocks.iter().zip(&traced) {
         for i in 0..(w * h) as usize {
             let at = ((y + i as u32 / w) * width + x + i as u32 % w) as usize;
             let ray = (view.rays.eye, packet.direction(i));
             let interval = (packet.t_min[i], packet.t_max[i]);
-            if let Some(hit) = nearest_surface(scene, view, ray, interval, hits[i], &mut stack) {
+            if let Some(hit) = nearest_surface(scene, view, ray, interval, hits[i], &mut tracer) {
                 aovs.depth[at] = hit.t();
                 aovs.prim[at] = hit.scene_primitive(scene) as f32;
             }

@@ -75,11 +75,11 @@ pub fn time_passes(
         .par_iter_mut()
         .zip(blocks.par_iter())
         .for_each_init(
-            || scene.accel.new_stack(),
-            |stack, (hits, &(x0, y0))| {
+            || scene.tracer(),
+            |tracer, (hits, &(x0, y0))| {
                 let (w, h) = (PACKET.min(width - x0), PACKET.min(height - y0));
                 let mut packet = RayPacket::primary(&view.rays, x0, y0, w, h);
-                scene.accel.closest_hits(&mut packet, hits, stack);
+                tracer.closest_hits(&mut packet, hits);
             },
         );
     let primary_pass = Pass {
@@ -108,7 +108,11 @@ pub fn time_passes(
         .collect();
     let starts: Vec<(Vec3, Vec3)> = primary
         .par_iter()
-        .filter_map(|&(o, d, hit)| hit.map(|h| surface(scene, o, d, h)))
+        .map_init(
+            || scene.tracer(),
+            |tracer, &(o, d, hit)| hit.map(|h| surface(tracer, o, d, h)),
+        )
+        .flatten()
         .map(|(p, n)| (offset_origin(p, n, scene.diagonal), n))
         .collect();
     let towards = scene.lights().first().map(|l| match *l {
@@ -118,25 +122,28 @@ pub fn time_passes(
     // Shadow packets: the hit points of one primary packet, in order.
     let packets: Vec<Vec<Vec3>> = traced
         .par_iter()
-        .map(|(packet, hits)| {
-            (0..packet.len())
-                .filter_map(|i| {
-                    let hit = hits[i].slot().map(|slot| Hit { t: hits[i].t, slot })?;
-                    let (p, n) = surface(scene, view.rays.eye, packet.direction(i), hit);
-                    Some(offset_origin(p, n, scene.diagonal))
-                })
-                .collect()
-        })
+        .map_init(
+            || scene.tracer(),
+            |tracer, (packet, hits)| {
+                (0..packet.len())
+                    .filter_map(|i| {
+                        let hit = hits[i].slot().map(|slot| Hit { t: hits[i].t, slot })?;
+                        let (p, n) = surface(tracer, view.rays.eye, packet.direction(i), hit);
+                        Some(offset_origin(p, n, scene.diagonal))
+                    })
+                    .collect()
+            },
+        )
         .collect();
     let t_packets = Instant::now();
     let shadow_packets: u64 = match towards {
         Some(l) => packets
             .par_iter()
             .map_init(
-                || scene.accel.new_stack(),
-                |stack, starts| {
+                || scene.tracer(),
+                |tracer, starts| {
                     let mut packet = RayPacket::from_rays(starts.iter().map(|&o| (o, l)));
-                    std::hint::black_box(scene.accel.occluded_lanes(&mut packet, stack));
+                    std::hint::black_box(tracer.occluded_lanes(&mut packet));
                     starts.len() as u64
                 },
             )
@@ -152,14 +159,9 @@ pub fn time_passes(
         Some(l) => starts
             .par_iter()
             .map_init(
-                || scene.accel.new_stack(),
-                |stack, &(o, _)| {
-                    std::hint::black_box(scene.accel.occluded(
-                        &Ray::new(o, l),
-                        0.0,
-                        f32::INFINITY,
-                        stack,
-                    ));
+                || scene.tracer(),
+                |tracer, &(o, _)| {
+                    std::hint::black_box(tracer.occluded(&Ray::new(o, l), 0.0, f32::INFINITY));
                     1u64
                 },
             )
@@ -179,13 +181,13 @@ pub fn time_passes(
         .par_iter()
         .enumerate()
         .map_init(
-            || scene.accel.new_stack(),
-            |stack, (i, &(o, n))| {
+            || scene.tracer(),
+            |tracer, (i, &(o, n))| {
                 let hemisphere = Hemisphere::around(n);
                 for s in 0..ao_samples {
                     let mut stream = SampleStream::new(view.frame, i as u32, 0, s);
                     let d = hemisphere.cosine_direction(&mut stream);
-                    std::hint::black_box(scene.accel.occluded(&Ray::new(o, d), 0.0, reach, stack));
+                    std::hint::black_box(tracer.occluded(&Ray::new(o, d), 0.0, reach));
                 }
                 ao_samples as u64
             },

@@ -11,7 +11,9 @@ use crate::sampling::SampleStream;
 use crate::scene::{Light, Material, Scene};
 use crate::shade::{self, background, encode_srgb_ish, nearest_surface, Shader, SurfaceHit};
 use crate::shadow_packet;
+use crate::slot_materials::SlotMaterials;
 use crate::spheres::SphereAccel;
+use crate::tracer::Tracer;
 use crate::volume::PreparedVolume;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -28,9 +30,14 @@ pub const PACKET: u32 = 8;
 
 /// A scene ready to trace: materials and lights from the scene, plus its BVH.
 pub struct PreparedScene {
+    /// The BVH over the triangles; for a scene in shared memory only its depth (the tree and
+    /// triangles are in `shared`).
     pub accel: Accel,
-    /// Material index of each leaf slot of `accel`.
-    pub(crate) slot_material: Vec<u16>,
+    /// The triangles and their tree in distributed shared memory, when the scene is shared
+    /// rather than replicated on every render node.
+    pub shared: Option<crate::dsm::SharedTree>,
+    /// Material index of each leaf slot.
+    pub(crate) slot_material: SlotMaterials,
     pub(crate) materials: Vec<Material>,
     /// Whether any material is transparent: without, the blending path is never entered.
     pub blends: bool,
@@ -53,11 +60,13 @@ impl PreparedScene {
 
     /// Uses an already built (e.g. cached) BVH of `scene`.
     pub fn from_accel(scene: &Scene, accel: Accel) -> Self {
-        let slot_material = accel
-            .scene_index
-            .iter()
-            .map(|&i| scene.triangle_material[i as usize])
-            .collect();
+        let slot_material = SlotMaterials::PerSlot(
+            accel
+                .scene_index
+                .iter()
+                .map(|&i| scene.triangle_material[i as usize])
+                .collect(),
+        );
         let range = scene
             .particles
             .iter()
@@ -67,6 +76,7 @@ impl PreparedScene {
         PreparedScene {
             diagonal: scene.bounds().diagonal().length(),
             accel,
+            shared: None,
             slot_material,
             materials: scene.materials.clone(),
             blends: scene.has_transparency(),
@@ -91,7 +101,7 @@ impl PreparedScene {
 
     /// Bytes of the per-slot material indices (for memory reports).
     pub fn slot_material_bytes(&self) -> usize {
-        std::mem::size_of_val(&self.slot_material[..])
+        self.slot_material.bytes()
     }
 
     /// Shows `volume` from now on: a time series' next step, from a [`crate::volume::SeriesCache`].
@@ -101,7 +111,10 @@ impl PreparedScene {
 
     /// No triangles, particles or volume: every pixel is the backdrop.
     pub fn is_empty(&self) -> bool {
-        self.accel.triangles.is_empty() && self.spheres.is_none() && self.volume.is_none()
+        self.accel.triangles.is_empty()
+            && self.shared.is_none()
+            && self.spheres.is_none()
+            && self.volume.is_none()
     }
 
     pub fn lights(&self) -> &[Light] {
@@ -231,9 +244,9 @@ pub(crate) fn render_tiles_with(
     let traced: Vec<([u8; (PACKET * PACKET * 3) as usize], RayCounts)> = packets
         .par_iter()
         .map_init(
-            || scene.accel.new_stack(),
-            |stack, &(i, px, py)| {
-                trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, stack)
+            || scene.tracer(),
+            |tracer, &(i, px, py)| {
+                trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, tracer)
             },
         )
         .collect();
@@ -265,9 +278,16 @@ pub fn render_tiles_linear(
     let traced: Vec<([Vec3; 64], RayCounts)> = packets
         .par_iter()
         .map_init(
-            || scene.accel.new_stack(),
-            |stack, &(i, px, py)| {
-                packet_sum(scene, view, &tiles[i], (px, py), ShadowRays::Packets, stack)
+            || scene.tracer(),
+            |tracer, &(i, px, py)| {
+                packet_sum(
+                    scene,
+                    view,
+                    &tiles[i],
+                    (px, py),
+                    ShadowRays::Packets,
+                    tracer,
+                )
             },
         )
         .collect();
@@ -315,12 +335,12 @@ fn trace_packet(
     tile: &Tile,
     (px, py): (u32, u32),
     shadow_rays: ShadowRays,
-    stack: &mut Vec<u32>,
+    tracer: &mut Tracer<'_>,
 ) -> ([u8; (PACKET * PACKET * 3) as usize], RayCounts) {
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
     let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
     let spp = view.params.spp().max(1);
-    let (sum, counts) = packet_sum(scene, view, tile, (px, py), shadow_rays, stack);
+    let (sum, counts) = packet_sum(scene, view, tile, (px, py), shadow_rays, tracer);
     if w == PACKET {
         // Lane i is pixel (i % 8, i / 8), so the channels lie in `out`'s order: encoded in
         // one flat loop that runs several channels at once.
@@ -347,7 +367,7 @@ fn packet_sum(
     tile: &Tile,
     (px, py): (u32, u32),
     shadow_rays: ShadowRays,
-    stack: &mut Vec<u32>,
+    tracer: &mut Tracer<'_>,
 ) -> ([Vec3; 64], RayCounts) {
     let (x0, y0) = (tile.x + px, tile.y + py);
     let (w, h) = (PACKET.min(tile.width - px), PACKET.min(tile.height - py));
@@ -370,7 +390,7 @@ fn packet_sum(
             &mut packet,
             (x0, y0, w),
             (sample, shadow_rays),
-            stack,
+            tracer,
             &mut sum,
         );
         counts = counts.add(c);
@@ -386,12 +406,12 @@ fn shade_packet(
     packet: &mut RayPacket,
     (x0, y0, w): (u32, u32, u32),
     (sample, shadow_rays): (u32, ShadowRays),
-    stack: &mut Vec<u32>,
+    tracer: &mut Tracer<'_>,
     sum: &mut [Vec3; 64],
 ) -> RayCounts {
     packet.clip(view.params.cuts());
     let mut hits = [PacketHit::MISS; 64];
-    scene.accel.closest_hits(packet, &mut hits, stack);
+    tracer.closest_hits(packet, &mut hits);
     let surfaces: [Option<SurfaceHit>; 64] = if scene.spheres.is_none() && scene.volume.is_none() {
         // Triangles only: the packet's hits are the surfaces (a seventh of an eyelight
         // frame went into asking each ray about particles there are none of).
@@ -401,14 +421,14 @@ fn shade_packet(
             (i < packet.len()).then(|| {
                 let ray = (view.rays.eye, packet.direction(i));
                 let interval = (packet.t_min[i], packet.t_max[i]);
-                nearest_surface(scene, view, ray, interval, hits[i], stack)
+                nearest_surface(scene, view, ray, interval, hits[i], tracer)
             })?
         })
     };
     let mut shader = Shader {
         scene,
         view,
-        stack,
+        tracer,
         counts: RayCounts {
             primary: packet.len() as u64,
             ..RayCounts::default()
@@ -427,7 +447,7 @@ fn shade_packet(
                 view.rays.eye,
                 &directions[..packet.len()],
                 &surfaces[..packet.len()],
-                shader.stack,
+                shader.tracer,
             )
         });
     // Sub-packets of consecutive rays that hit the same material (or nothing) are shaded

@@ -21,6 +21,7 @@ pub mod accel_packet;
 pub mod accel_wide;
 pub mod aov;
 pub mod bench;
+pub mod dsm;
 mod frame;
 pub mod geometry;
 pub mod isa;
@@ -33,7 +34,10 @@ pub mod sampling;
 pub mod scene;
 mod shade;
 mod shadow_packet;
+pub mod slot_materials;
 pub mod spheres;
+mod tracer;
+pub mod tree_memory;
 pub mod volume;
 
 #[cfg(test)]
@@ -46,3 +50,4 @@ pub use shade::{
     background, encode_srgb_ish, nearest_surface, offset_origin, surface, Shader, SurfaceHit,
     MAX_DEPTH,
 };
+pub use tracer::Tracer;

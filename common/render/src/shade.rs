@@ -14,6 +14,7 @@ use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::{Light, Material};
 use crate::shadow_packet::PrimaryHit;
 use crate::spheres::colormap;
+use crate::tracer::Tracer;
 use crate::volume::FrameTables;
 use crate::{FrameView, PreparedScene, RayCounts};
 use glam::Vec3;
@@ -25,8 +26,8 @@ pub const MAX_DEPTH: u32 = 6;
 
 /// Surface point and the normal facing the viewer for a hit.
 #[inline]
-pub fn surface(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: Hit) -> (Vec3, Vec3) {
-    let tri = &scene.accel.triangles[hit.slot as usize];
+pub fn surface(tracer: &mut Tracer<'_>, origin: Vec3, dir: Vec3, hit: Hit) -> (Vec3, Vec3) {
+    let tri = tracer.triangle(hit.slot);
     let mut normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
     if normal.dot(dir) > 0.0 {
         normal = -normal;
@@ -130,7 +131,7 @@ impl SurfaceHit {
     /// scene's materials for particles (whose colour comes from their attribute).
     pub fn material_key(&self, scene: &PreparedScene) -> u16 {
         match *self {
-            SurfaceHit::Triangle(h) => scene.slot_material[h.slot as usize],
+            SurfaceHit::Triangle(h) => scene.slot_material.of(h.slot),
             SurfaceHit::Sphere { .. } => PARTICLE_KEY,
             SurfaceHit::Iso { surface, .. } => ISO_KEY - surface as u16,
         }
@@ -146,7 +147,7 @@ pub fn nearest_surface(
     (origin, dir): (Vec3, Vec3),
     interval: (f32, f32),
     triangle: PacketHit,
-    stack: &mut Vec<u32>,
+    tracer: &mut Tracer<'_>,
 ) -> Option<SurfaceHit> {
     let mut nearest = SurfaceHit::of_triangle(triangle);
     if let Some(spheres) = &scene.spheres {
@@ -156,7 +157,7 @@ pub fn nearest_surface(
             interval.0,
             t_max,
             view.params.crop(),
-            stack,
+            &mut tracer.stack,
         ) {
             nearest = Some(SurfaceHit::Sphere { t, slot });
         }
@@ -172,10 +173,10 @@ pub fn nearest_surface(
 }
 
 /// Shading of one pixel's rays: borrows the scene and the frame, counts the rays it traces.
-pub struct Shader<'a> {
+pub struct Shader<'a, 't> {
     pub scene: &'a PreparedScene,
     pub view: &'a FrameView,
-    pub stack: &'a mut Vec<u32>,
+    pub tracer: &'a mut Tracer<'t>,
     pub counts: RayCounts,
     /// The pixel whose samples (ambient occlusion) are drawn.
     pub pixel: (u32, u32),
@@ -188,9 +189,15 @@ pub struct Shader<'a> {
 
 /// Surface point and the normal facing the viewer, for a triangle or particle hit.
 #[inline]
-pub fn hit_frame(scene: &PreparedScene, origin: Vec3, dir: Vec3, hit: SurfaceHit) -> (Vec3, Vec3) {
+pub fn hit_frame(
+    scene: &PreparedScene,
+    tracer: &mut Tracer<'_>,
+    origin: Vec3,
+    dir: Vec3,
+    hit: SurfaceHit,
+) -> (Vec3, Vec3) {
     match hit {
-        SurfaceHit::Triangle(h) => surface(scene, origin, dir, h),
+        SurfaceHit::Triangle(h) => surface(tracer, origin, dir, h),
         SurfaceHit::Sphere { t, slot } => {
             let s = &scene.spheres().spheres[slot as usize];
             let p = origin + dir * t;
@@ -290,7 +297,7 @@ pub fn faces_light(normal: Vec3, towards: Vec3) -> Option<f32> {
     (cos > 0.0 && cos.is_finite()).then_some(cos)
 }
 
-impl Shader<'_> {
+impl Shader<'_, '_> {
     fn cuts(&self) -> &CutPlanes {
         self.view.params.cuts()
     }
@@ -303,9 +310,8 @@ impl Shader<'_> {
             return background(dir);
         }
         let triangle = self
-            .scene
-            .accel
-            .closest_hit(&ray, interval.0, interval.1, self.stack)
+            .tracer
+            .closest_hit(&ray, interval.0, interval.1)
             .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
         let nearest = nearest_surface(
             self.scene,
@@ -313,7 +319,7 @@ impl Shader<'_> {
             (origin, dir),
             interval,
             triangle,
-            self.stack,
+            self.tracer,
         );
         let color = match nearest {
             None => background(dir),
@@ -346,11 +352,16 @@ impl Shader<'_> {
             return false;
         }
         let scene = self.scene;
-        scene.accel.occluded(ray, t_min, t_max, self.stack)
-            || scene
-                .spheres
-                .as_ref()
-                .is_some_and(|s| s.occluded(ray, t_min, t_max, self.view.params.crop(), self.stack))
+        self.tracer.occluded(ray, t_min, t_max)
+            || scene.spheres.as_ref().is_some_and(|s| {
+                s.occluded(
+                    ray,
+                    t_min,
+                    t_max,
+                    self.view.params.crop(),
+                    &mut self.tracer.stack,
+                )
+            })
             || iso_occludes(scene, self.view, ray, (t_min, t_max))
     }
 
@@ -372,7 +383,7 @@ impl Shader<'_> {
         let (point, normal, start) = match known {
             Some(p) => (p.point, p.normal, p.start),
             None => {
-                let (point, normal) = hit_frame(self.scene, origin, dir, hit);
+                let (point, normal) = hit_frame(self.scene, self.tracer, origin, dir, hit);
                 // Where shadow, AO and reflected rays leave; a hit that sends none (an
                 // eyelight view) skips the offset, a tenth of its shading.
                 let params = &self.view.params;
@@ -490,7 +501,7 @@ impl PreparedScene {
     /// The material a hit is shaded with.
     pub fn material_of(&self, hit: SurfaceHit) -> Material {
         match hit {
-            SurfaceHit::Triangle(h) => self.materials[self.slot_material[h.slot as usize] as usize],
+            SurfaceHit::Triangle(h) => self.materials[self.slot_material.of(h.slot) as usize],
             SurfaceHit::Sphere { slot, .. } => {
                 let s = &self.spheres().spheres[slot as usize];
                 let (lo, hi) = self.attribute_range;

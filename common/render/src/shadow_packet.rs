@@ -12,6 +12,7 @@ use crate::packet::{RayPacket, PACKET_RAYS};
 use crate::shade::{
     faces_light, hit_frame, iso_occludes, leaving_point, towards_light, SurfaceHit,
 };
+use crate::tracer::Tracer;
 use crate::{FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_wire::cut::CutPlanes;
@@ -40,11 +41,11 @@ pub fn primary_shadows(
     eye: Vec3,
     directions: &[Vec3],
     surfaces: &[Option<SurfaceHit>],
-    stack: &mut Vec<u32>,
+    tracer: &mut Tracer<'_>,
 ) -> [Option<PrimaryHit>; PACKET_RAYS] {
     let mut hits: [Option<PrimaryHit>; PACKET_RAYS] = std::array::from_fn(|i| {
         let hit = (*surfaces.get(i)?)?;
-        let (point, normal) = hit_frame(scene, eye, directions[i], hit);
+        let (point, normal) = hit_frame(scene, tracer, eye, directions[i], hit);
         Some(PrimaryHit {
             point,
             normal,
@@ -78,7 +79,7 @@ pub fn primary_shadows(
             packet.t_min[j] = t_min;
             packet.t_max[j] = reach.min(t_cut);
         }
-        let mut occluded = scene.accel.occluded_lanes(&mut packet, stack);
+        let mut occluded = tracer.occluded_lanes(&mut packet);
         if let Some(spheres) = scene.spheres.as_ref() {
             for (j, &(start, towards, _)) in rays[..count].iter().enumerate() {
                 let (t_min, t_max) = (packet.t_min[j], packet.t_max[j]);
@@ -89,7 +90,7 @@ pub fn primary_shadows(
                         t_min,
                         t_max,
                         view.params.crop(),
-                        stack,
+                        &mut tracer.stack,
                     )
                 {
                     occluded |= 1 << j;

@@ -1,0 +1,179 @@
+//! Block geometry: blocks of a fixed size hold either 8-wide tree nodes or leaf triangles,
+//! node blocks first; a block's bytes are 64-byte aligned so that nodes are read in place.
+
+use crate::accel::LeafTriangle;
+use crate::accel_wide::WideNode;
+use serde::{Deserialize, Serialize};
+use tessera_core::dsm::BlockId;
+
+/// The default block size: about 8 KB, as Ize et al. (254 32-byte nodes or 226 triangles of
+/// 36 bytes; here 32 8-wide nodes or 227 triangles).
+pub const DEFAULT_BLOCK_BYTES: u32 = 8192;
+/// The smallest block: whole sibling groups of 8 nodes must fit in one, and a leaf of 16
+/// triangles must span at most two.
+pub const MIN_BLOCK_BYTES: u32 = 2048;
+/// The largest block: beyond it a miss fetches far more than a traversal reads.
+pub const MAX_BLOCK_BYTES: u32 = 1 << 20;
+
+/// 64 bytes, 64-byte aligned: what blocks are made of, so a block's bytes can be read as
+/// nodes (which are 64-byte aligned) in place.
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C, align(64))]
+pub struct Chunk(pub [u8; 64]);
+
+/// One block's bytes.
+#[derive(Debug)]
+pub struct Block(pub Box<[Chunk]>);
+
+impl Block {
+    pub fn zeroed(bytes: u32) -> Block {
+        Block(vec![Chunk([0; 64]); (bytes / 64) as usize].into_boxed_slice())
+    }
+
+    pub fn bytes(&self) -> &[u8] {
+        bytemuck::cast_slice(&self.0)
+    }
+
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        bytemuck::cast_slice_mut(&mut self.0)
+    }
+}
+
+/// A block size that cannot be used.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum LayoutError {
+    #[error(
+        "block size {0} bytes is not a multiple of 256 from {MIN_BLOCK_BYTES} to {MAX_BLOCK_BYTES}"
+    )]
+    BlockSize(u32),
+    #[error("the scene needs {0} blocks; block ids are 32-bit")]
+    TooManyBlocks(u64),
+}
+
+/// Where the tree's nodes and the triangles sit in blocks: nodes `0..node_count` in blocks
+/// `0..node_blocks`, [`BlockLayout::nodes_per_block`] to a block, then triangles in the
+/// following `triangle_blocks`. The first `top_blocks` node blocks (the top of the tree, which
+/// every ray walks) are held by every node.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BlockLayout {
+    pub block_bytes: u32,
+    pub node_count: u32,
+    pub triangle_count: u32,
+    pub node_blocks: u32,
+    pub triangle_blocks: u32,
+    pub top_blocks: u32,
+}
+
+impl BlockLayout {
+    /// The layout of `node_count` nodes and `triangle_count` triangles in blocks of
+    /// `block_bytes`, the first `top_blocks` of them replicated.
+    ///
+    /// # Errors
+    /// A block size out of range or not a multiple of 256; more blocks than ids.
+    pub fn new(
+        block_bytes: u32,
+        node_count: u32,
+        triangle_count: u32,
+        top_blocks: u32,
+    ) -> Result<BlockLayout, LayoutError> {
+        let sized = (MIN_BLOCK_BYTES..=MAX_BLOCK_BYTES).contains(&block_bytes);
+        if !sized || !block_bytes.is_multiple_of(256) {
+            return Err(LayoutError::BlockSize(block_bytes));
+        }
+        let nodes_per = block_bytes / std::mem::size_of::<WideNode>() as u32;
+        let tris_per = block_bytes / std::mem::size_of::<LeafTriangle>() as u32;
+        let node_blocks = node_count.div_ceil(nodes_per);
+        let triangle_blocks = triangle_count.div_ceil(tris_per);
+        let total = node_blocks as u64 + triangle_blocks as u64;
+        if total >= u32::MAX as u64 {
+            return Err(LayoutError::TooManyBlocks(total));
+        }
+        Ok(BlockLayout {
+            block_bytes,
+            node_count,
+            triangle_count,
+            node_blocks,
+            triangle_blocks,
+            top_blocks: top_blocks.min(node_blocks),
+        })
+    }
+
+    pub fn nodes_per_block(&self) -> u32 {
+        self.block_bytes / std::mem::size_of::<WideNode>() as u32
+    }
+
+    pub fn triangles_per_block(&self) -> u32 {
+        self.block_bytes / std::mem::size_of::<LeafTriangle>() as u32
+    }
+
+    /// Blocks in all.
+    pub fn total(&self) -> u32 {
+        self.node_blocks + self.triangle_blocks
+    }
+
+    /// Bytes of every block together.
+    pub fn total_bytes(&self) -> u64 {
+        self.total() as u64 * self.block_bytes as u64
+    }
+
+    /// The block holding node `index`, and the node's place in it.
+    #[inline(always)]
+    pub fn node_block(&self, index: u32) -> (BlockId, u32) {
+        let per = self.nodes_per_block();
+        (index / per, index % per)
+    }
+
+    /// The block holding triangle `slot`, its place in it, and the first slot of the next
+    /// block.
+    #[inline(always)]
+    pub fn triangle_block(&self, slot: u32) -> (BlockId, u32, u32) {
+        let per = self.triangles_per_block();
+        let b = slot / per;
+        (self.node_blocks + b, slot % per, (b + 1) * per)
+    }
+
+    /// Whether every node holds block `k` (the top of the tree).
+    #[inline(always)]
+    pub fn is_top(&self, k: BlockId) -> bool {
+        k < self.top_blocks
+    }
+}
+
+/// Block `k`'s bytes read as nodes.
+#[inline(always)]
+pub fn nodes_of(bytes: &[Chunk]) -> &[WideNode] {
+    bytemuck::cast_slice(bytes)
+}
+
+/// Block `k`'s bytes read as triangles (the tail that holds no whole triangle left out).
+#[inline(always)]
+pub fn triangles_of(bytes: &[Chunk], per_block: u32) -> &[LeafTriangle] {
+    let raw: &[u8] = bytemuck::cast_slice(bytes);
+    let used = per_block as usize * std::mem::size_of::<LeafTriangle>();
+    bytemuck::cast_slice(&raw[..used])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_8_kib_block_holds_32_nodes_or_227_triangles() {
+        let l = BlockLayout::new(8192, 100, 1000, 1).unwrap();
+        assert_eq!((l.nodes_per_block(), l.triangles_per_block()), (32, 227));
+        assert_eq!((l.node_blocks, l.triangle_blocks), (4, 5));
+        assert_eq!(l.node_block(33), (1, 1));
+        assert_eq!(l.triangle_block(230), (5, 3, 454));
+        assert!(l.is_top(0) && !l.is_top(1));
+    }
+
+    #[test]
+    fn block_sizes_out_of_range_are_refused() {
+        for bad in [0, 1024, 3000, 8193, 2 << 20] {
+            assert_eq!(
+                BlockLayout::new(bad, 1, 1, 1),
+                Err(LayoutError::BlockSize(bad))
+            );
+        }
+    }
+}

@@ -1,0 +1,54 @@
+//! The scene in distributed shared memory (Ize et al. 2011, §4): its 8-wide tree and leaf
+//! triangles cut into fixed-size blocks, spread over the render nodes, and read by the same
+//! traversals that read replicated arrays.
+//!
+//! * [`layout`]: the block geometry: which block and offset hold a node or a triangle.
+//! * [`reorder`]: tree nodes written so that a block holds a coherent subtree, siblings
+//!   adjacent (§4.1); triangles stay in BVH leaf order with their own corners (§4.2).
+//! * [`prepare`]: a scene prepared once into block files with a checksum per block and a
+//!   manifest, reused while the scene's content is the same.
+//! * [`shared`]: what a render node renders from: the replicated top of the tree, its resident
+//!   share, the direct-mapped cache of `tessera_core::dsm`, and a blocking fetch of what is
+//!   in neither; [`SharedReader`] is the [`crate::tree_memory::TreeMemory`] a traversal reads.
+//!
+//! Volume bricks and particles are not shared: a scene with either is rendered replicated.
+
+pub mod layout;
+pub mod prepare;
+pub mod reorder;
+pub mod shared;
+
+pub use layout::{Block, BlockLayout, Chunk, LayoutError};
+pub use prepare::{Manifest, PrepareError};
+pub use shared::{BlockFetch, SharedReader, SharedStats, SharedTree};
+
+use crate::accel::Accel;
+use crate::PreparedScene;
+
+impl PreparedScene {
+    /// A scene whose triangles and tree are in shared memory: what its manifest holds whole
+    /// (materials, lights, the slots' materials), and its tree as this node holds it.
+    pub fn from_shared(manifest: &Manifest, tree: SharedTree) -> PreparedScene {
+        PreparedScene {
+            // Only its depth is used: it sizes the traversal stacks.
+            accel: Accel::from_parts(
+                Vec::new(),
+                Vec::new(),
+                Vec::new(),
+                manifest.max_depth as usize,
+            ),
+            shared: Some(tree),
+            slot_material: manifest.slot_materials.clone(),
+            materials: manifest.materials.clone(),
+            blends: manifest.blends,
+            lights: manifest.lights.clone(),
+            diagonal: manifest.diagonal,
+            spheres: None,
+            attribute_range: (f32::INFINITY, f32::NEG_INFINITY),
+            volume: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

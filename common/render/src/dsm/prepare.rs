@@ -1,0 +1,414 @@
+//! A scene prepared for distributed shared memory, on disk: its tree reordered and cut into
+//! blocks ([`super::reorder`]), its triangles in leaf order, each block checksummed, and what
+//! every node needs whole (materials, lights, the tree's depth) in a manifest.
+//!
+//! A folder holds `blocks.bin` (block k at byte k × block size), `checksums.bin` (the first 8
+//! bytes of each block's BLAKE3 hash, little-endian) and `manifest.json`, written last, so a
+//! folder without one was never finished. It is reused while the manifest names the same
+//! scene content hash, format and block size.
+
+use super::layout::{Block, BlockLayout, Chunk, LayoutError};
+use super::reorder::reorder_for_blocks;
+use crate::accel::{Accel, LeafTriangle};
+use crate::accel_wide::WideNode;
+use crate::scene::{Light, Material, Scene};
+use crate::slot_materials::SlotMaterials;
+use serde::{Deserialize, Serialize};
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use tessera_core::dsm::{BlockId, Residency};
+use tessera_wire::local_frame::RenderFromWorld;
+
+/// Bumped whenever the block contents or the files change.
+pub const FORMAT: u32 = 1;
+
+/// Blocks at the top of the tree that every node holds: 8 KB, the root and its first levels
+/// (Ize et al. replicate the same, since every ray starts there).
+pub const TOP_BLOCKS: u32 = 1;
+
+/// What every render node of a shared scene holds whole, and where the blocks are.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format: u32,
+    /// The scene's content hash (hex), as [`Scene::content_hash`] gives it.
+    pub scene_hash: String,
+    pub layout: BlockLayout,
+    /// Depth of the binary tree the 8-wide one was collapsed from (sizes traversal stacks).
+    pub max_depth: u32,
+    pub bounds_min: [f32; 3],
+    pub bounds_max: [f32; 3],
+    pub diagonal: f32,
+    pub render_from_world: RenderFromWorld,
+    pub materials: Vec<Material>,
+    pub lights: Vec<Light>,
+    pub slot_materials: SlotMaterials,
+    pub blends: bool,
+}
+
+/// Why a scene could not be prepared, or a prepared one not read.
+#[derive(Debug, thiserror::Error)]
+pub enum PrepareError {
+    #[error("distributed shared memory holds triangle meshes; this scene has {0}, render it replicated (--data replicated)")]
+    NotAMesh(&'static str),
+    #[error(transparent)]
+    Layout(#[from] LayoutError),
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not a manifest of a prepared scene: {reason}")]
+    BadManifest { path: PathBuf, reason: String },
+    #[error("{path} is for scene {found}, not {expected}: prepare the scene again")]
+    OtherScene {
+        path: PathBuf,
+        found: String,
+        expected: String,
+    },
+    #[error("block {block} of {path} does not match its checksum: the file is damaged; prepare the scene again")]
+    Damaged { path: PathBuf, block: BlockId },
+}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> PrepareError + '_ {
+    move |source| PrepareError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// The scene's content hash as the manifest writes it.
+pub fn hash_hex(hash: &[u8; 32]) -> String {
+    hash.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A block's checksum: the first 8 bytes of its BLAKE3 hash.
+pub fn checksum(bytes: &[u8]) -> u64 {
+    let hash = blake3::hash(bytes);
+    u64::from_le_bytes(hash.as_bytes()[..8].try_into().expect("8 bytes"))
+}
+
+/// The scene's blocks, in order, and its manifest: what [`prepare`] writes, in memory.
+///
+/// # Errors
+/// A scene with particles or a volume; a block size out of range.
+pub fn blocks_of<'a>(
+    scene: &Scene,
+    accel: &'a Accel,
+    block_bytes: u32,
+) -> Result<(Manifest, impl Iterator<Item = Block> + 'a), PrepareError> {
+    if !scene.particles.is_empty() {
+        return Err(PrepareError::NotAMesh("particles"));
+    }
+    if scene.volume.is_some() || !scene.series.is_empty() {
+        return Err(PrepareError::NotAMesh("a volume"));
+    }
+    let layout = BlockLayout::new(
+        block_bytes,
+        accel.wide.len() as u32,
+        accel.triangles.len() as u32,
+        TOP_BLOCKS,
+    )?;
+    let wide = reorder_for_blocks(&accel.wide, layout.nodes_per_block() as usize);
+    let per_slot: Vec<u16> = accel
+        .scene_index
+        .iter()
+        .map(|&i| scene.triangle_material[i as usize])
+        .collect();
+    let bounds = scene.bounds();
+    let manifest = Manifest {
+        format: FORMAT,
+        scene_hash: hash_hex(&scene.content_hash()),
+        layout,
+        max_depth: accel.max_depth() as u32,
+        bounds_min: bounds.min.to_array(),
+        bounds_max: bounds.max.to_array(),
+        diagonal: bounds.diagonal().length(),
+        render_from_world: scene.render_from_world,
+        materials: scene.materials.clone(),
+        lights: scene.lights.clone(),
+        slot_materials: SlotMaterials::runs_of(&per_slot),
+        blends: scene.has_transparency(),
+    };
+    let per_node = layout.nodes_per_block() as usize;
+    let per_tri = layout.triangles_per_block() as usize;
+    let node_blocks = (0..layout.node_blocks as usize).map(move |b| {
+        let end = ((b + 1) * per_node).min(wide.len());
+        block_from(
+            block_bytes,
+            bytemuck::cast_slice::<WideNode, u8>(&wide[b * per_node..end]),
+        )
+    });
+    let triangles: &[LeafTriangle] = &accel.triangles;
+    let tri_blocks = (0..layout.triangle_blocks as usize).map(move |b| {
+        let end = ((b + 1) * per_tri).min(triangles.len());
+        block_from(
+            block_bytes,
+            bytemuck::cast_slice(&triangles[b * per_tri..end]),
+        )
+    });
+    Ok((manifest, node_blocks.chain(tri_blocks)))
+}
+
+fn block_from(block_bytes: u32, bytes: &[u8]) -> Block {
+    let mut block = Block::zeroed(block_bytes);
+    block.bytes_mut()[..bytes.len()].copy_from_slice(bytes);
+    block
+}
+
+/// The files of a prepared scene in `dir`.
+pub fn manifest_path(dir: &Path) -> PathBuf {
+    dir.join("manifest.json")
+}
+
+fn blocks_path(dir: &Path) -> PathBuf {
+    dir.join("blocks.bin")
+}
+
+fn checksums_path(dir: &Path) -> PathBuf {
+    dir.join("checksums.bin")
+}
+
+/// Writes `scene` (with its BVH `accel`, which must still hold its scene index) into `dir` as
+/// blocks of `block_bytes`; `progress(done, total)` is called as blocks are written.
+///
+/// # Errors
+/// What [`blocks_of`] refuses; a folder that cannot be written.
+pub fn prepare(
+    scene: &Scene,
+    accel: &Accel,
+    dir: &Path,
+    block_bytes: u32,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Manifest, PrepareError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    // An old manifest goes first: until the new one is written the folder is unfinished.
+    let manifest_file = manifest_path(dir);
+    if manifest_file.exists() {
+        std::fs::remove_file(&manifest_file).map_err(io(&manifest_file))?;
+    }
+    let (manifest, blocks) = blocks_of(scene, accel, block_bytes)?;
+    let total = manifest.layout.total() as u64;
+    let (blocks_file, sums_file) = (blocks_path(dir), checksums_path(dir));
+    let mut out =
+        std::io::BufWriter::new(std::fs::File::create(&blocks_file).map_err(io(&blocks_file))?);
+    let mut sums = Vec::with_capacity(total as usize * 8);
+    for (k, block) in blocks.enumerate() {
+        out.write_all(block.bytes()).map_err(io(&blocks_file))?;
+        sums.extend_from_slice(&checksum(block.bytes()).to_le_bytes());
+        if k % 256 == 0 {
+            progress(k as u64, total);
+        }
+    }
+    out.flush().map_err(io(&blocks_file))?;
+    std::fs::write(&sums_file, &sums).map_err(io(&sums_file))?;
+    let text = serde_json::to_string_pretty(&manifest).expect("a manifest serializes");
+    std::fs::write(&manifest_file, text).map_err(io(&manifest_file))?;
+    progress(total, total);
+    Ok(manifest)
+}
+
+/// The manifest in `dir`, checked to be of this format and, if given, of scene `expected`
+/// (a content hash in hex) with blocks of `block_bytes`.
+///
+/// # Errors
+/// No manifest, a damaged one, another format, scene or block size, or block files of the
+/// wrong length.
+pub fn load_manifest(dir: &Path, expected: Option<(&str, u32)>) -> Result<Manifest, PrepareError> {
+    let path = manifest_path(dir);
+    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let bad = |reason: String| PrepareError::BadManifest {
+        path: path.clone(),
+        reason,
+    };
+    let manifest: Manifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    if manifest.format != FORMAT {
+        return Err(bad(format!(
+            "format {}, this build reads {FORMAT}",
+            manifest.format
+        )));
+    }
+    let layout = manifest.layout;
+    let again = BlockLayout::new(
+        layout.block_bytes,
+        layout.node_count,
+        layout.triangle_count,
+        layout.top_blocks,
+    )
+    .map_err(|e| bad(e.to_string()))?;
+    if again != layout {
+        return Err(bad("its block counts do not follow from its sizes".into()));
+    }
+    if let Some((hash, block_bytes)) = expected {
+        if manifest.scene_hash != hash || layout.block_bytes != block_bytes {
+            return Err(PrepareError::OtherScene {
+                path,
+                found: format!(
+                    "{} in blocks of {}",
+                    manifest.scene_hash, layout.block_bytes
+                ),
+                expected: format!("{hash} in blocks of {block_bytes}"),
+            });
+        }
+    }
+    for (file, len) in [
+        (blocks_path(dir), layout.total_bytes()),
+        (checksums_path(dir), layout.total() as u64 * 8),
+    ] {
+        let found = std::fs::metadata(&file).map_err(io(&file))?.len();
+        if found != len {
+            return Err(bad(format!(
+                "{} holds {found} bytes, not {len}",
+                file.display()
+            )));
+        }
+    }
+    Ok(manifest)
+}
+
+/// What a node holds of a shared scene for good: the top of the tree and its own share.
+pub type Share = (Box<[Chunk]>, Box<[Chunk]>);
+
+/// Reads blocks from a prepared folder, checking each against its checksum.
+pub struct BlockFile {
+    dir: PathBuf,
+    layout: BlockLayout,
+    file: std::fs::File,
+    sums: Vec<u64>,
+}
+
+impl BlockFile {
+    /// # Errors
+    /// The files cannot be opened or read.
+    pub fn open(dir: &Path, manifest: &Manifest) -> Result<BlockFile, PrepareError> {
+        let path = blocks_path(dir);
+        let file = std::fs::File::open(&path).map_err(io(&path))?;
+        let sums_file = checksums_path(dir);
+        let raw = std::fs::read(&sums_file).map_err(io(&sums_file))?;
+        let sums = raw
+            .chunks_exact(8)
+            .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        Ok(BlockFile {
+            dir: dir.to_path_buf(),
+            layout: manifest.layout,
+            file,
+            sums,
+        })
+    }
+
+    /// Reads block `k` into `out` (one block's chunks).
+    ///
+    /// # Errors
+    /// A read error, or a block that does not match its checksum.
+    pub fn read_into(&mut self, k: BlockId, out: &mut [Chunk]) -> Result<(), PrepareError> {
+        let path = blocks_path(&self.dir);
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(out);
+        self.file
+            .seek(SeekFrom::Start(k as u64 * self.layout.block_bytes as u64))
+            .and_then(|_| self.file.read_exact(bytes))
+            .map_err(io(&path))?;
+        if self.sums.get(k as usize) != Some(&checksum(bytes)) {
+            return Err(PrepareError::Damaged { path, block: k });
+        }
+        Ok(())
+    }
+
+    /// Block `k`, on its own.
+    ///
+    /// # Errors
+    /// See [`BlockFile::read_into`].
+    pub fn read(&mut self, k: BlockId) -> Result<Block, PrepareError> {
+        let mut block = Block::zeroed(self.layout.block_bytes);
+        self.read_into(k, &mut block.0)?;
+        Ok(block)
+    }
+
+    /// The top of the tree and this node's share (as `residency` gives it), each block
+    /// checked; `progress(done, total)` as they are read.
+    ///
+    /// # Errors
+    /// See [`BlockFile::read_into`].
+    pub fn read_share(
+        &mut self,
+        residency: &Residency,
+        progress: &mut dyn FnMut(u64, u64),
+    ) -> Result<Share, PrepareError> {
+        let per = (self.layout.block_bytes / 64) as usize;
+        let mut top = vec![Chunk([0; 64]); self.layout.top_blocks as usize * per];
+        for k in 0..self.layout.top_blocks {
+            let at = k as usize * per;
+            self.read_into(k, &mut top[at..at + per])?;
+        }
+        let mut share = vec![Chunk([0; 64]); residency.resident_len() * per];
+        let total = residency.resident_blocks().count() as u64;
+        for (done, (slot, k)) in residency.resident_blocks().enumerate() {
+            self.read_into(k, &mut share[slot * per..(slot + 1) * per])?;
+            if done % 256 == 0 {
+                progress(done as u64, total);
+            }
+        }
+        progress(total, total);
+        Ok((top.into_boxed_slice(), share.into_boxed_slice()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::knot_scene;
+
+    #[test]
+    fn a_prepared_scene_reads_back_block_for_block_and_a_flipped_bit_is_caught() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = knot_scene(120, 16);
+        let accel = Accel::build(&scene);
+        let mut calls = 0;
+        let manifest = prepare(&scene, &accel, dir.path(), 4096, &mut |_, _| calls += 1).unwrap();
+        assert!(calls >= 2);
+        let hash = hash_hex(&scene.content_hash());
+        assert_eq!(
+            load_manifest(dir.path(), Some((&hash, 4096))).unwrap(),
+            manifest
+        );
+        assert!(matches!(
+            load_manifest(dir.path(), Some((&hash, 8192))),
+            Err(PrepareError::OtherScene { .. })
+        ));
+        let (_, blocks) = blocks_of(&scene, &accel, 4096).unwrap();
+        let blocks: Vec<Block> = blocks.collect();
+        let mut file = BlockFile::open(dir.path(), &manifest).unwrap();
+        for (k, block) in blocks.iter().enumerate() {
+            assert_eq!(
+                file.read(k as u32).unwrap().bytes(),
+                block.bytes(),
+                "block {k}"
+            );
+        }
+        // One bit of one triangle, flipped on disk.
+        let path = dir.path().join("blocks.bin");
+        let mut raw = std::fs::read(&path).unwrap();
+        let k = manifest.layout.node_blocks as usize + 1;
+        raw[k * 4096 + 100] ^= 4;
+        std::fs::write(&path, raw).unwrap();
+        let mut file = BlockFile::open(dir.path(), &manifest).unwrap();
+        assert!(matches!(
+            file.read(k as u32),
+            Err(PrepareError::Damaged { block, .. }) if block == k as u32
+        ));
+    }
+
+    #[test]
+    fn particles_are_not_shared() {
+        let mut scene = knot_scene(16, 4);
+        scene.particles.push(crate::scene::particles::Particle {
+            center: glam::Vec3::ZERO,
+            radius: 1.0,
+            attribute: 0.0,
+        });
+        let accel = Accel::build(&scene);
+        assert!(matches!(
+            blocks_of(&scene, &accel, 8192),
+            Err(PrepareError::NotAMesh("particles"))
+        ));
+    }
+}

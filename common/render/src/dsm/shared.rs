@@ -1,0 +1,288 @@
+//! What a render node traces a shared scene from: the top of the tree (held by every node),
+//! its own share of the blocks, the direct-mapped cache of the others, and a fetch for what is
+//! in neither; and [`SharedReader`], one thread's view of it, which a traversal reads through
+//! [`TreeMemory`].
+
+use super::layout::{nodes_of, triangles_of, Block, BlockLayout, Chunk};
+use crate::accel::LeafTriangle;
+use crate::accel_wide::WideNode;
+use crate::tree_memory::{NoPrefetch, TreeMemory};
+use serde::{Deserialize, Serialize};
+use std::ops::Range;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+use tessera_core::dsm::{BlockCache, BlockId, Residency};
+
+/// Brings a block this node neither holds nor has in its cache.
+pub trait BlockFetch: Send + Sync {
+    /// Block `k`: asks its owner for it and waits for it. Called on a render thread, which
+    /// waits alone: threads reading other blocks go on.
+    ///
+    /// # Panics
+    /// When the block can be had from nowhere (every owner gone and the prepared files too):
+    /// the frame cannot be rendered, and the render node fails with the message.
+    fn fetch(&self, k: BlockId) -> Arc<Block>;
+}
+
+/// Counters of one node's reads, over its run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SharedStats {
+    /// Blocks a traversal moved into (each block read, however many nodes it read there).
+    pub block_reads: u64,
+    /// Of those, blocks this node holds (the top of the tree, its share).
+    pub local_reads: u64,
+    /// Of those, blocks that had to be fetched (cache misses).
+    pub fetched: u64,
+    /// Time render threads waited for fetched blocks, in all.
+    pub fetch_wait_s: f64,
+}
+
+/// A scene's tree and triangles in distributed shared memory, as one render node holds them.
+pub struct SharedTree {
+    layout: BlockLayout,
+    residency: Residency,
+    chunks_per_block: usize,
+    /// Blocks `0..layout.top_blocks`, which every node holds.
+    top: Box<[Chunk]>,
+    /// This node's share, at its residency's slots.
+    resident: Box<[Chunk]>,
+    cache: Arc<BlockCache<Block>>,
+    fetch: Arc<dyn BlockFetch>,
+    block_reads: AtomicU64,
+    local_reads: AtomicU64,
+    fetched: AtomicU64,
+    fetch_wait_ns: AtomicU64,
+}
+
+/// Arrays that do not match the layout they come with.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[error("{what} holds {got} bytes where the layout needs {want}")]
+pub struct SizeMismatch {
+    what: &'static str,
+    got: usize,
+    want: usize,
+}
+
+impl SharedTree {
+    /// The tree from its parts: `top` holds blocks `0..layout.top_blocks`, `resident` the
+    /// blocks `residency` gives this node at their slots; the rest is read through `cache`,
+    /// and fetched by `fetch` when the cache does not have it.
+    ///
+    /// # Errors
+    /// `top` or `resident` not the size the layout and residency call for.
+    pub fn new(
+        layout: BlockLayout,
+        residency: Residency,
+        top: Box<[Chunk]>,
+        resident: Box<[Chunk]>,
+        cache: Arc<BlockCache<Block>>,
+        fetch: Arc<dyn BlockFetch>,
+    ) -> Result<SharedTree, SizeMismatch> {
+        let chunks_per_block = (layout.block_bytes / 64) as usize;
+        let check = |what, got: usize, blocks: usize| {
+            let want = blocks * chunks_per_block;
+            if got == want {
+                Ok(())
+            } else {
+                Err(SizeMismatch {
+                    what,
+                    got: got * 64,
+                    want: want * 64,
+                })
+            }
+        };
+        check("the top of the tree", top.len(), layout.top_blocks as usize)?;
+        check(
+            "the resident share",
+            resident.len(),
+            residency.resident_len(),
+        )?;
+        Ok(SharedTree {
+            layout,
+            residency,
+            chunks_per_block,
+            top,
+            resident,
+            cache,
+            fetch,
+            block_reads: AtomicU64::new(0),
+            local_reads: AtomicU64::new(0),
+            fetched: AtomicU64::new(0),
+            fetch_wait_ns: AtomicU64::new(0),
+        })
+    }
+
+    pub fn layout(&self) -> &BlockLayout {
+        &self.layout
+    }
+
+    pub fn residency(&self) -> &Residency {
+        &self.residency
+    }
+
+    pub fn cache(&self) -> &BlockCache<Block> {
+        &self.cache
+    }
+
+    /// Bytes this node holds of the scene for good: the top of the tree and its share.
+    pub fn resident_bytes(&self) -> usize {
+        (self.top.len() + self.resident.len()) * 64
+    }
+
+    /// One thread's reader; make one per thread and keep it across rays.
+    pub fn reader(&self) -> SharedReader<'_> {
+        SharedReader {
+            tree: self,
+            node: (BlockId::MAX, Hold::Nothing),
+            tris: (BlockId::MAX, Hold::Nothing),
+            reads: 0,
+            local: 0,
+        }
+    }
+
+    pub fn stats(&self) -> SharedStats {
+        SharedStats {
+            block_reads: self.block_reads.load(Ordering::Relaxed),
+            local_reads: self.local_reads.load(Ordering::Relaxed),
+            fetched: self.fetched.load(Ordering::Relaxed),
+            fetch_wait_s: self.fetch_wait_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+        }
+    }
+
+    /// Block `k`'s bytes if this node holds it.
+    pub fn local(&self, k: BlockId) -> Option<&[Chunk]> {
+        let (array, slot) = if self.layout.is_top(k) {
+            (&self.top, k as usize)
+        } else {
+            (&self.resident, self.residency.resident_slot(k)?)
+        };
+        let at = slot * self.chunks_per_block;
+        array.get(at..at + self.chunks_per_block)
+    }
+
+    /// Block `k`, from wherever it is: this node's own memory, the cache, or its owner.
+    fn hold(&self, k: BlockId) -> Hold<'_> {
+        if let Some(chunks) = self.local(k) {
+            return Hold::Local(chunks);
+        }
+        let line = self.residency.cache_line(k, self.cache.lines());
+        if let Some(block) = (self.cache.lines() > 0)
+            .then(|| self.cache.get(k, line))
+            .flatten()
+        {
+            return Hold::Cached(block);
+        }
+        let t0 = Instant::now();
+        let block = self.fetch.fetch(k);
+        self.fetch_wait_ns
+            .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.fetched.fetch_add(1, Ordering::Relaxed);
+        if self.cache.lines() > 0 {
+            self.cache.insert(k, line, block.clone());
+        }
+        Hold::Cached(block)
+    }
+}
+
+/// A block a reader is in: its own memory's, or a cached one it keeps alive while it reads it.
+enum Hold<'s> {
+    Nothing,
+    Local(&'s [Chunk]),
+    Cached(Arc<Block>),
+}
+
+impl Hold<'_> {
+    #[inline(always)]
+    fn chunks(&self) -> &[Chunk] {
+        match self {
+            Hold::Local(chunks) => chunks,
+            Hold::Cached(block) => &block.0,
+            Hold::Nothing => &[],
+        }
+    }
+}
+
+/// One thread's reads of a [`SharedTree`]: it keeps the node block and the triangle block it
+/// is in until a read leaves them (Ize et al. §4.1), so consecutive steps inside a block cost
+/// no lookup.
+pub struct SharedReader<'s> {
+    tree: &'s SharedTree,
+    node: (BlockId, Hold<'s>),
+    tris: (BlockId, Hold<'s>),
+    reads: u64,
+    local: u64,
+}
+
+impl<'s> SharedReader<'s> {
+    #[inline(always)]
+    fn enter(
+        tree: &'s SharedTree,
+        held: &mut (BlockId, Hold<'s>),
+        k: BlockId,
+        counts: (&mut u64, &mut u64),
+    ) {
+        if held.0 != k {
+            // Let go of the old block first: a line replaced meanwhile frees it at once.
+            held.1 = Hold::Nothing;
+            held.1 = tree.hold(k);
+            held.0 = k;
+            *counts.0 += 1;
+            *counts.1 += matches!(held.1, Hold::Local(_)) as u64;
+        }
+    }
+}
+
+impl Drop for SharedReader<'_> {
+    fn drop(&mut self) {
+        self.tree
+            .block_reads
+            .fetch_add(self.reads, Ordering::Relaxed);
+        self.tree
+            .local_reads
+            .fetch_add(self.local, Ordering::Relaxed);
+    }
+}
+
+impl TreeMemory for SharedReader<'_> {
+    type Prefetch = NoPrefetch;
+
+    fn is_empty(&self) -> bool {
+        self.tree.layout.node_count == 0
+    }
+
+    #[inline(always)]
+    fn node(&mut self, index: u32) -> &WideNode {
+        let (k, at) = self.tree.layout.node_block(index);
+        Self::enter(
+            self.tree,
+            &mut self.node,
+            k,
+            (&mut self.reads, &mut self.local),
+        );
+        &nodes_of(self.node.1.chunks())[at as usize]
+    }
+
+    #[inline(always)]
+    fn triangle(&mut self, slot: u32) -> &LeafTriangle {
+        &self.triangles(slot..slot + 1)[0]
+    }
+
+    #[inline(always)]
+    fn triangles(&mut self, slots: Range<u32>) -> &[LeafTriangle] {
+        let (k, at, next) = self.tree.layout.triangle_block(slots.start);
+        Self::enter(
+            self.tree,
+            &mut self.tris,
+            k,
+            (&mut self.reads, &mut self.local),
+        );
+        let end = slots.end.min(next) - slots.start + at;
+        let per = self.tree.layout.triangles_per_block();
+        &triangles_of(self.tris.1.chunks(), per)[at as usize..end as usize]
+    }
+
+    fn prefetcher(&self) -> NoPrefetch {
+        NoPrefetch
+    }
+}

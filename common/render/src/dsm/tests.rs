@@ -1,0 +1,128 @@
+//! Rendering from shared memory: the same pixels as replicated data, whatever the share and
+//! however small the cache.
+
+use super::*;
+use crate::scene::{gallery_scene, knot_scene, Scene};
+use crate::{orbit_of, render_tiles, FrameView};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use tessera_core::dsm::{BlockCache, BlockId, Residency};
+use tessera_wire::params::{RenderParams, RenderParamsSpec};
+use tessera_wire::wall::{TileGrid, WallSpec};
+
+/// Every block at hand, as if every owner answered at once; counts what is asked.
+struct AllBlocks {
+    blocks: Vec<Arc<Block>>,
+    asked: AtomicU64,
+}
+
+impl BlockFetch for AllBlocks {
+    fn fetch(&self, k: BlockId) -> Arc<Block> {
+        self.asked.fetch_add(1, Ordering::Relaxed);
+        self.blocks[k as usize].clone()
+    }
+}
+
+/// `scene` as node `rank` of `ranks` holds it, with a cache of `lines` lines.
+fn shared(
+    scene: &Scene,
+    block_bytes: u32,
+    (rank, ranks): (u32, u32),
+    lines: usize,
+) -> (PreparedScene, Arc<AllBlocks>) {
+    let accel = crate::accel::Accel::build(scene);
+    let (manifest, blocks) = prepare::blocks_of(scene, &accel, block_bytes).unwrap();
+    let all = Arc::new(AllBlocks {
+        blocks: blocks.map(Arc::new).collect(),
+        asked: AtomicU64::new(0),
+    });
+    let layout = manifest.layout;
+    let residency = Residency::new(layout.total(), ranks, Some(rank), 1).unwrap();
+    let per = (block_bytes / 64) as usize;
+    let mut top = vec![Chunk([0; 64]); layout.top_blocks as usize * per];
+    for k in 0..layout.top_blocks as usize {
+        top[k * per..(k + 1) * per].copy_from_slice(&all.blocks[k].0);
+    }
+    let mut share = vec![Chunk([0; 64]); residency.resident_len() * per];
+    for (slot, k) in residency.resident_blocks() {
+        share[slot * per..(slot + 1) * per].copy_from_slice(&all.blocks[k as usize].0);
+    }
+    let tree = SharedTree::new(
+        layout,
+        residency,
+        top.into_boxed_slice(),
+        share.into_boxed_slice(),
+        Arc::new(BlockCache::new(lines)),
+        all.clone(),
+    )
+    .unwrap();
+    (PreparedScene::from_shared(&manifest, tree), all)
+}
+
+fn view_of(scene: &Scene, params: RenderParams, (w, h): (u32, u32)) -> FrameView {
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(7);
+    FrameView::new(7, &camera, params, w, h)
+}
+
+/// Shadows, ambient occlusion and supersampling on, with the scene's lights.
+fn every_ray_kind() -> RenderParams {
+    RenderParamsSpec {
+        shadows: true,
+        ao_samples: 4,
+        spp: 2,
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .unwrap()
+}
+
+#[test]
+fn every_ray_kind_gives_the_replicated_pixels_on_every_node_with_a_tiny_cache() {
+    // The gallery has mirrors and tinted glass (reflected and transmitted rays), a sun and a
+    // point light (shadow packets and single shadow rays), and ambient occlusion is on.
+    let scene = gallery_scene();
+    let wall = WallSpec::grid(2, 1, 64, 48).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall);
+    let view = view_of(&scene, every_ray_kind(), (wall.width(), wall.height()));
+    let replicated = crate::PreparedScene::new(&scene);
+    let (want, want_rays) = render_tiles(&replicated, &view, grid.tiles());
+    assert!(want_rays.reflected > 0 && want_rays.transmitted > 0 && want_rays.ambient > 0);
+    for (rank, lines) in [(0, 4), (1, 0), (2, 64)] {
+        let (dsm, fetch) = shared(&scene, 2048, (rank, 3), lines);
+        let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
+        assert_eq!(rays, want_rays, "rank {rank}");
+        for (t, (a, b)) in got.iter().zip(&want).enumerate() {
+            assert!(a == b, "rank {rank}, {lines} lines: tile {t} differs");
+        }
+        let stats = dsm.shared.as_ref().unwrap().stats();
+        assert!(stats.fetched > 0, "nothing was remote: {stats:?}");
+        assert_eq!(stats.fetched, fetch.asked.load(Ordering::Relaxed));
+        assert!(stats.local_reads > 0 && stats.block_reads > stats.fetched);
+    }
+}
+
+#[test]
+fn a_cache_as_large_as_the_rest_fetches_each_block_once() {
+    let scene = knot_scene(400, 24);
+    let wall = WallSpec::grid(1, 1, 96, 64).tile_size(32).build().unwrap();
+    let grid = TileGrid::new(wall);
+    let view = view_of(&scene, RenderParams::interactive(), (96, 64));
+    let replicated = crate::PreparedScene::new(&scene);
+    let (want, _) = render_tiles(&replicated, &view, grid.tiles());
+    let (probe, _) = shared(&scene, 4096, (1, 4), 0);
+    let total = probe.shared.as_ref().unwrap().layout().total() as usize;
+    let (dsm, fetch) = shared(&scene, 4096, (1, 4), total);
+    for pass in 0..3 {
+        let (got, _) = render_tiles(&dsm, &view, grid.tiles());
+        assert_eq!(got, want, "pass {pass}");
+    }
+    let tree = dsm.shared.as_ref().unwrap();
+    let fetched = fetch.asked.load(Ordering::Relaxed) as usize;
+    let cache = tree.cache().stats();
+    // Each remote block fetched once (threads that missed it together may each have asked).
+    assert!(cache.evictions == 0, "{cache:?}");
+    assert!(
+        fetched <= cache.filled as usize + 2,
+        "{fetched} fetches, {cache:?}"
+    );
+}

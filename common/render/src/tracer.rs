@@ -1,0 +1,92 @@
+//! A render thread's means of tracing rays through a prepared scene's triangles, whichever
+//! memory holds them: the scene's own arrays (replicated data) or the distributed shared
+//! memory, where the thread keeps the blocks it is in (see `dsm::SharedReader`).
+
+use crate::accel::{Hit, LeafTriangle};
+use crate::dsm::SharedReader;
+use crate::geometry::Ray;
+use crate::isa::Isa;
+use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
+use crate::tree_memory::TreeMemory;
+use crate::PreparedScene;
+
+/// One thread's traversal state: a stack, and for a scene in shared memory the blocks it holds.
+/// Make one per thread with [`PreparedScene::tracer`] and reuse it across rays.
+pub struct Tracer<'s> {
+    /// Also the stack of the particles' binary tree.
+    pub stack: Vec<u32>,
+    memory: Memory<'s>,
+}
+
+enum Memory<'s> {
+    Resident(crate::tree_memory::Resident<'s>),
+    Shared(SharedReader<'s>),
+}
+
+impl<'s> Tracer<'s> {
+    pub(crate) fn new(scene: &'s PreparedScene) -> Self {
+        let memory = match &scene.shared {
+            Some(tree) => Memory::Shared(tree.reader()),
+            None => Memory::Resident(scene.accel.resident()),
+        };
+        Tracer {
+            stack: scene.accel.new_stack(),
+            memory,
+        }
+    }
+
+    /// Closest triangle hits of a packet (see `accel_packet`).
+    pub fn closest_hits(&mut self, packet: &mut RayPacket, hits: &mut [PacketHit; PACKET_RAYS]) {
+        use crate::accel_packet::closest_hits_on;
+        let (stack, isa) = (&mut self.stack, Isa::best());
+        match &mut self.memory {
+            Memory::Resident(m) => closest_hits_on(m, isa, packet, hits, stack),
+            Memory::Shared(m) => closest_hits_on(m, isa, packet, hits, stack),
+        }
+    }
+
+    /// Which rays of a packet are blocked, as bits (see `accel_packet`).
+    pub fn occluded_lanes(&mut self, packet: &mut RayPacket) -> u64 {
+        use crate::accel_packet::occluded_lanes_on;
+        let (stack, isa) = (&mut self.stack, Isa::best());
+        match &mut self.memory {
+            Memory::Resident(m) => occluded_lanes_on(m, isa, packet, stack),
+            Memory::Shared(m) => occluded_lanes_on(m, isa, packet, stack),
+        }
+    }
+
+    /// The nearest triangle hit in `(t_min, t_max)`.
+    pub fn closest_hit(&mut self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        use crate::accel::closest_hit;
+        let stack = &mut self.stack;
+        match &mut self.memory {
+            Memory::Resident(m) => closest_hit(m, ray, (t_min, t_max), stack),
+            Memory::Shared(m) => closest_hit(m, ray, (t_min, t_max), stack),
+        }
+    }
+
+    /// Whether a triangle blocks the ray in `(t_min, t_max)`.
+    pub fn occluded(&mut self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        use crate::accel::occluded;
+        let stack = &mut self.stack;
+        match &mut self.memory {
+            Memory::Resident(m) => occluded(m, ray, (t_min, t_max), stack),
+            Memory::Shared(m) => occluded(m, ray, (t_min, t_max), stack),
+        }
+    }
+
+    /// Leaf triangle `slot` (a hit's), for shading.
+    pub fn triangle(&mut self, slot: u32) -> LeafTriangle {
+        match &mut self.memory {
+            Memory::Resident(m) => *m.triangle(slot),
+            Memory::Shared(m) => *m.triangle(slot),
+        }
+    }
+}
+
+impl PreparedScene {
+    /// A tracer for one thread (see [`Tracer`]).
+    pub fn tracer(&self) -> Tracer<'_> {
+        Tracer::new(self)
+    }
+}

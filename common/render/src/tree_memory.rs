@@ -1,0 +1,102 @@
+//! Where a traversal reads the 8-wide tree's nodes and the leaf triangles: this process's own
+//! arrays ([`Resident`], replicated data), or blocks of the distributed shared memory
+//! (`crate::dsm::SharedReader`), which a render node holds only a share of.
+//!
+//! Traversals are generic over [`TreeMemory`], so each kind of memory gets its own
+//! monomorphized copy: the replicated one indexes its arrays exactly as before the trait
+//! existed, and the shared one keeps the block it is in until it leaves it (Ize et al. §4.1).
+
+use crate::accel::LeafTriangle;
+use crate::accel_wide::WideNode;
+use std::ops::Range;
+
+/// Read access to a tree and its leaf triangles during one traversal.
+///
+/// Methods take `&mut self` because a shared memory moves its hold from block to block as the
+/// traversal goes; what they return is valid until the next call.
+pub trait TreeMemory {
+    /// What [`TreeMemory::prefetcher`] hands out.
+    type Prefetch: ChildPrefetch;
+
+    /// Whether the tree has no node at all.
+    fn is_empty(&self) -> bool;
+
+    /// 8-wide node `index`.
+    fn node(&mut self, index: u32) -> &WideNode;
+
+    /// Leaf triangle `slot`.
+    fn triangle(&mut self, slot: u32) -> &LeafTriangle;
+
+    /// The triangles from `slots.start` on that lie in one piece of memory: all of `slots` in
+    /// one process's arrays, up to the end of a block in shared memory. At least one when
+    /// `slots` is not empty; callers loop until the range is done.
+    fn triangles(&mut self, slots: Range<u32>) -> &[LeafTriangle];
+
+    /// A hint-giver for the children a traversal pushes (see [`ChildPrefetch`]); taken once
+    /// per traversal, since it must not borrow the memory while a node is held.
+    fn prefetcher(&self) -> Self::Prefetch;
+}
+
+/// Asks the CPU to start loading a child while its nearer siblings are traversed.
+pub trait ChildPrefetch: Copy {
+    fn prefetch_child(&self, node: &WideNode, k: usize);
+}
+
+/// The tree and triangles in this process's own memory: replicated data, or a whole-scene
+/// reference render.
+#[derive(Clone, Copy)]
+pub struct Resident<'a> {
+    pub wide: &'a [WideNode],
+    pub triangles: &'a [LeafTriangle],
+}
+
+impl TreeMemory for Resident<'_> {
+    type Prefetch = Self;
+
+    #[inline(always)]
+    fn is_empty(&self) -> bool {
+        self.wide.is_empty()
+    }
+
+    #[inline(always)]
+    fn node(&mut self, index: u32) -> &WideNode {
+        &self.wide[index as usize]
+    }
+
+    #[inline(always)]
+    fn triangle(&mut self, slot: u32) -> &LeafTriangle {
+        &self.triangles[slot as usize]
+    }
+
+    #[inline(always)]
+    fn triangles(&mut self, slots: Range<u32>) -> &[LeafTriangle] {
+        &self.triangles[slots.start as usize..slots.end as usize]
+    }
+
+    #[inline(always)]
+    fn prefetcher(&self) -> Self {
+        *self
+    }
+}
+
+impl ChildPrefetch for Resident<'_> {
+    #[inline(always)]
+    fn prefetch_child(&self, node: &WideNode, k: usize) {
+        crate::accel_wide::prefetch_child(
+            self.wide,
+            crate::accel_wide::leaf_bytes(self.triangles),
+            node,
+            k,
+        );
+    }
+}
+
+/// No hints: memory whose blocks may not be there (a prefetch of an address that is not the
+/// child's would only pollute the cache).
+#[derive(Clone, Copy)]
+pub struct NoPrefetch;
+
+impl ChildPrefetch for NoPrefetch {
+    #[inline(always)]
+    fn prefetch_child(&self, _: &WideNode, _: usize) {}
+}
