@@ -271,7 +271,7 @@ async fn session(
                 ToNode::StartAt { frame } => display.assembler.start_at(frame),
                 ToNode::Overlay { on } => display.overlay = on,
                 ToNode::SaveFrame { frame } => display.snapshots.push(frame),
-                other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. } | ToNode::ControlReply { .. } | ToNode::DisplayAt { .. }) => {
+                other @ (ToNode::Assign { .. } | ToNode::Welcome { .. } | ToNode::Refused { .. } | ToNode::ControlReply { .. } | ToNode::DisplayAt { .. } | ToNode::BlockHolders { .. }) => {
                     anyhow::bail!("the master broke the protocol: it sent a display a {} message", other.kind())
                 }
             },

@@ -15,6 +15,7 @@ use tessera_wire::params::RenderParams;
 use tessera_wire::protocol::pixels::{encode_batch, BatchSource, Compression};
 use tessera_wire::protocol::*;
 use tessera_wire::state::StateId;
+use tessera_wire::protocol::dsm::{BlockHolder, BlockRequest, DataSpec, DsmStats, SharedSpec};
 use tessera_wire::wall::{DisplayId, TileGrid, TileId, WallSpec};
 
 fn main() {
@@ -26,6 +27,7 @@ fn main() {
     particles(&root);
     volumes(&root);
     files(&root);
+    shared(&root);
     check(&root);
 }
 
@@ -155,8 +157,23 @@ fn codec(root: &Path) {
                 save_frame: Some(FrameId(3)),
                 compression: Compression::Lz4,
                 windows: Default::default(),
+                data: DataSpec::Shared(SharedSpec {
+                    dir: "/var/tessera/prepared".into(),
+                    block_bytes: 8192,
+                    ranks: 4,
+                    replicas: 2,
+                    memory_budget: Some(512 << 20),
+                    cache_fraction: Some(0.125),
+                }),
             })
             .unwrap(),
+        },
+        ToNode::BlockHolders {
+            rank: Some(1),
+            holders: vec![BlockHolder {
+                rank: 0,
+                addr: "127.0.0.1:7401".parse().unwrap(),
+            }],
         },
         ToNode::FrameStart(FrameStart::new(
             FrameId(1),
@@ -219,7 +236,18 @@ fn codec(root: &Path) {
             prefetch_hits: 7,
             prefetch_misses: 1,
             volume_stall_s: 0.25,
+            max_rss_bytes: 40 << 20,
+            dsm: Some(Box::new(DsmStats {
+                rank: Some(2),
+                block_reads: 1000,
+                fetched: 12,
+                latency_avg_us: 250.0,
+                ..Default::default()
+            })),
         })),
+        FromNode::BlocksAt {
+            addr: "0.0.0.0:7401".parse().unwrap(),
+        },
         FromNode::Control {
             id: 1,
             request: ControlRequest::Probe { x: 10, y: 20 },
@@ -242,6 +270,22 @@ fn codec(root: &Path) {
             codec::encode(msg).unwrap(),
         );
     }
+}
+
+/// A block request as a render node sends it, and a prepared scene's manifest.
+fn shared(root: &Path) {
+    for (i, blocks) in [vec![], vec![3, 4, 900_000]].into_iter().enumerate() {
+        let request = BlockRequest {
+            blocks,
+            ahead: i == 1,
+        };
+        put(root, "dsm_wire", &format!("request{i}"), codec::encode(&request).unwrap());
+    }
+    let scene = tessera_render::scene::knot_scene(24, 4);
+    let accel = tessera_render::accel::Accel::build(&scene);
+    let (manifest, _) = tessera_render::dsm::prepare::blocks_of(&scene, &accel, 2048).unwrap();
+    let text = serde_json::to_string_pretty(&manifest).unwrap();
+    put(root, "dsm_manifest", "knot", text);
 }
 
 /// The wall of `fuzz_targets/pixel_stream.rs`.

@@ -30,6 +30,8 @@ pub struct RunArgs {
     pub save_frame: Option<u64>,
     #[command(flatten)]
     pub quality: QualityArgs,
+    #[command(flatten)]
+    pub data: crate::shared_data::DataArgs,
     /// How long to wait for all nodes to join, in seconds (1 to 86400).
     #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub join_timeout: u64,
@@ -302,6 +304,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
             orbit_of(&scene.bounds(), fov)
         })?,
         scene_hash: scene.content_hash(),
+        data: crate::shared_data::data_spec(&run.data, &scene, render_nodes, show_progress)?,
         scene: spec,
         params,
         frames: (run.frames > 0).then_some(run.frames),

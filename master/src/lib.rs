@@ -19,6 +19,7 @@ mod reference;
 mod relay;
 mod report;
 mod server;
+mod shared_data;
 mod simulate;
 mod timing;
 mod wall_run;
@@ -48,6 +49,9 @@ enum Command {
     /// Run a measurement experiment on a local wall: max-fps, latency, scaling or
     /// error-vs-time; writes report.json, a CSV and an SVG plot into --out DIR.
     Bench(bench::BenchArgs),
+    /// Prepare a scene for distributed shared memory (`--data dsm`): its BVH and triangles in
+    /// checksummed blocks, reused while the scene is the same.
+    Prepare(shared_data::PrepareArgs),
     /// Write a node certificate signed by the cluster CA (creating the CA on first use).
     IssueCert(args::IssueCertArgs),
     /// Simulate a wall in this process on a virtual clock (the real load balancer and frame
@@ -109,6 +113,7 @@ fn run(command: Command) -> Result<ExitCode> {
         Command::Local(args) => runtime()?.block_on(wall_run::local(args)),
         Command::Serve(args) => runtime()?.block_on(wall_run::serve(args)),
         Command::Simulate(args) => simulate::simulate(args),
+        Command::Prepare(args) => shared_data::prepare_command(args).map(|()| ExitCode::SUCCESS),
         Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
         Command::Control(args) => runtime()?.block_on(control::control(args)),
         Command::Relay(args) => runtime()?.block_on(relay::relay(args)),

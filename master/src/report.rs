@@ -39,6 +39,39 @@ pub struct Report {
     pub changes_applied: u64,
     /// Frames a control client had the displays save (`wall-frame-<K>.png`).
     pub snapshots: Vec<u64>,
+    /// How render nodes held the scene: `replicated` or `dsm`.
+    pub data: &'static str,
+    /// A shared scene's reads over every render node (each node's own under its `dsm`).
+    pub dsm: Option<DsmSummary>,
+}
+
+/// The render nodes' reads of a shared scene, together.
+#[derive(Serialize, Debug, Default, Clone, Copy)]
+pub struct DsmSummary {
+    pub block_bytes: u32,
+    pub ranks: u32,
+    pub replicas: u32,
+    /// Blocks traversals moved into, over all nodes, and per frame.
+    pub block_reads: u64,
+    pub blocks_read_per_frame: f64,
+    /// Blocks fetched from other nodes (cache misses), and their share of the reads.
+    pub fetched: u64,
+    pub miss_percent: f64,
+    /// Of the reads, those of blocks the reading node held itself.
+    pub local_percent: f64,
+    /// Remote reads, from the miss to the block's arrival: over every node (the p99 is the
+    /// largest node's p99, an upper bound).
+    pub remote_read_avg_us: f64,
+    pub remote_read_min_us: f64,
+    pub remote_read_max_us: f64,
+    pub remote_read_p99_us: f64,
+    /// The fastest round trip of an empty request between render nodes, measured in the same
+    /// run: the transport's floor under a remote read.
+    pub round_trip_us: f64,
+    /// Blocks read from the prepared files because no owner was left.
+    pub read_locally: u64,
+    /// The largest peak resident memory of a render node.
+    pub max_rss_bytes: u64,
 }
 
 #[derive(Serialize, Debug)]

@@ -7,9 +7,13 @@
 //! [`tessera_core::worker::RenderWorker`]; the link to the master is `tessera_net::link`.
 
 mod bench;
+mod block_server;
+mod fetch_driver;
+mod loading;
 pub mod memory;
 mod node;
 mod pixels_out;
+mod shared;
 
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
@@ -48,6 +52,15 @@ pub struct Cli {
     volume_cache_mb: usize,
     #[command(flatten)]
     reconnect: tessera_cli::reconnect::ReconnectArgs,
+    /// Memory this node may use in all (such as 512MiB or 2GiB), for a scene in distributed
+    /// shared memory: its cache of other nodes' blocks is what is left after its share and a
+    /// fixed overhead. Default: the master's --memory-budget.
+    #[arg(long, value_parser = tessera_cli::bytes::parse_bytes, value_name = "SIZE")]
+    memory_budget: Option<u64>,
+    /// This host's copy of a scene prepared for distributed shared memory (`tessera-master
+    /// prepare`). Default: the folder the master names.
+    #[arg(long, value_name = "DIR")]
+    prepared: Option<PathBuf>,
 }
 
 fn parse_threads(text: &str) -> Result<usize, String> {
@@ -107,6 +120,10 @@ pub fn run(cli: Cli) -> Result<()> {
                 bvh_cache: cache_dir(cli.bvh_cache, cli.no_bvh_cache),
                 volume_cache_bytes: cli.volume_cache_mb.saturating_mul(1 << 20),
                 reconnect: cli.reconnect.wait(),
+                shared: shared::SharedOptions {
+                    prepared: cli.prepared,
+                    memory_budget: cli.memory_budget,
+                },
             };
             tessera_net::link::node_runtime()?.block_on(node::run(options))
         }

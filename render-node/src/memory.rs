@@ -11,6 +11,15 @@ pub fn resident_bytes() -> Option<u64> {
     Some(pages * u64::try_from(page).ok()?)
 }
 
+/// The most resident bytes this process has had (`VmHWM`), or `None` where `/proc` has no
+/// answer.
+pub fn peak_resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 /// Returns freed heap memory to the system. glibc keeps freed blocks below its (growing) mmap
 /// threshold in the heap, so without this a node would hold on to its loader's peak.
 pub fn release_freed() {
@@ -46,6 +55,7 @@ mod tests {
         let block = vec![1u8; 64 << 20];
         let during = resident_bytes().unwrap();
         assert!(during >= before + (60 << 20), "{before} -> {during}");
+        assert!(peak_resident_bytes().unwrap() >= during);
         drop(std::hint::black_box(block));
         release_freed();
     }

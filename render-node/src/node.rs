@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
@@ -16,11 +16,9 @@ use tessera_core::worker::{BatchSizer, RenderWorker};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
-use tessera_render::scene::Scene;
-use tessera_render::volume::SeriesCache;
-use tessera_render::{render_tiles, FrameView, PreparedScene, RayCounts};
+use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
 use tessera_wire::protocol::pixels::BatchSource;
-use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, Session, ToNode};
+use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, ToNode};
 use tessera_wire::state::StateId;
 use tessera_wire::wall::{TileGrid, TileId};
 use tokio::sync::mpsc;
@@ -43,27 +41,19 @@ pub struct Options {
     pub volume_cache_bytes: usize,
     /// With `--reconnect`: how long to wait for a lost master to come back and rejoin it.
     pub reconnect: Option<Duration>,
-}
-
-/// A scene prepared for rendering, kept across sessions: a node that rejoins a restarted
-/// master for the same scene does not load it again.
-struct Loaded {
-    hash: [u8; 32],
-    /// Batches render one at a time: the lock is taken for writing only between them, when a
-    /// time series moves to another step.
-    prepared: Arc<RwLock<PreparedScene>>,
-    series: Option<Arc<SeriesCache>>,
-    /// The step of the series `prepared` holds.
-    shown_step: Arc<AtomicUsize>,
+    /// This host's copy of a shared scene, and its own memory budget.
+    pub shared: crate::shared::SharedOptions,
 }
 
 /// What every session of a node shares: its cores, its identity, its socket.
-struct NodeSide {
-    pool: Arc<rayon::ThreadPool>,
-    threads: usize,
-    endpoint: quinn::Endpoint,
-    bvh_cache: Option<PathBuf>,
-    volume_cache_bytes: usize,
+pub(crate) struct NodeSide {
+    pub pool: Arc<rayon::ThreadPool>,
+    pub threads: usize,
+    pub endpoint: quinn::Endpoint,
+    pub identity: NodeIdentity,
+    pub bvh_cache: Option<PathBuf>,
+    pub volume_cache_bytes: usize,
+    pub shared: crate::shared::SharedOptions,
 }
 
 /// A batch the render threads finished.
@@ -78,6 +68,8 @@ struct Rendered {
     took: Duration,
     /// Rendering and packing: what sizes the next batch.
     batch_took: Duration,
+    /// For a shared scene, the other nodes' blocks each tile read.
+    footprints: Vec<Vec<u32>>,
 }
 
 /// Joins the master and renders until it shuts the wall down; with `--reconnect`, a lost
@@ -110,8 +102,10 @@ pub async fn run(options: Options) -> Result<()> {
         pool,
         threads,
         endpoint,
+        identity,
         bvh_cache: options.bvh_cache,
         volume_cache_bytes: options.volume_cache_bytes,
+        shared: options.shared,
     };
     let mut loaded = None;
     loop {
@@ -138,7 +132,7 @@ async fn session(
     side: &NodeSide,
     mut link: MasterLink,
     welcome: Welcome,
-    loaded: &mut Option<Loaded>,
+    loaded: &mut Option<crate::loading::Loaded>,
 ) -> Result<()> {
     let NodeSide {
         pool,
@@ -148,47 +142,18 @@ async fn session(
     } = side;
     let threads = *threads;
     let (node, session) = (welcome.node, welcome.session);
-    let reusable = loaded
-        .as_ref()
-        .is_some_and(|l| l.hash == session.scene_hash());
-    if !reusable {
-        tracing::info!("render node {}: joined, loading the scene", node.0);
-        // The old scene goes first: two at once may not fit.
-        *loaded = None;
-        match prepare(
-            &session,
-            pool.clone(),
-            side.bvh_cache.clone(),
-            side.volume_cache_bytes,
-        )
-        .await
-        {
-            Ok((prepared, series)) => {
-                *loaded = Some(Loaded {
-                    hash: session.scene_hash(),
-                    prepared: Arc::new(RwLock::new(prepared)),
-                    series,
-                    shown_step: Arc::new(AtomicUsize::new(0)),
-                })
-            }
-            Err(e) => {
-                link.fail(format!("{e:#}")).await;
-                return Err(e);
-            }
+    let mut here = match crate::loading::scene_here(side, &mut link, node, &session, loaded).await {
+        Ok(here) => here,
+        Err(e) => {
+            link.fail(format!("{e:#}")).await;
+            return Err(e);
         }
-    } else {
-        tracing::info!(
-            "render node {}: joined, the scene is loaded already",
-            node.0
-        );
-    }
-    let Loaded {
-        prepared,
-        series,
-        shown_step,
-        ..
-    } = loaded.as_ref().expect("loaded above");
-    let (prepared, series, shown_step) = (prepared.clone(), series.clone(), shown_step.clone());
+    };
+    let (prepared, series, shown_step) = (
+        here.prepared.clone(),
+        here.series.clone(),
+        here.shown_step.clone(),
+    );
     let mut displays = BTreeMap::new();
     for d in session.displays() {
         let c = quic::connect(endpoint, d.addr, &format!("display {}", d.display.0)).await?;
@@ -198,7 +163,7 @@ async fn session(
     tracing::info!(
         "render node {}: ready ({} triangles, {threads} threads)",
         node.0,
-        read(&prepared).accel.triangles.len()
+        read(&prepared).triangle_count()
     );
 
     let grid = Arc::new(TileGrid::new(*session.wall()));
@@ -220,6 +185,11 @@ async fn session(
         if !rendering {
             if let Some((start, tiles)) = worker.next_batch(sizer.batch()) {
                 rendering = true;
+                if let Some(shared) = &here.shared {
+                    // This batch's blocks and the next one's, asked for together.
+                    let next = worker.upcoming().take(tiles.len());
+                    shared.prefetch(&read(&prepared), tiles.iter().copied().chain(next));
+                }
                 let (prepared, grid, pool, done_tx) = (
                     prepared.clone(),
                     grid.clone(),
@@ -252,7 +222,8 @@ async fn session(
                                 .expect("the worker checked every assigned tile")
                         })
                         .collect();
-                    let (pixels, rays) = pool.install(|| render_tiles(&prepared, &view, &geometry));
+                    let (pixels, rays, footprints) =
+                        pool.install(|| render_tiles_footprints(&prepared, &view, &geometry));
                     // Rendering time alone, so rays/s does not depend on the compression.
                     let took = t0.elapsed();
                     let payloads = pool.install(|| {
@@ -269,6 +240,7 @@ async fn session(
                         rays,
                         took,
                         batch_took: t0.elapsed(),
+                        footprints,
                     }));
                 });
             }
@@ -287,6 +259,11 @@ async fn session(
                         (stats.prefetch_hits, stats.prefetch_misses) = (s.hits, s.misses);
                         stats.volume_stall_s = s.stall_seconds;
                     }
+                    if let Some(shared) = &here.shared {
+                        let driver = shared.driver.stats().await;
+                        stats.dsm = Some(Box::new(shared.stats(driver, &read(&prepared))));
+                    }
+                    stats.max_rss_bytes = crate::memory::peak_resident_bytes().unwrap_or(0);
                     let summary = format!("{} tiles, {} rays", stats.tiles, stats.rays);
                     link.finish(NodeStats::Render(stats)).await?;
                     tracing::info!("render node {}: done, {summary}", node.0);
@@ -305,12 +282,16 @@ async fn session(
                         }
                     });
                 }
+                ToNode::BlockHolders { holders, .. } => match &here.shared {
+                    Some(shared) => shared.driver.holders(holders),
+                    None => bail!("the master broke the protocol: block holders for a replicated scene"),
+                },
                 msg => worker
                     .handle_message(&msg, Instant::now())
                     .context("the master broke the protocol")?,
             },
             Some(done) = done_rx.recv() => {
-                let Rendered { frame, state, tiles, payloads, rays, took, batch_took } = match done {
+                let Rendered { frame, state, tiles, payloads, rays, took, batch_took, footprints } = match done {
                     Ok(r) => r,
                     Err(e) => {
                         link.fail(format!("cannot load the volume's time step: {e}")).await;
@@ -318,6 +299,9 @@ async fn session(
                     }
                 };
                 rendering = false;
+                if let Some(shared) = &mut here.shared {
+                    shared.note_footprints(&tiles, footprints);
+                }
                 sizer.record(tiles.len(), batch_took);
                 worker.set_low_water(sizer.low_water(worker.round_trip()));
                 stats.tiles += tiles.len() as u64;
@@ -358,42 +342,4 @@ async fn session(
             }
         }
     }
-}
-
-/// The scene, prepared, and for a time series the cache its steps are read through.
-type Prepared = (PreparedScene, Option<Arc<SeriesCache>>);
-
-async fn prepare(
-    session: &Session,
-    pool: Arc<rayon::ThreadPool>,
-    bvh_cache: Option<PathBuf>,
-    volume_cache_bytes: usize,
-) -> Result<Prepared> {
-    let spec = session.scene().clone();
-    let expected = session.scene_hash();
-    tokio::task::spawn_blocking(move || {
-        let scene = Scene::load(&spec)?;
-        if scene.content_hash() != expected {
-            bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
-        }
-        let t0 = Instant::now();
-        let (accel, source) = pool.install(|| tessera_render::accel_cache::load_or_build(&scene, bvh_cache.as_deref()));
-        tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
-        let mut prepared = PreparedScene::from_accel(&scene, accel);
-        prepared.slim_for_rendering();
-        // Two readers: one step ahead while the next loads, on a node whose cores render.
-        let series = (!scene.series.is_empty()).then(|| {
-            Arc::new(SeriesCache::new(
-                scene.series.clone(),
-                scene.render_from_world,
-                volume_cache_bytes,
-                2,
-            ))
-        });
-        // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
-        drop(scene);
-        crate::memory::release_freed();
-        Ok((prepared, series))
-    })
-    .await?
 }

@@ -5,31 +5,6 @@
 use std::time::Duration;
 use tessera_tests::*;
 
-/// The nodes `parent` started as `role` (`render-node`, `display-node`): its children whose
-/// command line runs that subcommand.
-fn children(parent: u32, role: &str) -> Vec<u32> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else {
-            continue;
-        };
-        // The fields after the command name, which may hold spaces and parentheses.
-        let after = stat.rsplit_once(") ").map_or("", |(_, rest)| rest);
-        let ppid: Option<u32> = after.split_whitespace().nth(1).and_then(|p| p.parse().ok());
-        let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
-        let runs_role = String::from_utf8_lossy(&cmdline)
-            .split('\0')
-            .any(|arg| arg == role);
-        if ppid == Some(parent) && runs_role {
-            found.push(pid);
-        }
-    }
-    found
-}
-
 /// A local wall of `wall` screens (`--wall`) with `render_nodes` one-thread render nodes and
 /// the extra flags `rest`, writing into `out`; returned once its last display has saved frame
 /// `saved` (an event to wait for, not a time to guess).

@@ -258,6 +258,7 @@ fn render_node_told(lie: &[u8]) -> Output {
                     save_frame: None,
                     compression: Default::default(),
                     windows: Default::default(),
+                    data: tessera_wire::protocol::dsm::DataSpec::Replicated,
                 })
                 .unwrap();
             let welcome = ToNode::Welcome {

@@ -6,6 +6,7 @@
 //! It depends on clap, tracing-subscriber and `tessera-wire` only, so display nodes use it
 //! without compiling the renderer.
 
+pub mod bytes;
 pub mod logging;
 pub mod reconnect;
 pub mod transfer_file;

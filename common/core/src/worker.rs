@@ -187,6 +187,12 @@ impl RenderWorker {
         Ok(())
     }
 
+    /// The tiles queued to render next, in order, without taking them (to fetch what they
+    /// will read ahead of them).
+    pub fn upcoming(&self) -> impl Iterator<Item = TileId> + '_ {
+        self.queue.iter().map(|&(_, t)| t)
+    }
+
     /// The next tiles to render: up to `max` queued tiles of one frame, with that frame's state.
     pub fn next_batch(&mut self, max: usize) -> Option<(FrameStart, Vec<TileId>)> {
         let &(frame, _) = self.queue.front()?;

@@ -109,6 +109,14 @@ impl PreparedScene {
         self.volume = Some(volume);
     }
 
+    /// Triangles in the scene, wherever they are held.
+    pub fn triangle_count(&self) -> usize {
+        match &self.shared {
+            Some(tree) => tree.layout().triangle_count as usize,
+            None => self.accel.triangles.len(),
+        }
+    }
+
     /// No triangles, particles or volume: every pixel is the backdrop.
     pub fn is_empty(&self) -> bool {
         self.accel.triangles.is_empty()
@@ -216,6 +224,21 @@ pub fn render_tiles(
     view: &FrameView,
     tiles: &[Tile],
 ) -> (Vec<Vec<u8>>, RayCounts) {
+    let (images, counts, _) = render_tiles_with(scene, view, tiles, ShadowRays::Packets);
+    (images, counts)
+}
+
+/// [`render_tiles`], and for a scene in shared memory the other nodes' blocks each tile read
+/// (sorted, once each): what the same tile will read next frame, to be fetched ahead of it.
+pub fn render_tiles_footprints(
+    scene: &PreparedScene,
+    view: &FrameView,
+    tiles: &[Tile],
+) -> (
+    Vec<Vec<u8>>,
+    RayCounts,
+    Vec<Vec<tessera_core::dsm::BlockId>>,
+) {
     render_tiles_with(scene, view, tiles, ShadowRays::Packets)
 }
 
@@ -232,27 +255,36 @@ pub(crate) fn render_tiles_with(
     view: &FrameView,
     tiles: &[Tile],
     shadow_rays: ShadowRays,
-) -> (Vec<Vec<u8>>, RayCounts) {
+) -> (
+    Vec<Vec<u8>>,
+    RayCounts,
+    Vec<Vec<tessera_core::dsm::BlockId>>,
+) {
+    let mut footprints = vec![Vec::new(); tiles.len()];
     if scene.is_empty() {
         // Nothing to hit: every pixel is the one backdrop colour and no ray is traced. Encoding
         // it per pixel cost the empty-scene wall (max-fps) a sixth of its CPU.
         let rgb = encode_srgb_ish(background(Vec3::Z));
         let images = tiles.iter().map(|t| rgb.repeat(t.pixel_count())).collect();
-        return (images, RayCounts::default());
+        return (images, RayCounts::default(), footprints);
     }
     let packets = packets_of(tiles);
-    let traced: Vec<([u8; (PACKET * PACKET * 3) as usize], RayCounts)> = packets
+    type Traced = ([u8; (PACKET * PACKET * 3) as usize], RayCounts, Vec<u32>);
+    let traced: Vec<Traced> = packets
         .par_iter()
         .map_init(
             || scene.tracer(),
             |tracer, &(i, px, py)| {
-                trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, tracer)
+                let (pixels, counts) =
+                    trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, tracer);
+                (pixels, counts, tracer.take_footprint())
             },
         )
         .collect();
     let mut images: Vec<Vec<u8>> = tiles.iter().map(|t| vec![0; t.pixel_count() * 3]).collect();
     let mut counts = RayCounts::default();
-    for (&(i, px, py), (pixels, c)) in packets.iter().zip(&traced) {
+    for (&(i, px, py), (pixels, c, footprint)) in packets.iter().zip(&traced) {
+        footprints[i].extend_from_slice(footprint);
         counts = counts.add(*c);
         let tile = &tiles[i];
         let w = PACKET.min(tile.width - px) as usize;
@@ -263,7 +295,11 @@ pub(crate) fn render_tiles_with(
             images[i][dst..dst + w * 3].copy_from_slice(&pixels[src..src + w * 3]);
         }
     }
-    (images, counts)
+    for f in &mut footprints {
+        f.sort_unstable();
+        f.dedup();
+    }
+    (images, counts, footprints)
 }
 
 /// Renders `tiles` as linear colour (what [`render_tiles`] encodes to 8 bits, before encoding),

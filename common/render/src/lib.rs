@@ -43,7 +43,10 @@ pub mod volume;
 #[cfg(test)]
 mod render_tests;
 
-pub use frame::{render_tiles, render_tiles_linear, FrameView, PreparedScene, RayCounts, PACKET};
+pub use frame::{
+    render_tiles, render_tiles_footprints, render_tiles_linear, FrameView, PreparedScene,
+    RayCounts, PACKET,
+};
 pub use pixel_rays::{orbit_of, PixelRays};
 pub use reference::{render_wall, render_wall_linear};
 pub use shade::{

@@ -380,9 +380,9 @@ fn shadow_packets_give_the_pixels_of_single_shadow_rays() {
         .build()
         .unwrap();
         let view = FrameView::new(0, &gallery_camera(), params, 96, 64);
-        let (packets, packet_counts) =
+        let (packets, packet_counts, _) =
             render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Packets);
-        let (single, single_counts) =
+        let (single, single_counts, _) =
             render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Single);
         assert!(packet_counts.shadow > 1000, "{packet_counts:?}");
         assert_eq!(packet_counts, single_counts);

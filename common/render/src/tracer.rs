@@ -75,6 +75,15 @@ impl<'s> Tracer<'s> {
         }
     }
 
+    /// The other nodes' blocks this tracer read since the last call (none for replicated
+    /// data), in the order read.
+    pub fn take_footprint(&mut self) -> Vec<tessera_core::dsm::BlockId> {
+        match &mut self.memory {
+            Memory::Resident(_) => Vec::new(),
+            Memory::Shared(m) => m.take_footprint(),
+        }
+    }
+
     /// Leaf triangle `slot` (a hit's), for shading.
     pub fn triangle(&mut self, slot: u32) -> LeafTriangle {
         match &mut self.memory {

@@ -83,8 +83,10 @@ impl Wall {
             Role::Render { cores } => {
                 let node = RenderNodeId(self.next_render_id);
                 self.next_render_id += 1;
+                let rank = self.take_rank(node);
+                let holds = rank.map_or(String::new(), |r| format!(", holds rank {r}"));
                 tracing::info!(
-                    "render node {} joined from {host} ({remote}), {cores} cores",
+                    "render node {} joined from {host} ({remote}), {cores} cores{holds}",
                     node.0
                 );
                 PeerRole::Render { node, cores }
@@ -246,6 +248,7 @@ impl Wall {
                 if p.ready {
                     self.coordinator.handle_render_left(node, now);
                 }
+                self.lose_rank(node, &who);
             }
             PeerRole::Control => tracing::info!("{who} left ({reason})"),
         }

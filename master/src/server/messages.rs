@@ -81,6 +81,10 @@ impl Wall {
                 let stamp = (clock_ns as i64 - self.timing.offset(d)).max(1) as u64;
                 self.handle_input(d, event, stamp);
             }
+            (&PeerRole::Render { node, .. }, FromNode::BlocksAt { addr }) => {
+                let remote = p.conn.remote_address();
+                self.blocks_at(node, addr, remote)?;
+            }
             (_, other) => bail!("sent {other:?}, which its role never sends"),
         }
         Ok(())

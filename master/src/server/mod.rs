@@ -2,6 +2,7 @@
 //! what it returns. This is the only place in the master with sockets and `Instant::now()`.
 
 mod control;
+mod holders;
 mod join;
 mod messages;
 mod report_of;
@@ -39,6 +40,8 @@ pub struct RunConfig {
     pub windows: BTreeMap<u32, tessera_wire::window::WindowPlacement>,
     pub scene: SceneSpec,
     pub scene_hash: [u8; 32],
+    /// How render nodes hold the scene.
+    pub data: tessera_wire::protocol::dsm::DataSpec,
     pub camera: CameraMode,
     pub params: RenderParams,
     /// Frames to run; `None` runs until interrupted.
@@ -116,6 +119,9 @@ struct Wall {
     navigator: tessera_core::navigate::Navigator,
     /// The state of the frames starting now (as the last `StateApplied` said).
     frame_state: WallState,
+    /// A shared scene's ranks: which render node holds each, and where it answers for its
+    /// blocks once it said so.
+    holders: holders::Holders,
 }
 
 /// Runs a whole wall on `endpoint` and returns its report. `started` is set once the first frame
@@ -189,6 +195,7 @@ pub async fn run_wall(
         recorder,
         navigator: tessera_core::navigate::Navigator::new(cfg.camera, cfg.pivot, cfg.scene_size),
         frame_state,
+        holders: holders::Holders::default(),
         cfg,
     };
     tracing::info!(
@@ -352,6 +359,7 @@ impl Wall {
             save_frame: self.cfg.save_frame,
             compression: self.cfg.compression,
             windows: self.cfg.windows.clone(),
+            data: self.cfg.data.clone(),
         })
         .expect("displays are checked against the wall, and for duplicates, when they join")
     }
@@ -397,6 +405,9 @@ impl Wall {
                 session: self.session(),
             },
         );
+        if node != RenderNodeId(u32::MAX) {
+            self.send_holders(peer, node);
+        }
     }
 
     fn all_displays_known(&self) -> bool {

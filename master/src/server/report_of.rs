@@ -2,7 +2,67 @@
 
 use super::*;
 
+use crate::report::DsmSummary;
+use tessera_wire::protocol::dsm::DataSpec;
+
 impl Wall {
+    /// The render nodes' reads of a shared scene, together.
+    fn dsm_summary(&self, nodes: &[RenderNodeReport], frames: u64) -> Option<DsmSummary> {
+        let DataSpec::Shared(spec) = &self.cfg.data else {
+            return None;
+        };
+        let mut s = DsmSummary {
+            block_bytes: spec.block_bytes,
+            ranks: spec.ranks,
+            replicas: spec.replicas,
+            remote_read_min_us: f64::INFINITY,
+            round_trip_us: f64::INFINITY,
+            ..DsmSummary::default()
+        };
+        let (mut local, mut latency_sum, mut latency_count) = (0u64, 0.0, 0u64);
+        for n in nodes {
+            s.max_rss_bytes = s.max_rss_bytes.max(n.stats.max_rss_bytes);
+            let Some(d) = n.stats.dsm.as_deref() else {
+                continue;
+            };
+            s.block_reads += d.block_reads;
+            s.fetched += d.fetched;
+            s.read_locally += d.read_locally;
+            local += d.local_reads;
+            if d.latency_count > 0 {
+                latency_sum += d.latency_avg_us * d.latency_count as f64;
+                latency_count += d.latency_count;
+                s.remote_read_min_us = s.remote_read_min_us.min(d.latency_min_us);
+                s.remote_read_max_us = s.remote_read_max_us.max(d.latency_max_us);
+                s.remote_read_p99_us = s.remote_read_p99_us.max(d.latency_p99_us);
+            }
+            if d.round_trip_us > 0.0 {
+                s.round_trip_us = s.round_trip_us.min(d.round_trip_us);
+            }
+        }
+        let share = |part: u64| {
+            if s.block_reads > 0 {
+                part as f64 * 100.0 / s.block_reads as f64
+            } else {
+                0.0
+            }
+        };
+        s.miss_percent = share(s.fetched);
+        s.local_percent = share(local);
+        s.blocks_read_per_frame = s.block_reads as f64 / frames.max(1) as f64;
+        s.remote_read_avg_us = if latency_count > 0 {
+            latency_sum / latency_count as f64
+        } else {
+            0.0
+        };
+        for v in [&mut s.remote_read_min_us, &mut s.round_trip_us] {
+            if !v.is_finite() {
+                *v = 0.0;
+            }
+        }
+        Some(s)
+    }
+
     pub(super) fn report(&self) -> Report {
         let start = self.started.unwrap_or_else(Instant::now);
         let last = self.presents.last().map_or(start, |(_, t)| *t);
@@ -60,6 +120,7 @@ impl Wall {
             .collect();
         render_nodes.sort_by_key(|r| r.id);
         let frames = self.presents.len() as u64;
+        let dsm = self.dsm_summary(&render_nodes, frames);
         Report {
             frames,
             compression: self.cfg.compression,
@@ -86,6 +147,11 @@ impl Wall {
             tiles_speculated: self.coordinator.speculated_tiles(),
             changes_applied: self.changes_applied,
             snapshots: self.live.snapshots.iter().map(|f| f.0).collect(),
+            data: match self.cfg.data {
+                DataSpec::Replicated => "replicated",
+                DataSpec::Shared(_) => "dsm",
+            },
+            dsm,
         }
     }
 }

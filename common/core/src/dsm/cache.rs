@@ -81,6 +81,15 @@ impl<B> BlockCache<B> {
         found
     }
 
+    /// Whether `line` holds block k now, counting nothing (a prefetcher asking what to
+    /// fetch is not a reader).
+    pub fn holds(&self, k: BlockId, line: usize) -> bool {
+        self.line(line).is_some_and(|slot| {
+            let guard = slot.read().unwrap_or_else(PoisonError::into_inner);
+            guard.as_ref().is_some_and(|l| l.block == k)
+        })
+    }
+
     /// Puts block k in `line`, replacing whatever was there (an eviction if it was another
     /// block). Readers of the old block keep it until they drop it.
     pub fn insert(&self, k: BlockId, line: usize, block: Arc<B>) {

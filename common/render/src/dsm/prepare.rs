@@ -207,6 +207,73 @@ pub fn prepare(
     Ok(manifest)
 }
 
+/// A manifest from its JSON, checked to be of this format and to describe what can exist: a
+/// layout whose counts follow from its sizes, valid materials and lights, and a material for
+/// every slot that names one of them.
+///
+/// # Errors
+/// What is wrong, in words.
+pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
+    let manifest: Manifest = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    if manifest.format != FORMAT {
+        return Err(format!(
+            "format {}, this build reads {FORMAT}",
+            manifest.format
+        ));
+    }
+    let l = manifest.layout;
+    let again = BlockLayout::new(l.block_bytes, l.node_count, l.triangle_count, l.top_blocks)
+        .map_err(|e| e.to_string())?;
+    if again != l {
+        return Err("its block counts do not follow from its sizes".into());
+    }
+    for (i, m) in manifest.materials.iter().enumerate() {
+        m.check().map_err(|e| format!("material {i} {e}"))?;
+    }
+    for (i, light) in manifest.lights.iter().enumerate() {
+        let (at, intensity) = match *light {
+            Light::Directional { towards, intensity } => (towards, intensity),
+            Light::Point {
+                position,
+                intensity,
+            } => (position, intensity),
+        };
+        if !(at.is_finite() && intensity.is_finite() && intensity >= 0.0) {
+            return Err(format!(
+                "light {i} is not finite or has a negative intensity"
+            ));
+        }
+    }
+    let known = manifest.materials.len();
+    let names = |m: &u16| (*m as usize) < known;
+    let slots_ok = match &manifest.slot_materials {
+        SlotMaterials::PerSlot(m) => m.len() == l.triangle_count as usize && m.iter().all(names),
+        SlotMaterials::Runs { starts, materials } => {
+            starts.len() == materials.len()
+                && starts.first().is_none_or(|&s| s == 0)
+                && starts.windows(2).all(|w| w[0] < w[1])
+                && materials.iter().all(names)
+                && (l.triangle_count == 0 || !starts.is_empty())
+        }
+    };
+    if !slots_ok {
+        return Err(
+            "its slots' materials do not cover the triangles or name a missing material".into(),
+        );
+    }
+    let finite = manifest
+        .bounds_min
+        .iter()
+        .chain(&manifest.bounds_max)
+        .all(|v| v.is_finite())
+        && manifest.diagonal.is_finite()
+        && manifest.diagonal >= 0.0;
+    if !finite {
+        return Err("its bounds are not finite".into());
+    }
+    Ok(manifest)
+}
+
 /// The manifest in `dir`, checked to be of this format and, if given, of scene `expected`
 /// (a content hash in hex) with blocks of `block_bytes`.
 ///
@@ -220,24 +287,8 @@ pub fn load_manifest(dir: &Path, expected: Option<(&str, u32)>) -> Result<Manife
         path: path.clone(),
         reason,
     };
-    let manifest: Manifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
-    if manifest.format != FORMAT {
-        return Err(bad(format!(
-            "format {}, this build reads {FORMAT}",
-            manifest.format
-        )));
-    }
+    let manifest = parse_manifest(&text).map_err(bad)?;
     let layout = manifest.layout;
-    let again = BlockLayout::new(
-        layout.block_bytes,
-        layout.node_count,
-        layout.triangle_count,
-        layout.top_blocks,
-    )
-    .map_err(|e| bad(e.to_string()))?;
-    if again != layout {
-        return Err(bad("its block counts do not follow from its sizes".into()));
-    }
     if let Some((hash, block_bytes)) = expected {
         if manifest.scene_hash != hash || layout.block_bytes != block_bytes {
             return Err(PrepareError::OtherScene {
@@ -395,6 +446,51 @@ mod tests {
             file.read(k as u32),
             Err(PrepareError::Damaged { block, .. }) if block == k as u32
         ));
+    }
+
+    #[test]
+    fn a_manifest_naming_materials_it_lacks_or_uncovered_slots_is_refused() {
+        let scene = knot_scene(24, 4);
+        let accel = Accel::build(&scene);
+        let (good, _) = blocks_of(&scene, &accel, 2048).unwrap();
+        let text = |m: &Manifest| serde_json::to_string(m).unwrap();
+        assert_eq!(parse_manifest(&text(&good)).unwrap(), good);
+        let cases = [
+            Manifest {
+                slot_materials: SlotMaterials::PerSlot(vec![0; 3]),
+                ..good.clone()
+            },
+            Manifest {
+                slot_materials: SlotMaterials::Runs {
+                    starts: vec![0],
+                    materials: vec![7],
+                },
+                ..good.clone()
+            },
+            Manifest {
+                slot_materials: SlotMaterials::Runs {
+                    starts: vec![5, 2],
+                    materials: vec![0, 0],
+                },
+                ..good.clone()
+            },
+            Manifest {
+                diagonal: f32::NAN,
+                ..good.clone()
+            },
+            Manifest {
+                format: FORMAT + 1,
+                ..good.clone()
+            },
+        ];
+        for bad in cases {
+            assert!(parse_manifest(&text(&bad)).is_err(), "{bad:?}");
+        }
+        let mut counts = good.clone();
+        counts.layout.node_blocks += 1;
+        assert!(parse_manifest(&text(&counts))
+            .unwrap_err()
+            .contains("block counts"));
     }
 
     #[test]

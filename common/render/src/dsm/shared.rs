@@ -138,6 +138,7 @@ impl SharedTree {
             tris: (BlockId::MAX, Hold::Nothing),
             reads: 0,
             local: 0,
+            footprint: Vec::new(),
         }
     }
 
@@ -148,6 +149,14 @@ impl SharedTree {
             fetched: self.fetched.load(Ordering::Relaxed),
             fetch_wait_s: self.fetch_wait_ns.load(Ordering::Relaxed) as f64 * 1e-9,
         }
+    }
+
+    /// Whether block `k` is here now: held by this node or in its cache (a prefetch of it
+    /// would be wasted).
+    pub fn is_here(&self, k: BlockId) -> bool {
+        let lines = self.cache.lines();
+        self.local(k).is_some()
+            || (lines > 0 && self.cache.holds(k, self.residency.cache_line(k, lines)))
     }
 
     /// Block `k`'s bytes if this node holds it.
@@ -212,24 +221,32 @@ pub struct SharedReader<'s> {
     tris: (BlockId, Hold<'s>),
     reads: u64,
     local: u64,
+    /// The other nodes' blocks read since [`SharedReader::take_footprint`]: what the same
+    /// pixels will read again next frame, to be fetched ahead of them.
+    footprint: Vec<BlockId>,
 }
 
-impl<'s> SharedReader<'s> {
+impl SharedReader<'_> {
     #[inline(always)]
-    fn enter(
-        tree: &'s SharedTree,
-        held: &mut (BlockId, Hold<'s>),
-        k: BlockId,
-        counts: (&mut u64, &mut u64),
-    ) {
+    fn enter(&mut self, tris: bool, k: BlockId) {
+        let held = if tris { &mut self.tris } else { &mut self.node };
         if held.0 != k {
             // Let go of the old block first: a line replaced meanwhile frees it at once.
             held.1 = Hold::Nothing;
-            held.1 = tree.hold(k);
+            held.1 = self.tree.hold(k);
             held.0 = k;
-            *counts.0 += 1;
-            *counts.1 += matches!(held.1, Hold::Local(_)) as u64;
+            self.reads += 1;
+            if matches!(held.1, Hold::Local(_)) {
+                self.local += 1;
+            } else {
+                self.footprint.push(k);
+            }
         }
+    }
+
+    /// The other nodes' blocks read since the last call, in the order read (repeats kept).
+    pub fn take_footprint(&mut self) -> Vec<BlockId> {
+        std::mem::take(&mut self.footprint)
     }
 }
 
@@ -254,12 +271,7 @@ impl TreeMemory for SharedReader<'_> {
     #[inline(always)]
     fn node(&mut self, index: u32) -> &WideNode {
         let (k, at) = self.tree.layout.node_block(index);
-        Self::enter(
-            self.tree,
-            &mut self.node,
-            k,
-            (&mut self.reads, &mut self.local),
-        );
+        self.enter(false, k);
         &nodes_of(self.node.1.chunks())[at as usize]
     }
 
@@ -271,12 +283,7 @@ impl TreeMemory for SharedReader<'_> {
     #[inline(always)]
     fn triangles(&mut self, slots: Range<u32>) -> &[LeafTriangle] {
         let (k, at, next) = self.tree.layout.triangle_block(slots.start);
-        Self::enter(
-            self.tree,
-            &mut self.tris,
-            k,
-            (&mut self.reads, &mut self.local),
-        );
+        self.enter(true, k);
         let end = slots.end.min(next) - slots.start + at;
         let per = self.tree.layout.triangles_per_block();
         &triangles_of(self.tris.1.chunks(), per)[at as usize..end as usize]

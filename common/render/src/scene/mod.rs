@@ -87,7 +87,7 @@ impl Material {
     }
 
     /// Material values out of their meaningful ranges would give NaN or negative light.
-    fn check(&self) -> Result<(), String> {
+    pub(crate) fn check(&self) -> Result<(), String> {
         let finite = self.albedo.is_finite()
             && self.specular.is_finite()
             && self.shininess.is_finite()

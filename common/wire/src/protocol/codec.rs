@@ -129,7 +129,17 @@ mod tests {
                 prefetch_hits: 7,
                 prefetch_misses: 1,
                 volume_stall_s: 0.25,
+                max_rss_bytes: 123 << 20,
+                dsm: Some(Box::new(crate::protocol::dsm::DsmStats {
+                    rank: Some(1),
+                    fetched: 9,
+                    latency_p99_us: 350.5,
+                    ..Default::default()
+                })),
             })),
+            FromNode::BlocksAt {
+                addr: "10.0.0.7:7401".parse().unwrap(),
+            },
         ]
     }
 
@@ -155,8 +165,25 @@ mod tests {
                         },
                     )]
                     .into(),
+                    data: crate::protocol::dsm::DataSpec::Shared(
+                        crate::protocol::dsm::SharedSpec {
+                            dir: "/var/tessera/prepared".into(),
+                            block_bytes: 8192,
+                            ranks: 4,
+                            replicas: 2,
+                            memory_budget: Some(512 << 20),
+                            cache_fraction: None,
+                        },
+                    ),
                 })
                 .unwrap(),
+            },
+            ToNode::BlockHolders {
+                rank: Some(2),
+                holders: vec![crate::protocol::dsm::BlockHolder {
+                    rank: 0,
+                    addr: "127.0.0.1:5000".parse().unwrap(),
+                }],
             },
             ToNode::FrameStart(FrameStart {
                 lights: Some(

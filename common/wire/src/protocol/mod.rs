@@ -8,6 +8,7 @@
 //! state machine that consumes the message.
 
 pub mod codec;
+pub mod dsm;
 pub mod pixels;
 
 use crate::camera::Camera;
@@ -24,7 +25,7 @@ use std::collections::BTreeMap;
 use std::net::SocketAddr;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 4;
+pub const PROTOCOL_VERSION: u32 = 5;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
@@ -132,6 +133,8 @@ pub enum ProtocolError {
     DuplicateDisplay(u32),
     #[error("stats field {field} is {value}, not a finite number of seconds")]
     BadSeconds { field: &'static str, value: f64 },
+    #[error("session shares the scene with {0}")]
+    BadShared(String),
 }
 
 /// Where a display node accepts pixels.
@@ -167,6 +170,8 @@ pub struct SessionSpec {
     pub compression: pixels::Compression,
     /// Where displays put their windows, by display id, if the wall file says.
     pub windows: BTreeMap<u32, WindowPlacement>,
+    /// How render nodes hold the scene: each all of it, or a share of its blocks.
+    pub data: dsm::DataSpec,
 }
 
 impl Session {
@@ -188,6 +193,9 @@ impl Session {
         }
         if let Some(&display) = spec.windows.keys().find(|&&d| d >= count) {
             return Err(ProtocolError::UnknownDisplay { display, count });
+        }
+        if let dsm::DataSpec::Shared(shared) = &spec.data {
+            shared.check().map_err(ProtocolError::BadShared)?;
         }
         Ok(Session(spec))
     }
@@ -219,6 +227,11 @@ impl Session {
     /// Where display `display`'s window goes, if the wall file says.
     pub fn window(&self, display: DisplayId) -> Option<WindowPlacement> {
         self.0.windows.get(&display.0).copied()
+    }
+
+    /// How render nodes hold the scene.
+    pub fn data(&self) -> &dsm::DataSpec {
+        &self.0.data
     }
 }
 
@@ -406,6 +419,12 @@ pub enum ToNode {
     StartAt {
         frame: FrameId,
     },
+    /// Render nodes of a shared scene: this node's rank (None: it holds no blocks) and where
+    /// the nodes holding blocks answer for them; sent again when one is lost.
+    BlockHolders {
+        rank: Option<u32>,
+        holders: Vec<dsm::BlockHolder>,
+    },
 }
 
 impl ToNode {
@@ -425,6 +444,7 @@ impl ToNode {
             ToNode::SaveFrame { .. } => "save frame",
             ToNode::DisplayAt { .. } => "display at",
             ToNode::StartAt { .. } => "start at",
+            ToNode::BlockHolders { .. } => "block holders",
         }
     }
 }
@@ -481,6 +501,11 @@ pub enum FromNode {
         frame: FrameId,
         tiles: Vec<TileRange>,
     },
+    /// A render node of a shared scene answers block requests at `addr` (an unspecified IP:
+    /// the address the master sees it at).
+    BlocksAt {
+        addr: SocketAddr,
+    },
 }
 
 /// How often a render node says it is alive. The master's deadline for a silent node
@@ -511,6 +536,10 @@ pub struct RenderStats {
     pub prefetch_misses: u64,
     /// Seconds the node waited for steps not yet loaded.
     pub volume_stall_s: f64,
+    /// The node's peak resident memory (VmHWM), in bytes; 0 where the OS does not say.
+    pub max_rss_bytes: u64,
+    /// Its reads of a shared scene, if the scene was shared (boxed: most runs have none).
+    pub dsm: Option<Box<dsm::DsmStats>>,
 }
 
 /// Most per-step load times a node reports: a longer run reports its first ones.
@@ -526,6 +555,8 @@ struct RenderStatsRaw {
     prefetch_hits: u64,
     prefetch_misses: u64,
     volume_stall_s: f64,
+    max_rss_bytes: u64,
+    dsm: Option<Box<dsm::DsmStats>>,
 }
 
 impl TryFrom<RenderStatsRaw> for RenderStats {
@@ -543,6 +574,9 @@ impl TryFrom<RenderStatsRaw> for RenderStats {
                 return Err(ProtocolError::BadSeconds { field, value });
             }
         }
+        if let Some(Err((field, value))) = raw.dsm.as_ref().map(|d| d.check()) {
+            return Err(ProtocolError::BadSeconds { field, value });
+        }
         if raw.volume_load_s.len() > MAX_REPORTED_LOADS {
             return Err(ProtocolError::BadSeconds {
                 field: "volume_load_s (too many)",
@@ -558,6 +592,8 @@ impl TryFrom<RenderStatsRaw> for RenderStats {
             prefetch_hits: raw.prefetch_hits,
             prefetch_misses: raw.prefetch_misses,
             volume_stall_s: raw.volume_stall_s,
+            max_rss_bytes: raw.max_rss_bytes,
+            dsm: raw.dsm,
         })
     }
 }
@@ -635,6 +671,7 @@ mod tests {
             save_frame: None,
             compression: pixels::Compression::None,
             windows: BTreeMap::new(),
+            data: dsm::DataSpec::Replicated,
         };
         assert!(Session::new(spec(vec![endpoint(0), endpoint(1)])).is_ok());
         assert_eq!(
@@ -676,13 +713,31 @@ mod tests {
     #[test]
     fn stats_with_nan_seconds_are_refused() {
         #[derive(Serialize)]
-        struct Raw(u64, u64, f64, f64, Vec<f64>, u64, u64, f64);
-        let err = decode_err::<RenderStats>(&Raw(1, 2, f64::NAN, 1.0, vec![], 0, 0, 0.0));
+        struct Raw(
+            u64,
+            u64,
+            f64,
+            f64,
+            Vec<f64>,
+            u64,
+            u64,
+            f64,
+            u64,
+            Option<Box<dsm::DsmStats>>,
+        );
+        let raw = |busy, loads, dsm| Raw(1, 2, busy, 1.0, loads, 0, 0, 0.0, 0, dsm);
+        let err = decode_err::<RenderStats>(&raw(f64::NAN, vec![], None));
         assert!(err.contains("busy_s"), "{err}");
-        let err = decode_err::<RenderStats>(&Raw(1, 2, 1.0, 1.0, vec![0.5, -1.0], 0, 0, 0.0));
+        let err = decode_err::<RenderStats>(&raw(1.0, vec![0.5, -1.0], None));
         assert!(err.contains("volume_load_s"), "{err}");
         let many = vec![0.1; MAX_REPORTED_LOADS + 1];
-        let err = decode_err::<RenderStats>(&Raw(1, 2, 1.0, 1.0, many, 0, 0, 0.0));
+        let err = decode_err::<RenderStats>(&raw(1.0, many, None));
         assert!(err.contains("too many"), "{err}");
+        let bad = dsm::DsmStats {
+            latency_p99_us: f64::INFINITY,
+            ..dsm::DsmStats::default()
+        };
+        let err = decode_err::<RenderStats>(&raw(1.0, vec![], Some(Box::new(bad))));
+        assert!(err.contains("latency_p99_us"), "{err}");
     }
 }

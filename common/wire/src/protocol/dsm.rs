@@ -1,0 +1,208 @@
+//! What the wire carries for a scene in distributed shared memory: how the session shares it,
+//! where the render nodes that hold its blocks are, the block requests render nodes send each
+//! other, and what each node reports of its reads.
+//!
+//! A block request travels on a bidirectional stream of its own, render node to render node:
+//! a length-prefixed [`BlockRequest`] (postcard, like every control message), answered on the
+//! same stream by, for each block asked in order, a [`BLOCK_HEADER_LEN`]-byte header (the
+//! block's id, little-endian, and whether it follows) and then, if it does, its raw bytes.
+
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// Most blocks one request may ask for.
+pub const MAX_BLOCKS_PER_REQUEST: usize = 4096;
+/// Most render nodes that hold blocks.
+pub const MAX_RANKS: u32 = 4096;
+
+/// How the render nodes hold the scene.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum DataSpec {
+    /// Every render node loads the whole scene.
+    Replicated,
+    /// The scene is prepared in blocks, each render node holds a share (see [`SharedSpec`]).
+    Shared(SharedSpec),
+}
+
+/// A scene shared in blocks: where they are prepared, how they are spread.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SharedSpec {
+    /// The prepared folder on the master's host; a render node's `--prepared` names its own.
+    pub dir: PathBuf,
+    pub block_bytes: u32,
+    /// Render nodes that hold blocks (the first to join); more render nodes hold none.
+    pub ranks: u32,
+    /// Nodes that hold each block (2: a second owner, so a death loses nothing).
+    pub replicas: u32,
+    /// Bytes a render node may use in all, unless its own `--memory-budget` says.
+    pub memory_budget: Option<u64>,
+    /// The cache as a share of the scene's blocks, in place of what the budget leaves (an
+    /// experiment's knob).
+    pub cache_fraction: Option<f32>,
+}
+
+impl SharedSpec {
+    /// # Errors
+    /// No ranks or more than [`MAX_RANKS`], replicas not within 1..=ranks, a cache fraction
+    /// not in (0, 1].
+    pub fn check(&self) -> Result<(), String> {
+        if !(1..=MAX_RANKS).contains(&self.ranks) {
+            return Err(format!("{} ranks (1 to {MAX_RANKS})", self.ranks));
+        }
+        if !(1..=self.ranks).contains(&self.replicas) {
+            return Err(format!(
+                "{} replicas of {} ranks",
+                self.replicas, self.ranks
+            ));
+        }
+        if let Some(f) = self.cache_fraction {
+            if !(f > 0.0 && f <= 1.0) {
+                return Err(format!("cache fraction {f} (0 < f <= 1)"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A render node that holds blocks, and where it answers requests for them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BlockHolder {
+    pub rank: u32,
+    pub addr: SocketAddr,
+}
+
+/// Render node → render node: send me these blocks.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BlockRequest {
+    pub blocks: Vec<u32>,
+    /// Asked ahead of need (a prefetch): answered after the blocks render threads wait for.
+    pub ahead: bool,
+}
+
+/// The header before each answered block: its id and whether its bytes follow (a node asked
+/// for a block it does not hold says so, and the asker goes elsewhere).
+pub const BLOCK_HEADER_LEN: usize = 5;
+
+pub fn encode_block_header(block: u32, follows: bool) -> [u8; BLOCK_HEADER_LEN] {
+    let b = block.to_le_bytes();
+    [b[0], b[1], b[2], b[3], follows as u8]
+}
+
+/// # Errors
+/// A "follows" byte other than 0 or 1.
+pub fn decode_block_header(raw: [u8; BLOCK_HEADER_LEN]) -> Result<(u32, bool), String> {
+    let block = u32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]]);
+    match raw[4] {
+        0 => Ok((block, false)),
+        1 => Ok((block, true)),
+        other => Err(format!("block {block}: bad header byte {other}")),
+    }
+}
+
+/// What a render node of a shared scene measured of its reads. Seconds and microseconds are
+/// checked on arrival like every figure the master divides by.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DsmStats {
+    /// Its rank, if it held blocks.
+    pub rank: Option<u32>,
+    /// Bytes of the scene it held for good (the top of the tree and its share).
+    pub resident_bytes: u64,
+    /// Bytes of its cache, and its lines.
+    pub cache_bytes: u64,
+    pub cache_lines: u64,
+    /// Blocks traversals moved into; of those held here; of those fetched (cache misses).
+    pub block_reads: u64,
+    pub local_reads: u64,
+    pub fetched: u64,
+    /// Render threads' time waiting for fetched blocks, in all.
+    pub fetch_wait_s: f64,
+    pub cache_hits: u64,
+    pub cache_misses: u64,
+    pub evictions: u64,
+    /// Request messages sent, blocks asked for and arrived, retries after a timeout, blocks
+    /// read from the prepared files because no owner was left, blocks asked ahead of need.
+    pub requests: u64,
+    pub blocks_requested: u64,
+    pub blocks_arrived: u64,
+    pub retries: u64,
+    pub read_locally: u64,
+    pub prefetched: u64,
+    /// Remote reads: from the miss to the block's arrival.
+    pub latency_count: u64,
+    pub latency_min_us: f64,
+    pub latency_avg_us: f64,
+    pub latency_max_us: f64,
+    pub latency_p99_us: f64,
+    /// Round trip of an empty request to a peer on the same connections (the transport's
+    /// floor under a remote read), the fastest seen; 0 when never measured.
+    pub round_trip_us: f64,
+}
+
+impl DsmStats {
+    /// # Errors
+    /// A figure that is not finite or is negative.
+    pub fn check(&self) -> Result<(), (&'static str, f64)> {
+        for (field, v) in [
+            ("fetch_wait_s", self.fetch_wait_s),
+            ("latency_min_us", self.latency_min_us),
+            ("latency_avg_us", self.latency_avg_us),
+            ("latency_max_us", self.latency_max_us),
+            ("latency_p99_us", self.latency_p99_us),
+            ("round_trip_us", self.round_trip_us),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((field, v));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn block_headers_round_trip_and_bad_flags_are_refused() {
+        for (k, f) in [(0, false), (7, true), (u32::MAX, true)] {
+            assert_eq!(decode_block_header(encode_block_header(k, f)), Ok((k, f)));
+        }
+        let mut bad = encode_block_header(3, true);
+        bad[4] = 2;
+        assert!(decode_block_header(bad).unwrap_err().contains("block 3"));
+    }
+
+    #[test]
+    fn a_shared_spec_out_of_bounds_is_refused() {
+        let ok = SharedSpec {
+            dir: "/tmp/x".into(),
+            block_bytes: 8192,
+            ranks: 4,
+            replicas: 2,
+            memory_budget: None,
+            cache_fraction: Some(0.125),
+        };
+        assert!(ok.check().is_ok());
+        for bad in [
+            SharedSpec {
+                ranks: 0,
+                ..ok.clone()
+            },
+            SharedSpec {
+                replicas: 5,
+                ..ok.clone()
+            },
+            SharedSpec {
+                cache_fraction: Some(0.0),
+                ..ok.clone()
+            },
+            SharedSpec {
+                cache_fraction: Some(f32::NAN),
+                ..ok.clone()
+            },
+        ] {
+            assert!(bad.check().is_err(), "{bad:?}");
+        }
+    }
+}

@@ -1,0 +1,108 @@
+//! A shared scene's ranks: the first render nodes to join each hold a rank's share of the
+//! blocks; the master tells every render node its rank and where the holders answer, and
+//! again whenever a holder comes or goes. A rank whose holder is lost is taken by the next
+//! render node to join, which loads that share from the prepared files.
+
+use super::*;
+use std::collections::BTreeSet;
+use tessera_wire::protocol::dsm::{BlockHolder, DataSpec};
+
+/// Which render node holds each rank, and where it answers for its blocks.
+#[derive(Default)]
+pub(super) struct Holders {
+    rank_of: BTreeMap<RenderNodeId, u32>,
+    addr: BTreeMap<u32, SocketAddr>,
+}
+
+impl Holders {
+    fn list(&self) -> Vec<BlockHolder> {
+        self.addr
+            .iter()
+            .map(|(&rank, &addr)| BlockHolder { rank, addr })
+            .collect()
+    }
+}
+
+impl Wall {
+    fn ranks(&self) -> Option<u32> {
+        match &self.cfg.data {
+            DataSpec::Shared(spec) => Some(spec.ranks),
+            DataSpec::Replicated => None,
+        }
+    }
+
+    /// The lowest rank nobody holds, for a render node that just joined (none when the
+    /// scene is replicated or every rank is held).
+    pub(super) fn take_rank(&mut self, node: RenderNodeId) -> Option<u32> {
+        let ranks = self.ranks()?;
+        let held: BTreeSet<u32> = self.holders.rank_of.values().copied().collect();
+        let rank = (0..ranks).find(|r| !held.contains(r))?;
+        self.holders.rank_of.insert(node, rank);
+        Some(rank)
+    }
+
+    /// Tells render node `node` (at `peer`) its rank and where the holders are.
+    pub(super) fn send_holders(&self, peer: PeerId, node: RenderNodeId) {
+        if self.ranks().is_none() {
+            return;
+        }
+        let rank = self.holders.rank_of.get(&node).copied();
+        let holders = self.holders.list();
+        self.send(peer, ToNode::BlockHolders { rank, holders });
+    }
+
+    fn broadcast_holders(&self) {
+        for (&peer, p) in &self.peers {
+            if let PeerRole::Render { node, .. } = p.role {
+                self.send_holders(peer, node);
+            }
+        }
+    }
+
+    /// Render node `node` answers for its rank's blocks at `addr` (an unspecified IP: where
+    /// the master sees it, `remote`).
+    pub(super) fn blocks_at(
+        &mut self,
+        node: RenderNodeId,
+        addr: SocketAddr,
+        remote: SocketAddr,
+    ) -> Result<()> {
+        let Some(&rank) = self.holders.rank_of.get(&node) else {
+            bail!("said where it serves blocks, but it holds no rank");
+        };
+        let addr = if addr.ip().is_unspecified() {
+            SocketAddr::new(remote.ip(), addr.port())
+        } else {
+            addr
+        };
+        tracing::info!(
+            "render node {} serves rank {rank}'s blocks at {addr}",
+            node.0
+        );
+        self.holders.addr.insert(rank, addr);
+        self.broadcast_holders();
+        Ok(())
+    }
+
+    /// Render node `node` (described as `who`) is gone: its rank is free for the next node
+    /// to join, and the others are told, so that they ask its blocks' other owner or read
+    /// them from the prepared files.
+    pub(super) fn lose_rank(&mut self, node: RenderNodeId, who: &str) {
+        let Some(rank) = self.holders.rank_of.remove(&node) else {
+            return;
+        };
+        self.holders.addr.remove(&rank);
+        let replicas = match &self.cfg.data {
+            DataSpec::Shared(spec) => spec.replicas,
+            DataSpec::Replicated => 1,
+        };
+        if replicas > 1 {
+            tracing::warn!("{who} held rank {rank}: its blocks' other owners answer for them");
+        } else {
+            tracing::warn!(
+                "{who} held rank {rank}, the only owner of its blocks: the other render nodes read them from the prepared files (--replicas 2 keeps a second owner)"
+            );
+        }
+        self.broadcast_holders();
+    }
+}

@@ -1,0 +1,365 @@
+//! The render node's fetch loop: the only place a shared scene's blocks are fetched, around the
+//! sans-IO [`Fetcher`]. Render threads' misses come in over a channel; what is missed at once
+//! goes out as one request per owner; arrived blocks go into the cache and to the threads that
+//! wait; the master's news of holders tells it who is gone; and an empty request now and then
+//! measures the transport's round trip on the same connections, the floor under a remote read.
+
+use crate::shared::FetchHub;
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tessera_core::dsm::{
+    BlockCache, BlockId, FetchConfig, FetchOutput, FetchStats, Fetcher, Residency,
+};
+use tessera_net::framed::write_msg;
+use tessera_net::quic;
+use tessera_render::dsm::prepare::BlockFile;
+use tessera_render::dsm::Block;
+use tessera_wire::protocol::dsm::{
+    decode_block_header, BlockHolder, BlockRequest, BLOCK_HEADER_LEN,
+};
+use tokio::sync::{mpsc, oneshot, OnceCell};
+
+/// How often the round trip to a peer is measured.
+const PING_EVERY: Duration = Duration::from_millis(500);
+
+/// What the loop starts with.
+pub struct Setup {
+    pub residency: Residency,
+    pub block_bytes: u32,
+    pub holders: Vec<BlockHolder>,
+    pub misses: mpsc::UnboundedReceiver<BlockId>,
+    pub hub: Arc<FetchHub>,
+    pub cache: Arc<BlockCache<Block>>,
+    pub file: BlockFile,
+    pub endpoint: quinn::Endpoint,
+}
+
+/// The loop's figures.
+#[derive(Clone, Debug, Default)]
+pub struct DriverStats {
+    pub fetch: FetchStats,
+    /// The fastest round trip of an empty request to a peer, in µs (0: never measured).
+    pub round_trip_us: f64,
+}
+
+/// What the node says to the loop; dropping it stops the loop.
+pub struct DriverHandle {
+    holders: mpsc::UnboundedSender<Vec<BlockHolder>>,
+    prefetch: mpsc::UnboundedSender<Vec<BlockId>>,
+    stats: mpsc::UnboundedSender<oneshot::Sender<DriverStats>>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Drop for DriverHandle {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+impl DriverHandle {
+    /// The master's news: these nodes hold blocks now, at these addresses.
+    pub fn holders(&self, holders: Vec<BlockHolder>) {
+        let _ = self.holders.send(holders);
+    }
+
+    /// Blocks the next tiles will probably read: fetched ahead, into the cache.
+    pub fn prefetch(&self, blocks: Vec<BlockId>) {
+        if !blocks.is_empty() {
+            let _ = self.prefetch.send(blocks);
+        }
+    }
+
+    pub async fn stats(&self) -> DriverStats {
+        let (tx, rx) = oneshot::channel();
+        if self.stats.send(tx).is_err() {
+            return DriverStats::default();
+        }
+        rx.await.unwrap_or_default()
+    }
+}
+
+/// Starts the loop on the current runtime.
+pub fn spawn(setup: Setup) -> DriverHandle {
+    let (holders_tx, holders_rx) = mpsc::unbounded_channel();
+    let (prefetch_tx, prefetch_rx) = mpsc::unbounded_channel();
+    let (stats_tx, stats_rx) = mpsc::unbounded_channel();
+    let task = tokio::spawn(run(setup, holders_rx, prefetch_rx, stats_rx));
+    DriverHandle {
+        holders: holders_tx,
+        prefetch: prefetch_tx,
+        stats: stats_tx,
+        task,
+    }
+}
+
+/// What the request tasks report.
+enum Arrival {
+    Block(BlockId, Option<u32>, Arc<Block>),
+    /// A request to this rank failed: its connection is made again for the next one.
+    Failed(u32),
+    RoundTrip(f64),
+}
+
+/// A node holding blocks: where it is, and the one connection to it, made on first use.
+struct Peer {
+    addr: SocketAddr,
+    conn: Arc<OnceCell<quinn::Connection>>,
+}
+
+struct Loop {
+    fetcher: Fetcher,
+    peers: BTreeMap<u32, Peer>,
+    block_bytes: u32,
+    hub: Arc<FetchHub>,
+    cache: Arc<BlockCache<Block>>,
+    file: Arc<Mutex<BlockFile>>,
+    endpoint: quinn::Endpoint,
+    arrivals: mpsc::UnboundedSender<Arrival>,
+    round_trip_us: f64,
+    next_ping: u32,
+}
+
+async fn run(
+    setup: Setup,
+    mut holders: mpsc::UnboundedReceiver<Vec<BlockHolder>>,
+    mut prefetch: mpsc::UnboundedReceiver<Vec<BlockId>>,
+    mut stats: mpsc::UnboundedReceiver<oneshot::Sender<DriverStats>>,
+) {
+    let Setup {
+        residency,
+        block_bytes,
+        holders: first,
+        mut misses,
+        hub,
+        cache,
+        file,
+        endpoint,
+    } = setup;
+    let (arrivals, mut arrived) = mpsc::unbounded_channel();
+    let mut l = Loop {
+        fetcher: Fetcher::new(residency, FetchConfig::default()),
+        peers: BTreeMap::new(),
+        block_bytes,
+        hub: hub.clone(),
+        cache,
+        file: Arc::new(Mutex::new(file)),
+        endpoint,
+        arrivals,
+        round_trip_us: f64::INFINITY,
+        next_ping: 0,
+    };
+    l.set_holders(first);
+    let mut ping = tokio::time::interval(PING_EVERY);
+    ping.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        let timer = l.fetcher.poll_timeout();
+        let timer_at = tokio::time::Instant::from_std(
+            timer.unwrap_or_else(|| Instant::now() + Duration::from_secs(3600)),
+        );
+        // Whether what the fetcher asks now is a prefetch (answered after misses).
+        let mut ahead = false;
+        tokio::select! {
+            k = misses.recv() => {
+                let Some(k) = k else { break };
+                let now = Instant::now();
+                l.fetcher.handle_miss(k, now);
+                // Everything missed meanwhile goes in the same requests.
+                while let Ok(k) = misses.try_recv() {
+                    l.fetcher.handle_miss(k, now);
+                }
+                l.fetcher.flush(now);
+            }
+            Some(blocks) = prefetch.recv() => {
+                ahead = true;
+                let now = Instant::now();
+                for k in blocks {
+                    l.fetcher.handle_prefetch(k, now);
+                }
+                l.fetcher.flush(now);
+            }
+            Some(a) = arrived.recv() => l.arrival(a),
+            Some(list) = holders.recv() => l.set_holders(list),
+            Some(reply) = stats.recv() => {
+                let _ = reply.send(DriverStats {
+                    fetch: l.fetcher.stats(),
+                    round_trip_us: if l.round_trip_us.is_finite() { l.round_trip_us } else { 0.0 },
+                });
+            }
+            _ = tokio::time::sleep_until(timer_at), if timer.is_some() => {
+                l.fetcher.handle_timeout(Instant::now());
+            }
+            _ = ping.tick() => l.ping(),
+        }
+        while let Some(out) = l.fetcher.poll_output() {
+            l.carry_out(out, ahead);
+        }
+    }
+    hub.close();
+}
+
+impl Loop {
+    fn arrival(&mut self, a: Arrival) {
+        match a {
+            Arrival::Block(k, from, block) => {
+                let line = self.fetcher.residency().cache_line(k, self.cache.lines());
+                if self.cache.lines() > 0 {
+                    self.cache.insert(k, line, block.clone());
+                }
+                self.fetcher.handle_arrived(k, from, Instant::now());
+                self.hub.deliver(k, block);
+            }
+            Arrival::Failed(rank) => {
+                if let Some(p) = self.peers.get_mut(&rank) {
+                    p.conn = Arc::new(OnceCell::new());
+                }
+            }
+            Arrival::RoundTrip(us) => self.round_trip_us = self.round_trip_us.min(us),
+        }
+    }
+
+    /// The master's list of holders: ranks no longer in it are lost (their blocks go to other
+    /// owners or the disk), ranks new in it may be asked.
+    fn set_holders(&mut self, list: Vec<BlockHolder>) {
+        let now = Instant::now();
+        let me = self.fetcher.residency().rank();
+        let ranks = self.fetcher.residency().ranks();
+        let listed: BTreeMap<u32, SocketAddr> = list
+            .into_iter()
+            .filter(|h| h.rank < ranks && Some(h.rank) != me)
+            .map(|h| (h.rank, h.addr))
+            .collect();
+        for rank in (0..ranks).filter(|&r| Some(r) != me) {
+            match (listed.get(&rank), self.peers.get(&rank).map(|p| p.addr)) {
+                (Some(&addr), Some(old)) if addr == old => {}
+                (Some(&addr), _) => {
+                    self.fetcher.handle_peer_back(rank);
+                    self.peers.insert(
+                        rank,
+                        Peer {
+                            addr,
+                            conn: Arc::new(OnceCell::new()),
+                        },
+                    );
+                }
+                (None, _) => {
+                    self.peers.remove(&rank);
+                    self.fetcher.handle_peer_lost(rank, now);
+                }
+            }
+        }
+    }
+
+    fn carry_out(&mut self, out: FetchOutput, ahead: bool) {
+        match out {
+            FetchOutput::Request { peer, blocks } => {
+                let Some(p) = self.peers.get(&peer) else {
+                    // Not announced yet (or gone): the timeout asks the next owner.
+                    return;
+                };
+                let (conn, addr, endpoint) = (p.conn.clone(), p.addr, self.endpoint.clone());
+                let (tx, bytes) = (self.arrivals.clone(), self.block_bytes);
+                tokio::spawn(async move {
+                    let result = async {
+                        let conn = connection(&conn, &endpoint, addr, peer).await?;
+                        read_blocks(&conn, (&blocks, ahead), bytes, peer, &tx).await
+                    }
+                    .await;
+                    if let Err(e) = result {
+                        tracing::warn!("blocks from rank {peer} at {addr}: {e:#}");
+                        let _ = tx.send(Arrival::Failed(peer));
+                    }
+                });
+            }
+            FetchOutput::ReadLocally { block } => {
+                let (file, tx) = (self.file.clone(), self.arrivals.clone());
+                tokio::task::spawn_blocking(move || {
+                    let read = file.lock().unwrap_or_else(|e| e.into_inner()).read(block);
+                    match read {
+                        Ok(b) => {
+                            let _ = tx.send(Arrival::Block(block, None, Arc::new(b)));
+                        }
+                        Err(e) => tracing::error!("block {block}, no owner left: {e}"),
+                    }
+                });
+            }
+        }
+    }
+
+    /// Measures the round trip of an empty request to the next peer.
+    fn ping(&mut self) {
+        let Some((&rank, p)) = self
+            .peers
+            .range(self.next_ping..)
+            .next()
+            .or_else(|| self.peers.iter().next())
+        else {
+            return;
+        };
+        self.next_ping = rank + 1;
+        let (conn, addr, endpoint, tx) = (
+            p.conn.clone(),
+            p.addr,
+            self.endpoint.clone(),
+            self.arrivals.clone(),
+        );
+        tokio::spawn(async move {
+            let Ok(conn) = connection(&conn, &endpoint, addr, rank).await else {
+                return;
+            };
+            let t0 = Instant::now();
+            if read_blocks(&conn, (&[], false), 0, rank, &tx).await.is_ok() {
+                let _ = tx.send(Arrival::RoundTrip(t0.elapsed().as_secs_f64() * 1e6));
+            }
+        });
+    }
+}
+
+async fn connection(
+    cell: &OnceCell<quinn::Connection>,
+    endpoint: &quinn::Endpoint,
+    addr: SocketAddr,
+    rank: u32,
+) -> anyhow::Result<quinn::Connection> {
+    let what = format!("the render node of rank {rank}");
+    let conn = cell
+        .get_or_try_init(|| quic::connect(endpoint, addr, &what))
+        .await?;
+    Ok(conn.clone())
+}
+
+/// Asks for `blocks` on a stream of its own and hands each to the loop as it arrives.
+async fn read_blocks(
+    conn: &quinn::Connection,
+    (blocks, ahead): (&[BlockId], bool),
+    block_bytes: u32,
+    rank: u32,
+    tx: &mpsc::UnboundedSender<Arrival>,
+) -> anyhow::Result<()> {
+    let (mut send, mut recv) = conn.open_bi().await?;
+    let request = BlockRequest {
+        blocks: blocks.to_vec(),
+        ahead,
+    };
+    write_msg(&mut send, &request).await?;
+    send.finish()?;
+    for &k in blocks {
+        let mut header = [0u8; BLOCK_HEADER_LEN];
+        recv.read_exact(&mut header).await?;
+        let (got, follows) = decode_block_header(header).map_err(anyhow::Error::msg)?;
+        if got != k {
+            anyhow::bail!("asked for block {k}, got {got}");
+        }
+        if !follows {
+            // It does not hold it (yet): the timeout asks again, or another owner.
+            continue;
+        }
+        let mut block = Block::zeroed(block_bytes);
+        recv.read_exact(block.bytes_mut()).await?;
+        let _ = tx.send(Arrival::Block(k, Some(rank), Arc::new(block)));
+    }
+    // The answer's end: a ping waits for it, a request has had all it asked for.
+    let _ = recv.read_to_end(0).await;
+    Ok(())
+}

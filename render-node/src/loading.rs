@@ -1,0 +1,187 @@
+//! The scene a render node renders in one session: loaded whole (replicated, and kept for a
+//! later session of the same scene), or its share of a shared scene read from the prepared
+//! files, with the block server and fetch loop that go with it.
+
+use crate::node::NodeSide;
+use crate::shared::Shared;
+use anyhow::{bail, Result};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicUsize;
+use std::sync::{Arc, RwLock};
+use std::time::Instant;
+use tessera_net::link::MasterLink;
+use tessera_net::quic;
+use tessera_render::scene::Scene;
+use tessera_render::volume::SeriesCache;
+use tessera_render::PreparedScene;
+use tessera_wire::protocol::dsm::DataSpec;
+use tessera_wire::protocol::{FromNode, RenderNodeId, Session, ToNode};
+
+/// A scene prepared for rendering, kept across sessions: a node that rejoins a restarted
+/// master for the same replicated scene does not load it again.
+pub struct Loaded {
+    hash: [u8; 32],
+    /// Batches render one at a time: the lock is taken for writing only between them, when a
+    /// time series moves to another step.
+    prepared: Arc<RwLock<PreparedScene>>,
+    series: Option<Arc<SeriesCache>>,
+    /// The step of the series `prepared` holds.
+    shown_step: Arc<AtomicUsize>,
+}
+
+/// Aborts the task when the session that started it ends.
+pub struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// The scene of one session.
+pub struct SceneHere {
+    pub prepared: Arc<RwLock<PreparedScene>>,
+    pub series: Option<Arc<SeriesCache>>,
+    pub shown_step: Arc<AtomicUsize>,
+    /// For a shared scene: its fetching, and the server of this node's blocks.
+    pub shared: Option<Shared>,
+    _server: Option<AbortOnDrop>,
+}
+
+/// The session's scene: reused, loaded, or (shared) this node's share.
+pub async fn scene_here(
+    side: &NodeSide,
+    link: &mut MasterLink,
+    node: RenderNodeId,
+    session: &Session,
+    loaded: &mut Option<Loaded>,
+) -> Result<SceneHere> {
+    if let DataSpec::Shared(spec) = session.data() {
+        // Its share depends on its rank in this session: nothing carries over.
+        *loaded = None;
+        return shared_here(side, link, node, session, spec).await;
+    }
+    if loaded
+        .as_ref()
+        .is_some_and(|l| l.hash == session.scene_hash())
+    {
+        tracing::info!(
+            "render node {}: joined, the scene is loaded already",
+            node.0
+        );
+    } else {
+        tracing::info!("render node {}: joined, loading the scene", node.0);
+        // The old scene goes first: two at once may not fit.
+        *loaded = None;
+        let (prepared, series) = prepare(
+            session,
+            side.pool.clone(),
+            side.bvh_cache.clone(),
+            side.volume_cache_bytes,
+        )
+        .await?;
+        *loaded = Some(Loaded {
+            hash: session.scene_hash(),
+            prepared: Arc::new(RwLock::new(prepared)),
+            series,
+            shown_step: Arc::new(AtomicUsize::new(0)),
+        });
+    }
+    let l = loaded.as_ref().expect("loaded above");
+    Ok(SceneHere {
+        prepared: l.prepared.clone(),
+        series: l.series.clone(),
+        shown_step: l.shown_step.clone(),
+        shared: None,
+        _server: None,
+    })
+}
+
+async fn shared_here(
+    side: &NodeSide,
+    link: &mut MasterLink,
+    node: RenderNodeId,
+    session: &Session,
+    spec: &tessera_wire::protocol::dsm::SharedSpec,
+) -> Result<SceneHere> {
+    // The master says the node's rank right after the welcome.
+    let (rank, holders) = match link.recv().await? {
+        ToNode::BlockHolders { rank, holders } => (rank, holders),
+        other => bail!(
+            "the master broke the protocol: a {} message where the block holders were due",
+            other.kind()
+        ),
+    };
+    tracing::info!(
+        "render node {}: joined a shared scene as rank {}, reading its share",
+        node.0,
+        rank.map_or("none (it holds no blocks)".to_string(), |r| r.to_string())
+    );
+    let endpoint = side.endpoint.clone();
+    endpoint.set_server_config(Some(quic::server_config(&side.identity)?));
+    let (prepared, shared) = crate::shared::start(
+        spec,
+        session.scene_hash(),
+        rank,
+        holders,
+        &side.shared,
+        endpoint.clone(),
+    )
+    .await?;
+    let prepared = Arc::new(RwLock::new(prepared));
+    let server = AbortOnDrop(tokio::spawn(crate::block_server::serve(
+        endpoint.clone(),
+        prepared.clone(),
+    )));
+    if rank.is_some() {
+        link.send(&FromNode::BlocksAt {
+            addr: endpoint.local_addr()?,
+        })
+        .await?;
+    }
+    Ok(SceneHere {
+        prepared,
+        series: None,
+        shown_step: Arc::new(AtomicUsize::new(0)),
+        shared: Some(shared),
+        _server: Some(server),
+    })
+}
+
+/// The scene, prepared, and for a time series the cache its steps are read through.
+type Prepared = (PreparedScene, Option<Arc<SeriesCache>>);
+
+async fn prepare(
+    session: &Session,
+    pool: Arc<rayon::ThreadPool>,
+    bvh_cache: Option<PathBuf>,
+    volume_cache_bytes: usize,
+) -> Result<Prepared> {
+    let spec = session.scene().clone();
+    let expected = session.scene_hash();
+    tokio::task::spawn_blocking(move || {
+        let scene = Scene::load(&spec)?;
+        if scene.content_hash() != expected {
+            bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
+        }
+        let t0 = Instant::now();
+        let (accel, source) = pool.install(|| tessera_render::accel_cache::load_or_build(&scene, bvh_cache.as_deref()));
+        tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
+        let mut prepared = PreparedScene::from_accel(&scene, accel);
+        prepared.slim_for_rendering();
+        // Two readers: one step ahead while the next loads, on a node whose cores render.
+        let series = (!scene.series.is_empty()).then(|| {
+            Arc::new(SeriesCache::new(
+                scene.series.clone(),
+                scene.render_from_world,
+                volume_cache_bytes,
+                2,
+            ))
+        });
+        // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
+        drop(scene);
+        crate::memory::release_freed();
+        Ok((prepared, series))
+    })
+    .await?
+}

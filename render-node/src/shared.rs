@@ -1,0 +1,316 @@
+//! A shared scene on the render node: its share read from the prepared files, the cache sized
+//! from the memory budget, and the fetch hub through which render threads wait for what is in
+//! neither (see `fetch_driver` for the loop that fetches, and `block_server` for the answers
+//! to other nodes).
+
+use crate::fetch_driver::{self, DriverHandle};
+use anyhow::{bail, Context, Result};
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::Duration;
+use tessera_cli::bytes::show_bytes;
+use tessera_core::dsm::{BlockCache, BlockId, Residency};
+use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
+use tessera_render::dsm::{Block, BlockFetch, SharedTree, NODE_OVERHEAD_BYTES};
+use tessera_render::PreparedScene;
+use tessera_wire::protocol::dsm::{BlockHolder, DsmStats, SharedSpec};
+use tessera_wire::wall::TileId;
+use tokio::sync::mpsc;
+
+/// What the node was told, by its own flags, about shared scenes.
+#[derive(Clone, Debug, Default)]
+pub struct SharedOptions {
+    /// Its own copy of the prepared folder, in place of the master's path.
+    pub prepared: Option<PathBuf>,
+    /// Its own memory budget, in place of the session's.
+    pub memory_budget: Option<u64>,
+}
+
+/// A block a render thread waits for, filled by the driver when it arrives.
+#[derive(Default)]
+struct Waiter {
+    block: Mutex<Option<Arc<Block>>>,
+    arrived: Condvar,
+}
+
+/// Where render threads ask for blocks and wait for them: one waiter per block however many
+/// threads want it, a channel of misses to the driver, and the driver's deliveries back.
+pub struct FetchHub {
+    misses: mpsc::UnboundedSender<BlockId>,
+    waiting: Mutex<HashMap<BlockId, Arc<Waiter>>>,
+    closed: AtomicBool,
+    /// Where a thread reads a block itself once the driver is gone (a batch still rendering
+    /// when its session ended).
+    files: Mutex<BlockFile>,
+}
+
+impl FetchHub {
+    fn new(misses: mpsc::UnboundedSender<BlockId>, files: BlockFile) -> Self {
+        FetchHub {
+            misses,
+            waiting: Mutex::new(HashMap::new()),
+            closed: AtomicBool::new(false),
+            files: Mutex::new(files),
+        }
+    }
+
+    /// Block `k` from the prepared files.
+    ///
+    /// # Panics
+    /// If it cannot be read: the frame cannot be rendered without it.
+    fn read_from_files(&self, k: BlockId) -> Arc<Block> {
+        let read = self.files.lock().unwrap_or_else(|e| e.into_inner()).read(k);
+        match read {
+            Ok(block) => Arc::new(block),
+            Err(e) => panic!("block {k} can be had from nowhere: {e}"),
+        }
+    }
+
+    /// Block `k` arrived: the threads waiting for it go on.
+    pub fn deliver(&self, k: BlockId, block: Arc<Block>) {
+        let waiter = self
+            .waiting
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(&k);
+        if let Some(w) = waiter {
+            *w.block.lock().unwrap_or_else(|e| e.into_inner()) = Some(block);
+            w.arrived.notify_all();
+        }
+    }
+
+    /// The driver is gone: threads waiting now, or later, fail instead of waiting for ever.
+    pub fn close(&self) {
+        self.closed.store(true, Ordering::SeqCst);
+        let waiting = std::mem::take(&mut *self.waiting.lock().unwrap_or_else(|e| e.into_inner()));
+        for w in waiting.values() {
+            w.arrived.notify_all();
+        }
+    }
+}
+
+impl BlockFetch for FetchHub {
+    fn fetch(&self, k: BlockId) -> Arc<Block> {
+        if self.closed.load(Ordering::SeqCst) {
+            return self.read_from_files(k);
+        }
+        let waiter = {
+            let mut waiting = self.waiting.lock().unwrap_or_else(|e| e.into_inner());
+            match waiting.get(&k) {
+                Some(w) => w.clone(),
+                None => {
+                    let w = Arc::new(Waiter::default());
+                    waiting.insert(k, w.clone());
+                    let _ = self.misses.send(k);
+                    w
+                }
+            }
+        };
+        let mut block = waiter.block.lock().unwrap_or_else(|e| e.into_inner());
+        loop {
+            if let Some(b) = block.as_ref() {
+                return b.clone();
+            }
+            if self.closed.load(Ordering::SeqCst) {
+                drop(block);
+                return self.read_from_files(k);
+            }
+            // Bounded, so that a close between the check and the wait is seen.
+            block = waiter
+                .arrived
+                .wait_timeout(block, Duration::from_millis(100))
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
+}
+
+/// A shared scene on this node, and what keeps its fetching going.
+pub struct Shared {
+    pub manifest: Manifest,
+    pub rank: Option<u32>,
+    pub cache_lines: usize,
+    pub driver: DriverHandle,
+    hub: Arc<FetchHub>,
+    /// The other nodes' blocks each tile read when this node last rendered it.
+    footprints: HashMap<TileId, Vec<BlockId>>,
+}
+
+impl Shared {
+    /// Remembers what each of `tiles` read (`footprints`, in the same order).
+    pub fn note_footprints(&mut self, tiles: &[TileId], footprints: Vec<Vec<BlockId>>) {
+        for (&tile, footprint) in tiles.iter().zip(footprints) {
+            self.footprints.insert(tile, footprint);
+        }
+    }
+
+    /// Fetches ahead, in as few requests as the fetcher can make, the blocks `tiles` read
+    /// last time that are neither held here nor cached now: a batch's misses then come in
+    /// together instead of one render thread's stall at a time. At most a quarter of the cache
+    /// is asked for at once, so that the blocks in use are not pushed out by those to come.
+    pub fn prefetch(&self, scene: &PreparedScene, tiles: impl Iterator<Item = TileId>) {
+        let Some(tree) = scene.shared.as_ref() else {
+            return;
+        };
+        let most = self.cache_lines / 4;
+        let mut wanted: Vec<BlockId> = tiles
+            .filter_map(|t| self.footprints.get(&t))
+            .flatten()
+            .copied()
+            .collect();
+        wanted.sort_unstable();
+        wanted.dedup();
+        wanted.retain(|&k| !tree.is_here(k));
+        wanted.truncate(most);
+        self.driver.prefetch(wanted);
+    }
+
+    /// What this node measured of its reads of `scene` (this shared scene), with what its
+    /// fetch loop measured (`driver`).
+    pub fn stats(
+        &self,
+        driver: crate::fetch_driver::DriverStats,
+        scene: &PreparedScene,
+    ) -> DsmStats {
+        let tree = scene.shared.as_ref().expect("a shared scene");
+        let (reads, cache) = (tree.stats(), tree.cache().stats());
+        let (fetch, latency) = (&driver.fetch, &driver.fetch.latency);
+        DsmStats {
+            rank: self.rank,
+            resident_bytes: tree.resident_bytes() as u64,
+            cache_bytes: self.cache_lines as u64 * self.manifest.layout.block_bytes as u64,
+            cache_lines: self.cache_lines as u64,
+            block_reads: reads.block_reads,
+            local_reads: reads.local_reads,
+            fetched: reads.fetched,
+            fetch_wait_s: reads.fetch_wait_s,
+            cache_hits: cache.hits,
+            cache_misses: cache.misses,
+            evictions: cache.evictions,
+            requests: fetch.requests,
+            blocks_requested: fetch.blocks_requested,
+            blocks_arrived: fetch.blocks_arrived,
+            retries: fetch.retries,
+            read_locally: fetch.read_locally,
+            prefetched: fetch.prefetches,
+            latency_count: latency.count,
+            latency_min_us: latency.min_us,
+            latency_avg_us: latency.avg_us,
+            latency_max_us: latency.max_us,
+            latency_p99_us: latency.p99_us,
+            round_trip_us: driver.round_trip_us,
+        }
+    }
+}
+
+impl Drop for Shared {
+    fn drop(&mut self) {
+        self.hub.close();
+    }
+}
+
+/// Cache lines for a node holding `resident` bytes of a scene of `manifest`: the share the
+/// experiment asks for, or what the budget leaves, or an eighth of the scene.
+fn cache_lines(
+    manifest: &Manifest,
+    spec: &SharedSpec,
+    budget: Option<u64>,
+    resident: u64,
+) -> Result<usize> {
+    let layout = &manifest.layout;
+    if let Some(f) = spec.cache_fraction {
+        return Ok((layout.total() as f64 * f as f64).ceil() as usize);
+    }
+    let Some(budget) = budget else {
+        return Ok(layout.total().div_ceil(8) as usize);
+    };
+    let held = resident + NODE_OVERHEAD_BYTES;
+    if held > budget {
+        bail!(
+            "a memory budget of {} does not hold this node's share of the scene ({}) and its fixed overhead ({}): raise --memory-budget or add render nodes",
+            show_bytes(budget),
+            show_bytes(resident),
+            show_bytes(NODE_OVERHEAD_BYTES)
+        );
+    }
+    Ok(((budget - held) / layout.block_bytes as u64) as usize)
+}
+
+/// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
+/// and starts fetching: the scene to render, and the handle that keeps it fed.
+pub async fn start(
+    spec: &SharedSpec,
+    scene_hash: [u8; 32],
+    rank: Option<u32>,
+    holders: Vec<BlockHolder>,
+    options: &SharedOptions,
+    endpoint: quinn::Endpoint,
+) -> Result<(PreparedScene, Shared)> {
+    let dir = options.prepared.clone().unwrap_or_else(|| spec.dir.clone());
+    let hash = prepare::hash_hex(&scene_hash);
+    let manifest =
+        prepare::load_manifest(&dir, Some((&hash, spec.block_bytes))).with_context(|| {
+            format!(
+                "the prepared scene in {} (--prepared DIR names this host's copy)",
+                dir.display()
+            )
+        })?;
+    let layout = manifest.layout;
+    let residency = Residency::new(layout.total(), spec.ranks, rank, spec.replicas)?;
+    let (share, file, spare) = {
+        let (dir, manifest, residency) = (dir.clone(), manifest.clone(), residency.clone());
+        tokio::task::spawn_blocking(move || -> Result<_> {
+            let mut file = BlockFile::open(&dir, &manifest)?;
+            let share = file.read_share(&residency, &mut |_, _| {})?;
+            Ok((share, file, BlockFile::open(&dir, &manifest)?))
+        })
+        .await??
+    };
+    let resident = ((share.0.len() + share.1.len()) * 64) as u64;
+    let budget = options.memory_budget.or(spec.memory_budget);
+    let lines = cache_lines(&manifest, spec, budget, resident)?;
+    tracing::info!(
+        "rank {}: holds {} of the scene's {} ({} blocks), caches {} lines ({})",
+        rank.map_or("none".to_string(), |r| r.to_string()),
+        show_bytes(resident),
+        show_bytes(layout.total_bytes()),
+        residency.resident_blocks().count(),
+        lines,
+        show_bytes(lines as u64 * layout.block_bytes as u64)
+    );
+    let (miss_tx, miss_rx) = mpsc::unbounded_channel();
+    let hub = Arc::new(FetchHub::new(miss_tx, spare));
+    let cache = Arc::new(BlockCache::new(lines));
+    let tree = SharedTree::new(
+        layout,
+        residency.clone(),
+        share.0,
+        share.1,
+        cache.clone(),
+        hub.clone(),
+    )?;
+    let prepared = PreparedScene::from_shared(&manifest, tree);
+    let driver = fetch_driver::spawn(fetch_driver::Setup {
+        residency,
+        block_bytes: layout.block_bytes,
+        holders,
+        misses: miss_rx,
+        hub: hub.clone(),
+        cache,
+        file,
+        endpoint,
+    });
+    Ok((
+        prepared,
+        Shared {
+            manifest,
+            rank,
+            cache_lines: lines,
+            driver,
+            hub,
+            footprints: HashMap::new(),
+        },
+    ))
+}

@@ -1,0 +1,193 @@
+//! Local walls whose render nodes share the scene in distributed shared memory (`--data dsm`):
+//! the wall equals the single-process reference pixel for pixel, every render node stays
+//! within its memory budget, and a render node's death loses no block.
+
+use std::path::Path;
+use std::time::Duration;
+use tessera_tests::*;
+
+/// A local wall of 2x1 screens of 160x90 with `render_nodes` one-thread render nodes sharing
+/// `scene` (prepared into `dir/prepared`), the extra flags `rest`, its report in `dir/out`.
+fn shared_wall(dir: &Path, scene: &str, render_nodes: u32, rest: &[&str]) -> Proc {
+    let (out, prepared) = (dir.join("out"), dir.join("prepared"));
+    let nodes = render_nodes.to_string();
+    let mut args = vec![
+        "local",
+        "--wall",
+        "2x1",
+        "--screen",
+        "160x90",
+        "--render-nodes",
+        &nodes,
+        "--threads",
+        "1",
+        "--scene",
+        scene,
+        "--data",
+        "dsm",
+        "--prepared",
+        prepared.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend(rest);
+    Proc::start("tessera-master", &args)
+}
+
+#[test]
+fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
+    let dir = tempfile::tempdir().unwrap();
+    // The gallery: mirrors and glass (reflected and transmitted rays), two lights (shadow
+    // packets and rays), ambient occlusion; a cache of a sixteenth, so blocks are fetched,
+    // evicted and fetched again.
+    let quality = ["--ao", "4", "--eye", "0,1.5,5", "--target", "0,0.5,0"];
+    let mut rest = vec![
+        "--frames",
+        "3",
+        "--save-frame",
+        "2",
+        "--cache-fraction",
+        "0.0625",
+    ];
+    rest.extend(quality);
+    let o = shared_wall(dir.path(), "gallery", 3, &rest).wait(Duration::from_secs(180));
+    o.assert_success("the shared wall");
+    let mut reference = vec![
+        "render", "--wall", "2x1", "--screen", "160x90", "--scene", "gallery", "--frame", "2",
+    ];
+    let ref_dir = dir.path().join("reference");
+    reference.extend(["--out", ref_dir.to_str().unwrap()]);
+    reference.extend(quality);
+    run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
+    assert_same_pixels(
+        &dir.path().join("out/wall.png"),
+        &ref_dir.join("wall.png"),
+        "the shared wall against the reference",
+    );
+    let report = read_json(&dir.path().join("out/report.json"));
+    assert_eq!(report["data"], "dsm", "{report}");
+    for node in report["render_nodes"].as_array().unwrap() {
+        let dsm = &node["dsm"];
+        assert!(dsm["fetched"].as_u64().unwrap() > 0, "{node}");
+        assert!(dsm["local_reads"].as_u64().unwrap() > 0, "{node}");
+        assert!(node["max_rss_bytes"].as_u64().unwrap() > 0, "{node}");
+    }
+    let summary = &report["dsm"];
+    eprintln!(
+        "shared gallery: {} block reads a frame, {:.2} % fetched, remote reads avg {:.0} µs (p99 {:.0}) against a {:.0} µs round trip",
+        summary["blocks_read_per_frame"].as_f64().unwrap(),
+        summary["miss_percent"].as_f64().unwrap(),
+        summary["remote_read_avg_us"].as_f64().unwrap(),
+        summary["remote_read_p99_us"].as_f64().unwrap(),
+        summary["round_trip_us"].as_f64().unwrap(),
+    );
+}
+
+#[test]
+fn every_render_node_stays_within_its_memory_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    // About 22 MB of blocks over 4 nodes: each holds a quarter, the rest of its 48 MiB is
+    // overhead and cache.
+    let budget_mib = 48;
+    let budget = format!("{budget_mib}MiB");
+    let o = shared_wall(
+        dir.path(),
+        "knot:1200:160",
+        4,
+        &["--frames", "8", "--memory-budget", &budget],
+    )
+    .wait(Duration::from_secs(300));
+    o.assert_success("the wall within a budget");
+    let report = read_json(&dir.path().join("out/report.json"));
+    let nodes = report["render_nodes"].as_array().unwrap();
+    assert_eq!(nodes.len(), 4);
+    let scene_bytes: u64 = nodes
+        .iter()
+        .map(|n| n["dsm"]["resident_bytes"].as_u64().unwrap())
+        .sum();
+    for node in nodes {
+        let rss = node["max_rss_bytes"].as_u64().unwrap();
+        eprintln!(
+            "render node {}: peak resident {:.1} MiB of a {budget_mib} MiB budget (holds {:.1} MiB, caches {:.1} MiB)",
+            node["id"],
+            rss as f64 / 1048576.0,
+            node["dsm"]["resident_bytes"].as_u64().unwrap() as f64 / 1048576.0,
+            node["dsm"]["cache_bytes"].as_u64().unwrap() as f64 / 1048576.0,
+        );
+        assert!(rss > 0 && rss <= budget_mib << 20, "{node}");
+    }
+    assert!(
+        scene_bytes > 16 << 20,
+        "the scene must not fit a node's share of the budget alone: {scene_bytes}"
+    );
+}
+
+/// Runs a shared wall of 3 render nodes with `replicas`, SIGKILLs one once frame 3 is
+/// presented, and returns the report of its 60 frames.
+fn kill_a_holder(dir: &Path, replicas: &str) -> (serde_json::Value, String) {
+    let rest = [
+        "--frames",
+        "60",
+        "--save-frame",
+        "3",
+        "--replicas",
+        replicas,
+        "--cache-fraction",
+        "0.125",
+        "--eye",
+        "0,0.5,3.5",
+        "--target",
+        "0,0,0",
+    ];
+    let master = shared_wall(dir, "knot:600:40", 3, &rest);
+    let saved = dir.join("out/display-1.png");
+    assert!(
+        wait_for(Duration::from_secs(120), || saved.exists()
+            || master.has_exited()),
+        "the wall never presented frame 3"
+    );
+    let nodes = children(master.pid(), "render-node");
+    assert_eq!(nodes.len(), 3, "{nodes:?}");
+    // SIGKILL mid-frame: no goodbye; its rank's blocks are wanted by the others at once.
+    unsafe { libc::kill(nodes[1] as i32, libc::SIGKILL) };
+    let o = master.wait(Duration::from_secs(240));
+    // A local wall ends saying which of its children died.
+    assert!(o.stderr.contains("exited with signal 9"), "{}", o.stderr);
+    (read_json(&dir.join("out/report.json")), o.stderr)
+}
+
+fn assert_every_frame_complete(report: &serde_json::Value) {
+    assert_eq!(report["frames"], 60, "{report}");
+    assert_eq!(report["render_nodes_lost"], 1, "{report}");
+    for d in report["displays"].as_array().unwrap() {
+        assert_eq!(d["frames_presented"], 60, "{d}");
+    }
+}
+
+#[test]
+fn with_two_replicas_a_killed_render_node_loses_no_block() {
+    let dir = tempfile::tempdir().unwrap();
+    let (report, log) = kill_a_holder(dir.path(), "2");
+    assert_every_frame_complete(&report);
+    assert!(
+        log.contains("its blocks' other owners answer for them"),
+        "{log}"
+    );
+    // Every block it held came from its second owner; none had to be read from the disk.
+    assert_eq!(report["dsm"]["read_locally"], 0, "{report}");
+}
+
+#[test]
+fn without_replicas_a_killed_holders_blocks_are_read_from_the_prepared_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let (report, log) = kill_a_holder(dir.path(), "1");
+    assert_every_frame_complete(&report);
+    assert!(
+        log.contains("the other render nodes read them from the prepared files"),
+        "{log}"
+    );
+    assert!(
+        report["dsm"]["read_locally"].as_u64().unwrap() > 0,
+        "{report}"
+    );
+}
