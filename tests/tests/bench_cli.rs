@@ -271,3 +271,45 @@ fn bench_without_out_is_refused_with_a_reason() {
     assert!(!o.status.success());
     assert!(o.stderr.contains("--out"), "{}", o.stderr);
 }
+
+#[test]
+fn dsm_compares_shared_with_replicated_at_each_cache_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let prepared = dir.path().join("prepared");
+    let r = bench(
+        "dsm",
+        &[
+            "--frames",
+            "4",
+            "--scene",
+            "knot:96:8",
+            "--nodes",
+            "2",
+            "--threads",
+            "1",
+            "--cache-fractions",
+            "0.125,1",
+            "--shadings",
+            "cast,ao",
+            "--prepared",
+            prepared.to_str().unwrap(),
+        ],
+        dir.path(),
+    );
+    let runs = r["runs"].as_array().unwrap();
+    // Per shading: replicated, then each cache size.
+    assert_eq!(runs.len(), 6, "{r}");
+    for run in runs {
+        positive(&run["fps"]);
+        positive(&run["fps_vs_replicated"]);
+        if run["cache_fraction"].is_null() {
+            assert!(run["dsm"].is_null(), "{run}");
+            continue;
+        }
+        let dsm = &run["dsm"];
+        positive(&dsm["blocks_read_per_frame"]);
+        non_negative(&dsm["miss_percent"]);
+        assert!(positive(&dsm["remote_read_max_us"]) >= non_negative(&dsm["remote_read_min_us"]));
+    }
+    assert!(dir.path().join("fps-vs-nodes.svg").exists());
+}

@@ -18,6 +18,9 @@ pub struct Tracer<'s> {
     memory: Memory<'s>,
 }
 
+// One per render thread, made once: boxing the large variant would only add a pointer chase to
+// every node a traversal reads.
+#[allow(clippy::large_enum_variant)]
 enum Memory<'s> {
     Resident(crate::tree_memory::Resident<'s>),
     Shared(SharedReader<'s>),

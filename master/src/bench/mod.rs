@@ -1,6 +1,7 @@
 //! `tessera-master bench EXPERIMENT`: reproducible measurement runs on a local wall, each
 //! writing `report.json`, a CSV and an SVG plot into `--out DIR` and printing a short table.
 
+mod dsm;
 mod error;
 mod plot;
 mod soak;
@@ -35,6 +36,10 @@ pub enum Experiment {
     /// A wall at full rate for --minutes with a render node killed and replaced every
     /// --kill-every seconds: frames lost, resident memory over time, recovery times.
     Soak,
+    /// Distributed shared memory against replicated data: frames/s against the cache size
+    /// (--cache-fractions) and render nodes (--nodes), for each of --shadings, with cache
+    /// misses, blocks read per frame and remote-read latency beside the QUIC round trip.
+    Dsm,
 }
 
 #[derive(clap::Args)]
@@ -69,6 +74,21 @@ pub struct BenchArgs {
     /// soak: seconds between render-node kills.
     #[arg(long, default_value_t = 10.0, value_parser = parse_transport_seconds)]
     kill_every: f64,
+    /// dsm: each render node's cache as a share of the scene, e.g. 0.03125,0.125,1.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0.03125,0.125,0.25,0.5,1"
+    )]
+    cache_fractions: Vec<f32>,
+    /// dsm: the shadings to measure, each against its own replicated run.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "cast,shadows,ao"
+    )]
+    shadings: Vec<dsm::Shading>,
 }
 
 fn parse_minutes(text: &str) -> Result<f64, String> {
@@ -110,6 +130,7 @@ pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
         Experiment::MaxFps => max_fps(&args, &out).await?,
         Experiment::ErrorVsTime => error::error_vs_time(&args, &out)?,
         Experiment::Soak => soak::soak(&args, &out).await?,
+        Experiment::Dsm => dsm::dsm(&args, &out).await?,
     }
     Ok(ExitCode::SUCCESS)
 }

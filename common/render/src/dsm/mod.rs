@@ -9,12 +9,15 @@
 //!   manifest, reused while the scene's content is the same.
 //! * [`shared`]: what a render node renders from: the replicated top of the tree, its resident
 //!   share, the direct-mapped cache of `tessera_core::dsm`, and a blocking fetch of what is
-//!   in neither; [`SharedReader`] is the [`crate::tree_memory::TreeMemory`] a traversal reads.
+//!   in neither.
+//! * `reader`: [`SharedReader`], one thread's view of it, the
+//!   [`crate::tree_memory::TreeMemory`] a traversal reads.
 //!
 //! Volume bricks and particles are not shared: a scene with either is rendered replicated.
 
 pub mod layout;
 pub mod prepare;
+mod reader;
 pub mod reorder;
 pub mod shared;
 
@@ -27,7 +30,8 @@ pub use layout::{Block, BlockLayout, Chunk, LayoutError};
 /// builds alike), rounded up.
 pub const NODE_OVERHEAD_BYTES: u64 = 32 << 20;
 pub use prepare::{Manifest, PrepareError};
-pub use shared::{BlockFetch, SharedReader, SharedStats, SharedTree};
+pub use reader::SharedReader;
+pub use shared::{BlockFetch, SharedStats, SharedTree};
 
 use crate::accel::Accel;
 use crate::PreparedScene;

@@ -3,12 +3,9 @@
 //! in neither; and [`SharedReader`], one thread's view of it, which a traversal reads through
 //! [`TreeMemory`].
 
-use super::layout::{nodes_of, triangles_of, Block, BlockLayout, Chunk};
-use crate::accel::LeafTriangle;
-use crate::accel_wide::WideNode;
-use crate::tree_memory::{NoPrefetch, TreeMemory};
+use super::layout::{Block, BlockLayout, Chunk};
+use super::SharedReader;
 use serde::{Deserialize, Serialize};
-use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -132,14 +129,13 @@ impl SharedTree {
 
     /// One thread's reader; make one per thread and keep it across rays.
     pub fn reader(&self) -> SharedReader<'_> {
-        SharedReader {
-            tree: self,
-            node: (BlockId::MAX, Hold::Nothing),
-            tris: (BlockId::MAX, Hold::Nothing),
-            reads: 0,
-            local: 0,
-            footprint: Vec::new(),
-        }
+        SharedReader::new(self)
+    }
+
+    /// Adds one reader's counts (when it is done).
+    pub(super) fn count_reads(&self, reads: u64, local: u64) {
+        self.block_reads.fetch_add(reads, Ordering::Relaxed);
+        self.local_reads.fetch_add(local, Ordering::Relaxed);
     }
 
     pub fn stats(&self) -> SharedStats {
@@ -171,7 +167,7 @@ impl SharedTree {
     }
 
     /// Block `k`, from wherever it is: this node's own memory, the cache, or its owner.
-    fn hold(&self, k: BlockId) -> Hold<'_> {
+    pub(super) fn hold(&self, k: BlockId) -> Hold<'_> {
         if let Some(chunks) = self.local(k) {
             return Hold::Local(chunks);
         }
@@ -195,7 +191,7 @@ impl SharedTree {
 }
 
 /// A block a reader is in: its own memory's, or a cached one it keeps alive while it reads it.
-enum Hold<'s> {
+pub(super) enum Hold<'s> {
     Nothing,
     Local(&'s [Chunk]),
     Cached(Arc<Block>),
@@ -203,93 +199,11 @@ enum Hold<'s> {
 
 impl Hold<'_> {
     #[inline(always)]
-    fn chunks(&self) -> &[Chunk] {
+    pub(super) fn chunks(&self) -> &[Chunk] {
         match self {
             Hold::Local(chunks) => chunks,
             Hold::Cached(block) => &block.0,
             Hold::Nothing => &[],
         }
-    }
-}
-
-/// One thread's reads of a [`SharedTree`]: it keeps the node block and the triangle block it
-/// is in until a read leaves them (Ize et al. §4.1), so consecutive steps inside a block cost
-/// no lookup.
-pub struct SharedReader<'s> {
-    tree: &'s SharedTree,
-    node: (BlockId, Hold<'s>),
-    tris: (BlockId, Hold<'s>),
-    reads: u64,
-    local: u64,
-    /// The other nodes' blocks read since [`SharedReader::take_footprint`]: what the same
-    /// pixels will read again next frame, to be fetched ahead of them.
-    footprint: Vec<BlockId>,
-}
-
-impl SharedReader<'_> {
-    #[inline(always)]
-    fn enter(&mut self, tris: bool, k: BlockId) {
-        let held = if tris { &mut self.tris } else { &mut self.node };
-        if held.0 != k {
-            // Let go of the old block first: a line replaced meanwhile frees it at once.
-            held.1 = Hold::Nothing;
-            held.1 = self.tree.hold(k);
-            held.0 = k;
-            self.reads += 1;
-            if matches!(held.1, Hold::Local(_)) {
-                self.local += 1;
-            } else {
-                self.footprint.push(k);
-            }
-        }
-    }
-
-    /// The other nodes' blocks read since the last call, in the order read (repeats kept).
-    pub fn take_footprint(&mut self) -> Vec<BlockId> {
-        std::mem::take(&mut self.footprint)
-    }
-}
-
-impl Drop for SharedReader<'_> {
-    fn drop(&mut self) {
-        self.tree
-            .block_reads
-            .fetch_add(self.reads, Ordering::Relaxed);
-        self.tree
-            .local_reads
-            .fetch_add(self.local, Ordering::Relaxed);
-    }
-}
-
-impl TreeMemory for SharedReader<'_> {
-    type Prefetch = NoPrefetch;
-
-    fn is_empty(&self) -> bool {
-        self.tree.layout.node_count == 0
-    }
-
-    #[inline(always)]
-    fn node(&mut self, index: u32) -> &WideNode {
-        let (k, at) = self.tree.layout.node_block(index);
-        self.enter(false, k);
-        &nodes_of(self.node.1.chunks())[at as usize]
-    }
-
-    #[inline(always)]
-    fn triangle(&mut self, slot: u32) -> &LeafTriangle {
-        &self.triangles(slot..slot + 1)[0]
-    }
-
-    #[inline(always)]
-    fn triangles(&mut self, slots: Range<u32>) -> &[LeafTriangle] {
-        let (k, at, next) = self.tree.layout.triangle_block(slots.start);
-        self.enter(true, k);
-        let end = slots.end.min(next) - slots.start + at;
-        let per = self.tree.layout.triangles_per_block();
-        &triangles_of(self.tris.1.chunks(), per)[at as usize..end as usize]
-    }
-
-    fn prefetcher(&self) -> NoPrefetch {
-        NoPrefetch
     }
 }

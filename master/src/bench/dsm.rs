@@ -1,0 +1,241 @@
+//! `bench dsm`: the shape of Ize et al.'s Table 1 and Figure 3 on a local wall. For each
+//! shading (ray casting, with shadows, with ambient occlusion) and each render-node count, the
+//! scene replicated and then shared at each cache size, in the same run: frames per second,
+//! the share of block reads that missed, blocks read per frame, remote-read latency
+//! (avg/min/max/p99) beside the QUIC round trip measured on the same connections, and the
+//! frame rate relative to replicated.
+
+use super::plot::{line_plot, Series};
+use super::{wall_run, write_csv, write_json, wrote, BenchArgs};
+use crate::report::Report;
+use crate::shared_data::DataMode;
+use anyhow::{bail, Result};
+use serde_json::json;
+use std::path::Path;
+
+/// A shading of the experiment: what its rays are.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shading {
+    /// Primary rays only (no shadows).
+    Cast,
+    /// Primary and shadow rays.
+    Shadows,
+    /// Primary, shadow and 4 ambient-occlusion rays a hit.
+    Ao,
+}
+
+impl Shading {
+    fn name(self) -> &'static str {
+        match self {
+            Shading::Cast => "ray cast",
+            Shading::Shadows => "shadows",
+            Shading::Ao => "AO",
+        }
+    }
+}
+
+/// One measured wall.
+struct Row {
+    shading: Shading,
+    nodes: u32,
+    /// None: replicated.
+    cache: Option<f32>,
+    report: Report,
+    replicated_fps: f64,
+}
+
+impl Row {
+    fn ratio(&self) -> f64 {
+        if self.replicated_fps > 0.0 {
+            self.report.fps / self.replicated_fps
+        } else {
+            0.0
+        }
+    }
+
+    fn csv(&self) -> String {
+        let d = self.report.dsm.unwrap_or_default();
+        format!(
+            "{},{},{},{:.3},{:.3},{:.4},{:.0},{:.1},{:.1},{:.1},{:.1},{:.1},{}",
+            self.shading.name(),
+            self.nodes,
+            self.cache.map_or("replicated".into(), |c| c.to_string()),
+            self.report.fps,
+            self.ratio(),
+            d.miss_percent,
+            d.blocks_read_per_frame,
+            d.remote_read_avg_us,
+            d.remote_read_min_us,
+            d.remote_read_max_us,
+            d.remote_read_p99_us,
+            d.round_trip_us,
+            self.report
+                .render_nodes
+                .iter()
+                .map(|n| n.stats.max_rss_bytes)
+                .max()
+                .unwrap_or(0)
+        )
+    }
+}
+
+/// The wall `args` describe, with `nodes` render nodes, shaded as `shading`, replicated
+/// (`cache` None) or shared with a cache of that share of the scene.
+async fn measure(
+    args: &BenchArgs,
+    shading: Shading,
+    nodes: u32,
+    cache: Option<f32>,
+) -> Result<Report> {
+    let mut local = args.local.clone();
+    local.render_nodes = nodes;
+    local.run.out = None;
+    local.run.quality.no_shadows = shading == Shading::Cast;
+    local.run.quality.ao = if shading == Shading::Ao { 4 } else { 0 };
+    match cache {
+        None => local.run.data.data = DataMode::Replicated,
+        Some(f) => {
+            local.run.data.data = DataMode::Dsm;
+            local.run.data.cache_fraction = Some(f);
+        }
+    }
+    let what = match cache {
+        None => format!("{}, {nodes} render nodes, replicated", shading.name()),
+        Some(f) => format!("{}, {nodes} render nodes, cache {f}", shading.name()),
+    };
+    wall_run(&local, &what).await
+}
+
+pub async fn dsm(args: &BenchArgs, out: &Path) -> Result<()> {
+    if args.cache_fractions.iter().any(|&f| !(f > 0.0 && f <= 1.0)) {
+        bail!("--cache-fractions must lie in (0, 1]");
+    }
+    let mut rows = Vec::new();
+    for &shading in &args.shadings {
+        for &nodes in &args.nodes {
+            let replicated = measure(args, shading, nodes, None).await?;
+            let replicated_fps = replicated.fps;
+            rows.push(Row {
+                shading,
+                nodes,
+                cache: None,
+                report: replicated,
+                replicated_fps,
+            });
+            for &f in &args.cache_fractions {
+                let report = measure(args, shading, nodes, Some(f)).await?;
+                rows.push(Row {
+                    shading,
+                    nodes,
+                    cache: Some(f),
+                    report,
+                    replicated_fps,
+                });
+            }
+        }
+    }
+    print_table(&rows);
+    let csv = out.join("dsm.csv");
+    write_csv(
+        &csv,
+        "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
+        &rows.iter().map(Row::csv).collect::<Vec<_>>(),
+    )?;
+    let by_cache = out.join("dsm.svg");
+    let series: Vec<Series> = rows
+        .iter()
+        .filter(|r| r.cache.is_none())
+        .map(|base| Series {
+            name: format!("{}, {} nodes", base.shading.name(), base.nodes),
+            points: rows
+                .iter()
+                .filter(|r| r.shading == base.shading && r.nodes == base.nodes)
+                .filter_map(|r| Some(((r.cache? as f64).log2(), r.ratio())))
+                .collect(),
+        })
+        .collect();
+    line_plot(
+        &by_cache,
+        "shared over replicated frame rate against the cache (log2 of its share: -3 = 1/8)",
+        "log2(cache / scene)",
+        "fps shared / fps replicated",
+        &series,
+    )?;
+    let by_nodes = out.join("fps-vs-nodes.svg");
+    let mut caches: Vec<Option<f32>> = vec![None];
+    caches.extend(args.cache_fractions.iter().map(|&f| Some(f)));
+    let first = args.shadings.first().copied().unwrap_or(Shading::Cast);
+    let series: Vec<Series> = caches
+        .iter()
+        .map(|&c| Series {
+            name: c.map_or("replicated".into(), |f| format!("cache {f}")),
+            points: rows
+                .iter()
+                .filter(|r| r.shading == first && r.cache == c)
+                .map(|r| (r.nodes as f64, r.report.fps))
+                .collect(),
+        })
+        .collect();
+    line_plot(
+        &by_nodes,
+        &format!("frames per second against render nodes ({})", first.name()),
+        "render nodes",
+        "fps",
+        &series,
+    )?;
+    let json = write_json(
+        out,
+        &json!({
+            "experiment": "dsm",
+            "scene": args.local.run.scene.scene,
+            "runs": rows.iter().map(|r| json!({
+                "shading": r.shading.name(),
+                "render_nodes": r.nodes,
+                "cache_fraction": r.cache,
+                "fps": r.report.fps,
+                "fps_vs_replicated": r.ratio(),
+                "dsm": r.report.dsm,
+                "run": r.report,
+            })).collect::<Vec<_>>(),
+        }),
+    )?;
+    wrote(&[&json, &csv, &by_cache, &by_nodes]);
+    Ok(())
+}
+
+/// Table 1's columns, one line a wall.
+fn print_table(rows: &[Row]) {
+    println!(
+        "{:<9} {:>5} {:>10} {:>7} {:>6} {:>8} {:>9} {:>8} {:>7} {:>8} {:>8} {:>7}",
+        "shading",
+        "nodes",
+        "cache",
+        "fps",
+        "ratio",
+        "miss %",
+        "reads/fr",
+        "avg µs",
+        "min µs",
+        "max µs",
+        "p99 µs",
+        "rtt µs"
+    );
+    for r in rows {
+        let d = r.report.dsm.unwrap_or_default();
+        println!(
+            "{:<9} {:>5} {:>10} {:>7.2} {:>6.2} {:>8.3} {:>9.0} {:>8.0} {:>7.0} {:>8.0} {:>8.0} {:>7.0}",
+            r.shading.name(),
+            r.nodes,
+            r.cache.map_or("replicated".into(), |c| format!("{c}")),
+            r.report.fps,
+            r.ratio(),
+            d.miss_percent,
+            d.blocks_read_per_frame,
+            d.remote_read_avg_us,
+            d.remote_read_min_us,
+            d.remote_read_max_us,
+            d.remote_read_p99_us,
+            d.round_trip_us
+        );
+    }
+}
