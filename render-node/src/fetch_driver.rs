@@ -14,6 +14,7 @@ use tessera_core::dsm::{
 };
 use tessera_net::framed::write_msg;
 use tessera_net::quic;
+use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::BlockFile;
 use tessera_render::dsm::Block;
 use tessera_wire::protocol::dsm::{
@@ -21,19 +22,27 @@ use tessera_wire::protocol::dsm::{
 };
 use tokio::sync::{mpsc, oneshot, OnceCell};
 
+/// Most blocks in flight that a prefetch may add to: blocks fetched ahead wait in buffers and
+/// channels until the loop takes them, memory a budget must hold (unbounded, prefetches took
+/// 30 MiB of a thrashing node's budget).
+pub const PREFETCH_IN_FLIGHT: usize = 256;
+
 /// How often the round trip to a peer is measured.
 const PING_EVERY: Duration = Duration::from_millis(500);
 
 /// What the loop starts with.
 pub struct Setup {
     pub residency: Residency,
-    pub block_bytes: u32,
     pub holders: Vec<BlockHolder>,
     pub misses: mpsc::UnboundedReceiver<BlockId>,
     pub hub: Arc<FetchHub>,
     pub cache: Arc<BlockCache<Block>>,
+    /// Where arriving blocks are put.
+    pub pool: Arc<BlockPool>,
     pub file: BlockFile,
     pub endpoint: quinn::Endpoint,
+    /// How it connects to other render nodes (block traffic's windows).
+    pub client: quinn::ClientConfig,
 }
 
 /// The loop's figures.
@@ -111,11 +120,12 @@ struct Peer {
 struct Loop {
     fetcher: Fetcher,
     peers: BTreeMap<u32, Peer>,
-    block_bytes: u32,
     hub: Arc<FetchHub>,
     cache: Arc<BlockCache<Block>>,
+    pool: Arc<BlockPool>,
     file: Arc<Mutex<BlockFile>>,
     endpoint: quinn::Endpoint,
+    client: quinn::ClientConfig,
     arrivals: mpsc::UnboundedSender<Arrival>,
     round_trip_us: f64,
     next_ping: u32,
@@ -129,23 +139,25 @@ async fn run(
 ) {
     let Setup {
         residency,
-        block_bytes,
         holders: first,
         mut misses,
         hub,
         cache,
+        pool,
         file,
         endpoint,
+        client,
     } = setup;
     let (arrivals, mut arrived) = mpsc::unbounded_channel();
     let mut l = Loop {
         fetcher: Fetcher::new(residency, FetchConfig::default()),
         peers: BTreeMap::new(),
-        block_bytes,
         hub: hub.clone(),
         cache,
+        pool,
         file: Arc::new(Mutex::new(file)),
         endpoint,
+        client,
         arrivals,
         round_trip_us: f64::INFINITY,
         next_ping: 0,
@@ -158,8 +170,6 @@ async fn run(
         let timer_at = tokio::time::Instant::from_std(
             timer.unwrap_or_else(|| Instant::now() + Duration::from_secs(3600)),
         );
-        // Whether what the fetcher asks now is a prefetch (answered after misses).
-        let mut ahead = false;
         tokio::select! {
             k = misses.recv() => {
                 let Some(k) = k else { break };
@@ -172,9 +182,9 @@ async fn run(
                 l.fetcher.flush(now);
             }
             Some(blocks) = prefetch.recv() => {
-                ahead = true;
                 let now = Instant::now();
-                for k in blocks {
+                let room = PREFETCH_IN_FLIGHT.saturating_sub(l.fetcher.in_flight());
+                for k in blocks.into_iter().take(room) {
                     l.fetcher.handle_prefetch(k, now);
                 }
                 l.fetcher.flush(now);
@@ -193,7 +203,7 @@ async fn run(
             _ = ping.tick() => l.ping(),
         }
         while let Some(out) = l.fetcher.poll_output() {
-            l.carry_out(out, ahead);
+            l.carry_out(out);
         }
     }
     hub.close();
@@ -251,19 +261,24 @@ impl Loop {
         }
     }
 
-    fn carry_out(&mut self, out: FetchOutput, ahead: bool) {
+    fn carry_out(&mut self, out: FetchOutput) {
         match out {
-            FetchOutput::Request { peer, blocks } => {
+            FetchOutput::Request {
+                peer,
+                blocks,
+                ahead,
+            } => {
                 let Some(p) = self.peers.get(&peer) else {
                     // Not announced yet (or gone): the timeout asks the next owner.
                     return;
                 };
-                let (conn, addr, endpoint) = (p.conn.clone(), p.addr, self.endpoint.clone());
-                let (tx, bytes) = (self.arrivals.clone(), self.block_bytes);
+                let (conn, addr) = (p.conn.clone(), p.addr);
+                let dial = (self.endpoint.clone(), self.client.clone());
+                let (tx, pool) = (self.arrivals.clone(), self.pool.clone());
                 tokio::spawn(async move {
                     let result = async {
-                        let conn = connection(&conn, &endpoint, addr, peer).await?;
-                        read_blocks(&conn, (&blocks, ahead), bytes, peer, &tx).await
+                        let conn = connection(&conn, &dial, addr, peer).await?;
+                        read_blocks(&conn, (&blocks, ahead), &pool, peer, &tx).await
                     }
                     .await;
                     if let Err(e) = result {
@@ -298,18 +313,18 @@ impl Loop {
             return;
         };
         self.next_ping = rank + 1;
-        let (conn, addr, endpoint, tx) = (
-            p.conn.clone(),
-            p.addr,
-            self.endpoint.clone(),
-            self.arrivals.clone(),
-        );
+        let (conn, addr, tx) = (p.conn.clone(), p.addr, self.arrivals.clone());
+        let pool = self.pool.clone();
+        let dial = (self.endpoint.clone(), self.client.clone());
         tokio::spawn(async move {
-            let Ok(conn) = connection(&conn, &endpoint, addr, rank).await else {
+            let Ok(conn) = connection(&conn, &dial, addr, rank).await else {
                 return;
             };
             let t0 = Instant::now();
-            if read_blocks(&conn, (&[], false), 0, rank, &tx).await.is_ok() {
+            if read_blocks(&conn, (&[], false), &pool, rank, &tx)
+                .await
+                .is_ok()
+            {
                 let _ = tx.send(Arrival::RoundTrip(t0.elapsed().as_secs_f64() * 1e6));
             }
         });
@@ -318,13 +333,13 @@ impl Loop {
 
 async fn connection(
     cell: &OnceCell<quinn::Connection>,
-    endpoint: &quinn::Endpoint,
+    (endpoint, client): &(quinn::Endpoint, quinn::ClientConfig),
     addr: SocketAddr,
     rank: u32,
 ) -> anyhow::Result<quinn::Connection> {
     let what = format!("the render node of rank {rank}");
     let conn = cell
-        .get_or_try_init(|| quic::connect(endpoint, addr, &what))
+        .get_or_try_init(|| quic::connect_with(endpoint, Some(client.clone()), addr, &what))
         .await?;
     Ok(conn.clone())
 }
@@ -333,7 +348,7 @@ async fn connection(
 async fn read_blocks(
     conn: &quinn::Connection,
     (blocks, ahead): (&[BlockId], bool),
-    block_bytes: u32,
+    pool: &Arc<BlockPool>,
     rank: u32,
     tx: &mpsc::UnboundedSender<Arrival>,
 ) -> anyhow::Result<()> {
@@ -355,7 +370,7 @@ async fn read_blocks(
             // It does not hold it (yet): the timeout asks again, or another owner.
             continue;
         }
-        let mut block = Block::zeroed(block_bytes);
+        let mut block = pool.take();
         recv.read_exact(block.bytes_mut()).await?;
         let _ = tx.send(Arrival::Block(k, Some(rank), Arc::new(block)));
     }

@@ -113,6 +113,7 @@ pub fn run(cli: Cli) -> Result<()> {
             };
             // Before the scene is loaded, so its arrays never pin each other in the heap.
             memory::map_large_allocations();
+            memory::few_heaps();
             let options = node::Options {
                 master,
                 cert_dir,
@@ -123,6 +124,8 @@ pub fn run(cli: Cli) -> Result<()> {
                 shared: shared::SharedOptions {
                     prepared: cli.prepared,
                     memory_budget: cli.memory_budget,
+                    // Set once the node knows its thread count.
+                    threads: 0,
                 },
             };
             tessera_net::link::node_runtime()?.block_on(node::run(options))

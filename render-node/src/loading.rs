@@ -118,14 +118,15 @@ async fn shared_here(
         rank.map_or("none (it holds no blocks)".to_string(), |r| r.to_string())
     );
     let endpoint = side.endpoint.clone();
-    endpoint.set_server_config(Some(quic::server_config(&side.identity)?));
+    // Only other render nodes connect to a render node: for blocks, with windows of their own.
+    endpoint.set_server_config(Some(quic::block_server_config(&side.identity)?));
     let (prepared, shared) = crate::shared::start(
         spec,
         session.scene_hash(),
         rank,
         holders,
         &side.shared,
-        endpoint.clone(),
+        (endpoint.clone(), quic::block_client_config(&side.identity)?),
     )
     .await?;
     let prepared = Arc::new(RwLock::new(prepared));

@@ -43,6 +43,19 @@ pub fn map_large_allocations() {
     }
 }
 
+/// Keeps glibc to two heaps (arenas). By default it makes one per thread that contends, up to
+/// eight per core, and each keeps what its thread freed: a shared scene's fetched blocks, 8 KB
+/// each, are allocated on the network threads and freed on the render threads when the cache
+/// lets them go, and with an arena per thread a node held 45 MiB above its blocks instead of
+/// 20 (a 272 MiB budget, 4 nodes, the 16.8M-triangle knot).
+pub fn few_heaps() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets a glibc tuning value.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, 2);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -105,7 +105,10 @@ pub async fn run(options: Options) -> Result<()> {
         identity,
         bvh_cache: options.bvh_cache,
         volume_cache_bytes: options.volume_cache_bytes,
-        shared: options.shared,
+        shared: crate::shared::SharedOptions {
+            threads,
+            ..options.shared
+        },
     };
     let mut loaded = None;
     loop {

@@ -12,6 +12,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 use tessera_cli::bytes::show_bytes;
 use tessera_core::dsm::{BlockCache, BlockId, Residency};
+use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
 use tessera_render::dsm::{Block, BlockFetch, SharedTree, NODE_OVERHEAD_BYTES};
 use tessera_render::PreparedScene;
@@ -26,6 +27,8 @@ pub struct SharedOptions {
     pub prepared: Option<PathBuf>,
     /// Its own memory budget, in place of the session's.
     pub memory_budget: Option<u64>,
+    /// Its render threads (each may hold a few blocks beyond the cache's).
+    pub threads: usize,
 }
 
 /// A block a render thread waits for, filled by the driver when it arrives.
@@ -217,7 +220,7 @@ fn cache_lines(
     manifest: &Manifest,
     spec: &SharedSpec,
     budget: Option<u64>,
-    resident: u64,
+    (resident, spare): (u64, u64),
 ) -> Result<usize> {
     let layout = &manifest.layout;
     if let Some(f) = spec.cache_fraction {
@@ -226,16 +229,26 @@ fn cache_lines(
     let Some(budget) = budget else {
         return Ok(layout.total().div_ceil(8) as usize);
     };
-    let held = resident + NODE_OVERHEAD_BYTES;
+    let spare_bytes = spare * layout.block_bytes as u64;
+    let held = resident + NODE_OVERHEAD_BYTES + spare_bytes;
     if held > budget {
         bail!(
-            "a memory budget of {} does not hold this node's share of the scene ({}) and its fixed overhead ({}): raise --memory-budget or add render nodes",
+            "a memory budget of {} does not hold this node's share of the scene ({}), its fixed overhead ({}) and its blocks in flight ({}): raise --memory-budget or add render nodes",
             show_bytes(budget),
             show_bytes(resident),
-            show_bytes(NODE_OVERHEAD_BYTES)
+            show_bytes(NODE_OVERHEAD_BYTES),
+            show_bytes(spare_bytes)
         );
     }
     Ok(((budget - held) / layout.block_bytes as u64) as usize)
+}
+
+/// Blocks a node may hold besides its cache's: those its render threads keep
+/// ([`SharedReader::HOLDS`] each, some evicted from the cache meanwhile), those they wait for,
+/// and those fetched ahead.
+fn spare_blocks(threads: usize) -> u64 {
+    let per_thread = tessera_render::dsm::SharedReader::HOLDS as u64 + 1;
+    threads as u64 * per_thread + crate::fetch_driver::PREFETCH_IN_FLIGHT as u64 + 64
 }
 
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
@@ -246,7 +259,7 @@ pub async fn start(
     rank: Option<u32>,
     holders: Vec<BlockHolder>,
     options: &SharedOptions,
-    endpoint: quinn::Endpoint,
+    (endpoint, client): (quinn::Endpoint, quinn::ClientConfig),
 ) -> Result<(PreparedScene, Shared)> {
     let dir = options.prepared.clone().unwrap_or_else(|| spec.dir.clone());
     let hash = prepare::hash_hex(&scene_hash);
@@ -259,7 +272,7 @@ pub async fn start(
         })?;
     let layout = manifest.layout;
     let residency = Residency::new(layout.total(), spec.ranks, rank, spec.replicas)?;
-    let (share, file, spare) = {
+    let (share, file, fallback) = {
         let (dir, manifest, residency) = (dir.clone(), manifest.clone(), residency.clone());
         tokio::task::spawn_blocking(move || -> Result<_> {
             let mut file = BlockFile::open(&dir, &manifest)?;
@@ -270,7 +283,9 @@ pub async fn start(
     };
     let resident = ((share.0.len() + share.1.len()) * 64) as u64;
     let budget = options.memory_budget.or(spec.memory_budget);
-    let lines = cache_lines(&manifest, spec, budget, resident)?;
+    let spare = spare_blocks(options.threads);
+    let lines = cache_lines(&manifest, spec, budget, (resident, spare))?;
+    let pool = BlockPool::new((lines as u64 + spare).try_into()?, layout.block_bytes);
     tracing::info!(
         "rank {}: holds {} of the scene's {} ({} blocks), caches {} lines ({})",
         rank.map_or("none".to_string(), |r| r.to_string()),
@@ -281,7 +296,7 @@ pub async fn start(
         show_bytes(lines as u64 * layout.block_bytes as u64)
     );
     let (miss_tx, miss_rx) = mpsc::unbounded_channel();
-    let hub = Arc::new(FetchHub::new(miss_tx, spare));
+    let hub = Arc::new(FetchHub::new(miss_tx, fallback));
     let cache = Arc::new(BlockCache::new(lines));
     let tree = SharedTree::new(
         layout,
@@ -294,13 +309,14 @@ pub async fn start(
     let prepared = PreparedScene::from_shared(&manifest, tree);
     let driver = fetch_driver::spawn(fetch_driver::Setup {
         residency,
-        block_bytes: layout.block_bytes,
         holders,
         misses: miss_rx,
         hub: hub.clone(),
         cache,
+        pool,
         file,
         endpoint,
+        client,
     });
     Ok((
         prepared,

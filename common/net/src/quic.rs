@@ -48,6 +48,31 @@ const KEEP_ALIVE: Duration = Duration::from_millis(250);
 /// Window sizes sized for pixel traffic: a 4K screen's frame is 25 MB, and a window much smaller
 /// than bandwidth × RTT caps throughput.
 fn transport() -> Arc<quinn::TransportConfig> {
+    let mut t = base_transport();
+    t.max_concurrent_uni_streams(4096u32.into())
+        .stream_receive_window((32u32 << 20).into())
+        .receive_window((256u32 << 20).into())
+        .send_window(256 << 20);
+    Arc::new(t)
+}
+
+/// Windows for render nodes' block traffic (distributed shared memory), which counts against a
+/// memory budget: what a peer may send before it is read, and what a node keeps unacknowledged,
+/// stay a few MiB (with the pixel windows a node under load buffered 30 MiB of blocks). 8 MiB
+/// is a thousand 8 KB blocks in flight, far more than a node's misses of a moment.
+pub const BLOCK_WINDOW: u32 = 8 << 20;
+
+fn block_transport() -> Arc<quinn::TransportConfig> {
+    let mut t = base_transport();
+    t.max_concurrent_bidi_streams(1024u32.into())
+        .stream_receive_window((1u32 << 20).into())
+        .receive_window(BLOCK_WINDOW.into())
+        .send_window(BLOCK_WINDOW as u64);
+    Arc::new(t)
+}
+
+/// What every connection shares: MTU discovery, keep-alives and the idle timeout.
+fn base_transport() -> quinn::TransportConfig {
     let mut t = quinn::TransportConfig::default();
     let mut mtu = quinn::MtuDiscoveryConfig::default();
     // A burst of congestion losses also reads as a black hole; look again soon rather than
@@ -55,16 +80,31 @@ fn transport() -> Arc<quinn::TransportConfig> {
     mtu.upper_bound(MAX_UDP_PAYLOAD)
         .black_hole_cooldown(Duration::from_secs(5));
     t.mtu_discovery_config(Some(mtu));
-    t.max_concurrent_uni_streams(4096u32.into())
-        .stream_receive_window((32u32 << 20).into())
-        .receive_window((256u32 << 20).into())
-        .send_window(256 << 20)
-        .keep_alive_interval(Some(KEEP_ALIVE))
+    t.keep_alive_interval(Some(KEEP_ALIVE))
         .max_idle_timeout(Some(IDLE_TIMEOUT.try_into().expect("1.5 s fits")));
-    Arc::new(t)
+    t
 }
 
 pub fn server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
+    server_config_with(id, transport())
+}
+
+/// The server side of render nodes' block connections (see [`BLOCK_WINDOW`]).
+pub fn block_server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
+    server_config_with(id, block_transport())
+}
+
+/// The client side of render nodes' block connections (see [`BLOCK_WINDOW`]).
+pub fn block_client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
+    let mut config = client_config(id)?;
+    config.transport_config(block_transport());
+    Ok(config)
+}
+
+fn server_config_with(
+    id: &NodeIdentity,
+    transport: Arc<quinn::TransportConfig>,
+) -> Result<quinn::ServerConfig> {
     let verifier = WebPkiClientVerifier::builder_with_provider(roots(id)?, provider())
         .build()
         .map_err(|e| NetError::Tls(format!("cannot build the client certificate verifier: {e}")))?;
@@ -77,7 +117,7 @@ pub fn server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
     tls.alpn_protocols = vec![ALPN.to_vec()];
     let crypto = QuicServerConfig::try_from(tls).map_err(|e| NetError::Tls(e.to_string()))?;
     let mut config = quinn::ServerConfig::with_crypto(Arc::new(crypto));
-    config.transport_config(transport());
+    config.transport_config(transport);
     Ok(config)
 }
 
@@ -158,14 +198,26 @@ pub async fn connect(
     addr: SocketAddr,
     what: &str,
 ) -> Result<quinn::Connection> {
+    connect_with(endpoint, None, addr, what).await
+}
+
+/// [`connect`] with a client configuration of its own (`None`: the endpoint's).
+pub async fn connect_with(
+    endpoint: &quinn::Endpoint,
+    config: Option<quinn::ClientConfig>,
+    addr: SocketAddr,
+    what: &str,
+) -> Result<quinn::Connection> {
     let failed = |reason: String| NetError::Connect {
         what: what.to_string(),
         addr,
         reason,
     };
-    let connecting = endpoint
-        .connect(addr, CLUSTER_SERVER_NAME)
-        .map_err(|e| failed(e.to_string()))?;
+    let connecting = match config {
+        Some(config) => endpoint.connect_with(config, addr, CLUSTER_SERVER_NAME),
+        None => endpoint.connect(addr, CLUSTER_SERVER_NAME),
+    }
+    .map_err(|e| failed(e.to_string()))?;
     match tokio::time::timeout(CONNECT_TIMEOUT, connecting).await {
         Ok(Ok(conn)) => Ok(conn),
         Ok(Err(e)) => Err(failed(e.to_string())),

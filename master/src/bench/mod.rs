@@ -81,6 +81,9 @@ pub struct BenchArgs {
         default_value = "0.03125,0.125,0.25,0.5,1"
     )]
     cache_fractions: Vec<f32>,
+    /// dsm: runs of each configuration, taken in turn; each keeps its median frame rate.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=99))]
+    repeats: u32,
     /// dsm: the shadings to measure, each against its own replicated run.
     #[arg(
         long,

@@ -32,8 +32,13 @@ impl Default for FetchConfig {
 /// What the driver must do.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FetchOutput {
-    /// Ask node `peer` for `blocks` (one message).
-    Request { peer: u32, blocks: Vec<BlockId> },
+    /// Ask node `peer` for `blocks` (one message). `ahead`: every block of it is a prefetch,
+    /// which the peer may answer after the requests render threads wait for.
+    Request {
+        peer: u32,
+        blocks: Vec<BlockId>,
+        ahead: bool,
+    },
     /// No owner of `block` is alive: the driver reads it from the prepared files on disk
     /// itself and then calls [`Fetcher::handle_arrived`]`(block, None, now)`.
     ReadLocally { block: BlockId },
@@ -46,6 +51,9 @@ pub struct FetchStats {
     pub misses: u64,
     /// [`Fetcher::handle_prefetch`] calls, likewise.
     pub prefetches: u64,
+    /// Blocks asked ahead that a render thread then missed before they came: asked again,
+    /// at a miss's priority.
+    pub promoted: u64,
     /// Request messages.
     pub requests: u64,
     /// Blocks in those messages (a block asked again counts again).
@@ -67,6 +75,7 @@ impl FetchStats {
     pub fn merge(&mut self, other: &FetchStats) {
         self.misses += other.misses;
         self.prefetches += other.prefetches;
+        self.promoted += other.promoted;
         self.requests += other.requests;
         self.blocks_requested += other.blocks_requested;
         self.blocks_arrived += other.blocks_arrived;
@@ -144,6 +153,8 @@ enum Asked {
 struct Want {
     since: Instant,
     asked: Asked,
+    /// Wanted ahead of need only (a prefetch), not yet by a render thread.
+    ahead: bool,
 }
 
 /// The fetch protocol of one render node as a state machine: render threads' misses come in
@@ -167,7 +178,7 @@ struct Want {
 /// f.handle_miss(5, now);
 /// f.handle_miss(5, now); // a second thread misses it too: asked once
 /// f.flush(now);
-/// assert_eq!(f.poll_output(), Some(FetchOutput::Request { peer: 1, blocks: vec![5] }));
+/// assert_eq!(f.poll_output(), Some(FetchOutput::Request { peer: 1, blocks: vec![5], ahead: false }));
 /// assert_eq!(f.poll_output(), None);
 /// assert_eq!(f.in_flight(), 1);
 ///
@@ -218,14 +229,14 @@ impl Fetcher {
     /// threads miss it: a block already queued or in flight is not asked again.
     pub fn handle_miss(&mut self, k: BlockId, now: Instant) {
         self.stats.misses += 1;
-        self.want(k, now);
+        self.want(k, now, false);
     }
 
     /// The same for a block wanted soon (prefetch of the next tiles' blocks); counted apart
     /// from misses.
     pub fn handle_prefetch(&mut self, k: BlockId, now: Instant) {
         self.stats.prefetches += 1;
-        self.want(k, now);
+        self.want(k, now, true);
     }
 
     /// Turns what was queued since the last flush into Request outputs, one per peer (split at
@@ -344,17 +355,38 @@ impl Fetcher {
         }
     }
 
-    fn want(&mut self, k: BlockId, now: Instant) {
+    fn want(&mut self, k: BlockId, now: Instant, ahead: bool) {
         let held = k >= self.residency.total() || self.residency.owns(k);
         debug_assert!(
             !held,
             "block {k} is resident here or out of range: it never misses"
         );
-        if held || self.wants.contains_key(&k) {
+        if held {
+            return;
+        }
+        if let Some(w) = self.wants.get_mut(&k) {
+            // A render thread now waits for a block asked ahead, at a prefetch's priority,
+            // behind the other streams: asked again as a miss; the first copy wins.
+            if w.ahead && !ahead {
+                w.ahead = false;
+                if let Asked::Peer { deadline, .. } = w.asked {
+                    self.deadlines.remove(&(deadline, k));
+                    w.asked = Asked::Queued;
+                    self.queue.push(k);
+                    self.stats.promoted += 1;
+                }
+            }
             return;
         }
         let asked = Asked::Queued;
-        self.wants.insert(k, Want { since: now, asked });
+        self.wants.insert(
+            k,
+            Want {
+                since: now,
+                asked,
+                ahead,
+            },
+        );
         self.queue.push(k);
     }
 
@@ -362,11 +394,15 @@ impl Fetcher {
     /// grouped into one message per peer, or hands it to the disk when none is alive.
     fn ask(&mut self, blocks: Vec<(BlockId, usize)>, now: Instant) {
         let deadline = now + self.config.timeout;
-        let mut by_peer: BTreeMap<u32, Vec<BlockId>> = BTreeMap::new();
+        let mut by_peer: BTreeMap<(u32, bool), Vec<BlockId>> = BTreeMap::new();
         for (k, from) in blocks {
+            let ahead = self.wants.get(&k).is_some_and(|w| w.ahead);
             let asked = match self.live_owner(k, from) {
                 Some(owner) => {
-                    by_peer.entry(self.owner(k, owner)).or_default().push(k);
+                    by_peer
+                        .entry((self.owner(k, owner), ahead))
+                        .or_default()
+                        .push(k);
                     self.deadlines.insert((deadline, k));
                     Asked::Peer { owner, deadline }
                 }
@@ -382,13 +418,17 @@ impl Fetcher {
             }
         }
         let batch = self.config.batch_max.max(1);
-        for (peer, blocks) in by_peer {
+        // Misses first: a peer answers streams in the order they open.
+        let mut groups: Vec<((u32, bool), Vec<BlockId>)> = by_peer.into_iter().collect();
+        groups.sort_by_key(|&((peer, ahead), _)| (ahead, peer));
+        for ((peer, ahead), blocks) in groups {
             for chunk in blocks.chunks(batch) {
                 self.stats.requests += 1;
                 self.stats.blocks_requested += chunk.len() as u64;
                 self.outputs.push_back(FetchOutput::Request {
                     peer,
                     blocks: chunk.to_vec(),
+                    ahead,
                 });
             }
         }

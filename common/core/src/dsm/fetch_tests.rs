@@ -20,6 +20,7 @@ fn request(peer: u32, blocks: &[BlockId]) -> FetchOutput {
     FetchOutput::Request {
         peer,
         blocks: blocks.to_vec(),
+        ahead: false,
     }
 }
 
@@ -34,7 +35,13 @@ fn a_block_missed_by_many_threads_is_asked_once_and_prefetches_are_counted_apart
     f.handle_prefetch(7, now);
     assert_eq!(f.in_flight(), 0, "nothing leaves before the flush");
     f.flush(now);
-    assert_eq!(drain(&mut f), [request(2, &[6]), request(3, &[7])]);
+    // Block 7 was only prefetched.
+    let ahead_7 = FetchOutput::Request {
+        peer: 3,
+        blocks: vec![7],
+        ahead: true,
+    };
+    assert_eq!(drain(&mut f), [request(2, &[6]), ahead_7]);
     // Wanted while in flight: still not asked again.
     f.handle_miss(6, now);
     f.flush(now);
@@ -250,7 +257,7 @@ proptest! {
                 }
             }
             while let Some(out) = f.poll_output() {
-                if let FetchOutput::Request { peer, blocks } = out {
+                if let FetchOutput::Request { peer, blocks, .. } = out {
                     prop_assert!(peer != 0 && !lost.contains(&peer));
                     prop_assert!(!blocks.is_empty() && blocks.len() <= batch_max);
                     for k in blocks {
@@ -261,4 +268,37 @@ proptest! {
             prop_assert!(f.poll_timeout().is_none_or(|at| at > now));
         }
     }
+}
+
+#[test]
+fn a_prefetched_block_a_thread_then_misses_is_asked_again_as_a_miss() {
+    let mut f = fetcher(16, 4, 0, 1, 64);
+    let now = Instant::now();
+    f.handle_prefetch(5, now);
+    f.handle_prefetch(9, now);
+    f.handle_miss(6, now);
+    f.flush(now);
+    // Misses go out first, each request all misses or all prefetches.
+    assert_eq!(
+        drain(&mut f),
+        vec![
+            request(2, &[6]),
+            FetchOutput::Request {
+                peer: 1,
+                blocks: vec![5, 9],
+                ahead: true
+            },
+        ]
+    );
+    f.handle_miss(5, now);
+    f.flush(now);
+    assert_eq!(drain(&mut f), vec![request(1, &[5])]);
+    assert_eq!(f.stats().promoted, 1);
+    // The first copy counts; the prefetch's own answer is a duplicate.
+    assert!(f.handle_arrived(5, Some(1), now).is_some());
+    assert!(f.handle_arrived(5, Some(1), now).is_none());
+    // A miss of a block already asked as a miss is not asked again.
+    f.handle_miss(6, now);
+    f.flush(now);
+    assert!(drain(&mut f).is_empty());
 }

@@ -503,7 +503,7 @@ impl<'a> Run<'a> {
     fn drain(&mut self, n: usize) {
         while let Some(out) = self.nodes[n].fetcher.poll_output() {
             match out {
-                FetchOutput::Request { peer, blocks } => self.send(Event::Request {
+                FetchOutput::Request { peer, blocks, .. } => self.send(Event::Request {
                     from: n as u32,
                     to: peer,
                     blocks,

@@ -21,21 +21,67 @@ pub const MAX_BLOCK_BYTES: u32 = 1 << 20;
 #[repr(C, align(64))]
 pub struct Chunk(pub [u8; 64]);
 
-/// One block's bytes.
-#[derive(Debug)]
-pub struct Block(pub Box<[Chunk]>);
+/// One block's bytes: an allocation of its own, or a slot of a [`super::pool::BlockPool`],
+/// which it gives back when dropped.
+pub struct Block {
+    chunks: Box<[Chunk]>,
+    /// The pool the chunks belong to, and the slot: then `chunks` is not the heap's to free.
+    pool: Option<(std::sync::Arc<super::pool::BlockPool>, u32)>,
+}
+
+impl std::fmt::Debug for Block {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Block")
+            .field("bytes", &(self.chunks.len() * 64))
+            .field("pooled", &self.pool.is_some())
+            .finish()
+    }
+}
 
 impl Block {
+    /// A block of `bytes` zero bytes, allocated on its own.
     pub fn zeroed(bytes: u32) -> Block {
-        Block(vec![Chunk([0; 64]); (bytes / 64) as usize].into_boxed_slice())
+        Block {
+            chunks: vec![Chunk([0; 64]); (bytes / 64) as usize].into_boxed_slice(),
+            pool: None,
+        }
+    }
+
+    /// A block over a pool's slot (see [`super::pool::BlockPool::take`]).
+    pub(super) fn pooled(
+        chunks: Box<[Chunk]>,
+        pool: std::sync::Arc<super::pool::BlockPool>,
+        slot: u32,
+    ) -> Block {
+        Block {
+            chunks,
+            pool: Some((pool, slot)),
+        }
+    }
+
+    pub fn chunks(&self) -> &[Chunk] {
+        &self.chunks
+    }
+
+    pub fn chunks_mut(&mut self) -> &mut [Chunk] {
+        &mut self.chunks
     }
 
     pub fn bytes(&self) -> &[u8] {
-        bytemuck::cast_slice(&self.0)
+        bytemuck::cast_slice(&self.chunks)
     }
 
     pub fn bytes_mut(&mut self) -> &mut [u8] {
-        bytemuck::cast_slice_mut(&mut self.0)
+        bytemuck::cast_slice_mut(&mut self.chunks)
+    }
+}
+
+impl Drop for Block {
+    fn drop(&mut self) {
+        if let Some((pool, slot)) = self.pool.take() {
+            let chunks = std::mem::take(&mut self.chunks);
+            pool.give_back(chunks, slot);
+        }
     }
 }
 

@@ -16,6 +16,7 @@
 //! Volume bricks and particles are not shared: a scene with either is rendered replicated.
 
 pub mod layout;
+pub mod pool;
 pub mod prepare;
 mod reader;
 pub mod reorder;

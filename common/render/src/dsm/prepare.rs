@@ -370,7 +370,7 @@ impl BlockFile {
     /// See [`BlockFile::read_into`].
     pub fn read(&mut self, k: BlockId) -> Result<Block, PrepareError> {
         let mut block = Block::zeroed(self.layout.block_bytes);
-        self.read_into(k, &mut block.0)?;
+        self.read_into(k, block.chunks_mut())?;
         Ok(block)
     }
 

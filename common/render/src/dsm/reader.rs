@@ -17,9 +17,9 @@ use std::ops::Range;
 use tessera_core::dsm::BlockId;
 
 /// Node blocks a reader keeps.
-const NODE_HOLDS: usize = 8;
+const NODE_HOLDS: usize = 32;
 /// Triangle blocks a reader keeps.
-const TRIANGLE_HOLDS: usize = 4;
+const TRIANGLE_HOLDS: usize = 16;
 
 /// The last `N` blocks a reader entered, the one in use first to look at.
 struct Holds<'s, const N: usize> {
@@ -56,6 +56,9 @@ pub struct SharedReader<'s> {
 }
 
 impl<'s> SharedReader<'s> {
+    /// Blocks a reader keeps at most (they stay alive while it does, whatever the cache).
+    pub const HOLDS: usize = NODE_HOLDS + TRIANGLE_HOLDS;
+
     pub(super) fn new(tree: &'s SharedTree) -> Self {
         SharedReader {
             tree,

@@ -202,7 +202,7 @@ impl Hold<'_> {
     pub(super) fn chunks(&self) -> &[Chunk] {
         match self {
             Hold::Local(chunks) => chunks,
-            Hold::Cached(block) => &block.0,
+            Hold::Cached(block) => block.chunks(),
             Hold::Nothing => &[],
         }
     }

@@ -41,11 +41,11 @@ fn shared(
     let per = (block_bytes / 64) as usize;
     let mut top = vec![Chunk([0; 64]); layout.top_blocks as usize * per];
     for k in 0..layout.top_blocks as usize {
-        top[k * per..(k + 1) * per].copy_from_slice(&all.blocks[k].0);
+        top[k * per..(k + 1) * per].copy_from_slice(all.blocks[k].chunks());
     }
     let mut share = vec![Chunk([0; 64]); residency.resident_len() * per];
     for (slot, k) in residency.resident_blocks() {
-        share[slot * per..(slot + 1) * per].copy_from_slice(&all.blocks[k as usize].0);
+        share[slot * per..(slot + 1) * per].copy_from_slice(all.blocks[k as usize].chunks());
     }
     let tree = SharedTree::new(
         layout,
