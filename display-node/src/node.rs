@@ -17,6 +17,7 @@ use tessera_core::assemble::FrameAssembler;
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
+use tessera_net::sd_notify;
 use tessera_wire::image::RgbImage;
 use tessera_wire::input::InputEvent;
 use tessera_wire::protocol::pixels::BatchSource;
@@ -193,7 +194,7 @@ async fn session(
         ),
         _ => (None, None, None),
     };
-    let grid = Arc::new(TileGrid::new(*session.wall()));
+    let grid = Arc::new(TileGrid::new(session.wall().clone()));
     let intake = Arc::new(Intake::default());
     let (tiles_tx, mut tiles) = mpsc::channel(1024);
     let _acceptor = AbortOnDrop(tokio::spawn(accept_render_nodes(
@@ -205,6 +206,7 @@ async fn session(
         tiles_tx,
     )));
     link.send(&FromNode::Ready).await?;
+    sd_notify::ready(&format!("display {}: showing the wall's frames", me.0));
     tracing::info!(
         "display {}: ready, {}x{} pixels at {}",
         me.0,

@@ -11,6 +11,7 @@
 mod args;
 mod bench;
 mod control;
+mod launch;
 mod launcher;
 mod peers;
 mod probe;
@@ -22,6 +23,7 @@ mod server;
 mod shared_data;
 mod simulate;
 mod timing;
+mod validate;
 mod wall_run;
 
 use anyhow::Result;
@@ -42,6 +44,10 @@ pub struct Cli {
 enum Command {
     /// Run a whole wall on this machine: display and render nodes as processes on 127.0.0.1.
     Local(args::LocalArgs),
+    /// Run a wall across hosts, its nodes started over ssh from a host file (which host runs
+    /// which render nodes and displays); this process is the master. Every node is stopped on
+    /// exit, on Ctrl-C and when one fails.
+    Launch(launch::LaunchArgs),
     /// Wait for the wall's nodes on an address and run it (a real wall over several hosts).
     Serve(args::ServeArgs),
     /// Render one frame of the wall in this process, no network: the reference image.
@@ -52,6 +58,9 @@ enum Command {
     /// Prepare a scene for distributed shared memory (`--data dsm`): its BVH and triangles in
     /// checksummed blocks, reused while the scene is the same.
     Prepare(shared_data::PrepareArgs),
+    /// Check a wall file (fields, sizes, overlapping screens, screens facing away from the
+    /// viewer) and draw it as an SVG: screens, bezels, tiles, which display owns what.
+    Validate(validate::ValidateArgs),
     /// Write a node certificate signed by the cluster CA (creating the CA on first use).
     IssueCert(args::IssueCertArgs),
     /// Simulate a wall in this process on a virtual clock (the real load balancer and frame
@@ -112,7 +121,9 @@ fn run(command: Command) -> Result<ExitCode> {
         }
         Command::Local(args) => runtime()?.block_on(wall_run::local(args)),
         Command::Serve(args) => runtime()?.block_on(wall_run::serve(args)),
+        Command::Launch(args) => runtime()?.block_on(launch::launch(args)),
         Command::Simulate(args) => simulate::simulate(args),
+        Command::Validate(args) => validate::validate(args).map(|()| ExitCode::SUCCESS),
         Command::Prepare(args) => shared_data::prepare_command(args).map(|()| ExitCode::SUCCESS),
         Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
         Command::Control(args) => runtime()?.block_on(control::control(args)),

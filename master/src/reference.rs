@@ -40,19 +40,18 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
         ));
     }
     let built = t0.elapsed();
-    let (w, h) = (wall.width(), wall.height());
     let view = match replayed {
         Some(state) => FrameView {
             lights: state.lights,
-            ..FrameView::new(args.frame, &camera, state.params, w, h)
+            ..FrameView::for_wall(args.frame, &camera, state.params, &wall)
         },
-        None => FrameView::new(args.frame, &camera, params, w, h),
+        None => FrameView::for_wall(args.frame, &camera, params, &wall),
     };
     let mut times = Vec::with_capacity(args.repeat as usize);
     let mut image = None;
     for _ in 0..args.repeat {
         let start = Instant::now();
-        image = Some(render_wall(&prepared, &view, &TileGrid::new(wall)));
+        image = Some(render_wall(&prepared, &view, &TileGrid::new(wall.clone())));
         times.push(start.elapsed().as_secs_f64());
     }
     let image = image.expect("--repeat is at least 1");
@@ -74,13 +73,13 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
     image.save_png(&path)?;
     if args.aov.contains(&Aov::Color) {
         let p = args.out.join("color.pfm");
-        let colors = render_wall_linear(&prepared, &view, &TileGrid::new(wall));
+        let colors = render_wall_linear(&prepared, &view, &TileGrid::new(wall.clone()));
         write_pfm_rgb(&p, wall.width(), wall.height(), &colors)
             .with_context(|| format!("cannot write {}", p.display()))?;
         eprintln!("wrote {}", p.display());
     }
     if args.aov.iter().any(|a| *a != Aov::Color) {
-        let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall));
+        let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall.clone()));
         for aov in &args.aov {
             let (name, values) = match aov {
                 Aov::Depth => ("depth.pfm", &aovs.depth),

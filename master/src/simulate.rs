@@ -56,6 +56,10 @@ pub struct SimulateArgs {
     /// Directory to write report.json into.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// A wall file (a grid, or physical screens such as deploy/walls/reality-deck.toml) in
+    /// place of --displays and --screen.
+    #[arg(long, conflicts_with_all = ["displays", "screen"])]
+    wall_file: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -184,9 +188,11 @@ fn check(args: &SimulateArgs) -> Result<()> {
 pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
     check(&args)?;
     let (width, height) = args.screen;
-    let wall = near_square_wall(args.displays, width, height)
-        .and_then(|wall| wall.spec().tile_size(args.tile_size).build())
-        .with_context(|| format!("a wall of {} displays of {width}x{height}", args.displays))?;
+    let wall = match &args.wall_file {
+        Some(path) => tessera_wire::wall::WallLayout::from_file(path)?,
+        None => near_square_wall(args.displays, width, height, args.tile_size)
+            .with_context(|| format!("a wall of {} displays of {width}x{height}", args.displays))?,
+    };
     let config = SimConfig {
         render_nodes: args.render_nodes,
         speeds: NodeSpeeds::Spread {
@@ -204,7 +210,7 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
         ..SimConfig::new(args.render_nodes)
     };
     let t0 = Instant::now();
-    let mut sim = SimWall::with_config(args.seed, wall, &config);
+    let mut sim = SimWall::with_config(args.seed, wall.clone(), &config);
     for k in &args.kills {
         sim.kill_at(RenderNodeId(k.node), FrameId(k.frame));
     }

@@ -153,7 +153,7 @@ pub async fn run_local_driven(
     let (stop, interrupted) = stop_on_ctrl_c();
     let started = Arc::new(AtomicBool::new(false));
     let mut lost = Vec::new();
-    let wall = cfg.wall;
+    let wall = cfg.wall.clone();
     let driving = driver.map(|d| tokio::spawn(d(master_addr.clone(), control_dir.clone())));
     let outcome = {
         let run = run_wall(endpoint, cfg, started.clone(), stop);
@@ -180,7 +180,7 @@ pub async fn run_local_driven(
 }
 
 /// Writes the report and wall image and turns the run's outcome into an exit code.
-fn finish_run(
+pub(crate) fn finish_run(
     outcome: Result<report::Report>,
     run: &RunArgs,
     wall: &WallLayout,
@@ -265,7 +265,7 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     // wait for this line to learn it.
     eprintln!("tessera-master: listening on {}", endpoint.local_addr()?);
     let (stop, interrupted) = stop_on_ctrl_c();
-    let wall = cfg.wall;
+    let wall = cfg.wall.clone();
     let outcome = run_wall(endpoint, cfg, Arc::new(AtomicBool::new(false)), stop).await;
     finish_run(
         outcome,

@@ -123,7 +123,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     );
     let shaded_view = FrameView::new(0, &camera, eyelight_params()?, width, height);
     let wall = WallSpec::grid(1, 1, width, height).build()?;
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let measure = |pool: &rayon::ThreadPool| -> Frames {
         let mut frames = Frames::default();
         // One warm-up frame of each, untimed.

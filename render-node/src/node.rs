@@ -16,6 +16,7 @@ use tessera_core::worker::{BatchSizer, RenderWorker};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
+use tessera_net::sd_notify;
 use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
 use tessera_wire::protocol::pixels::BatchSource;
 use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, ToNode};
@@ -163,13 +164,14 @@ async fn session(
         displays.insert(d.display, c);
     }
     link.send(&FromNode::Ready).await?;
+    sd_notify::ready(&format!("render node {}: rendering for the wall", node.0));
     tracing::info!(
         "render node {}: ready ({} triangles, {threads} threads)",
         node.0,
         read(&prepared).triangle_count()
     );
 
-    let grid = Arc::new(TileGrid::new(*session.wall()));
+    let grid = Arc::new(TileGrid::new(session.wall().clone()));
     let compression = session.compression();
     let mut sizer = BatchSizer::new(threads);
     let mut worker = RenderWorker::new(grid.len() as u32, sizer.low_water(None));
@@ -202,8 +204,7 @@ async fn session(
                 let (series, shown_step) = (series.clone(), shown_step.clone());
                 tokio::task::spawn_blocking(move || {
                     let t0 = Instant::now();
-                    let view =
-                        FrameView::of_start(&start, grid.layout().width(), grid.layout().height());
+                    let view = FrameView::of_start(&start, grid.layout());
                     if let Some(series) = &series {
                         let step = view.params.volume().time_step as usize % series.len();
                         if shown_step.swap(step, Ordering::Relaxed) != step {

@@ -485,3 +485,41 @@ pub fn issue_cert(cluster: &Path, name: &str) -> String {
     run("tessera-master", &args, Duration::from_secs(30)).assert_success("issue-cert");
     out.display().to_string()
 }
+
+/// Whether the tests run as root (what starting daemons such as sshd or slurmd needs).
+pub fn is_root() -> bool {
+    unsafe { libc::geteuid() == 0 }
+}
+
+/// Where `tool` is: on `$PATH`, or in `/usr/sbin` and `/sbin`, which a non-login root shell's
+/// `$PATH` may lack.
+pub fn find_tool(tool: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path)
+        .chain(["/usr/sbin", "/sbin", "/usr/bin"].map(PathBuf::from))
+        .map(|dir| dir.join(tool))
+        .find(|p| p.is_file())
+}
+
+/// Finds every tool `test` needs. Where one is missing the test is skipped, saying which and
+/// how to install it, except under CI (`CI=true`), whose `.ci/run` installs them: there a
+/// missing tool fails the test. Returns the tools' paths in the order asked, or `None` to skip.
+pub fn require_tools(test: &str, tools: &[&str], install: &str) -> Option<Vec<PathBuf>> {
+    let found: Vec<Option<PathBuf>> = tools.iter().map(|t| find_tool(t)).collect();
+    let missing: Vec<&str> = tools
+        .iter()
+        .zip(&found)
+        .filter(|(_, f)| f.is_none())
+        .map(|(t, _)| *t)
+        .collect();
+    if missing.is_empty() {
+        return Some(found.into_iter().flatten().collect());
+    }
+    let why = format!("{} not installed ({install})", missing.join(", "));
+    assert!(
+        !std::env::var("CI").is_ok_and(|v| v == "true"),
+        "CI=true but {test} cannot run: {why}; .ci/run should have installed it"
+    );
+    skip(test, &why);
+    None
+}

@@ -20,6 +20,7 @@ use tessera_wire::local_frame::RenderFromWorld;
 use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
 use tessera_wire::protocol::pixels::Compression;
 use tessera_wire::scene_spec::{SceneSpec, SceneSpecError};
+use tessera_wire::stereo::{Stereo, StereoMode};
 use tessera_wire::volume_params::{IsoValues, VolumeParams};
 use tessera_wire::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
 use tessera_wire::window::WallFile;
@@ -61,9 +62,37 @@ pub struct WallArgs {
     /// Tile edge in pixels; tiles are the unit of load balancing.
     #[arg(long, default_value_t = DEFAULT_TILE_SIZE, conflicts_with = "wall_file")]
     pub tile: u32,
-    /// A TOML wall file (columns, rows, screen_width, screen_height, bezel, tile_size).
+    /// Stereo: `side-by-side` (each display's left half the left eye, right half the right),
+    /// `top-bottom`, or `displays` (two displays a screen: 2k the left eye of screen k, 2k+1
+    /// the right, for passive stereo with two projectors a screen). A wall file says it in its
+    /// `[stereo]` table.
+    #[arg(long, value_enum, default_value_t = StereoArg::Mono, conflicts_with = "wall_file")]
+    pub stereo: StereoArg,
+    /// With --stereo: the distance between the eyes in scene units (default 0.065); the eyes'
+    /// views meet at the camera's target.
+    #[arg(long, default_value_t = 0.0, requires = "stereo", value_parser = parse_separation)]
+    pub eye_separation: f64,
+    /// A TOML wall file: a grid (columns, rows, screen_width, screen_height, bezel, tile_size)
+    /// or physical screens (a [viewer] and [[screen]] tables; see deploy/walls/).
     #[arg(long)]
     pub wall_file: Option<PathBuf>,
+}
+
+/// `--stereo`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StereoArg {
+    #[default]
+    Mono,
+    SideBySide,
+    TopBottom,
+    Displays,
+}
+
+fn parse_separation(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(d) if d.is_finite() && d >= 0.0 => Ok(d),
+        _ => Err(format!("`{text}` is not a distance of 0 or more")),
+    }
 }
 
 impl WallArgs {
@@ -79,10 +108,20 @@ impl WallArgs {
         }
         let (columns, rows) = parse_size(&self.wall).map_err(wall("--wall"))?;
         let (w, h) = parse_size(&self.screen).map_err(wall("--screen"))?;
+        let mode = match self.stereo {
+            StereoArg::Mono => StereoMode::Mono,
+            StereoArg::SideBySide => StereoMode::SideBySide,
+            StereoArg::TopBottom => StereoMode::TopBottom,
+            StereoArg::Displays => StereoMode::Displays,
+        };
+        let stereo = Stereo {
+            mode,
+            eye_separation: self.eye_separation,
+        };
         let layout = WallSpec::grid(columns, rows, w, h)
             .bezel(self.bezel)
             .tile_size(self.tile)
-            .build()
+            .build_stereo(stereo)
             .map_err(wall("--wall/--screen/--bezel/--tile"))?;
         Ok(WallFile {
             layout,

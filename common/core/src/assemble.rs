@@ -76,7 +76,7 @@ pub struct PresentedFrame {
 ///
 /// // Two 32×16 screens in 16-pixel tiles: display 1 owns tiles 2 and 3.
 /// let wall = WallSpec::grid(2, 1, 32, 16).tile_size(16).build().unwrap();
-/// let grid = TileGrid::new(wall);
+/// let grid = TileGrid::new(wall.clone());
 /// let mut display = FrameAssembler::new(&grid, wall.screen(DisplayId(1)).unwrap());
 /// let tile = |id: usize| &grid.tiles()[id];
 /// let pixels = vec![200u8; 16 * 16 * 3];
@@ -326,7 +326,7 @@ mod tests {
             .bezel(3)
             .build()
             .unwrap();
-        let grid = TileGrid::new(wall);
+        let grid = TileGrid::new(wall.clone());
         let mut asm = FrameAssembler::new(&grid, wall.screen(DisplayId(1)).unwrap());
         for f in 0..FRAMES_AHEAD {
             asm.handle_frame_start(FrameId(f), S).unwrap();
@@ -467,7 +467,7 @@ mod tests {
     #[test]
     fn tiles_that_came_before_the_frame_start_are_checked_at_the_present() {
         let wall = WallSpec::grid(1, 1, 16, 8).tile_size(8).build().unwrap();
-        let grid = TileGrid::new(wall);
+        let grid = TileGrid::new(wall.clone());
         let tiles = grid.display_tiles(DisplayId(0)).to_vec();
         let mut asm = FrameAssembler::new(&grid, wall.screen(DisplayId(0)).unwrap());
         // Both tiles of frame 0 arrive with state 1 before the master's frame start, which

@@ -1,7 +1,7 @@
 //! Network glue shared by the three node crates: the cluster's certificates ([`cluster`]), QUIC
 //! endpoints with mutual TLS ([`quic`]), length-prefixed control streams ([`framed`]) and a
 //! node's link to its master ([`link`]: handshake, receiving with "lost the master" handling,
-//! shutdown, the tokio runtime).
+//! shutdown, the tokio runtime) and systemd's readiness notification ([`sd_notify`]).
 //!
 //! It holds no protocol logic: what a message means is decided by the sans-IO state machines of
 //! `tessera-core`, which never see a socket. It depends on `tessera-wire` for the messages and
@@ -11,6 +11,7 @@ pub mod cluster;
 pub mod framed;
 pub mod link;
 pub mod quic;
+pub mod sd_notify;
 
 use std::net::SocketAddr;
 use tessera_wire::protocol::codec::CodecError;

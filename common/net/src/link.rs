@@ -134,6 +134,11 @@ impl MasterLink {
         within: Duration,
     ) -> Result<(MasterLink, Welcome), LinkError> {
         let give_up = tokio::time::Instant::now() + within;
+        // A `Type=notify` unit stays active meanwhile; its status says why frames stopped.
+        crate::sd_notify::status(&format!(
+            "waiting up to {} s for the master at {master} to come back",
+            within.as_secs()
+        ));
         let attempts = async {
             loop {
                 match MasterLink::join(endpoint, master, role.clone()).await {
@@ -182,6 +187,7 @@ impl MasterLink {
     /// waits (at most [`GOODBYE_WAIT`]) for the master to close, which it does once it has
     /// every node's stats.
     pub async fn finish(mut self, stats: NodeStats) -> Result<(), LinkError> {
+        crate::sd_notify::stopping("the master ended the wall; leaving");
         self.send(&FromNode::Stats(stats)).await?;
         let _ = self.send.finish();
         let _ = tokio::time::timeout(GOODBYE_WAIT, self.conn.closed()).await;

@@ -4,7 +4,7 @@
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
 use crate::{nearest_surface, FrameView, PreparedScene, PACKET};
 use rayon::prelude::*;
-use tessera_wire::wall::TileGrid;
+use tessera_wire::wall::{Tile, TileGrid};
 
 /// Per-pixel AOVs of the whole virtual image, row-major, row 0 at the top.
 pub struct Aovs {
@@ -20,7 +20,7 @@ pub struct Aovs {
 pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) -> Aovs {
     let layout = grid.layout();
     let (width, height) = (layout.width(), layout.height());
-    let blocks: Vec<(u32, u32, u32, u32)> = grid
+    let blocks: Vec<(u32, u32, u32, u32, &Tile)> = grid
         .tiles()
         .iter()
         .flat_map(|t| {
@@ -31,6 +31,7 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
                         t.y + py * PACKET,
                         PACKET.min(t.width - px * PACKET),
                         PACKET.min(t.height - py * PACKET),
+                        t,
                     )
                 })
             })
@@ -40,8 +41,8 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
         .par_iter()
         .map_init(
             || scene.tracer(),
-            |tracer, &(x, y, w, h)| {
-                let mut packet = RayPacket::primary(&view.rays, x, y, w, h);
+            |tracer, &(x, y, w, h, tile)| {
+                let mut packet = RayPacket::primary(view.rays_for(tile), x, y, w, h);
                 packet.clip(view.params.cuts());
                 let mut hits = [PacketHit::MISS; PACKET_RAYS];
                 tracer.closest_hits(&mut packet, &mut hits);
@@ -56,10 +57,10 @@ pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) ->
         prim: vec![-1.0; (width * height) as usize],
     };
     let mut tracer = scene.tracer();
-    for (&(x, y, w, h), (packet, hits)) in blocks.iter().zip(&traced) {
+    for (&(x, y, w, h, _), (packet, hits)) in blocks.iter().zip(&traced) {
         for i in 0..(w * h) as usize {
             let at = ((y + i as u32 / w) * width + x + i as u32 % w) as usize;
-            let ray = (view.rays.eye, packet.direction(i));
+            let ray = (packet.origin, packet.direction(i));
             let interval = (packet.t_min[i], packet.t_max[i]);
             if let Some(hit) = nearest_surface(scene, view, ray, interval, hits[i], &mut tracer) {
                 aovs.depth[at] = hit.t();
@@ -138,7 +139,7 @@ mod tests {
         let wall = WallSpec::grid(1, 1, 33, 33).tile_size(16).build().unwrap();
         let camera = Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 60.0).unwrap();
         let view = FrameView::new(0, &camera, RenderParams::interactive(), 33, 33);
-        let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall));
+        let aovs = primary_aovs(&prepared, &view, &TileGrid::new(wall.clone()));
         let centre = (16 * 33 + 16) as usize;
         assert!(
             (aovs.depth[centre] - 5.0).abs() < 1e-5,

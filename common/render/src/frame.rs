@@ -23,7 +23,7 @@ use tessera_wire::camera::Camera;
 use tessera_wire::light::Lights;
 use tessera_wire::params::RenderParams;
 use tessera_wire::protocol::FrameStart;
-use tessera_wire::wall::Tile;
+use tessera_wire::wall::{Tile, WallLayout};
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
 pub const PACKET: u32 = 8;
@@ -137,10 +137,14 @@ impl PreparedScene {
 }
 
 /// What one frame is rendered with.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct FrameView {
     pub frame: u64,
+    /// The rays of the camera's one image (a grid wall's virtual image).
     pub rays: PixelRays,
+    /// Each viewport's own rays, for a wall that is not one image (physical screens, stereo);
+    /// `None`: every tile takes `rays`.
+    pub viewports: Option<Arc<[PixelRays]>>,
     pub params: RenderParams,
     /// Lights in place of the scene's own, if the frame's state has some.
     pub lights: Option<Lights>,
@@ -158,22 +162,36 @@ impl FrameView {
         FrameView {
             frame,
             rays: PixelRays::new(camera, wall_width, wall_height),
+            viewports: None,
             params,
             lights: None,
         }
     }
 
-    /// What a frame start says to render, on a wall of `wall_width × wall_height`.
-    pub fn of_start(start: &FrameStart, wall_width: u32, wall_height: u32) -> Self {
+    /// Frame `frame` of `wall` seen by `camera` with `params`: one frustum for a grid wall's
+    /// one image, else one a viewport (see `views`).
+    pub fn for_wall(frame: u64, camera: &Camera, params: RenderParams, wall: &WallLayout) -> Self {
+        let (w, h) = wall.image_size().unwrap_or((wall.width(), wall.height()));
+        FrameView {
+            viewports: crate::views::viewport_rays(camera, wall),
+            ..Self::new(frame, camera, params, w, h)
+        }
+    }
+
+    /// What a frame start says to render, on `wall`.
+    pub fn of_start(start: &FrameStart, wall: &WallLayout) -> Self {
         FrameView {
             lights: start.lights,
-            ..Self::new(
-                start.frame.0,
-                &start.camera,
-                start.params,
-                wall_width,
-                wall_height,
-            )
+            ..Self::for_wall(start.frame.0, &start.camera, start.params, wall)
+        }
+    }
+
+    /// The rays of `tile`'s viewport.
+    #[inline]
+    pub fn rays_for(&self, tile: &Tile) -> &PixelRays {
+        match &self.viewports {
+            Some(v) => &v[tile.viewport as usize],
+            None => &self.rays,
         }
     }
 
@@ -413,9 +431,9 @@ fn packet_sum(
     for s in 0..spp {
         let sample = view.params.first_sample() + s;
         let mut packet = if spp == 1 && view.params.first_sample() == 0 {
-            RayPacket::primary(&view.rays, x0, y0, w, h)
+            RayPacket::primary(view.rays_for(tile), x0, y0, w, h)
         } else {
-            RayPacket::primary_jittered(&view.rays, x0, y0, w, h, |x, y| {
+            RayPacket::primary_jittered(view.rays_for(tile), x0, y0, w, h, |x, y| {
                 let mut stream = SampleStream::new(view.frame, x, y, JITTER_KEYS + sample);
                 (stream.next_f32(), stream.next_f32())
             })
@@ -445,6 +463,8 @@ fn shade_packet(
     tracer: &mut Tracer<'_>,
     sum: &mut [Vec3; 64],
 ) -> RayCounts {
+    // The eye of the packet's viewport (each eye of a stereo wall has its own).
+    let eye = packet.origin;
     packet.clip(view.params.cuts());
     let mut hits = [PacketHit::MISS; 64];
     tracer.closest_hits(packet, &mut hits);
@@ -455,7 +475,7 @@ fn shade_packet(
     } else {
         std::array::from_fn(|i| {
             (i < packet.len()).then(|| {
-                let ray = (view.rays.eye, packet.direction(i));
+                let ray = (eye, packet.direction(i));
                 let interval = (packet.t_min[i], packet.t_max[i]);
                 nearest_surface(scene, view, ray, interval, hits[i], tracer)
             })?
@@ -480,7 +500,7 @@ fn shade_packet(
             shadow_packet::primary_shadows(
                 scene,
                 view,
-                view.rays.eye,
+                eye,
                 &directions[..packet.len()],
                 &surfaces[..packet.len()],
                 shader.tracer,
@@ -504,14 +524,14 @@ fn shade_packet(
                     let m = material.unwrap_or_else(|| scene.material_of(hit));
                     shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
                     shader.primary = shadows.and_then(|s| s[i]);
-                    shader.shade(view.rays.eye, dir, hit, &m, 0)
+                    shader.shade(eye, dir, hit, &m, 0)
                 }
             };
             sum[i] += match &volume_tables {
                 Some(tables) => {
                     let t_end = surfaces[i].map_or(packet.t_max[i], |h| h.t());
                     let interval = (packet.t_min[i], t_end);
-                    shade::through_volume(scene, tables, (view.rays.eye, dir), interval, color)
+                    shade::through_volume(scene, tables, (eye, dir), interval, color)
                 }
                 None => color,
             };

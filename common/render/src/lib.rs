@@ -38,6 +38,7 @@ pub mod slot_materials;
 pub mod spheres;
 mod tracer;
 pub mod tree_memory;
+mod views;
 pub mod volume;
 
 #[cfg(test)]

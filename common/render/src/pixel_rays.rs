@@ -1,5 +1,6 @@
-//! Primary rays of the wall's camera: the map from virtual-image pixels to ray directions, and
-//! the default orbit around a scene.
+//! Primary rays of the wall's camera: the map from pixels to ray directions (the one frustum of
+//! a grid wall's virtual image, or an off-axis frustum per viewport: a physical screen seen
+//! from the viewer, or one eye's view), and the default orbit around a scene.
 
 use crate::geometry::Bounds;
 use glam::Vec3;
@@ -20,7 +21,9 @@ pub fn orbit_of(bounds: &Bounds, fov_y_deg: f32) -> Result<CameraMode, CameraErr
     CameraMode::orbit(center, (diagonal * 0.5).max(1e-6), fov_y_deg)
 }
 
-/// Maps virtual-image pixels to primary-ray directions.
+/// Maps pixels to primary-ray directions: the direction through the point `forward + right · sx
+/// + up · sy` of the image, `sx` and `sy` running from -1 to 1 across and from 1 to -1 down
+/// its pixels, which start at `(x0, y0)`.
 #[derive(Clone, Copy, Debug)]
 pub struct PixelRays {
     pub eye: Vec3,
@@ -29,6 +32,10 @@ pub struct PixelRays {
     up: Vec3,
     inv_width: f32,
     inv_height: f32,
+    /// The first pixel of the image these rays cover (0 for the one image of a grid wall:
+    /// subtracting 0 changes no bit, so its rays are what they were before viewports).
+    x0: f32,
+    y0: f32,
 }
 
 impl PixelRays {
@@ -46,6 +53,31 @@ impl PixelRays {
             up: up * half_h,
             inv_width: 2.0 / width as f32,
             inv_height: 2.0 / height as f32,
+            x0: 0.0,
+            y0: 0.0,
+        }
+    }
+
+    /// Rays from `eye` through a rectangle of the world: its top-left corner `top_left`, the
+    /// vector `across` its top edge, `down` its left edge (whole lengths), shown on the
+    /// `width × height` pixels from `(x0, y0)` (an off-axis frustum: the rectangle need not
+    /// face the eye square on).
+    pub fn through(
+        eye: Vec3,
+        (top_left, across, down): (Vec3, Vec3, Vec3),
+        (width, height): (u32, u32),
+        (x0, y0): (u32, u32),
+    ) -> Self {
+        let centre = top_left + (across + down) * 0.5;
+        PixelRays {
+            eye,
+            forward: centre - eye,
+            right: across * 0.5,
+            up: down * -0.5,
+            inv_width: 2.0 / width as f32,
+            inv_height: 2.0 / height as f32,
+            x0: x0 as f32,
+            y0: y0 as f32,
         }
     }
 
@@ -59,8 +91,8 @@ impl PixelRays {
     /// [0, 1): the sub-pixel samples of supersampling.
     #[inline(always)]
     pub fn direction_at(&self, x: u32, y: u32, jx: f32, jy: f32) -> Vec3 {
-        let sx = (x as f32 + jx) * self.inv_width - 1.0;
-        let sy = 1.0 - (y as f32 + jy) * self.inv_height;
+        let sx = (x as f32 - self.x0 + jx) * self.inv_width - 1.0;
+        let sy = 1.0 - (y as f32 - self.y0 + jy) * self.inv_height;
         (self.forward + self.right * sx + self.up * sy).normalize()
     }
 
@@ -71,8 +103,8 @@ impl PixelRays {
     pub(crate) fn directions_soa(&self, px: &[f32], py: &[f32], dir: &mut [[f32; 64]; 3]) {
         let n = px.len().min(py.len()).min(64);
         for i in 0..n {
-            let sx = (px[i] + 0.5) * self.inv_width - 1.0;
-            let sy = 1.0 - (py[i] + 0.5) * self.inv_height;
+            let sx = (px[i] - self.x0 + 0.5) * self.inv_width - 1.0;
+            let sy = 1.0 - (py[i] - self.y0 + 0.5) * self.inv_height;
             let x = self.forward.x + self.right.x * sx + self.up.x * sy;
             let y = self.forward.y + self.right.y * sx + self.up.y * sy;
             let z = self.forward.z + self.right.z * sx + self.up.z * sy;

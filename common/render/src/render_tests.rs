@@ -14,7 +14,7 @@ use tessera_wire::wall::{TileGrid, WallLayout, WallSpec};
 fn a_tile_is_identical_alone_or_in_a_batch_and_on_any_thread_count() {
     let scene = PreparedScene::new(&knot_scene(128, 16));
     let wall = WallSpec::grid(2, 1, 96, 64).tile_size(32).build().unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = orbit_of(&knot_scene(128, 16).bounds(), 45.0)
         .unwrap()
         .camera_for_frame(3);
@@ -44,7 +44,7 @@ fn a_tile_is_identical_alone_or_in_a_batch_and_on_any_thread_count() {
 fn shadows_off_traces_no_shadow_rays() {
     let scene = PreparedScene::new(&knot_scene(64, 8));
     let wall = WallLayout::grid(1, 1, 40, 30).unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = orbit_of(&knot_scene(64, 8).bounds(), 45.0)
         .unwrap()
         .camera_for_frame(0);
@@ -76,7 +76,7 @@ fn a_scene_without_lights_traces_no_shadow_rays_and_ao_only_when_asked() {
     scene.lights.clear();
     let prepared = PreparedScene::new(&scene);
     let wall = WallLayout::grid(1, 1, 40, 30).unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(0);
     for params in RenderParams::PRESETS {
         let view = FrameView::new(0, &camera, params, 40, 30);
@@ -91,7 +91,7 @@ fn every_preset_is_deterministic_and_finite() {
     let scene = knot_scene(96, 12);
     let prepared = PreparedScene::new(&scene);
     let wall = WallSpec::grid(1, 1, 48, 32).tile_size(16).build().unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(7);
     for params in RenderParams::PRESETS {
         let view = FrameView::new(7, &camera, params, 48, 32);
@@ -124,7 +124,7 @@ fn particles_are_drawn_colour_mapped_and_cropped_and_only_they_get_a_sphere_bvh(
     let prepared = PreparedScene::new(&scene);
     assert!(prepared.spheres.is_some() && prepared.accel.nodes.is_empty());
     let wall = WallSpec::grid(1, 1, 64, 48).tile_size(32).build().unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = Camera::new(
         Vec3::new(4.5, 2.0, 14.0),
         Vec3::new(4.5, 2.0, 0.0),
@@ -395,7 +395,7 @@ fn the_linear_image_is_what_the_8_bit_image_encodes() {
     let scene = knot_scene(64, 8);
     let prepared = PreparedScene::new(&scene);
     let wall = WallSpec::grid(2, 1, 40, 28).tile_size(16).build().unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(1);
     let params = RenderParamsSpec {
         spp: 3,

@@ -45,7 +45,7 @@ fn depth(scene: &Scene, eye: DVec3, target: DVec3) -> Vec<f32> {
     let prepared = PreparedScene::new(scene);
     let wall = WallSpec::grid(1, 1, SIZE.0, SIZE.1).build().unwrap();
     let view = FrameView::new(0, &camera, RenderParams::interactive(), SIZE.0, SIZE.1);
-    primary_aovs(&prepared, &view, &TileGrid::new(wall)).depth
+    primary_aovs(&prepared, &view, &TileGrid::new(wall.clone())).depth
 }
 
 #[test]

@@ -1,12 +1,22 @@
-//! Wall geometry: a grid of screens seen as one virtual image, which pixels each display owns,
-//! and the tile grid that the load balancer hands out.
+//! Wall geometry: which pixels each display owns, what each shows, and the tile grid that the
+//! load balancer hands out.
 //!
-//! The virtual image includes the bezels (mullions) so that the picture lines up across them the
-//! way a window frame hides part of a view; pixels behind a bezel belong to no display and are
-//! never rendered nor sent. Tiles are cut per screen, so a tile never straddles two screens.
+//! A wall is a grid of screens seen as one virtual image (the shorthand `--wall CxR --screen
+//! WxH --bezel B`, or a grid wall file), or a set of physical screens, each a rectangle in
+//! millimetres with a resolution of its own and an off-axis frustum from the viewer (see
+//! [`crate::screens`]). Either may be stereo (see [`crate::stereo`]). The grid's virtual image
+//! includes the bezels (mullions) so that the picture lines up across them the way a window
+//! frame hides part of a view; pixels behind a bezel belong to no display and are never
+//! rendered nor sent. A wall of screens has no one image: its displays' framebuffers are laid
+//! side by side in an atlas, rows of them, which is only where their pixels are numbered.
+//! Tiles are cut per viewport (one eye's view in one display), so a tile never straddles two
+//! screens nor two eyes.
 
+use crate::screens::{PhysicalSpec, Viewer};
+use crate::stereo::{viewports_of, Eye, Stereo, StereoMode, ViewSource, Viewport};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::sync::Arc;
 
 /// Identifies one display (one screen) of the wall, row-major from the top-left screen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -55,7 +65,7 @@ pub struct WallSpec {
     pub tile_size: u32,
 }
 
-fn default_tile_size() -> u32 {
+pub(crate) fn default_tile_size() -> u32 {
     DEFAULT_TILE_SIZE
 }
 
@@ -88,19 +98,35 @@ impl WallSpec {
     /// A zero field, a virtual image over [`MAX_WALL_SIDE`], more than [`MAX_DISPLAYS`]
     /// screens or more than [`MAX_TILES`] tiles.
     pub fn build(self) -> Result<WallLayout, WallError> {
+        self.build_stereo(Stereo::default())
+    }
+
+    /// [`WallSpec::build`], the wall shown in `stereo`.
+    ///
+    /// # Errors
+    /// As [`WallSpec::build`].
+    pub fn build_stereo(self, stereo: Stereo) -> Result<WallLayout, WallError> {
+        WallLayout::new(WallDescription::Grid { spec: self, stereo })
+    }
+}
+
+/// The grid's limits, checked before anything is laid out.
+fn check_grid(spec: &WallSpec) -> Result<(), WallError> {
+    {
+        let s = spec;
         for (field, value) in [
-            ("columns", self.columns),
-            ("rows", self.rows),
-            ("screen_width", self.screen_width),
-            ("screen_height", self.screen_height),
-            ("tile_size", self.tile_size),
+            ("columns", s.columns),
+            ("rows", s.rows),
+            ("screen_width", s.screen_width),
+            ("screen_height", s.screen_height),
+            ("tile_size", s.tile_size),
         ] {
             if value == 0 {
                 return Err(WallError::Zero { field, value });
             }
         }
         // In u64, so that no product of u32 fields can wrap before it is compared.
-        let displays = self.columns as u64 * self.rows as u64;
+        let displays = s.columns as u64 * s.rows as u64;
         if displays > MAX_DISPLAYS as u64 {
             return Err(WallError::TooManyDisplays {
                 displays,
@@ -108,8 +134,8 @@ impl WallSpec {
             });
         }
         let (w, h) = (
-            extent(self.columns, self.screen_width, self.bezel),
-            extent(self.rows, self.screen_height, self.bezel),
+            extent(s.columns, s.screen_width, s.bezel),
+            extent(s.rows, s.screen_height, s.bezel),
         );
         if w > MAX_WALL_SIDE as u64 || h > MAX_WALL_SIDE as u64 {
             return Err(WallError::TooLarge {
@@ -118,19 +144,18 @@ impl WallSpec {
                 max: MAX_WALL_SIDE,
             });
         }
-        let t = self.tile_size as u64;
-        let tiles = displays
-            * (self.screen_width as u64).div_ceil(t)
-            * (self.screen_height as u64).div_ceil(t);
+        let t = s.tile_size as u64;
+        let tiles =
+            displays * (s.screen_width as u64).div_ceil(t) * (s.screen_height as u64).div_ceil(t);
         if tiles > MAX_TILES {
             return Err(WallError::TooManyTiles {
                 tiles,
-                tile_size: self.tile_size,
+                tile_size: s.tile_size,
                 max: MAX_TILES,
             });
         }
-        Ok(WallLayout { spec: self })
     }
+    Ok(())
 }
 
 /// Pixels along one side of the virtual image: `count` screens of `size`, `bezel` apart.
@@ -138,10 +163,18 @@ fn extent(count: u32, size: u32, bezel: u32) -> u64 {
     count as u64 * size as u64 + count.saturating_sub(1) as u64 * bezel as u64
 }
 
-/// A wall: `columns × rows` screens of `screen_width × screen_height` pixels, `bezel` apart.
+/// How a wall was described: the grid shorthand (or a grid wall file), or physical screens.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum WallDescription {
+    Grid { spec: WallSpec, stereo: Stereo },
+    Screens(PhysicalSpec),
+}
+
+/// A wall: its displays' pixels, what each shows, and its tiles' size.
 ///
-/// Only [`WallSpec::build`] (or deserializing, which calls it) makes one, so every
-/// `WallLayout` is within the limits above and its sizes and counts fit their types.
+/// Only [`WallLayout::new`] (from [`WallSpec::build`], a wall file, or deserializing) makes
+/// one, so every `WallLayout` is within the limits above and its sizes and counts fit their
+/// types. Cloning is cheap (it is shared).
 ///
 /// # Examples
 ///
@@ -155,7 +188,7 @@ fn extent(count: u32, size: u32, bezel: u32) -> u64 {
 /// assert_eq!(right.x, 480 + 16);
 ///
 /// // Tiles never straddle two screens: 8 × 5 tiles of up to 64 pixels per screen.
-/// let grid = TileGrid::new(wall);
+/// let grid = TileGrid::new(wall.clone());
 /// assert_eq!(grid.display_tiles(DisplayId(0)).len(), 8 * 5);
 ///
 /// // A wall file says the same in TOML, and a bad field is named in the error.
@@ -166,29 +199,40 @@ fn extent(count: u32, size: u32, bezel: u32) -> u64 {
 /// assert!(err.to_string().contains("rows"));
 /// # Ok::<(), tessera_wire::wall::WallError>(())
 /// ```
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(into = "WallSpec")]
-pub struct WallLayout {
-    spec: WallSpec,
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(into = "WallDescription")]
+pub struct WallLayout(Arc<Layout>);
+
+#[derive(Debug, PartialEq)]
+struct Layout {
+    description: WallDescription,
+    /// The image its pixels are numbered in: a grid's virtual image, a wall of screens' atlas.
+    width: u32,
+    height: u32,
+    tile_size: u32,
+    /// Each display's framebuffer in that image.
+    screens: Vec<ScreenRect>,
+    /// What the displays show, in display order.
+    viewports: Vec<Viewport>,
 }
 
 impl<'de> Deserialize<'de> for WallLayout {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        crate::checked::deserialize::<D, WallSpec, Self>(d)
+        crate::checked::deserialize::<D, WallDescription, Self>(d)
     }
 }
 
-impl TryFrom<WallSpec> for WallLayout {
+impl TryFrom<WallDescription> for WallLayout {
     type Error = WallError;
 
-    fn try_from(spec: WallSpec) -> Result<Self, WallError> {
-        spec.build()
+    fn try_from(description: WallDescription) -> Result<Self, WallError> {
+        WallLayout::new(description)
     }
 }
 
-impl From<WallLayout> for WallSpec {
-    fn from(wall: WallLayout) -> WallSpec {
-        wall.spec
+impl From<WallLayout> for WallDescription {
+    fn from(wall: WallLayout) -> WallDescription {
+        wall.0.description.clone()
     }
 }
 
@@ -213,6 +257,12 @@ pub enum WallError {
     BadSize { text: String },
     #[error("wall file {path}: {message}")]
     File { path: String, message: String },
+    #[error("screen {screen}: `{field}` {message}")]
+    Screen {
+        screen: usize,
+        field: &'static str,
+        message: String,
+    },
 }
 
 /// One screen's rectangle in the virtual image.
@@ -237,6 +287,8 @@ impl ScreenRect {
 pub struct Tile {
     pub id: TileId,
     pub display: DisplayId,
+    /// The viewport it is in (an index of [`WallLayout::viewports`]): whose rays it traces.
+    pub viewport: u32,
     /// Left edge in virtual-image pixels.
     pub x: u32,
     /// Top edge in virtual-image pixels (row 0 at the top).
@@ -276,9 +328,53 @@ impl WallLayout {
         WallSpec::grid(columns, rows, screen_width, screen_height).build()
     }
 
-    /// The fields this wall was built from.
-    pub fn spec(&self) -> WallSpec {
-        self.spec
+    /// The wall a description describes, checked.
+    ///
+    /// # Errors
+    /// A grid's limits (see [`WallSpec::build`]), a screen's bad field (see
+    /// [`PhysicalSpec::resolve`]), more than [`MAX_DISPLAYS`] displays or [`MAX_TILES`] tiles.
+    pub fn new(description: WallDescription) -> Result<Self, WallError> {
+        let layout = match &description {
+            WallDescription::Grid { spec, stereo } => grid_layout(spec, *stereo)?,
+            WallDescription::Screens(spec) => screens_layout(spec)?,
+        };
+        let displays = layout.screens.len() as u64;
+        if displays > MAX_DISPLAYS as u64 {
+            return Err(WallError::TooManyDisplays {
+                displays,
+                max: MAX_DISPLAYS,
+            });
+        }
+        let t = layout.tile_size as u64;
+        let tiles: u64 = layout
+            .viewports
+            .iter()
+            .map(|v| (v.width as u64).div_ceil(t) * (v.height as u64).div_ceil(t))
+            .sum();
+        if tiles > MAX_TILES {
+            return Err(WallError::TooManyTiles {
+                tiles,
+                tile_size: layout.tile_size,
+                max: MAX_TILES,
+            });
+        }
+        Ok(WallLayout(Arc::new(Layout {
+            description,
+            ..layout
+        })))
+    }
+
+    /// What this wall was built from.
+    pub fn description(&self) -> &WallDescription {
+        &self.0.description
+    }
+
+    /// The grid's fields, for a grid wall.
+    pub fn grid_spec(&self) -> Option<WallSpec> {
+        match &self.0.description {
+            WallDescription::Grid { spec, .. } => Some(*spec),
+            WallDescription::Screens(_) => None,
+        }
     }
 
     /// Reads a wall from TOML text (a wall file, whose `[[window]]` tables are read and
@@ -292,68 +388,253 @@ impl WallLayout {
         crate::window::WallFile::from_file(path).map(|f| f.layout)
     }
 
+    /// A grid's screens per row (0 for a wall of screens).
     pub fn columns(&self) -> u32 {
-        self.spec.columns
+        self.grid_spec().map_or(0, |s| s.columns)
     }
 
+    /// A grid's rows of screens (0 for a wall of screens).
     pub fn rows(&self) -> u32 {
-        self.spec.rows
+        self.grid_spec().map_or(0, |s| s.rows)
     }
 
+    /// A grid's screen width in pixels (0 for a wall of screens).
     pub fn screen_width(&self) -> u32 {
-        self.spec.screen_width
+        self.grid_spec().map_or(0, |s| s.screen_width)
     }
 
+    /// A grid's screen height in pixels (0 for a wall of screens).
     pub fn screen_height(&self) -> u32 {
-        self.spec.screen_height
+        self.grid_spec().map_or(0, |s| s.screen_height)
     }
 
+    /// A grid's bezel in pixels (0 for a wall of screens).
     pub fn bezel(&self) -> u32 {
-        self.spec.bezel
+        self.grid_spec().map_or(0, |s| s.bezel)
     }
 
     pub fn tile_size(&self) -> u32 {
-        self.spec.tile_size
+        self.0.tile_size
     }
 
-    /// Width of the virtual image, bezels included.
+    /// Width of the image the wall's pixels are numbered in (a grid's virtual image, bezels
+    /// included; a wall of screens' atlas).
     pub fn width(&self) -> u32 {
-        extent(self.spec.columns, self.spec.screen_width, self.spec.bezel) as u32
+        self.0.width
     }
 
-    /// Height of the virtual image, bezels included.
+    /// Height of that image.
     pub fn height(&self) -> u32 {
-        extent(self.spec.rows, self.spec.screen_height, self.spec.bezel) as u32
+        self.0.height
     }
 
-    pub fn display_count(&self) -> u32 {
-        self.spec.columns * self.spec.rows
+    /// For a grid wall, the size of the camera's one image, bezels included (the same as
+    /// [`WallLayout::width`] × [`WallLayout::height`] unless its stereo displays are laid
+    /// out apart); `None` for a wall of screens, which has no one image.
+    pub fn image_size(&self) -> Option<(u32, u32)> {
+        let spec = self.grid_spec()?;
+        Some((
+            extent(spec.columns, spec.screen_width, spec.bezel) as u32,
+            extent(spec.rows, spec.screen_height, spec.bezel) as u32,
+        ))
     }
 
-    /// The screen of display `id`, or `None` if the wall has no such display.
-    pub fn screen(&self, id: DisplayId) -> Option<ScreenRect> {
-        if id.0 >= self.display_count() {
-            return None;
+    /// The viewer of a wall of screens.
+    pub fn viewer(&self) -> Option<Viewer> {
+        match &self.0.description {
+            WallDescription::Screens(spec) => Some(spec.viewer),
+            WallDescription::Grid { .. } => None,
         }
-        let s = &self.spec;
-        let (col, row) = (id.0 % s.columns, id.0 / s.columns);
-        Some(ScreenRect {
-            id,
-            x: col * (s.screen_width + s.bezel),
-            y: row * (s.screen_height + s.bezel),
-            width: s.screen_width,
-            height: s.screen_height,
+    }
+
+    pub fn stereo(&self) -> Stereo {
+        match &self.0.description {
+            WallDescription::Screens(spec) => spec.stereo,
+            WallDescription::Grid { stereo, .. } => *stereo,
+        }
+    }
+
+    /// What the displays show: one viewport a display, or two (side-by-side and top-bottom
+    /// stereo), in display order.
+    pub fn viewports(&self) -> &[Viewport] {
+        &self.0.viewports
+    }
+
+    /// Whether every viewport is the centre eye's view of its own pixels of one image: then
+    /// one camera frustum over the whole image traces every pixel.
+    pub fn is_one_image(&self) -> bool {
+        let one = self.image_size() == Some((self.width(), self.height()));
+        one && self.0.viewports.iter().all(|v| {
+            v.eye == Eye::Centre
+                && v.view == ViewSource::Image([v.x, v.y, v.width, v.height].map(|n| n as f64))
         })
     }
 
-    pub fn screens(&self) -> impl Iterator<Item = ScreenRect> + '_ {
-        (0..self.display_count()).filter_map(|i| self.screen(DisplayId(i)))
+    pub fn display_count(&self) -> u32 {
+        self.0.screens.len() as u32
     }
 
-    /// Pixels owned by displays (the virtual image minus the bezels).
-    pub fn visible_pixels(&self) -> u64 {
-        self.display_count() as u64 * self.spec.screen_width as u64 * self.spec.screen_height as u64
+    /// The framebuffer of display `id` in the wall's image, or `None` if the wall has no such
+    /// display.
+    pub fn screen(&self, id: DisplayId) -> Option<ScreenRect> {
+        self.0.screens.get(id.0 as usize).copied()
     }
+
+    pub fn screens(&self) -> impl Iterator<Item = ScreenRect> + '_ {
+        self.0.screens.iter().copied()
+    }
+
+    /// Pixels owned by displays (the image minus the bezels and the atlas's gaps).
+    pub fn visible_pixels(&self) -> u64 {
+        self.0
+            .screens
+            .iter()
+            .map(|s| s.width as u64 * s.height as u64)
+            .sum()
+    }
+}
+
+/// A layout under construction: everything but its description.
+fn partial(width: u32, height: u32, tile_size: u32) -> Layout {
+    Layout {
+        description: WallDescription::Grid {
+            spec: WallSpec::grid(1, 1, 1, 1),
+            stereo: Stereo::default(),
+        },
+        width,
+        height,
+        tile_size,
+        screens: Vec::new(),
+        viewports: Vec::new(),
+    }
+}
+
+/// A grid wall: its screens where they are in the virtual image; for stereo displays, the
+/// two eyes' displays of each screen laid side by side in an atlas instead.
+fn grid_layout(spec: &WallSpec, stereo: Stereo) -> Result<Layout, WallError> {
+    check_grid(spec)?;
+    let (w, h) = (
+        extent(spec.columns, spec.screen_width, spec.bezel) as u32,
+        extent(spec.rows, spec.screen_height, spec.bezel) as u32,
+    );
+    let in_image: Vec<(u32, u32)> = (0..spec.columns * spec.rows)
+        .map(|i| {
+            let (col, row) = (i % spec.columns, i / spec.columns);
+            (
+                col * (spec.screen_width + spec.bezel),
+                row * (spec.screen_height + spec.bezel),
+            )
+        })
+        .collect();
+    let size = (spec.screen_width, spec.screen_height);
+    let (frames, (aw, ah)) = if stereo.mode == StereoMode::Displays {
+        pack(&vec![size; in_image.len() * 2])?
+    } else {
+        (in_image.clone(), (w, h))
+    };
+    let mut layout = partial(aw, ah, spec.tile_size);
+    for (d, &(x, y)) in frames.iter().enumerate() {
+        let per = stereo.mode.displays_per_screen() as usize;
+        let (sx, sy) = in_image[d / per];
+        let eye = display_eye(stereo.mode, d);
+        let view = |_| ViewSource::Image([sx, sy, size.0, size.1].map(|n| n as f64));
+        add_display(&mut layout, (x, y, size.0, size.1), stereo.mode, eye, view);
+    }
+    Ok(layout)
+}
+
+/// The eye display `d` shows in `mode` (only passive stereo gives a display one eye).
+fn display_eye(mode: StereoMode, d: usize) -> Eye {
+    match (mode, d % 2) {
+        (StereoMode::Displays, 0) => Eye::Left,
+        (StereoMode::Displays, _) => Eye::Right,
+        _ => Eye::Centre,
+    }
+}
+
+fn add_display(
+    layout: &mut Layout,
+    (x, y, w, h): (u32, u32, u32, u32),
+    mode: StereoMode,
+    eye: Eye,
+    view: impl Fn(Eye) -> ViewSource,
+) {
+    let id = DisplayId(layout.screens.len() as u32);
+    layout.screens.push(ScreenRect {
+        id,
+        x,
+        y,
+        width: w,
+        height: h,
+    });
+    let viewports = viewports_of(id, (x, y, w, h), mode, eye, view);
+    layout.viewports.extend(viewports);
+}
+
+/// A wall of physical screens: each display's framebuffer in the atlas, and the screen it
+/// shows, to one eye or both.
+fn screens_layout(spec: &PhysicalSpec) -> Result<Layout, WallError> {
+    if spec.tile_size == 0 {
+        return Err(WallError::Zero {
+            field: "tile_size",
+            value: 0,
+        });
+    }
+    let screens = spec.resolve()?;
+    let per = spec.stereo.mode.displays_per_screen() as usize;
+    let sizes: Vec<(u32, u32)> = screens
+        .iter()
+        .flat_map(|s| std::iter::repeat_n((s.width, s.height), per))
+        .collect();
+    if sizes.len() as u64 > MAX_DISPLAYS as u64 {
+        return Err(WallError::TooManyDisplays {
+            displays: sizes.len() as u64,
+            max: MAX_DISPLAYS,
+        });
+    }
+    let (frames, (w, h)) = pack(&sizes)?;
+    let mut layout = partial(w, h, spec.tile_size);
+    for (d, &(x, y)) in frames.iter().enumerate() {
+        let screen = &screens[d / per];
+        let eye = display_eye(spec.stereo.mode, d);
+        let view = |_| ViewSource::Screen(screen.geometry);
+        add_display(
+            &mut layout,
+            (x, y, screen.width, screen.height),
+            spec.stereo.mode,
+            eye,
+            view,
+        );
+    }
+    Ok(layout)
+}
+
+/// Where each framebuffer's corner is in the atlas, and the atlas's size.
+type Packed = (Vec<(u32, u32)>, (u32, u32));
+
+/// Framebuffers of `sizes` laid left to right in rows no wider than [`MAX_WALL_SIDE`], each
+/// row as tall as its tallest: their corners, and the atlas's size.
+fn pack(sizes: &[(u32, u32)]) -> Result<Packed, WallError> {
+    let max = MAX_WALL_SIDE as u64;
+    let (mut x, mut y, mut row_h, mut width) = (0u64, 0u64, 0u64, 0u64);
+    let mut corners = Vec::with_capacity(sizes.len());
+    for &(w, h) in sizes {
+        if x + w as u64 > max {
+            (x, y, row_h) = (0, y + row_h, 0);
+        }
+        corners.push((x as u32, y as u32));
+        x += w as u64;
+        row_h = row_h.max(h as u64);
+        width = width.max(x);
+        if y + row_h > max {
+            return Err(WallError::TooLarge {
+                width,
+                height: y + row_h,
+                max: MAX_WALL_SIDE,
+            });
+        }
+    }
+    Ok((corners, (width as u32, (y + row_h) as u32)))
 }
 
 /// The wall cut into tiles: screen by screen, row-major inside each screen, so that the tiles of
@@ -371,17 +652,21 @@ impl TileGrid {
         let t = layout.tile_size();
         let mut tiles = Vec::new();
         let mut display_first = Vec::with_capacity(layout.display_count() as usize + 1);
-        for screen in layout.screens() {
-            display_first.push(tiles.len() as u32);
-            for ty in (0..screen.height).step_by(t as usize) {
-                for tx in (0..screen.width).step_by(t as usize) {
+        for (i, v) in layout.viewports().iter().enumerate() {
+            // Viewports come in display order: a display's first starts its tiles.
+            if display_first.len() <= v.display.0 as usize {
+                display_first.push(tiles.len() as u32);
+            }
+            for ty in (0..v.height).step_by(t as usize) {
+                for tx in (0..v.width).step_by(t as usize) {
                     tiles.push(Tile {
                         id: TileId(tiles.len() as u32),
-                        display: screen.id,
-                        x: screen.x + tx,
-                        y: screen.y + ty,
-                        width: t.min(screen.width - tx),
-                        height: t.min(screen.height - ty),
+                        display: v.display,
+                        viewport: i as u32,
+                        x: v.x + tx,
+                        y: v.y + ty,
+                        width: t.min(v.width - tx),
+                        height: t.min(v.height - ty),
                     });
                 }
             }
@@ -414,6 +699,38 @@ impl TileGrid {
         &self.tiles
     }
 
+    /// A wall with a pixel for each of this grid's tiles, cut into one-pixel tiles: the same
+    /// displays with the same tiles in the same order, each display a strip of its tiles, for
+    /// a simulation that checks every tile arrives without drawing its pixels.
+    ///
+    /// # Errors
+    /// A display of more tiles than a strip may be long ([`MAX_WALL_SIDE`]).
+    pub fn thumbnail(&self) -> Result<WallLayout, WallError> {
+        let screens = (0..self.layout.display_count())
+            .map(|d| {
+                let n = self.display_tiles(DisplayId(d)).len() as u32;
+                crate::screens::ScreenSpec {
+                    resolution: [n.max(1), 1],
+                    x_mm: Some(d as f64 * (MAX_WALL_SIDE as f64 + 1.0)),
+                    y_mm: Some(0.0),
+                    width_mm: Some(n.max(1) as f64),
+                    height_mm: Some(1.0),
+                    ..Default::default()
+                }
+            })
+            .collect();
+        WallLayout::new(WallDescription::Screens(PhysicalSpec {
+            tile_size: 1,
+            viewer: Viewer {
+                position_mm: [0.0, 0.0, 1.0],
+                scene_units_per_m: 1.0,
+            },
+            stereo: Stereo::default(),
+            screens,
+            ring: None,
+        }))
+    }
+
     /// The tiles of one display, in id order.
     pub fn display_tiles(&self, display: DisplayId) -> &[Tile] {
         let d = display.0 as usize;
@@ -425,153 +742,5 @@ impl TileGrid {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn bezels_widen_the_virtual_image_but_own_no_pixels() {
-        let wall = WallSpec::grid(2, 2, 480, 270).bezel(16).build().unwrap();
-        assert_eq!((wall.width(), wall.height()), (976, 556));
-        assert_eq!(wall.visible_pixels(), 4 * 480 * 270);
-        let s3 = wall.screen(DisplayId(3)).unwrap();
-        assert_eq!((s3.x, s3.y), (496, 286));
-        assert!(wall.screen(DisplayId(4)).is_none());
-    }
-
-    #[test]
-    fn tiles_cover_each_screen_exactly_once_and_never_straddle() {
-        let wall = WallSpec::grid(3, 2, 200, 130)
-            .bezel(7)
-            .tile_size(64)
-            .build()
-            .unwrap();
-        let grid = TileGrid::new(wall);
-        let mut owner = vec![None; (wall.width() * wall.height()) as usize];
-        for tile in grid.tiles() {
-            let screen = wall.screen(tile.display).unwrap();
-            assert!(tile.x >= screen.x && tile.x + tile.width <= screen.x + screen.width);
-            assert!(tile.y >= screen.y && tile.y + tile.height <= screen.y + screen.height);
-            for y in tile.y..tile.y + tile.height {
-                for x in tile.x..tile.x + tile.width {
-                    let slot = &mut owner[(y * wall.width() + x) as usize];
-                    assert!(slot.is_none(), "pixel {x},{y} in two tiles");
-                    *slot = Some(tile.display);
-                }
-            }
-        }
-        for screen in wall.screens() {
-            for y in screen.y..screen.y + screen.height {
-                for x in screen.x..screen.x + screen.width {
-                    assert_eq!(owner[(y * wall.width() + x) as usize], Some(screen.id));
-                }
-            }
-        }
-        let covered = owner.iter().filter(|o| o.is_some()).count() as u64;
-        assert_eq!(covered, wall.visible_pixels());
-        for screen in wall.screens() {
-            let tiles = grid.display_tiles(screen.id);
-            assert!(tiles.iter().all(|t| t.display == screen.id));
-            let pixels: usize = tiles.iter().map(Tile::pixel_count).sum();
-            assert_eq!(pixels, (screen.width * screen.height) as usize);
-        }
-    }
-
-    #[test]
-    fn shorthand_sizes_parse_and_reject_garbage() {
-        assert_eq!(parse_size("2x2").unwrap(), (2, 2));
-        assert_eq!(parse_size("480X270").unwrap(), (480, 270));
-        for bad in ["2", "x2", "2x", "axb", "-1x2", ""] {
-            assert!(parse_size(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
-    fn wall_file_errors_name_the_field() {
-        let err = WallLayout::from_toml(
-            "columns = 2\nrows = 2\nscreen_width = 0\nscreen_height = 270\n",
-            "w.toml",
-        )
-        .unwrap_err()
-        .to_string();
-        assert!(
-            err.contains("screen_width") && err.contains("w.toml"),
-            "{err}"
-        );
-        let err = WallLayout::from_toml("columns = 2\nrows = 2\nscreen_width = 4\n", "w.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("screen_height"), "{err}");
-        let err = WallLayout::from_toml(
-            "columns = 2\nrows = 2\nscreen_width = 4\nscreen_height = 4\nbezzel = 3\n",
-            "w.toml",
-        )
-        .unwrap_err()
-        .to_string();
-        assert!(err.contains("bezzel"), "{err}");
-        let err = WallLayout::from_toml(
-            "columns = \"two\"\nrows = 2\nscreen_width = 4\nscreen_height = 4\n",
-            "w.toml",
-        )
-        .unwrap_err()
-        .to_string();
-        assert!(err.contains("columns"), "{err}");
-    }
-
-    #[test]
-    fn file_and_shorthand_describe_the_same_wall() {
-        let file = WallLayout::from_toml(
-            "columns = 2\nrows = 2\nscreen_width = 480\nscreen_height = 270\nbezel = 16\n",
-            "w.toml",
-        )
-        .unwrap();
-        assert_eq!(
-            file,
-            WallSpec::grid(2, 2, 480, 270).bezel(16).build().unwrap()
-        );
-    }
-
-    #[test]
-    fn absurd_walls_are_refused() {
-        assert!(matches!(
-            WallLayout::grid(40, 1, 1920, 1080),
-            Err(WallError::TooLarge { .. })
-        ));
-    }
-
-    #[test]
-    fn walls_whose_display_count_overflows_are_refused() {
-        // 65536 × 65536 screens is 2^32 displays: a u32 count wraps to 0.
-        let err = WallLayout::grid(65536, 65536, 1, 1).unwrap_err();
-        assert!(
-            matches!(err, WallError::TooManyDisplays { displays, .. } if displays == 1 << 32),
-            "{err}"
-        );
-        assert!(err.to_string().contains("4294967296"), "{err}");
-        assert!(WallLayout::grid(64, 64, 16, 16).is_ok());
-        assert!(WallLayout::grid(65, 64, 16, 16).is_err());
-    }
-
-    #[test]
-    fn walls_whose_tile_count_overflows_are_refused() {
-        // One screen of 65536 × 65536 pixels in 1-pixel tiles: 2^32 tile ids.
-        let err = WallSpec::grid(1, 1, 65536, 65536)
-            .tile_size(1)
-            .build()
-            .unwrap_err();
-        assert!(matches!(err, WallError::TooManyTiles { .. }), "{err}");
-        assert!(err.to_string().contains("larger tiles"), "{err}");
-        // The same screen in the default 64-pixel tiles is exactly the limit.
-        let wall = WallLayout::grid(1, 1, 65536, 65536).unwrap();
-        assert_eq!(TileGrid::new(wall).len() as u64, MAX_TILES);
-    }
-
-    #[test]
-    fn deserializing_a_wall_checks_it() {
-        let bad = WallSpec::grid(3, 0, 10, 10);
-        let json = serde_json::to_string(&bad).unwrap();
-        assert!(serde_json::from_str::<WallLayout>(&json).is_err());
-        let good = WallLayout::grid(3, 1, 10, 10).unwrap();
-        let json = serde_json::to_string(&good).unwrap();
-        assert_eq!(serde_json::from_str::<WallLayout>(&json).unwrap(), good);
-    }
-}
+#[path = "wall_tests.rs"]
+mod tests;

@@ -120,10 +120,25 @@ impl WallFile {
         let mut table: toml::Table =
             toml::from_str(text).map_err(|e| file_error(e.to_string().trim_end().to_string()))?;
         let windows = table.remove("window");
-        let spec: WallSpec = table
-            .try_into()
-            .map_err(|e: toml::de::Error| file_error(e.to_string().trim_end().to_string()))?;
-        let layout = spec.build().map_err(|e| file_error(e.to_string()))?;
+        let toml_error = |e: toml::de::Error| file_error(e.to_string().trim_end().to_string());
+        // A wall of physical screens has a viewer; a grid has none.
+        let physical = ["screen", "ring", "viewer"]
+            .iter()
+            .any(|k| table.contains_key(*k));
+        let layout = if physical {
+            let spec: crate::screens::PhysicalSpec = table.try_into().map_err(toml_error)?;
+            WallLayout::new(crate::wall::WallDescription::Screens(spec))
+        } else {
+            let stereo: crate::stereo::Stereo = match table.remove("stereo") {
+                Some(v) => v.try_into().map_err(|e: toml::de::Error| {
+                    file_error(format!("[stereo]: {}", e.to_string().trim_end()))
+                })?,
+                None => Default::default(),
+            };
+            let spec: WallSpec = table.try_into().map_err(toml_error)?;
+            spec.build_stereo(stereo)
+        }
+        .map_err(|e| file_error(e.to_string()))?;
         let entries: Vec<WindowEntry> = match windows {
             None => Vec::new(),
             Some(value) => value.try_into().map_err(|e: toml::de::Error| {

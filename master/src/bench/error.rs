@@ -115,7 +115,7 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
         None => Vec::new(),
     };
     let prepared = PreparedScene::new(&scene);
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let renders = 2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize + step_params.len();
     let bar = indicatif::ProgressBar::new(renders as u64).with_style(
         indicatif::ProgressStyle::with_template(
@@ -127,7 +127,7 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     // first samples would make their error look smaller than it is.
     let render_keyed = |key: u64, params: RenderParams, what: String| {
         bar.set_message(what);
-        let view = FrameView::new(key, &camera, params, wall.width(), wall.height());
+        let view = FrameView::for_wall(key, &camera, params, &wall);
         let t0 = Instant::now();
         let image = render_wall(&prepared, &view, &grid);
         let ms = t0.elapsed().as_secs_f64() * 1000.0;

@@ -146,7 +146,7 @@ pub async fn run_wall(
             }
         })
     };
-    let grid = TileGrid::new(cfg.wall);
+    let grid = TileGrid::new(cfg.wall.clone());
     let mut coordinator = Coordinator::new(
         grid.len() as u32,
         cfg.wall.display_count(),
@@ -348,7 +348,7 @@ impl Wall {
 
     fn session(&self) -> Session {
         Session::new(SessionSpec {
-            wall: self.cfg.wall,
+            wall: self.cfg.wall.clone(),
             scene: self.cfg.scene.clone(),
             scene_hash: self.cfg.scene_hash,
             displays: self

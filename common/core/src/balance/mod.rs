@@ -150,8 +150,6 @@ pub enum BalanceError {
 }
 
 struct RenderNode {
-    /// Asked for work and got none; gets returned tiles first.
-    waiting: bool,
     /// When it last showed progress on its tiles: a report of tiles done, or being given
     /// work while it held none. A node late by its lease has its tiles copied to idle nodes.
     last_progress: Instant,
@@ -240,6 +238,9 @@ pub struct Coordinator {
     frame_limit: Option<u64>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
+    /// Nodes that asked for work and got none; they get returned tiles first. A set of its
+    /// own, so that the timer need not scan every node for them (2,048 nodes in the simulator).
+    waiting: BTreeSet<RenderNodeId>,
     liveness: Liveness<RenderNodeId>,
     /// Tiles each node rendered per frame, smoothed over the presented frames.
     tiles_per_frame: BTreeMap<RenderNodeId, f64>,
@@ -291,6 +292,7 @@ impl Coordinator {
             frame_limit,
             running: false,
             nodes: BTreeMap::new(),
+            waiting: BTreeSet::new(),
             liveness: Liveness::new(config.node_deadline),
             tiles_per_frame: BTreeMap::new(),
             in_flight: BTreeMap::new(),
@@ -415,11 +417,13 @@ impl Coordinator {
         self.nodes.insert(
             node,
             RenderNode {
-                waiting: !joined_frames,
                 last_progress: now,
                 progress_gap: None,
             },
         );
+        if !joined_frames {
+            self.waiting.insert(node);
+        }
         self.liveness.heard(node, now);
         self.feed_waiting(now);
         self.try_start_frames(now);
@@ -430,6 +434,7 @@ impl Coordinator {
         if self.nodes.remove(&node).is_none() {
             return;
         }
+        self.waiting.remove(&node);
         self.liveness.forget(node);
         self.tiles_per_frame.remove(&node);
         for frame in self.in_flight.values_mut() {
@@ -662,9 +667,7 @@ impl Coordinator {
                 ));
             }
             self.in_flight.insert(frame, state);
-            for node in self.nodes.values_mut() {
-                node.waiting = false;
-            }
+            self.waiting.clear();
         }
     }
 
@@ -686,18 +689,16 @@ impl Coordinator {
                         tiles: to_ranges(batch),
                     },
                 ));
-                if let Some(n) = self.nodes.get_mut(&node) {
-                    n.waiting = false;
-                }
+                self.waiting.remove(&node);
                 return;
             }
         }
         if self.speculate_for(node, now) {
             return;
         }
-        if let Some(n) = self.nodes.get_mut(&node) {
+        if self.nodes.contains_key(&node) {
             // Always answer, so the node knows its request is settled.
-            n.waiting = true;
+            self.waiting.insert(node);
             let frame = FrameId(self.next_frame.0.saturating_sub(1));
             self.outputs.push_back(Output::ToRender(
                 node,
@@ -742,19 +743,12 @@ impl Coordinator {
 
     /// Gives reclaimed tiles to nodes that are idle.
     fn feed_waiting(&mut self, now: Instant) {
-        let waiting: Vec<RenderNodeId> = self
-            .nodes
-            .iter()
-            .filter(|(_, n)| n.waiting)
-            .map(|(id, _)| *id)
-            .collect();
+        let waiting: Vec<RenderNodeId> = self.waiting.iter().copied().collect();
         for node in waiting {
             if self.in_flight.values().all(|f| f.pool_is_empty()) {
                 return;
             }
-            if let Some(n) = self.nodes.get_mut(&node) {
-                n.waiting = false;
-            }
+            self.waiting.remove(&node);
             self.assign_batch(node, now);
         }
     }

@@ -63,13 +63,21 @@ impl Coordinator {
         })
     }
 
-    /// When a waiting node could first be given a late node's tiles.
+    /// When a waiting node could first be given a late node's tiles. Asked after every event,
+    /// so it looks at the holders once or twice, not once per waiting node: the first
+    /// candidate serves every waiting node but itself, and itself only its own next one.
     pub(super) fn next_speculation(&self) -> Option<Instant> {
-        self.nodes
-            .iter()
-            .filter(|(_, n)| n.waiting)
-            .filter_map(|(&w, _)| self.candidate(w).map(|(_, _, end)| end))
-            .min()
+        if self.waiting.is_empty() {
+            return None;
+        }
+        let (_, first, end) = self.candidate(RenderNodeId(u32::MAX))?;
+        let others = self.waiting.iter().any(|&w| w != first);
+        let own = self
+            .waiting
+            .contains(&first)
+            .then(|| self.candidate(first).map(|(_, _, e)| e))
+            .flatten();
+        others.then_some(end).into_iter().chain(own).min()
     }
 
     /// Gives `taker` copies of a late node's tiles, if some node is late at `now`; true if
@@ -94,20 +102,13 @@ impl Coordinator {
                 tiles: to_ranges(copies),
             },
         ));
-        if let Some(n) = self.nodes.get_mut(&taker) {
-            n.waiting = false;
-        }
+        self.waiting.remove(&taker);
         true
     }
 
     /// Every waiting node takes over what late nodes hold, while any is late.
     pub(super) fn feed_speculation(&mut self, now: Instant) {
-        let waiting: Vec<RenderNodeId> = self
-            .nodes
-            .iter()
-            .filter(|(_, n)| n.waiting)
-            .map(|(&id, _)| id)
-            .collect();
+        let waiting: Vec<RenderNodeId> = self.waiting.iter().copied().collect();
         for node in waiting {
             self.speculate_for(node, now);
         }

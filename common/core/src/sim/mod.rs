@@ -61,9 +61,10 @@ const HEARTBEAT_US: u64 = HEARTBEAT_INTERVAL.as_micros() as u64;
 use tessera_wire::camera::{Camera, CameraMode};
 use tessera_wire::params::RenderParams;
 use tessera_wire::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
+use tessera_wire::screens::{PhysicalSpec, ScreenSpec, Viewer};
 use tessera_wire::state::{StateChange, StateId};
 use tessera_wire::wall::{
-    DisplayId, ScreenRect, TileGrid, TileId, WallError, WallLayout, WallSpec,
+    DisplayId, ScreenRect, TileGrid, TileId, WallDescription, WallError, WallLayout, WallSpec,
 };
 
 /// How fast each render node renders a full tile.
@@ -129,19 +130,55 @@ impl SimConfig {
     }
 }
 
-/// A near-square grid of `displays` screens of `width × height` pixels: as many rows as the
-/// largest divisor of `displays` not above its square root, so that every display count gives
-/// exactly that many screens (a prime count gives one row).
+/// A near-square grid of `displays` screens of `width × height` pixels in `tile_size` tiles:
+/// as many rows as the largest divisor of `displays` not above its square root, so that every
+/// display count gives exactly that many screens (a prime count gives one row). A grid too
+/// large for one virtual image (65,536 pixels a side) is the same screens as a wall of
+/// screens (a millimetre a pixel, one frustum each), which has no such limit.
 ///
 /// # Errors
-/// A wall that [`WallSpec::build`] refuses (too many displays or pixels).
-pub fn near_square_wall(displays: u32, width: u32, height: u32) -> Result<WallLayout, WallError> {
+/// A wall that [`WallLayout::new`] refuses (too many displays or tiles).
+pub fn near_square_wall(
+    displays: u32,
+    width: u32,
+    height: u32,
+    tile_size: u32,
+) -> Result<WallLayout, WallError> {
     let rows = (1..=displays.max(1))
         .take_while(|&r| u64::from(r) * u64::from(r) <= u64::from(displays))
         .filter(|r| displays.is_multiple_of(*r))
         .last()
         .unwrap_or(1);
-    WallLayout::grid(displays.max(1) / rows, rows, width, height)
+    let columns = displays.max(1) / rows;
+    match WallSpec::grid(columns, rows, width, height)
+        .tile_size(tile_size)
+        .build()
+    {
+        Err(WallError::TooLarge { .. }) => {}
+        grid => return grid,
+    }
+    let (w, h) = (width as f64, height as f64);
+    let screens = (0..columns * rows)
+        .map(|i| ScreenSpec {
+            resolution: [width, height],
+            x_mm: Some((i % columns) as f64 * w),
+            y_mm: Some((rows - 1 - i / columns) as f64 * h),
+            width_mm: Some(w),
+            height_mm: Some(h),
+            ..ScreenSpec::default()
+        })
+        .collect();
+    let (cx, cy) = (columns as f64 * w / 2.0, rows as f64 * h / 2.0);
+    WallLayout::new(WallDescription::Screens(PhysicalSpec {
+        tile_size,
+        viewer: Viewer {
+            position_mm: [cx, cy, cx.max(cy)],
+            scene_units_per_m: 1.0,
+        },
+        stereo: Default::default(),
+        screens,
+        ring: None,
+    }))
 }
 
 /// The deterministic pixel bytes of `tile` in `frame` rendered with `state`: a tile of
@@ -254,22 +291,13 @@ impl SimWall {
     }
 
     pub fn with_config(seed: u64, layout: WallLayout, config: &SimConfig) -> Self {
-        let grid = TileGrid::new(layout);
+        let grid = TileGrid::new(layout.clone());
         let pixel_grid = match config.pixels {
             PixelCheck::Full => grid.clone(),
-            PixelCheck::OnePerTile => {
-                let t = layout.tile_size();
-                let thumbnails = WallSpec::grid(
-                    layout.columns(),
-                    layout.rows(),
-                    layout.screen_width().div_ceil(t),
-                    layout.screen_height().div_ceil(t),
-                )
-                .tile_size(1)
-                .build()
-                .expect("as many tiles as the valid wall it stands for, and fewer pixels");
-                TileGrid::new(thumbnails)
-            }
+            PixelCheck::OnePerTile => TileGrid::new(
+                grid.thumbnail()
+                    .expect("as many tiles as the valid wall it stands for, and fewer pixels"),
+            ),
         };
         debug_assert_eq!(grid.len(), pixel_grid.len());
         let camera = CameraMode::fixed(

@@ -154,7 +154,7 @@ fn seeded_speeds_spread_between_the_fastest_and_spread_times_it() {
 #[test]
 fn near_square_walls_have_exactly_the_displays_asked_for() {
     for (displays, columns, rows) in [(1, 1, 1), (8, 4, 2), (7, 7, 1), (12, 4, 3), (64, 8, 8)] {
-        let wall = near_square_wall(displays, 1920, 1080).unwrap();
+        let wall = near_square_wall(displays, 1920, 1080, 64).unwrap();
         assert_eq!((wall.columns(), wall.rows()), (columns, rows), "{displays}");
         assert_eq!(wall.display_count(), displays);
     }

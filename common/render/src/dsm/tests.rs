@@ -82,7 +82,7 @@ fn every_ray_kind_gives_the_replicated_pixels_on_every_node_with_a_tiny_cache() 
     // point light (shadow packets and single shadow rays), and ambient occlusion is on.
     let scene = gallery_scene();
     let wall = WallSpec::grid(2, 1, 64, 48).tile_size(16).build().unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let view = view_of(&scene, every_ray_kind(), (wall.width(), wall.height()));
     let replicated = crate::PreparedScene::new(&scene);
     let (want, want_rays) = render_tiles(&replicated, &view, grid.tiles());
@@ -105,7 +105,7 @@ fn every_ray_kind_gives_the_replicated_pixels_on_every_node_with_a_tiny_cache() 
 fn a_cache_as_large_as_the_rest_fetches_each_block_once() {
     let scene = knot_scene(400, 24);
     let wall = WallSpec::grid(1, 1, 96, 64).tile_size(32).build().unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let view = view_of(&scene, RenderParams::interactive(), (96, 64));
     let replicated = crate::PreparedScene::new(&scene);
     let (want, _) = render_tiles(&replicated, &view, grid.tiles());

@@ -343,7 +343,7 @@ fn the_direct_iso_surface_agrees_with_a_triangulated_one_within_a_voxel() {
         ..Scene::default()
     };
     let wall = WallLayout::grid(1, 1, 96, 72).unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let camera = Camera::new(Vec3::new(0.5, 0.6, 2.0), Vec3::ZERO, Vec3::Y, 50.0).unwrap();
     let params = RenderParamsSpec {
         volume: VolumeParams {
@@ -412,7 +412,7 @@ fn a_volume_scene_renders_and_a_mesh_inside_it_hides_what_is_behind() {
     );
     let camera = orbit_of(&bounds, 45.0).unwrap().camera_for_frame(0);
     let wall = WallLayout::grid(1, 1, 48, 32).unwrap();
-    let grid = TileGrid::new(wall);
+    let grid = TileGrid::new(wall.clone());
     let view = FrameView::new(0, &camera, RenderParams::interactive(), 48, 32);
     let (volume_only, _) = render_tiles(&PreparedScene::new(&scene), &view, grid.tiles());
     // An opaque quad in the middle of the volume, facing the camera.

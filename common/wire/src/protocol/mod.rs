@@ -664,7 +664,7 @@ mod tests {
             addr: "127.0.0.1:9".parse().unwrap(),
         };
         let spec = |displays| SessionSpec {
-            wall,
+            wall: wall.clone(),
             scene: SceneSpec::Gallery,
             scene_hash: [0; 32],
             displays,
