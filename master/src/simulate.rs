@@ -218,9 +218,23 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
     let run_time_s = t0.elapsed().as_secs_f64();
     let r = sim.report();
 
+    let shape = match wall.grid_spec() {
+        Some(g) => format!(
+            "a {}x{} grid of {}x{}",
+            g.columns, g.rows, g.screen_width, g.screen_height
+        ),
+        None => format!(
+            "screens of {:.2} gigapixels in all",
+            wall.visible_pixels() as f64 / 1e9
+        ),
+    };
     println!(
-        "simulated {} render nodes, {} displays ({}x{} of {width}x{height}, {} tiles of {} px a frame), {} frames",
-        r.render_nodes, r.displays, wall.columns(), wall.rows(), r.tiles_per_frame, args.tile_size, r.frames_requested
+        "simulated {} render nodes, {} displays ({shape}, {} tiles of {} px a frame), {} frames",
+        r.render_nodes,
+        r.displays,
+        r.tiles_per_frame,
+        wall.tile_size(),
+        r.frames_requested
     );
     let b = r.busy_fraction;
     let rows = [

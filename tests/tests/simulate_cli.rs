@@ -79,3 +79,52 @@ fn impossible_kills_and_losses_are_refused_with_the_reason() {
         );
     }
 }
+
+#[test]
+fn the_reality_deck_runs_with_two_thousand_render_nodes() {
+    // 416 screens of 2560x1440 in a ring, 1.5 gigapixels: refused before walls of screens,
+    // whose one virtual image would be a million pixels wide.
+    let wall =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/walls/reality-deck.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sim");
+    let args = [
+        "simulate",
+        "--wall-file",
+        wall.to_str().unwrap(),
+        "--render-nodes",
+        "2048",
+        "--frames",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let o = run("tessera-master", &args, Duration::from_secs(300));
+    o.assert_success("the Reality Deck");
+    assert!(o.stdout.contains("1.53 gigapixels"), "{}", o.stdout);
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["displays"], 416, "{report}");
+    assert_eq!(report["frames_completed"], 2, "{report}");
+    assert_eq!(report["corrupt_frames"], 0);
+    eprintln!(
+        "Reality Deck, 2,048 render nodes: efficiency {:.4}, {} tiles a frame",
+        report["efficiency"], report["tiles_per_frame"]
+    );
+    // The same screens as the grid shorthand: too wide for one image, laid out as screens.
+    let o = run(
+        "tessera-master",
+        &[
+            "simulate",
+            "--displays",
+            "416",
+            "--screen",
+            "2560x1440",
+            "--render-nodes",
+            "64",
+            "--frames",
+            "1",
+        ],
+        Duration::from_secs(300),
+    );
+    o.assert_success("416 displays from the shorthand");
+}
