@@ -591,6 +591,8 @@ fn files(root: &Path) {
     }
     put(root, "wall_file", "windows", "columns = 2\nrows = 1\nscreen_width = 640\nscreen_height = 360\n\
         tile_size = 48\n[[window]]\ndisplay = 0\nwidth = 320\nheight = 180\n[[window]]\ndisplay = 1\nfullscreen = 1\n");
+    put(root, "wall_file", "stereo", "columns = 2\nrows = 1\nscreen_width = 64\nscreen_height = 48\n\
+        [stereo]\nmode = \"displays\"\neye_separation = 0.1\n");
     put(
         root,
         "transfer_file",

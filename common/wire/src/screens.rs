@@ -271,7 +271,10 @@ impl RingSpec {
             && self.rows >= 1
             && self.screen_width_mm > 0.0
             && self.screen_height_mm > 0.0
+            && self.screen_width_mm.is_finite()
+            && self.screen_height_mm.is_finite()
             && self.gap_mm >= 0.0
+            && self.gap_mm.is_finite()
             && self.bottom_mm.is_finite();
         if !fine {
             return Err(WallError::File {
@@ -279,6 +282,13 @@ impl RingSpec {
                 message:
                     "needs at least 3 screens around, a row, positive sizes and a gap of 0 or more"
                         .into(),
+            });
+        }
+        let count = n as u64 * self.rows as u64;
+        if count > crate::wall::MAX_DISPLAYS as u64 {
+            return Err(WallError::TooManyDisplays {
+                displays: count,
+                max: crate::wall::MAX_DISPLAYS,
             });
         }
         let step = std::f64::consts::TAU / n as f64;
@@ -323,6 +333,12 @@ impl PhysicalSpec {
                 path: "[viewer]".into(),
                 message: "position_mm and scene_units_per_m must be finite, the scale positive"
                     .into(),
+            });
+        }
+        if self.screens.len() > crate::wall::MAX_DISPLAYS as usize {
+            return Err(WallError::TooManyDisplays {
+                displays: self.screens.len() as u64,
+                max: crate::wall::MAX_DISPLAYS,
             });
         }
         let mut specs = self.screens.clone();
