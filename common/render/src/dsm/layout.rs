@@ -185,6 +185,49 @@ impl BlockLayout {
     }
 }
 
+/// Division by a divisor fixed at start, as a multiply and a shift: a traversal finds the
+/// block of every node and triangle it reads, and two hardware divisions per read (by the nodes
+/// and the triangles a block holds, which the block size sets at run time) cost more than the
+/// lookup they serve.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FastDiv {
+    d: u32,
+    m: u64,
+    s: u32,
+    /// For a power of two (the nodes of a block of a power-of-two size), the shift that
+    /// divides: a read of a node then waits on one shift, not a multiplication and a second
+    /// one for the remainder (a traversal's next node waits on that arithmetic).
+    shift: Option<u32>,
+}
+
+impl FastDiv {
+    /// # Panics
+    /// For a divisor of 0.
+    pub fn new(d: u32) -> FastDiv {
+        assert!(d > 0, "division by zero");
+        // s = 32 + ceil(log2 d) and m = floor(2^s / d) + 1 give floor(n / d) for every
+        // 32-bit n (the round-up method of Granlund and Montgomery).
+        let s = 32 + (32 - (d - 1).leading_zeros());
+        let m = ((1u128 << s) / d as u128 + 1) as u64;
+        let shift = d.is_power_of_two().then(|| d.trailing_zeros());
+        FastDiv { d, m, s, shift }
+    }
+
+    /// `(n / d, n % d)`.
+    #[inline(always)]
+    pub fn div_rem(&self, n: u32) -> (u32, u32) {
+        if let Some(shift) = self.shift {
+            return (n >> shift, n & (self.d - 1));
+        }
+        let q = ((n as u128 * self.m as u128) >> self.s) as u32;
+        (q, n - q * self.d)
+    }
+
+    pub fn divisor(&self) -> u32 {
+        self.d
+    }
+}
+
 /// Block `k`'s bytes read as nodes.
 #[inline(always)]
 pub fn nodes_of(bytes: &[Chunk]) -> &[WideNode] {
@@ -211,6 +254,37 @@ mod tests {
         assert_eq!(l.node_block(33), (1, 1));
         assert_eq!(l.triangle_block(230), (5, 3, 454));
         assert!(l.is_top(0) && !l.is_top(1));
+    }
+
+    #[test]
+    fn fast_division_is_division() {
+        let mut n: u32 = 0x9e37_79b9;
+        for d in [
+            1,
+            2,
+            3,
+            7,
+            8,
+            32,
+            227,
+            255,
+            256,
+            4096,
+            29127,
+            u32::MAX / 3,
+            u32::MAX,
+        ] {
+            let f = FastDiv::new(d);
+            for probe in [0, 1, d - 1, d, d.wrapping_add(1), u32::MAX, u32::MAX - 1] {
+                assert_eq!(f.div_rem(probe), (probe / d, probe % d), "{probe} / {d}");
+            }
+            for _ in 0..20_000 {
+                n ^= n << 13;
+                n ^= n >> 17;
+                n ^= n << 5;
+                assert_eq!(f.div_rem(n), (n / d, n % d), "{n} / {d}");
+            }
+        }
     }
 
     #[test]

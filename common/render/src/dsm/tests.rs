@@ -126,3 +126,71 @@ fn a_cache_as_large_as_the_rest_fetches_each_block_once() {
         "{fetched} fetches, {cache:?}"
     );
 }
+
+/// A measurement, not a check of speed: one thread's reads of shared memory against the
+/// replicated arrays on a real mesh with ambient occlusion, with no network in the way (every
+/// block its own, or half of them in a cache that holds them all). Frames alternate between
+/// the four so that a busy machine slows each alike; it prints min and median ratios, and
+/// checks that every frame is the replicated one. Run with
+/// `RAYON_NUM_THREADS=1 cargo test --release -p tessera-render reader_overhead -- --ignored --nocapture`
+/// (it needs Debian's assimp-testmodels; `AO_RAYS=0` for primary rays alone, 4 by default).
+#[test]
+#[ignore = "a measurement: run it by hand in release"]
+fn reader_overhead_against_replicated() {
+    let path = std::path::Path::new(
+        "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb",
+    );
+    if !path.exists() {
+        eprintln!("skipped: {} is not installed", path.display());
+        return;
+    }
+    let scene = Scene::load(&tessera_wire::scene_spec::SceneSpec::File(path.into())).unwrap();
+    let (w, h) = (640, 360);
+    let wall = WallSpec::grid(1, 1, w, h).tile_size(32).build().unwrap();
+    let grid = TileGrid::new(wall.clone());
+    let params = RenderParamsSpec {
+        ao_samples: std::env::var("AO_RAYS").map_or(4, |v| v.parse().unwrap()),
+        ..RenderParamsSpec::INTERACTIVE
+    };
+    let view = view_of(&scene, params.build().unwrap(), (w, h));
+    let replicated = crate::PreparedScene::new(&scene);
+    let mut accel = crate::accel::Accel::build(&scene);
+    let per_block = 8192 / std::mem::size_of::<crate::accel_wide::WideNode>();
+    accel.wide = super::reorder::reorder_for_blocks(&accel.wide, per_block);
+    let reordered = crate::PreparedScene::from_accel(&scene, accel);
+    let (all_local, _) = shared(&scene, 8192, (0, 1), 0);
+    let (probe, _) = shared(&scene, 8192, (0, 2), 0);
+    let total = probe.shared.as_ref().unwrap().layout().total() as usize;
+    let (cached, _) = shared(&scene, 8192, (0, 2), total);
+    let variants = [
+        ("replicated", &replicated),
+        ("reordered tree, replicated", &reordered),
+        ("shared, every block its own", &all_local),
+        ("shared, half in the cache", &cached),
+    ];
+    let (want, _) = render_tiles(&replicated, &view, grid.tiles());
+    let mut times = vec![Vec::new(); variants.len()];
+    for _ in 0..12 {
+        for (v, (name, p)) in variants.iter().enumerate() {
+            let t = std::time::Instant::now();
+            let (got, _) = render_tiles(p, &view, grid.tiles());
+            times[v].push(t.elapsed().as_secs_f64());
+            assert!(got == want, "{name}: not the replicated pixels");
+        }
+    }
+    for t in &mut times {
+        t.sort_by(f64::total_cmp);
+    }
+    let (min, median) = (times[0][0], times[0][times[0].len() / 2]);
+    for (v, (name, _)) in variants.iter().enumerate() {
+        let (m, med) = (times[v][0], times[v][times[v].len() / 2]);
+        println!(
+            "{name:28} min {m:.4} s ({:.3}x)  median {med:.4} s ({:.3}x)",
+            min / m,
+            median / med
+        );
+    }
+    for (name, p) in &variants[2..] {
+        println!("{name}: {:?}", p.shared.as_ref().unwrap().stats());
+    }
+}
