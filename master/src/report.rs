@@ -59,12 +59,16 @@ pub struct DsmSummary {
     pub miss_percent: f64,
     /// Of the reads, those of blocks the reading node held itself.
     pub local_percent: f64,
-    /// Remote reads, from the miss to the block's arrival: over every node (the p99 is the
-    /// largest node's p99, an upper bound).
+    /// Remote reads, from the request to the block's arrival, of every block asked of
+    /// another node, those fetched ahead included: over every node (the p99 is the largest
+    /// node's p99, an upper bound).
     pub remote_read_avg_us: f64,
     pub remote_read_min_us: f64,
     pub remote_read_max_us: f64,
     pub remote_read_p99_us: f64,
+    /// How long a render thread waited, on average, for a block it missed (a block fetched
+    /// ahead waits behind the misses, so this is the stall the threads saw).
+    pub miss_wait_avg_us: f64,
     /// The fastest round trip of an empty request between render nodes, measured in the same
     /// run: the transport's floor under a remote read.
     pub round_trip_us: f64,

@@ -390,49 +390,21 @@ pub fn read_json(path: &Path) -> serde_json::Value {
 
 /// PIDs of live processes whose command line contains `needle` (to prove nothing is orphaned).
 pub fn processes_mentioning(needle: &str) -> Vec<u32> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        if pid == std::process::id() {
-            continue;
-        }
-        if let Ok(cmdline) = std::fs::read(entry.path().join("cmdline")) {
-            let text = String::from_utf8_lossy(&cmdline).replace('\0', " ");
-            let zombie = std::fs::read_to_string(entry.path().join("stat"))
-                .is_ok_and(|s| s.contains(") Z "));
-            if text.contains(needle) && !zombie {
-                found.push(pid);
-            }
-        }
-    }
-    found
+    tessera_cli::procs::processes()
+        .into_iter()
+        .filter(|p| p.pid != std::process::id() && !p.zombie && p.args.join(" ").contains(needle))
+        .map(|p| p.pid)
+        .collect()
 }
 
 /// The nodes `parent` started as `role` (`render-node`, `display-node`): its children whose
 /// command line runs that subcommand.
 pub fn children(parent: u32, role: &str) -> Vec<u32> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else {
-            continue;
-        };
-        // The fields after the command name, which may hold spaces and parentheses.
-        let after = stat.rsplit_once(") ").map_or("", |(_, rest)| rest);
-        let ppid: Option<u32> = after.split_whitespace().nth(1).and_then(|p| p.parse().ok());
-        let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
-        let runs_role = String::from_utf8_lossy(&cmdline)
-            .split('\0')
-            .any(|arg| arg == role);
-        if ppid == Some(parent) && runs_role {
-            found.push(pid);
-        }
-    }
-    found
+    tessera_cli::procs::children_of(parent)
+        .into_iter()
+        .filter(|c| c.runs(role))
+        .map(|c| c.pid)
+        .collect()
 }
 
 /// Polls `check` every 50 ms until it holds or `limit` passes.

@@ -308,12 +308,14 @@ fn flowing_wall(out: &std::path::Path, extra: &[&str]) -> Proc {
 
 /// The pid of the process whose command line holds every one of `words`.
 fn process_with(words: &[&str]) -> Option<u32> {
-    processes_mentioning(words[0]).into_iter().find(|p| {
-        std::fs::read(format!("/proc/{p}/cmdline")).is_ok_and(|c| {
-            let line = String::from_utf8_lossy(&c).replace('\0', " ");
-            words.iter().all(|w| line.contains(w))
+    let me = std::process::id();
+    tessera_cli::procs::processes()
+        .into_iter()
+        .find(|p| {
+            let line = p.args.join(" ");
+            p.pid != me && !p.zombie && words.iter().all(|w| line.contains(w))
         })
-    })
+        .map(|p| p.pid)
 }
 
 #[test]

@@ -136,6 +136,20 @@ impl Served {
         Served::start_with(dir, &[])
     }
 
+    /// Its two displays and a render node, each started with `--reconnect` and waiting
+    /// `timeout` seconds for a lost master, returned once frames are flowing.
+    fn reconnecting(dir: &std::path::Path, timeout: &str) -> (Served, [Proc; 3]) {
+        let wall = Served::start(dir);
+        let reconnect = ["--reconnect", "--reconnect-timeout", timeout];
+        let nodes = [
+            wall.display_with(0, &reconnect),
+            wall.display_with(1, &reconnect),
+            wall.render_with(&reconnect),
+        ];
+        wall.wait_for_frame_2();
+        (wall, nodes)
+    }
+
     /// With the master's flags `extra` as well.
     fn start_with(dir: &std::path::Path, extra: &[&str]) -> Served {
         let (cluster, out) = (dir.join("cluster"), dir.join("out"));
@@ -358,14 +372,7 @@ fn a_restarted_display_rejoins_the_running_wall_and_shows_its_frames() {
 #[test]
 fn nodes_started_with_reconnect_rejoin_a_restarted_master() {
     let dir = tempfile::tempdir().unwrap();
-    let wall = Served::start(dir.path());
-    let reconnect = ["--reconnect", "--reconnect-timeout", "60"];
-    let nodes = [
-        wall.display_with(0, &reconnect),
-        wall.display_with(1, &reconnect),
-        wall.render_with(&reconnect),
-    ];
-    wall.wait_for_frame_2();
+    let (wall, nodes) = Served::reconnecting(dir.path(), "60");
     wall.master.signal(libc::SIGKILL);
     for node in &nodes {
         node.wait_for_stderr(
@@ -414,14 +421,7 @@ fn nodes_started_with_reconnect_rejoin_a_restarted_master() {
 #[test]
 fn nodes_waiting_for_a_master_that_never_comes_back_give_up_at_their_timeout() {
     let dir = tempfile::tempdir().unwrap();
-    let wall = Served::start(dir.path());
-    let reconnect = ["--reconnect", "--reconnect-timeout", "1"];
-    let nodes = [
-        wall.display_with(0, &reconnect),
-        wall.display_with(1, &reconnect),
-        wall.render_with(&reconnect),
-    ];
-    wall.wait_for_frame_2();
+    let (wall, nodes) = Served::reconnecting(dir.path(), "1");
     let killed = std::time::Instant::now();
     wall.master.signal(libc::SIGKILL);
     // The idle timeout to notice, the 1 s wait, and a generous allowance for a loaded machine.

@@ -73,10 +73,16 @@ fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
         assert!(node["max_rss_bytes"].as_u64().unwrap() > 0, "{node}");
     }
     let summary = &report["dsm"];
+    // Every node fetched something, so its threads waited for it.
+    assert!(
+        summary["miss_wait_avg_us"].as_f64().unwrap() > 0.0,
+        "{summary}"
+    );
     eprintln!(
-        "shared gallery: {} block reads a frame, {:.2} % fetched, remote reads avg {:.0} µs (p99 {:.0}) against a {:.0} µs round trip",
+        "shared gallery: {} block reads a frame, {:.2} % fetched, a miss waited {:.0} µs, remote reads avg {:.0} µs (p99 {:.0}) against a {:.0} µs round trip",
         summary["blocks_read_per_frame"].as_f64().unwrap(),
         summary["miss_percent"].as_f64().unwrap(),
+        summary["miss_wait_avg_us"].as_f64().unwrap(),
         summary["remote_read_avg_us"].as_f64().unwrap(),
         summary["remote_read_p99_us"].as_f64().unwrap(),
         summary["round_trip_us"].as_f64().unwrap(),

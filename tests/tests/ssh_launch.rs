@@ -17,18 +17,8 @@ fn repo() -> PathBuf {
 
 /// The PIDs whose parent is `parent`.
 fn child_pids(parent: u32) -> Vec<u32> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let stat = std::fs::read_to_string(entry.path().join("stat")).unwrap_or_default();
-        let after = stat.rsplit_once(") ").map_or("", |(_, rest)| rest);
-        if after.split_whitespace().nth(1) == Some(&parent.to_string()) {
-            found.push(pid);
-        }
-    }
-    found
+    let children = tessera_cli::procs::children_of(parent);
+    children.into_iter().map(|c| c.pid).collect()
 }
 
 /// An sshd on 127.0.0.1 that lets root in with the test's key; killed and reaped on drop.

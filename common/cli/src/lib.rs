@@ -8,6 +8,7 @@
 
 pub mod bytes;
 pub mod logging;
+pub mod procs;
 pub mod reconnect;
 pub mod transfer_file;
 

@@ -53,28 +53,48 @@ impl Row {
         }
     }
 
-    fn csv(&self) -> String {
+    fn cache_label(&self) -> String {
+        self.cache.map_or("replicated".into(), |c| c.to_string())
+    }
+
+    /// fps, ratio, miss %, blocks read per frame, a miss's average wait, remote-read
+    /// avg/min/max/p99 µs and the round trip µs: the columns of the table and of the CSV.
+    fn figures(&self) -> [f64; 10] {
         let d = self.report.dsm.unwrap_or_default();
-        format!(
-            "{},{},{},{:.3},{:.3},{:.4},{:.0},{:.1},{:.1},{:.1},{:.1},{:.1},{}",
-            self.shading.name(),
-            self.nodes,
-            self.cache.map_or("replicated".into(), |c| c.to_string()),
+        [
             self.report.fps,
             self.ratio(),
             d.miss_percent,
             d.blocks_read_per_frame,
+            d.miss_wait_avg_us,
             d.remote_read_avg_us,
             d.remote_read_min_us,
             d.remote_read_max_us,
             d.remote_read_p99_us,
             d.round_trip_us,
-            self.report
-                .render_nodes
-                .iter()
-                .map(|n| n.stats.max_rss_bytes)
-                .max()
-                .unwrap_or(0)
+        ]
+    }
+
+    fn csv(&self) -> String {
+        let peak_rss = self
+            .report
+            .render_nodes
+            .iter()
+            .map(|n| n.stats.max_rss_bytes)
+            .max();
+        let places = [3, 3, 4, 0, 1, 1, 1, 1, 1, 1];
+        let numbers = places
+            .iter()
+            .zip(self.figures())
+            .map(|(&p, f)| format!("{f:.p$}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        format!(
+            "{},{},{},{numbers},{}",
+            self.shading.name(),
+            self.nodes,
+            self.cache_label(),
+            peak_rss.unwrap_or(0)
         )
     }
 }
@@ -140,7 +160,7 @@ pub async fn dsm(args: &BenchArgs, out: &Path) -> Result<()> {
     let csv = out.join("dsm.csv");
     write_csv(
         &csv,
-        "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
+        "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,miss_wait_avg_us,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
         &rows.iter().map(Row::csv).collect::<Vec<_>>(),
     )?;
     let by_cache = out.join("dsm.svg");
@@ -214,7 +234,7 @@ fn median(mut runs: Vec<Report>) -> Report {
 /// Table 1's columns, one line a wall.
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<9} {:>5} {:>10} {:>7} {:>6} {:>8} {:>9} {:>8} {:>7} {:>8} {:>8} {:>7}",
+        "{:<9} {:>5} {:>10} {:>7} {:>6} {:>8} {:>9} {:>8} {:>8} {:>7} {:>8} {:>8} {:>7}",
         "shading",
         "nodes",
         "cache",
@@ -222,28 +242,29 @@ fn print_table(rows: &[Row]) {
         "ratio",
         "miss %",
         "reads/fr",
+        "wait µs",
         "avg µs",
         "min µs",
         "max µs",
         "p99 µs",
         "rtt µs"
     );
+    let (widths, places) = (
+        [7, 6, 8, 9, 8, 8, 7, 8, 8, 7],
+        [2, 2, 3, 0, 0, 0, 0, 0, 0, 0],
+    );
     for r in rows {
-        let d = r.report.dsm.unwrap_or_default();
+        let numbers: String = widths
+            .iter()
+            .zip(places)
+            .zip(r.figures())
+            .map(|((&w, p), f)| format!(" {f:>w$.p$}"))
+            .collect();
         println!(
-            "{:<9} {:>5} {:>10} {:>7.2} {:>6.2} {:>8.3} {:>9.0} {:>8.0} {:>7.0} {:>8.0} {:>8.0} {:>7.0}",
+            "{:<9} {:>5} {:>10}{numbers}",
             r.shading.name(),
             r.nodes,
-            r.cache.map_or("replicated".into(), |c| format!("{c}")),
-            r.report.fps,
-            r.ratio(),
-            d.miss_percent,
-            d.blocks_read_per_frame,
-            d.remote_read_avg_us,
-            d.remote_read_min_us,
-            d.remote_read_max_us,
-            d.remote_read_p99_us,
-            d.round_trip_us
+            r.cache_label()
         );
     }
 }

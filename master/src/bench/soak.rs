@@ -26,38 +26,22 @@ struct SoakLog {
     restarted: Vec<tokio::process::Child>,
 }
 
-/// The children of `parent` and what each runs (`render-node`, `display-node`).
+/// The live children of `parent` and what each runs (`render-node`, `display-node`).
 fn children(parent: u32) -> Vec<(u32, String)> {
     let mut found = Vec::new();
-    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else {
-            continue;
-        };
-        let after = stat.rsplit_once(") ").map_or("", |(_, rest)| rest);
-        let mut fields = after.split_whitespace();
-        let (state, ppid) = (
-            fields.next(),
-            fields.next().and_then(|p| p.parse::<u32>().ok()),
-        );
-        if ppid != Some(parent) || state == Some("Z") {
+    for child in tessera_cli::procs::children_of(parent) {
+        if child.zombie {
             continue;
         }
-        let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
-        let args: Vec<String> = String::from_utf8_lossy(&cmdline)
-            .split('\0')
-            .map(str::to_string)
-            .collect();
-        let role = args.iter().find(|a| a.ends_with("-node")).cloned();
-        let display = args
+        let role = child.args.iter().find(|a| a.ends_with("-node")).cloned();
+        let display = child
+            .args
             .windows(2)
             .find(|w| w[0] == "--display")
             .map(|w| w[1].clone());
         match (role, display) {
-            (Some(r), Some(d)) => found.push((pid, format!("{r} {d}"))),
-            (Some(r), None) => found.push((pid, format!("{r} {pid}"))),
+            (Some(r), Some(d)) => found.push((child.pid, format!("{r} {d}"))),
+            (Some(r), None) => found.push((child.pid, format!("{r} {}", child.pid))),
             _ => {}
         }
     }

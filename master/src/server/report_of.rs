@@ -20,6 +20,7 @@ impl Wall {
             ..DsmSummary::default()
         };
         let (mut local, mut latency_sum, mut latency_count) = (0u64, 0.0, 0u64);
+        let mut waited_s = 0.0;
         for n in nodes {
             s.max_rss_bytes = s.max_rss_bytes.max(n.stats.max_rss_bytes);
             let Some(d) = n.stats.dsm.as_deref() else {
@@ -27,6 +28,7 @@ impl Wall {
             };
             s.block_reads += d.block_reads;
             s.fetched += d.fetched;
+            waited_s += d.fetch_wait_s;
             s.read_locally += d.read_locally;
             local += d.local_reads;
             if d.latency_count > 0 {
@@ -55,6 +57,9 @@ impl Wall {
         } else {
             0.0
         };
+        if s.fetched > 0 {
+            s.miss_wait_avg_us = waited_s * 1e6 / s.fetched as f64;
+        }
         for v in [&mut s.remote_read_min_us, &mut s.round_trip_us] {
             if !v.is_finite() {
                 *v = 0.0;

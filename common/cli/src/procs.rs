@@ -1,0 +1,86 @@
+//! Processes and the processes a process started, read from Linux's `/proc`: what a local wall's master
+//! watches of its nodes (the soak benchmark's victims and memory samples) and what the tests
+//! check is gone when a wall ends. Elsewhere the list is empty.
+
+/// A process, its parent and its command line.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Process {
+    pub pid: u32,
+    pub parent: Option<u32>,
+    /// Exited, not yet reaped.
+    pub zombie: bool,
+    /// Its command line, word by word.
+    pub args: Vec<String>,
+}
+
+impl Process {
+    /// Whether one of its words is `word` (a subcommand such as `render-node`).
+    pub fn runs(&self, word: &str) -> bool {
+        self.args.iter().any(|a| a == word)
+    }
+}
+
+/// The children of `parent` now.
+pub fn children_of(parent: u32) -> Vec<Process> {
+    let mut found = processes();
+    found.retain(|p| p.parent == Some(parent));
+    found
+}
+
+/// Every process now (those that end while the list is read are left out).
+pub fn processes() -> Vec<Process> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else {
+            continue;
+        };
+        // The fields after the command name, which may hold spaces and parentheses.
+        let after = stat.rsplit_once(") ").map_or("", |(_, rest)| rest);
+        let mut fields = after.split_whitespace();
+        let (state, parent) = (fields.next(), fields.next().and_then(|p| p.parse().ok()));
+        let cmdline = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
+        let args = String::from_utf8_lossy(&cmdline)
+            .split_terminator('\0')
+            .map(str::to_string)
+            .collect();
+        found.push(Process {
+            pid,
+            parent,
+            zombie: state == Some("Z"),
+            args,
+        });
+    }
+    found
+}
+
+#[cfg(all(test, target_os = "linux"))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_started_child_is_found_with_its_arguments_and_then_as_a_zombie() {
+        let mut child = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .expect("sleep");
+        let me = std::process::id();
+        let found = children_of(me);
+        let it = found.iter().find(|c| c.pid == child.id()).expect("listed");
+        assert!(it.runs("30") && !it.zombie, "{it:?}");
+        child.kill().unwrap();
+        // Killed but not reaped: a zombie, within a bounded wait for the kernel to say so.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while !children_of(me)
+            .iter()
+            .any(|c| c.pid == child.id() && c.zombie)
+        {
+            assert!(std::time::Instant::now() < deadline, "never a zombie");
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        child.wait().unwrap();
+        assert!(!children_of(me).iter().any(|c| c.pid == child.id()));
+    }
+}
