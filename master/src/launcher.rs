@@ -18,6 +18,24 @@ pub struct NodeProcess {
     child: Child,
 }
 
+/// Has the kernel send `signal` to the process `cmd` starts when this process dies (Linux;
+/// elsewhere nothing), so that a launcher killed without cleaning up leaves no child behind.
+pub fn die_with_parent(cmd: &mut Command, signal: libc::c_int) {
+    #[cfg(target_os = "linux")]
+    // SAFETY: the closure runs in the child between fork and exec and calls only prctl, which
+    // is async-signal-safe, and reads errno.
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, signal) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = (cmd, signal);
+}
+
 pub fn spawn(
     name: String,
     essential: bool,
@@ -28,16 +46,8 @@ pub fn spawn(
     cmd.args(args)
         .kill_on_drop(true)
         .stdin(std::process::Stdio::null());
-    #[cfg(target_os = "linux")]
-    unsafe {
-        // If the master dies without cleaning up, the kernel kills the children: no orphans.
-        cmd.pre_exec(|| {
-            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
+    // If the master dies without cleaning up, the kernel kills the children: no orphans.
+    die_with_parent(&mut cmd, libc::SIGKILL);
     let child = cmd
         .spawn()
         .with_context(|| format!("cannot start {name} ({})", program.display()))?;

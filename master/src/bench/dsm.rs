@@ -233,32 +233,28 @@ fn median(mut runs: Vec<Report>) -> Report {
 
 /// Table 1's columns, one line a wall.
 fn print_table(rows: &[Row]) {
-    println!(
-        "{:<9} {:>5} {:>10} {:>7} {:>6} {:>8} {:>9} {:>8} {:>8} {:>7} {:>8} {:>8} {:>7}",
-        "shading",
-        "nodes",
-        "cache",
-        "fps",
-        "ratio",
-        "miss %",
-        "reads/fr",
-        "wait µs",
-        "avg µs",
-        "min µs",
-        "max µs",
-        "p99 µs",
-        "rtt µs"
-    );
-    let (widths, places) = (
-        [7, 6, 8, 9, 8, 8, 7, 8, 8, 7],
-        [2, 2, 3, 0, 0, 0, 0, 0, 0, 0],
-    );
+    let columns = [
+        ("fps", 7, 2),
+        ("ratio", 6, 2),
+        ("miss %", 8, 3),
+        ("reads/fr", 9, 0),
+        ("wait µs", 8, 0),
+        ("avg µs", 8, 0),
+        ("min µs", 7, 0),
+        ("max µs", 8, 0),
+        ("p99 µs", 8, 0),
+        ("rtt µs", 7, 0),
+    ];
+    let names: String = columns
+        .iter()
+        .map(|&(n, w, _)| format!(" {n:>w$}"))
+        .collect();
+    println!("{:<9} {:>5} {:>10}{names}", "shading", "nodes", "cache");
     for r in rows {
-        let numbers: String = widths
+        let numbers: String = columns
             .iter()
-            .zip(places)
             .zip(r.figures())
-            .map(|((&w, p), f)| format!(" {f:>w$.p$}"))
+            .map(|(&(_, w, p), f)| format!(" {f:>w$.p$}"))
             .collect();
         println!(
             "{:<9} {:>5} {:>10}{numbers}",

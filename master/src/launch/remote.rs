@@ -175,16 +175,8 @@ impl RemoteNode {
             // Its own process group: a Ctrl-C at the terminal reaches the launcher alone, which
             // stops the wall in order rather than have every ssh cut its node off at once.
             .process_group(0);
-        #[cfg(target_os = "linux")]
-        unsafe {
-            // Should the launcher die, ssh goes too, and with it (hang-up) the remote node.
-            cmd.pre_exec(|| {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
+        // Should the launcher die, ssh goes too, and with it (hang-up) the remote node.
+        crate::launcher::die_with_parent(&mut cmd, libc::SIGTERM);
         let mut child = cmd.spawn().with_context(|| {
             format!("cannot start ssh for {label} (is openssh-client installed?)")
         })?;

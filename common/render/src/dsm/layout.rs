@@ -162,22 +162,6 @@ impl BlockLayout {
         self.total() as u64 * self.block_bytes as u64
     }
 
-    /// The block holding node `index`, and the node's place in it.
-    #[inline(always)]
-    pub fn node_block(&self, index: u32) -> (BlockId, u32) {
-        let per = self.nodes_per_block();
-        (index / per, index % per)
-    }
-
-    /// The block holding triangle `slot`, its place in it, and the first slot of the next
-    /// block.
-    #[inline(always)]
-    pub fn triangle_block(&self, slot: u32) -> (BlockId, u32, u32) {
-        let per = self.triangles_per_block();
-        let b = slot / per;
-        (self.node_blocks + b, slot % per, (b + 1) * per)
-    }
-
     /// Whether every node holds block `k` (the top of the tree).
     #[inline(always)]
     pub fn is_top(&self, k: BlockId) -> bool {
@@ -222,24 +206,12 @@ impl FastDiv {
         let q = ((n as u128 * self.m as u128) >> self.s) as u32;
         (q, n - q * self.d)
     }
-
-    pub fn divisor(&self) -> u32 {
-        self.d
-    }
 }
 
 /// Block `k`'s bytes read as nodes.
 #[inline(always)]
 pub fn nodes_of(bytes: &[Chunk]) -> &[WideNode] {
     bytemuck::cast_slice(bytes)
-}
-
-/// Block `k`'s bytes read as triangles (the tail that holds no whole triangle left out).
-#[inline(always)]
-pub fn triangles_of(bytes: &[Chunk], per_block: u32) -> &[LeafTriangle] {
-    let raw: &[u8] = bytemuck::cast_slice(bytes);
-    let used = per_block as usize * std::mem::size_of::<LeafTriangle>();
-    bytemuck::cast_slice(&raw[..used])
 }
 
 #[cfg(test)]
@@ -251,8 +223,11 @@ mod tests {
         let l = BlockLayout::new(8192, 100, 1000, 1).unwrap();
         assert_eq!((l.nodes_per_block(), l.triangles_per_block()), (32, 227));
         assert_eq!((l.node_blocks, l.triangle_blocks), (4, 5));
-        assert_eq!(l.node_block(33), (1, 1));
-        assert_eq!(l.triangle_block(230), (5, 3, 454));
+        // Node 33 is the second of block 1; triangle slot 230 the fourth of the second
+        // triangle block, block 5 (4 node blocks come first).
+        assert_eq!(FastDiv::new(l.nodes_per_block()).div_rem(33), (1, 1));
+        let (b, at) = FastDiv::new(l.triangles_per_block()).div_rem(230);
+        assert_eq!((l.node_blocks + b, at), (5, 3));
         assert!(l.is_top(0) && !l.is_top(1));
     }
 

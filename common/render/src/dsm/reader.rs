@@ -180,8 +180,8 @@ impl TreeMemory for SharedReader<'_> {
         debug_assert!(at < end);
         let len = (end - at) as usize;
         // SAFETY: as in `node`: the block stays alive and unchanged while the slice is
-        // borrowed, its first `per` triangles are whole (`triangles_of`), and `at..end` lies
-        // within them.
+        // borrowed, it holds `per` whole triangles (`triangles_per_block`: as many as fit its
+        // bytes), and `at..end` lies within them.
         unsafe { std::slice::from_raw_parts(base.cast::<LeafTriangle>().add(at as usize), len) }
     }
 
