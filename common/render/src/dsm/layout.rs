@@ -25,8 +25,8 @@ pub struct Chunk(pub [u8; 64]);
 /// which it gives back when dropped.
 pub struct Block {
     chunks: Box<[Chunk]>,
-    /// The pool the chunks belong to, and the slot: then `chunks` is not the heap's to free.
-    pool: Option<(std::sync::Arc<super::pool::BlockPool>, u32)>,
+    /// The pool the chunks go back to when the block is dropped (instead of being freed).
+    pool: Option<std::sync::Arc<super::pool::BlockPool>>,
 }
 
 impl std::fmt::Debug for Block {
@@ -51,11 +51,10 @@ impl Block {
     pub(super) fn pooled(
         chunks: Box<[Chunk]>,
         pool: std::sync::Arc<super::pool::BlockPool>,
-        slot: u32,
     ) -> Block {
         Block {
             chunks,
-            pool: Some((pool, slot)),
+            pool: Some(pool),
         }
     }
 
@@ -78,9 +77,8 @@ impl Block {
 
 impl Drop for Block {
     fn drop(&mut self) {
-        if let Some((pool, slot)) = self.pool.take() {
-            let chunks = std::mem::take(&mut self.chunks);
-            pool.give_back(chunks, slot);
+        if let Some(pool) = self.pool.take() {
+            pool.give_back(std::mem::take(&mut self.chunks));
         }
     }
 }

@@ -1,5 +1,5 @@
-//! Where a node's fetched blocks live: one region allocated at start, cut into block-sized
-//! slots that blocks take and give back, so that what the cache and the blocks in flight use is
+//! Where a node's fetched blocks live: block-sized slots allocated at start, which blocks take
+//! and give back, so that what the cache and the blocks in flight use is
 //! bounded by the region and stays put. Blocks allocated one by one from the heap, fetched and
 //! evicted thousands of times a frame, left the allocator's heaps at two to three times the
 //! bytes of the blocks alive in them (a 30 MiB cache in 60-90 MiB of heap).
@@ -10,9 +10,9 @@ use std::sync::{Arc, Mutex};
 
 /// A fixed set of block slots.
 pub struct BlockPool {
-    /// Each free slot's chunks, taken out of the region once: a slot's memory moves between
-    /// the pool and its block and is never freed until the pool is.
-    free: Mutex<Vec<(u32, Box<[Chunk]>)>>,
+    /// Each free slot's chunks: a slot's memory moves between the pool and its block and is
+    /// never freed until the pool is.
+    free: Mutex<Vec<Box<[Chunk]>>>,
     block_bytes: u32,
     slots: u32,
     /// Blocks asked for when every slot was in use (allocated on their own instead).
@@ -27,7 +27,7 @@ impl BlockPool {
         // Untouched, a slot costs no resident memory; one fetched into stays resident for good,
         // which is the point.
         let free = (0..slots)
-            .map(|slot| (slot, vec![Chunk([0; 64]); per].into_boxed_slice()))
+            .map(|_| vec![Chunk([0; 64]); per].into_boxed_slice())
             .collect();
         Arc::new(BlockPool {
             free: Mutex::new(free),
@@ -42,7 +42,7 @@ impl BlockPool {
     pub fn take(self: &Arc<Self>) -> Block {
         let slot = self.free.lock().unwrap_or_else(|e| e.into_inner()).pop();
         match slot {
-            Some((slot, chunks)) => Block::pooled(chunks, self.clone(), slot),
+            Some(chunks) => Block::pooled(chunks, self.clone()),
             None => {
                 self.overflow.fetch_add(1, Ordering::Relaxed);
                 Block::zeroed(self.block_bytes)
@@ -50,11 +50,11 @@ impl BlockPool {
         }
     }
 
-    pub(super) fn give_back(&self, chunks: Box<[Chunk]>, slot: u32) {
+    pub(super) fn give_back(&self, chunks: Box<[Chunk]>) {
         self.free
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .push((slot, chunks));
+            .push(chunks);
     }
 
     pub fn slots(&self) -> u32 {
