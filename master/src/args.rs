@@ -6,6 +6,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 use tessera_cli::{CompressArg, QualityArgs, SceneArgs, WallArgs};
+use tessera_core::balance::BalanceConfig;
+use tessera_core::master::MasterConfig;
 use tessera_render::orbit_of;
 use tessera_render::scene::Scene;
 use tessera_wire::protocol::FrameId;
@@ -231,6 +233,16 @@ pub enum DisplayLoss {
     Stop,
 }
 
+impl From<DisplayLoss> for tessera_core::master::DisplayLoss {
+    fn from(policy: DisplayLoss) -> Self {
+        match policy {
+            DisplayLoss::GoOn => Self::GoOn,
+            DisplayLoss::Wait => Self::Wait,
+            DisplayLoss::Stop => Self::Stop,
+        }
+    }
+}
+
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RoleArg {
     Render,
@@ -290,16 +302,16 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     } else {
         (glam::Vec3::ZERO, 1.0)
     };
-    Ok(RunConfig {
+    let master = MasterConfig {
         play_steps: run.play.then_some(scene.series.len() as u32),
-        probe: crate::probe::Prober::of_scene(&scene),
+        probe: crate::probe::Prober::of_scene(&scene)
+            .map(|p| p as std::sync::Arc<dyn tessera_core::master::VolumeProbe>),
         wall,
         refinement,
         windows: wall_file.windows,
         pivot,
         scene_size,
-        record: run.record.clone(),
-        replay,
+        replay: replay.map_or_else(Vec::new, |session| session.changes()),
         camera: run.scene.camera_mode(&scene.render_from_world, |fov| {
             orbit_of(&scene.bounds(), fov)
         })?,
@@ -312,13 +324,20 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         save_frame: run.save_frame.map(FrameId),
         compression: run.compress.into(),
         join_timeout: Duration::from_secs(run.join_timeout),
-        node_deadline: Duration::from_millis(run.node_deadline_ms),
-        display_loss: run.display_loss,
-        speculate: !run.no_speculation,
-        show_progress,
+        balance: BalanceConfig {
+            node_deadline: Duration::from_millis(run.node_deadline_ms),
+            speculate: !run.no_speculation,
+            ..BalanceConfig::default()
+        },
+        display_loss: run.display_loss.into(),
         present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
             .ok()
             .filter(|m| *m <= Duration::from_secs(1))
             .context("--present-margin-ms must be between 0 and 1000")?,
+    };
+    Ok(RunConfig {
+        master,
+        show_progress,
+        record: run.record.clone(),
     })
 }

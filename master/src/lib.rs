@@ -5,8 +5,8 @@
 //! A library with a thin binary (`tessera-master`). The binary also runs the node roles
 //! (`tessera-master render-node ...`, `tessera-master display-node ...`, the very code of
 //! `tessera-render-node` and `tessera-display-node`), so a local wall needs nothing but the
-//! master's executable. The driver loop ([`server`]) wraps the sans-IO
-//! [`tessera_core::balance::Coordinator`].
+//! master's executable. The driver loop ([`server`]) moves bytes and reads clocks for the
+//! sans-IO [`tessera_core::master::Master`], which makes every decision of the run.
 
 mod args;
 mod bench;
@@ -18,13 +18,14 @@ mod probe;
 mod record;
 mod reference;
 mod relay;
-mod report;
 mod server;
 mod shared_data;
 mod simulate;
-mod timing;
 mod validate;
 mod wall_run;
+
+// The report's and the timing's types live with the sans-IO master that fills them.
+use tessera_core::master::{report, timing};
 
 use anyhow::Result;
 use clap::Subcommand;

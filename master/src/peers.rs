@@ -1,14 +1,13 @@
-//! One task per connecting node: TLS handshake, version check, then a reader that forwards the
+//! One task per connecting node: TLS handshake and hello, then a reader that forwards the
 //! node's messages to the driver loop and a writer that sends what the loop queues for it, so a
 //! slow node never blocks the loop.
 
 use std::time::Duration;
 use tessera_net::framed::{read_msg, write_msg};
-use tessera_wire::protocol::{FromNode, Hello, ToNode, PROTOCOL_VERSION};
+use tessera_wire::protocol::{FromNode, Hello, ToNode};
 use tokio::sync::mpsc;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct PeerId(pub u64);
+pub use tessera_core::master::PeerId;
 
 /// Messages queued for one peer's writer. Bounded: a peer that stops reading fills its queue
 /// and is closed, rather than growing the master's memory (a wall sends each node a few
@@ -78,18 +77,6 @@ pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::
             return;
         }
     };
-    if hello.version != PROTOCOL_VERSION {
-        let reason = format!(
-            "protocol version {} is not the master's {PROTOCOL_VERSION}; run the same Tessera version everywhere",
-            hello.version
-        );
-        tracing::warn!("refused {} at {remote}: {reason}", hello.host);
-        let _ = write_msg(&mut send, &ToNode::Refused { reason }).await;
-        let _ = send.finish();
-        let _ = tokio::time::timeout(Duration::from_secs(1), send.stopped()).await;
-        conn.close(1u32.into(), b"version mismatch");
-        return;
-    }
     let (tx, mut rx) = mpsc::channel::<ToNode>(PEER_QUEUE);
     tokio::spawn(async move {
         while let Some(msg) = rx.recv().await {

@@ -3,11 +3,12 @@
 //! a scene without a volume keeps nothing and refuses probes.
 
 use std::sync::Arc;
+use tessera_core::master::VolumeProbe;
 use tessera_render::scene::Scene;
 use tessera_render::volume::PreparedVolume;
 use tessera_render::PixelRays;
 use tessera_wire::camera::Camera;
-use tessera_wire::control::ProbeHit;
+use tessera_wire::control::{ProbeHit, Refusal};
 use tessera_wire::local_frame::RenderFromWorld;
 use tessera_wire::params::RenderParams;
 use tessera_wire::wall::WallLayout;
@@ -33,21 +34,24 @@ impl Prober {
             frame: scene.render_from_world,
         }))
     }
+}
 
-    /// What pixel `(x, y)` of `wall` shows of the volume, seen by `camera` with `params`.
-    ///
-    /// # Errors
-    /// A pixel outside the wall.
-    pub fn probe(
+impl VolumeProbe for Prober {
+    fn probe(
         &self,
         camera: &Camera,
         params: &RenderParams,
         wall: &WallLayout,
         (x, y): (u32, u32),
-    ) -> Result<Option<ProbeHit>, String> {
+    ) -> Result<Option<ProbeHit>, Refusal> {
         let (w, h) = (wall.width(), wall.height());
         if x >= w || y >= h {
-            return Err(format!("pixel {x},{y} is outside the {w}x{h} wall"));
+            return Err(Refusal::OutsideWall {
+                x,
+                y,
+                width: w,
+                height: h,
+            });
         }
         let rays = PixelRays::new(camera, w, h);
         let dir = rays.direction_at(x, y, 0.5, 0.5);

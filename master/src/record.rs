@@ -111,6 +111,14 @@ impl Session {
         Ok(Session { lines })
     }
 
+    /// The state each recorded frame starts with, for the master to replay.
+    pub fn changes(&self) -> Vec<(tessera_wire::protocol::FrameId, WallState)> {
+        self.lines
+            .iter()
+            .map(|l| (tessera_wire::protocol::FrameId(l.frame), l.wall))
+            .collect()
+    }
+
     /// The state frame `frame` was rendered with: the last line at or before it.
     pub fn state_at(&self, frame: u64) -> Result<WallState> {
         self.lines

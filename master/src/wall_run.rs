@@ -110,7 +110,7 @@ pub async fn run_local_driven(
     let threads = args.threads.unwrap_or((cores / args.render_nodes).max(1));
 
     let mut children = Vec::new();
-    for d in 0..cfg.wall.display_count() {
+    for d in 0..cfg.master.wall.display_count() {
         let mut a = vec![
             "display-node".into(),
             "--master".into(),
@@ -153,7 +153,7 @@ pub async fn run_local_driven(
     let (stop, interrupted) = stop_on_ctrl_c();
     let started = Arc::new(AtomicBool::new(false));
     let mut lost = Vec::new();
-    let wall = cfg.wall.clone();
+    let wall = cfg.master.wall.clone();
     let driving = driver.map(|d| tokio::spawn(d(master_addr.clone(), control_dir.clone())));
     let outcome = {
         let run = run_wall(endpoint, cfg, started.clone(), stop);
@@ -265,7 +265,7 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     // wait for this line to learn it.
     eprintln!("tessera-master: listening on {}", endpoint.local_addr()?);
     let (stop, interrupted) = stop_on_ctrl_c();
-    let wall = cfg.wall.clone();
+    let wall = cfg.master.wall.clone();
     let outcome = run_wall(endpoint, cfg, Arc::new(AtomicBool::new(false)), stop).await;
     finish_run(
         outcome,

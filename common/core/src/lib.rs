@@ -1,8 +1,11 @@
 //! Tessera's sans-IO core: the state machines of a wall, with no socket, clock or thread.
 //!
-//! [`balance::Coordinator`] (the master's load balancer, frame barrier and wall states),
+//! [`master::Master`] (every decision of the master: membership and rejoin, the ranks of a
+//! shared scene, control and window input, present deadlines, the display-loss policies, the
+//! figures and the report) holds [`balance::Coordinator`] (the load balancer, frame barrier
+//! and wall states);
 //! [`assemble::FrameAssembler`] (a display's frames, never a mix of states),
-//! [`worker::RenderWorker`] (a render node's queue) and [`navigate::Navigator`] (window input
+//! [`worker::RenderWorker`] (a render node's queue) and [`master::navigate::Navigator`] (window input
 //! to state changes) take messages and `now` and return messages, following quinn-proto's
 //! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
 //! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
@@ -18,6 +21,6 @@ pub mod assemble;
 pub mod balance;
 pub mod dsm;
 pub mod impair;
-pub mod navigate;
+pub mod master;
 pub mod sim;
 pub mod worker;

@@ -126,7 +126,37 @@ pub enum ControlReply {
     /// Done, nothing to say.
     Done,
     /// Not done, and why.
-    Refused(String),
+    Refused(Refusal),
+}
+
+/// Why the master refused a control request; the state is then unchanged.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, thiserror::Error)]
+pub enum Refusal {
+    /// The run keeps at most `max` saved views.
+    #[error("{max} views are saved already; reuse a name")]
+    ViewsFull { max: u32 },
+    #[error("there is no view named {}", .0.as_str())]
+    NoSuchView(ViewName),
+    /// The run keeps at most `max` outstanding snapshots.
+    #[error("this run has taken its {max} snapshots")]
+    SnapshotsFull { max: u32 },
+    #[error("the scene has no volume to probe")]
+    NoVolume,
+    #[error("pixel {x},{y} is outside the {width}x{height} wall")]
+    OutsideWall {
+        x: u32,
+        y: u32,
+        width: u32,
+        height: u32,
+    },
+    /// Change `index` (from 1) of `count` would break the state's bounds; `reason` is the
+    /// bound's own message.
+    #[error("change {index} of {count}: {reason}")]
+    BadChange {
+        index: u32,
+        count: u32,
+        reason: String,
+    },
 }
 
 /// A running wall's figures, as the control interface reports them.

@@ -1,5 +1,5 @@
 //! What each simulated event does: the virtual nodes' side of the protocol, the pixels'
-//! journey to the assemblers, and the coordinator's outputs turned into events.
+//! journey to the assemblers, and the master's outputs turned into events.
 
 use super::*;
 
@@ -16,71 +16,71 @@ impl SimWall {
                     clock.died_at = Some(self.now_us);
                 }
             }
-            Event::DisplayBeat(display) => {
-                if !self.coordinator.is_finished() {
-                    self.send(Event::FromDisplay(display, FromNode::Heartbeat));
-                    self.schedule_at(self.now_us + HEARTBEAT_US, Event::DisplayBeat(display));
-                }
-            }
+            Event::DisplayBeat(display) => self.display_beat(display),
+            Event::DisplayLeaves(display) => self.display_leaves(display),
+            Event::DisplayJoins(display) => self.join_display(display),
+            Event::RenderJoins => self.join_render_node(),
+            Event::FromControl(client, msg) => self.control_said(client, msg),
             Event::Heartbeat(node) => {
                 // A dead node's timer dies with it; a finished run needs no more.
-                if self.nodes.contains_key(&node) && !self.coordinator.is_finished() {
+                if self.nodes.contains_key(&node) && !self.master.frames_over() {
                     self.send(Event::FromRender(node, FromNode::Heartbeat));
                     self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
                 }
             }
             Event::FromRender(node, msg) => {
-                if !self.nodes.contains_key(&node) {
-                    return;
-                }
-                match msg {
-                    FromNode::TilesDone {
-                        frame,
-                        tiles,
-                        want_more,
-                    } => self
-                        .coordinator
-                        .handle_tiles_done(node, frame, &tiles, want_more, now)
-                        .expect("render nodes only report their own tiles"),
-                    // A heartbeat that arrives after a late one declared the node gone finds
-                    // it unknown: the real master drops that connection.
-                    FromNode::Heartbeat => {
-                        let _ = self.coordinator.handle_heartbeat(node, now);
-                    }
-                    _ => {}
+                // A dead node's connection is gone, and with it what it sent.
+                if let (true, Some(peer)) =
+                    (self.nodes.contains_key(&node), self.peers.render(node))
+                {
+                    self.master.handle_message(peer, msg, self.master_now());
                 }
             }
-            Event::FromDisplay(display, msg) => match msg {
-                FromNode::FrameComplete { frame } => self
-                    .coordinator
-                    .handle_frame_complete(display, frame, now)
-                    .expect("displays report frames in flight"),
-                FromNode::Heartbeat => self.coordinator.handle_display_heartbeat(display, now),
-                _ => {}
-            },
+            Event::FromDisplay(peer, _, msg) => {
+                if self.peers.who(peer).is_some() {
+                    self.master.handle_message(peer, msg, self.master_now());
+                }
+            }
             Event::ToRender(node, msg) => {
                 let Some(n) = self.nodes.get_mut(&node) else {
                     return;
                 };
+                if matches!(msg, ToNode::Shutdown) {
+                    let stats = Self::stats_of(peers::Who::Render(node));
+                    self.send(Event::FromRender(node, stats.expect("a render node's")));
+                    return;
+                }
                 n.worker
                     .handle_message(&msg, now)
                     .expect("valid assignment");
                 self.start_rendering(node);
             }
-            Event::ToDisplay(display, msg) => {
+            Event::ToDisplay(peer, display, msg) => {
+                if self.peers.who(peer).is_none() {
+                    return;
+                }
+                if let ToNode::StartAt { frame } = msg {
+                    self.displays[display.0 as usize].start_at(frame);
+                }
+                if matches!(msg, ToNode::Shutdown) {
+                    let stats = Self::stats_of(peers::Who::Display(display));
+                    let stats = stats.expect("a display's");
+                    self.send(Event::FromDisplay(peer, display, stats));
+                }
                 if let ToNode::FrameStart(start) = msg {
                     self.displays[display.0 as usize]
                         .handle_frame_start(start.frame, start.state)
                         .expect("the master starts at most two frames ahead");
                     self.states.insert(start.frame, start.state);
                 }
-                if let ToNode::Present { frame } = msg {
+                if let ToNode::Present { frame } | ToNode::PresentAt { frame, .. } = msg {
                     let assembler = &mut self.displays[display.0 as usize];
                     let shown = assembler
                         .handle_present(frame)
                         .expect("present only complete frames");
                     if let Some(frame) = assembler.poll_complete() {
                         self.send(Event::FromDisplay(
+                            peer,
                             display,
                             FromNode::FrameComplete { frame },
                         ));
@@ -184,10 +184,11 @@ impl SimWall {
                 panic!("display {} refused a tile: {e}", display.0);
             }
             if let Some(frame) = assembler.poll_complete() {
-                self.send(Event::FromDisplay(
-                    display,
-                    FromNode::FrameComplete { frame },
-                ));
+                // A display that left takes its frames with it.
+                if let Some(peer) = self.peers.display(display) {
+                    let msg = FromNode::FrameComplete { frame };
+                    self.send(Event::FromDisplay(peer, display, msg));
+                }
             }
         }
     }
@@ -228,52 +229,80 @@ impl SimWall {
         }
     }
 
+    /// Carries out what the master said: messages over the network, its events here.
     pub(super) fn pump(&mut self) {
-        while let Some(out) = self.coordinator.poll_output() {
-            match out {
-                Output::ToRender(node, msg) => self.send(Event::ToRender(node, msg)),
-                Output::ToDisplays(msg) => {
-                    for d in 0..self.displays.len() as u32 {
-                        self.send(Event::ToDisplay(DisplayId(d), msg.clone()));
-                    }
-                }
-                Output::FrameStarted(frame) => {
-                    if frame.0 == 0 {
-                        self.span.0 = Some(self.now_us);
-                    }
-                    if self.change_every_frame {
-                        let spp = 1 + (frame.0 % 2) as u32;
-                        self.coordinator
-                            .queue_change(StateChange::Spp(spp), self.now_us, self.now())
-                            .expect("1 or 2 samples per pixel are always allowed");
-                    }
-                    let doomed: Vec<RenderNodeId> = self
-                        .kills
-                        .iter()
-                        .filter(|(_, f)| *f == frame)
-                        .map(|(n, _)| *n)
-                        .collect();
-                    for node in doomed {
-                        // Late enough that it holds tiles, early enough that they are unfinished.
-                        let at = self.now_us + self.net.latency_us() * 2 + 150;
-                        self.schedule_at(at, Event::Kill(node));
-                    }
-                }
-                Output::FrameRendered(frame) => {
-                    if frame.0 + 1 == self.frames {
-                        self.span.1 = Some(self.now_us);
-                    }
-                }
-                Output::StateApplied { changes, .. } => self.changes_applied += changes,
-                Output::FramePresented(_)
-                | Output::Finished
-                | Output::Stalled
-                | Output::RenderTimedOut { .. }
-                | Output::DisplayTimedOut { .. }
-                | Output::DisplayNotBack { .. }
-                | Output::Converged(_)
-                | Output::Refused { .. } => {}
+        loop {
+            if let Some(t) = self.master.poll_transmit() {
+                self.route(t.peer, t.msg);
+            } else if let Some(event) = self.master.poll_event() {
+                self.on_master_event(event);
+            } else if self.master.poll_close().is_none() {
+                // The connections the master closes are those of nodes already dead here.
+                return;
             }
+        }
+    }
+
+    /// A message from the master to one of its peers.
+    fn route(&mut self, peer: PeerId, msg: ToNode) {
+        match self.peers.who(peer) {
+            Some(peers::Who::Render(node)) => match msg {
+                ToNode::BlockHolders { rank, .. } => {
+                    self.peers.ranks.insert(node, rank);
+                }
+                ToNode::FrameStart(_) | ToNode::Assign { .. } | ToNode::Shutdown => {
+                    self.send(Event::ToRender(node, msg))
+                }
+                // The handshake and where displays are: the simulated network knows.
+                _ => {}
+            },
+            Some(peers::Who::Display(d)) => self.send(Event::ToDisplay(peer, d, msg)),
+            Some(peers::Who::Control(client)) => {
+                if let ToNode::ControlReply { id, reply } = msg {
+                    let answer = ControlAnswer { client, id, reply };
+                    self.peers.answers.push(answer);
+                }
+            }
+            None => {}
+        }
+    }
+
+    fn on_master_event(&mut self, event: MasterEvent) {
+        match event {
+            MasterEvent::FrameStarted(started) => {
+                let frame = started.0.frame;
+                if frame.0 == 0 {
+                    self.span.0 = Some(self.now_us);
+                }
+                if self.change_every_frame {
+                    let spp = 1 + (frame.0 % 2) as u32;
+                    let peer = self.join_control(u32::MAX);
+                    let msg = FromNode::Control {
+                        id: frame.0 as u32,
+                        request: ControlRequest::Change(vec![StateChange::Spp(spp)]),
+                        stamp_ns: self.master_now().unix_ns,
+                    };
+                    self.master.handle_message(peer, msg, self.master_now());
+                }
+                let doomed: Vec<RenderNodeId> = self
+                    .kills
+                    .iter()
+                    .filter(|(_, f)| *f == frame)
+                    .map(|(n, _)| *n)
+                    .collect();
+                for node in doomed {
+                    // Late enough that it holds tiles, early enough that they are unfinished.
+                    let at = self.now_us + self.net.latency_us() * 2 + 150;
+                    self.schedule_at(at, Event::Kill(node));
+                }
+                self.run_script(frame);
+            }
+            MasterEvent::FrameRendered(frame) => {
+                if frame.0 + 1 == self.frames {
+                    self.span.1 = Some(self.now_us);
+                }
+            }
+            MasterEvent::Started | MasterEvent::FramePresented(_) => {}
         }
     }
 

@@ -38,18 +38,24 @@
 //! knows the last frame is rendered; [`SimReport::efficiency`] is the mean over render nodes.
 
 mod events;
+#[cfg(test)]
+mod master_tests;
 mod metrics;
 mod net;
+mod peers;
 #[cfg(test)]
 mod tests;
 
 pub use metrics::{SimReport, Spread};
 pub use net::Rng;
+pub use peers::ControlAnswer;
 
 use crate::assemble::FrameAssembler;
-use crate::balance::{BalanceConfig, Coordinator, Output};
+use crate::balance::BalanceConfig;
+use crate::master::{
+    Credentials, DisplayLoss, Join, Master, MasterConfig, MasterEvent, Now, PeerId,
+};
 use crate::worker::{BatchSizer, RenderWorker};
-use glam::Vec3;
 use metrics::{busy_fractions, NodeClock};
 use net::{Network, Stream};
 use std::cmp::Reverse;
@@ -58,9 +64,9 @@ use std::time::{Duration, Instant};
 use tessera_wire::protocol::HEARTBEAT_INTERVAL;
 
 const HEARTBEAT_US: u64 = HEARTBEAT_INTERVAL.as_micros() as u64;
-use tessera_wire::camera::{Camera, CameraMode};
-use tessera_wire::params::RenderParams;
-use tessera_wire::protocol::{FrameId, FromNode, RenderNodeId, ToNode};
+use tessera_wire::control::{ControlReply, ControlRequest};
+use tessera_wire::protocol::dsm::DataSpec;
+use tessera_wire::protocol::{FrameId, FromNode, Hello, RenderNodeId, Role, ToNode};
 use tessera_wire::screens::{PhysicalSpec, ScreenSpec, Viewer};
 use tessera_wire::state::{StateChange, StateId};
 use tessera_wire::wall::{
@@ -113,6 +119,10 @@ pub struct SimConfig {
     /// Queue a state change (samples per pixel, alternating) as every frame starts, so every
     /// frame has a state of its own: what a person steering the wall does, at its worst.
     pub change_every_frame: bool,
+    /// What the wall does when a display leaves.
+    pub display_loss: DisplayLoss,
+    /// How render nodes hold the scene: a shared scene gives the first ones ranks.
+    pub data: DataSpec,
 }
 
 impl SimConfig {
@@ -126,6 +136,8 @@ impl SimConfig {
             pixels: PixelCheck::Full,
             balance: BalanceConfig::default(),
             change_every_frame: false,
+            display_loss: DisplayLoss::GoOn,
+            data: DataSpec::Replicated,
         }
     }
 }
@@ -196,9 +208,10 @@ pub fn sim_pixels(grid: &TileGrid, frame: FrameId, state: StateId, tile: TileId)
 
 enum Event {
     FromRender(RenderNodeId, FromNode),
-    FromDisplay(DisplayId, FromNode),
+    FromDisplay(PeerId, DisplayId, FromNode),
     ToRender(RenderNodeId, ToNode),
-    ToDisplay(DisplayId, ToNode),
+    /// To and from a display's connection: one that closed takes what was in flight with it.
+    ToDisplay(PeerId, DisplayId, ToNode),
     Pixels {
         from: RenderNodeId,
         /// When the transmission that got through left the render node.
@@ -211,6 +224,13 @@ enum Event {
     Rendered(RenderNodeId, FrameId, StateId, Vec<TileId>),
     Delivered(RenderNodeId, FrameId, Vec<TileId>),
     Kill(RenderNodeId),
+    /// A display's connection closes (it left, or its process died).
+    DisplayLeaves(DisplayId),
+    /// A display started again joins the wall.
+    DisplayJoins(DisplayId),
+    /// A new render node joins the running wall.
+    RenderJoins,
+    FromControl(u32, FromNode),
     /// A live render node's heartbeat timer fired.
     Heartbeat(RenderNodeId),
     /// A display's heartbeat timer fired.
@@ -224,8 +244,8 @@ struct SimNode {
     sizer: Option<BatchSizer>,
 }
 
-/// A whole wall in one process on a virtual clock: the real [`Coordinator`],
-/// [`RenderWorker`]s and [`FrameAssembler`]s, exchanging the real messages over a simulated
+/// A whole wall in one process on a virtual clock: the real [`Master`] (with its
+/// coordinator), [`RenderWorker`]s and [`FrameAssembler`]s, exchanging the real messages over a simulated
 /// network (see the module documentation for the model).
 ///
 /// # Examples
@@ -254,7 +274,9 @@ pub struct SimWall {
     grid: TileGrid,
     /// The grid the displays assemble: `grid` itself, or its one-pixel-per-tile thumbnail.
     pixel_grid: TileGrid,
-    coordinator: Coordinator,
+    master: Master,
+    /// Who each peer of the master is, and the peer of each node now.
+    peers: peers::Peers,
     nodes: BTreeMap<RenderNodeId, SimNode>,
     clocks: Vec<NodeClock>,
     displays: Vec<FrameAssembler>,
@@ -280,7 +302,9 @@ pub struct SimWall {
     change_every_frame: bool,
     /// The state each started frame was announced with.
     states: BTreeMap<FrameId, StateId>,
-    changes_applied: u64,
+    /// What is scripted to happen as frames start: displays leaving, control requests,
+    /// render nodes joining.
+    script: Vec<(FrameId, peers::Scripted)>,
 }
 
 impl SimWall {
@@ -300,17 +324,18 @@ impl SimWall {
             ),
         };
         debug_assert_eq!(grid.len(), pixel_grid.len());
-        let camera = CameraMode::fixed(
-            Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).expect("a valid constant camera"),
-        );
-        let coordinator = Coordinator::new(
-            grid.len() as u32,
-            layout.display_count(),
-            camera,
-            RenderParams::interactive(),
-            None,
-            config.balance,
-        );
+        let master = Master::new(
+            MasterConfig {
+                balance: config.balance,
+                display_loss: config.display_loss,
+                data: config.data.clone(),
+                // The join timeout is also how long a wall waits for a lost display.
+                join_timeout: Duration::from_secs(30),
+                ..MasterConfig::new(layout.clone(), config.render_nodes)
+            },
+            peers::now_at(Instant::now(), 0),
+        )
+        .expect("no session to replay");
         let displays = pixel_grid
             .layout()
             .screens()
@@ -333,27 +358,11 @@ impl SimWall {
                 ..NodeClock::default()
             })
             .collect();
-        let nodes = (0..config.render_nodes)
-            .map(|k| {
-                let (sizer, low_water) = match config.batching {
-                    Batching::Fixed { low_water, .. } => (None, low_water),
-                    Batching::Measured => {
-                        let sizer = BatchSizer::new(1);
-                        let low_water = sizer.low_water(None);
-                        (Some(sizer), low_water)
-                    }
-                };
-                let node = SimNode {
-                    worker: RenderWorker::new(grid.len() as u32, low_water),
-                    busy: false,
-                    sizer,
-                };
-                (RenderNodeId(k), node)
-            })
-            .collect();
+        let base = Instant::now();
         SimWall {
-            coordinator,
-            nodes,
+            master,
+            peers: peers::Peers::new(config.batching),
+            nodes: BTreeMap::new(),
             clocks,
             displays,
             presented: vec![Vec::new(); layout.display_count() as usize],
@@ -363,7 +372,7 @@ impl SimWall {
             free_slots: Vec::new(),
             seq: 0,
             now_us: 0,
-            base: Instant::now(),
+            base,
             net: Network::new(seed, config.latency_us, config.loss.clamp(0.0, 1.0)),
             kills: Vec::new(),
             batch: match config.batching {
@@ -379,7 +388,7 @@ impl SimWall {
             late_from_live: 0,
             change_every_frame: config.change_every_frame,
             states: BTreeMap::new(),
-            changes_applied: 0,
+            script: Vec::new(),
             grid,
             pixel_grid,
         }
@@ -397,7 +406,7 @@ impl SimWall {
 
     /// State changes the barrier applied (each a frame's worth when changing every frame).
     pub fn changes_applied(&self) -> u64 {
-        self.changes_applied
+        self.master.changes_applied()
     }
 
     /// The state each started frame was rendered with.
@@ -480,9 +489,14 @@ impl SimWall {
         self.base + Duration::from_micros(self.now_us)
     }
 
-    /// When the coordinator asked to be called back, in simulated microseconds.
-    fn coordinator_timeout_us(&self) -> Option<u64> {
-        let due = self.coordinator.poll_timeout()?;
+    /// The virtual now on both of the master's clocks.
+    fn master_now(&self) -> Now {
+        peers::now_at(self.base, self.now_us)
+    }
+
+    /// When the master asked to be called back, in simulated microseconds.
+    fn master_timeout_us(&self) -> Option<u64> {
+        let due = self.master.poll_timeout()?;
         Some(due.saturating_duration_since(self.base).as_micros() as u64)
     }
 
@@ -506,8 +520,9 @@ impl SimWall {
         let stream = match &event {
             Event::ToRender(n, _) => Stream::ToRender(n.0),
             Event::FromRender(n, _) => Stream::FromRender(n.0),
-            Event::ToDisplay(d, _) => Stream::ToDisplay(d.0),
-            Event::FromDisplay(d, _) => Stream::FromDisplay(d.0),
+            Event::FromControl(c, _) => Stream::FromControl(*c),
+            Event::ToDisplay(_, d, _) => Stream::ToDisplay(d.0),
+            Event::FromDisplay(_, d, _) => Stream::FromDisplay(d.0),
             _ => Stream::Own,
         };
         let at = self.net.deliver(self.now_us, stream).at;
@@ -518,20 +533,16 @@ impl SimWall {
     /// simulated events is hit. Returns the number of frames presented.
     pub fn run_frames(&mut self, frames: u64) -> u64 {
         self.frames = frames;
-        self.coordinator.set_frame_limit(Some(frames));
-        let now = self.now();
-        let ids: Vec<RenderNodeId> = self.nodes.keys().copied().collect();
-        for id in ids {
-            self.coordinator.handle_render_joined(id, now);
-        }
-        self.coordinator.start(now);
-        self.pump();
-        for node in self.nodes.keys().copied().collect::<Vec<_>>() {
-            self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
-        }
+        self.master.set_frame_limit(Some(frames));
+        // Every node joins and is ready at once; the master starts the first frame when the
+        // last one is.
         for d in 0..self.displays.len() as u32 {
-            self.schedule_at(self.now_us + HEARTBEAT_US, Event::DisplayBeat(DisplayId(d)));
+            self.join_display(DisplayId(d));
         }
+        for _ in 0..self.clocks.len() {
+            self.join_render_node();
+        }
+        self.pump();
         let budget = 200u64
             .saturating_mul(frames)
             .saturating_mul(self.grid.len() as u64 + 10)
@@ -541,10 +552,10 @@ impl SimWall {
             if self.processed > budget {
                 break;
             }
-            // The coordinator's own timer is an event too, due before or with the next one.
-            if let Some(due) = self.coordinator_timeout_us().filter(|&due| due <= at) {
+            // The master's own timer is an event too, due before or with the next one.
+            if let Some(due) = self.master_timeout_us().filter(|&due| due <= at) {
                 self.now_us = due.max(self.now_us);
-                self.coordinator.handle_timeout(self.now());
+                self.master.handle_timeout(self.master_now());
                 self.pump();
                 continue;
             }
@@ -558,15 +569,15 @@ impl SimWall {
                 Event::Heartbeat(_)
                     | Event::DisplayBeat(_)
                     | Event::FromRender(_, FromNode::Heartbeat)
-                    | Event::FromDisplay(_, FromNode::Heartbeat)
+                    | Event::FromDisplay(_, _, FromNode::Heartbeat)
             );
-            if beat && self.coordinator.is_finished() {
+            if beat && self.master.frames_over() {
                 continue;
             }
             self.now_us = at;
             self.handle(event);
             self.pump();
         }
-        self.coordinator.presented()
+        self.master.frames_presented()
     }
 }

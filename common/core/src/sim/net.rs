@@ -42,6 +42,7 @@ pub(super) enum Stream {
     FromRender(u32),
     ToDisplay(u32),
     FromDisplay(u32),
+    FromControl(u32),
     /// A stream of its own (one pixel batch, one acknowledgement): nothing queues behind it.
     Own,
 }

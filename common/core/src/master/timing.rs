@@ -11,7 +11,7 @@
 //! changes) to the last display presenting f. Skew of f: last present minus first present.
 //! Pure bookkeeping over timestamps in nanoseconds; the driver reads the clocks.
 
-use crate::report::Percentiles;
+use super::report::Percentiles;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
 use tessera_wire::protocol::FrameId;

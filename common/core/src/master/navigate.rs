@@ -43,7 +43,7 @@ pub enum NavMode {
 ///
 /// ```
 /// use glam::Vec3;
-/// use tessera_core::navigate::{NavAction, Navigator};
+/// use tessera_core::master::navigate::{NavAction, Navigator};
 /// use tessera_wire::camera::{Camera, CameraMode};
 /// use tessera_wire::input::{Button, InputEvent};
 /// use tessera_wire::params::RenderParams;

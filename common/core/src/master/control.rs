@@ -1,22 +1,19 @@
 //! The control interface, master side: each request of a control client is answered at once
-//! from the driver's state, and a change is checked and queued for the next frame barrier.
-//! Nothing a client sends can block the loop: answers go through the peer's bounded queue, a
-//! client that does not read them is closed.
+//! from the master's state, and a change is checked and queued for the next frame barrier,
+//! all of it or none. Window input goes through the [`Navigator`] to the same queue.
 
 use super::*;
-use std::collections::BTreeMap;
 use tessera_wire::control::{
     ControlReply, ControlRequest, DisplayFigures, LiveFigures, NodeFigures, ViewName,
 };
 use tessera_wire::protocol::FrameStart;
-use tessera_wire::state::StateChange;
 
 /// Most saved views and outstanding snapshots a run keeps: a client asking for more is
 /// refused rather than allowed to grow the master's memory.
 const MAX_VIEWS: usize = 1000;
 const MAX_SNAPSHOTS: usize = 10_000;
 
-/// What the driver keeps for the control interface and the displays' overlay.
+/// What the master keeps for the control interface and the displays' overlay.
 #[derive(Default)]
 pub(super) struct Live {
     /// Saved views, by name.
@@ -32,28 +29,34 @@ pub(super) struct Live {
     pub(super) snapshots: Vec<FrameId>,
 }
 
-impl Wall {
+impl Master {
     pub(super) fn handle_control(
         &mut self,
         peer: PeerId,
         id: u32,
         request: ControlRequest,
         stamp_ns: u64,
+        now: Now,
     ) {
-        let reply = match self.answer(request, stamp_ns) {
+        let reply = match self.answer(request, stamp_ns, now) {
             Ok(reply) => reply,
             Err(why) => ControlReply::Refused(why),
         };
         self.send(peer, ToNode::ControlReply { id, reply });
     }
 
-    fn answer(&mut self, request: ControlRequest, stamp_ns: u64) -> Result<ControlReply, String> {
+    fn answer(
+        &mut self,
+        request: ControlRequest,
+        stamp_ns: u64,
+        now: Now,
+    ) -> Result<ControlReply, Refusal> {
         // A client that could not map its clock onto the master's says 0: stamp it on arrival.
-        let stamp = if stamp_ns == 0 { unix_ns() } else { stamp_ns };
+        let stamp = if stamp_ns == 0 { now.unix_ns } else { stamp_ns };
         Ok(match request {
-            ControlRequest::Change(changes) => self.queue_all(&changes, stamp)?,
+            ControlRequest::Change(changes) => self.queue_all(&changes, stamp, now)?,
             ControlRequest::Clock => ControlReply::Clock {
-                master_ns: unix_ns(),
+                master_ns: now.unix_ns,
             },
             ControlRequest::State => {
                 let (id, current) = self.coordinator.state();
@@ -64,10 +67,12 @@ impl Wall {
                     next: self.coordinator.next_state(),
                 }
             }
-            ControlRequest::Figures => ControlReply::Figures(self.figures()),
+            ControlRequest::Figures => ControlReply::Figures(self.figures(now)),
             ControlRequest::SaveView(name) => {
                 if self.live.views.len() >= MAX_VIEWS && !self.live.views.contains_key(&name) {
-                    return Err(format!("{MAX_VIEWS} views are saved already; reuse a name"));
+                    return Err(Refusal::ViewsFull {
+                        max: MAX_VIEWS as u32,
+                    });
                 }
                 let camera = self.current_camera();
                 self.live.views.insert(name, camera);
@@ -78,8 +83,8 @@ impl Wall {
                     .live
                     .views
                     .get(&name)
-                    .ok_or_else(|| format!("there is no view named {}", name.as_str()))?;
-                self.queue_all(&[StateChange::Camera(camera)], stamp)?
+                    .ok_or_else(|| Refusal::NoSuchView(name.clone()))?;
+                self.queue_all(&[StateChange::Camera(camera)], stamp, now)?
             }
             ControlRequest::Views => ControlReply::Views(self.live.views.keys().cloned().collect()),
             ControlRequest::Overlay(on) => {
@@ -88,21 +93,20 @@ impl Wall {
             }
             ControlRequest::Snapshot => {
                 if self.live.snapshots.len() >= MAX_SNAPSHOTS {
-                    return Err(format!("this run has taken its {MAX_SNAPSHOTS} snapshots"));
+                    return Err(Refusal::SnapshotsFull {
+                        max: MAX_SNAPSHOTS as u32,
+                    });
                 }
                 let frame = self.coordinator.next_frame();
                 self.live.snapshots.push(frame);
-                for peer in self.displays.values() {
-                    self.send(*peer, ToNode::SaveFrame { frame });
+                let displays: Vec<PeerId> = self.displays.values().copied().collect();
+                for peer in displays {
+                    self.send(peer, ToNode::SaveFrame { frame });
                 }
                 ControlReply::Snapshot { frame: frame.0 }
             }
             ControlRequest::Probe { x, y } => {
-                let prober = self
-                    .cfg
-                    .probe
-                    .as_ref()
-                    .ok_or("the scene has no volume to probe")?;
+                let prober = self.cfg.probe.as_ref().ok_or(Refusal::NoVolume)?;
                 // What the wall shows: the last frame started, else the state the first will have.
                 let (camera, params) = match self.live.last_start {
                     Some(start) => (start.camera, start.params),
@@ -124,8 +128,9 @@ impl Wall {
         display: DisplayId,
         event: tessera_wire::input::InputEvent,
         stamp: u64,
+        now: Now,
     ) {
-        use tessera_core::navigate::NavAction;
+        use navigate::NavAction;
         let current = self.current_camera();
         let frame = self.live.last_start.map_or(0, |s| s.frame.0);
         let camera = current.camera_for_frame(frame);
@@ -134,26 +139,26 @@ impl Wall {
         tracing::debug!("input {event:?} at frame {frame}: {action:?}");
         match action {
             Some(NavAction::Change(change)) => {
-                if let Err(e) = self.coordinator.queue_change(change, stamp, Instant::now()) {
+                if let Err(e) = self.coordinator.queue_change(change, stamp, now.instant) {
                     tracing::warn!("input {event:?} refused: {e}");
                 }
             }
             Some(NavAction::ToggleOverlay) => self.set_overlay(!self.live.overlay),
-            Some(NavAction::Probe { fx, fy }) => self.probe_click(display, fx, fy),
+            Some(NavAction::Probe { fx, fy }) => self.probe_click(display, fx, fy, now),
             None => {}
         }
     }
 
     /// A click in display `display`'s window at `(fx, fy)` of its screen: the probe there, on
     /// the master's log (where whoever runs the wall reads it).
-    fn probe_click(&mut self, display: DisplayId, fx: f32, fy: f32) {
+    fn probe_click(&mut self, display: DisplayId, fx: f32, fy: f32, now: Now) {
         let shown_on = display.0;
         let Some(screen) = self.cfg.wall.screen(display) else {
             return;
         };
         let x = screen.x + ((fx * screen.width as f32) as u32).min(screen.width - 1);
         let y = screen.y + ((fy * screen.height as f32) as u32).min(screen.height - 1);
-        match self.answer(ControlRequest::Probe { x, y }, 0) {
+        match self.answer(ControlRequest::Probe { x, y }, 0, now) {
             Ok(ControlReply::Probe(Some(hit))) => tracing::info!(
                 "probe at wall pixel {x},{y} (display {shown_on}): value {} at world {:.3?}, {:.3} from the eye",
                 hit.value,
@@ -169,8 +174,9 @@ impl Wall {
 
     fn set_overlay(&mut self, on: bool) {
         self.live.overlay = on;
-        for peer in self.displays.values() {
-            self.send(*peer, ToNode::Overlay { on });
+        let displays: Vec<PeerId> = self.displays.values().copied().collect();
+        for peer in displays {
+            self.send(peer, ToNode::Overlay { on });
         }
     }
 
@@ -179,17 +185,21 @@ impl Wall {
         &mut self,
         changes: &[StateChange],
         stamp: u64,
-    ) -> Result<ControlReply, String> {
+        now: Now,
+    ) -> Result<ControlReply, Refusal> {
+        let refusal = |index: usize, reason: String| Refusal::BadChange {
+            index: index as u32 + 1,
+            count: changes.len() as u32,
+            reason,
+        };
         let mut next = self.coordinator.next_state();
         for (i, change) in changes.iter().enumerate() {
-            next = next
-                .apply(change)
-                .map_err(|e| format!("change {} of {}: {e}", i + 1, changes.len()))?;
+            next = next.apply(change).map_err(|e| refusal(i, e.to_string()))?;
         }
-        for change in changes {
+        for (i, change) in changes.iter().enumerate() {
             self.coordinator
-                .queue_change(*change, stamp, Instant::now())
-                .map_err(|e| e.to_string())?;
+                .queue_change(*change, stamp, now.instant)
+                .map_err(|e| refusal(i, e.to_string()))?;
         }
         Ok(ControlReply::Queued {
             changes: changes.len() as u32,
@@ -197,12 +207,13 @@ impl Wall {
     }
 
     /// Playing a time series: the next barrier shows the step after the one queued last.
-    pub(super) fn advance_time_step(&mut self, steps: u32) {
+    pub(super) fn advance_time_step(&mut self, steps: u32, now: Now) {
         let mut volume = *self.coordinator.next_state().params.volume();
         volume.time_step = (volume.time_step + 1) % steps.max(1);
-        if let Err(e) =
-            self.coordinator
-                .queue_change(StateChange::Volume(volume), unix_ns(), Instant::now())
+        let change = StateChange::Volume(volume);
+        if let Err(e) = self
+            .coordinator
+            .queue_change(change, now.unix_ns, now.instant)
         {
             tracing::warn!("playing the series: {e}");
         }
@@ -218,9 +229,10 @@ impl Wall {
         }
     }
 
-    fn figures(&self) -> LiveFigures {
-        let now = Instant::now();
+    fn figures(&self, now: Now) -> LiveFigures {
+        let now = now.instant;
         let recent: Vec<Instant> = self
+            .record
             .presents
             .iter()
             .rev()
@@ -228,6 +240,7 @@ impl Wall {
             .take_while(|at| now.duration_since(*at) <= Duration::from_secs(1))
             .collect();
         let gaps: Vec<f64> = self
+            .record
             .presents
             .windows(2)
             .rev()
@@ -267,11 +280,11 @@ impl Wall {
             })
             .collect();
         LiveFigures {
-            frames_presented: self.presents.len() as u64,
+            frames_presented: self.record.presents.len() as u64,
             fps: recent.len() as f64,
             frame_ms_last: gaps.first().copied().unwrap_or(0.0),
             frame_ms_mean: mean(&gaps),
-            changes_applied: self.changes_applied,
+            changes_applied: self.record.changes_applied,
             render_nodes,
             displays,
         }

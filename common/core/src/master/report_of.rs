@@ -1,11 +1,9 @@
-//! The run's report, from what the driver recorded and what the nodes said at shutdown.
+//! The run's report, from what the master recorded and what the nodes said at shutdown.
 
+use super::report::{DisplayReport, DsmSummary, Percentiles, RenderNodeReport, WallReport};
 use super::*;
 
-use crate::report::DsmSummary;
-use tessera_wire::protocol::dsm::DataSpec;
-
-impl Wall {
+impl Master {
     /// The render nodes' reads of a shared scene, together.
     fn dsm_summary(&self, nodes: &[RenderNodeReport], frames: u64) -> Option<DsmSummary> {
         let DataSpec::Shared(spec) = &self.cfg.data else {
@@ -69,19 +67,34 @@ impl Wall {
     }
 
     pub(super) fn report(&self) -> Report {
-        let start = self.started.unwrap_or_else(Instant::now);
-        let last = self.presents.last().map_or(start, |(_, t)| *t);
-        let elapsed = last.duration_since(start).as_secs_f64();
+        let record = &self.record;
+        let Some(start) = record.started else {
+            return self.report_of_frames(Duration::ZERO, Vec::new(), Vec::new());
+        };
+        let last = record.presents.last().map_or(start, |(_, t)| *t);
         let mut previous = start;
         let mut frame_ms = Vec::new();
         let mut start_to_present = Vec::new();
-        for (frame, at) in &self.presents {
+        for (frame, at) in &record.presents {
             frame_ms.push(at.duration_since(previous).as_secs_f64() * 1000.0);
             previous = *at;
-            if let Some(s) = self.frame_started.get(frame) {
+            if let Some(s) = record.frame_started.get(frame) {
                 start_to_present.push(at.duration_since(*s).as_secs_f64() * 1000.0);
             }
         }
+        self.report_of_frames(last.duration_since(start), frame_ms, start_to_present)
+    }
+
+    /// The report of a run whose frames took `elapsed` from the first start to the last
+    /// present, with these frame times.
+    fn report_of_frames(
+        &self,
+        elapsed: Duration,
+        frame_ms: Vec<f64>,
+        start_to_present: Vec<f64>,
+    ) -> Report {
+        let elapsed = elapsed.as_secs_f64();
+        let record = &self.record;
         let mut displays: Vec<DisplayReport> = self
             .peers
             .values()
@@ -124,7 +137,7 @@ impl Wall {
             })
             .collect();
         render_nodes.sort_by_key(|r| r.id);
-        let frames = self.presents.len() as u64;
+        let frames = record.presents.len() as u64;
         let dsm = self.dsm_summary(&render_nodes, frames);
         Report {
             frames,
@@ -144,13 +157,13 @@ impl Wall {
             } else {
                 0.0
             },
-            timing: self.timing.summary(self.cfg.wall.display_count()),
+            timing: record.timing.summary(self.cfg.wall.display_count()),
             elapsed_s: elapsed,
-            render_nodes_lost: self.lost_render_nodes,
-            displays_lost: self.lost_displays,
-            frames_short_of_displays: self.frames_short_of_displays,
+            render_nodes_lost: record.lost_render_nodes,
+            displays_lost: record.lost_displays,
+            frames_short_of_displays: record.frames_short_of_displays,
             tiles_speculated: self.coordinator.speculated_tiles(),
-            changes_applied: self.changes_applied,
+            changes_applied: record.changes_applied,
             snapshots: self.live.snapshots.iter().map(|f| f.0).collect(),
             data: match self.cfg.data {
                 DataSpec::Replicated => "replicated",

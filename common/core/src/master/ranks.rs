@@ -5,16 +5,16 @@
 
 use super::*;
 use std::collections::BTreeSet;
-use tessera_wire::protocol::dsm::{BlockHolder, DataSpec};
+use tessera_wire::protocol::dsm::BlockHolder;
 
 /// Which render node holds each rank, and where it answers for its blocks.
 #[derive(Default)]
-pub(super) struct Holders {
+pub(super) struct Ranks {
     rank_of: BTreeMap<RenderNodeId, u32>,
     addr: BTreeMap<u32, SocketAddr>,
 }
 
-impl Holders {
+impl Ranks {
     fn list(&self) -> Vec<BlockHolder> {
         self.addr
             .iter()
@@ -23,39 +23,49 @@ impl Holders {
     }
 }
 
-impl Wall {
-    fn ranks(&self) -> Option<u32> {
+/// Why a render node's word about its blocks was refused.
+#[derive(Debug, thiserror::Error)]
+#[error("said where it serves blocks, but it holds no rank")]
+pub(super) struct NoRank;
+
+impl Master {
+    fn rank_count(&self) -> Option<u32> {
         match &self.cfg.data {
             DataSpec::Shared(spec) => Some(spec.ranks),
             DataSpec::Replicated => None,
         }
     }
 
+    /// The rank render node `node` holds, if it holds one.
+    pub fn rank_of(&self, node: RenderNodeId) -> Option<u32> {
+        self.ranks.rank_of.get(&node).copied()
+    }
+
     /// The lowest rank nobody holds, for a render node that just joined (none when the
     /// scene is replicated or every rank is held).
     pub(super) fn take_rank(&mut self, node: RenderNodeId) -> Option<u32> {
-        let ranks = self.ranks()?;
-        let held: BTreeSet<u32> = self.holders.rank_of.values().copied().collect();
+        let ranks = self.rank_count()?;
+        let held: BTreeSet<u32> = self.ranks.rank_of.values().copied().collect();
         let rank = (0..ranks).find(|r| !held.contains(r))?;
-        self.holders.rank_of.insert(node, rank);
+        self.ranks.rank_of.insert(node, rank);
         Some(rank)
     }
 
     /// Tells render node `node` (at `peer`) its rank and where the holders are.
-    pub(super) fn send_holders(&self, peer: PeerId, node: RenderNodeId) {
-        if self.ranks().is_none() {
+    pub(super) fn send_holders(&mut self, peer: PeerId, node: RenderNodeId) {
+        if self.rank_count().is_none() {
             return;
         }
-        let rank = self.holders.rank_of.get(&node).copied();
-        let holders = self.holders.list();
+        let rank = self.ranks.rank_of.get(&node).copied();
+        let holders = self.ranks.list();
         self.send(peer, ToNode::BlockHolders { rank, holders });
     }
 
-    fn broadcast_holders(&self) {
-        for (&peer, p) in &self.peers {
-            if let PeerRole::Render { node, .. } = p.role {
-                self.send_holders(peer, node);
-            }
+    fn broadcast_holders(&mut self) {
+        let renders: Vec<(RenderNodeId, PeerId)> =
+            self.renders.iter().map(|(&n, &p)| (n, p)).collect();
+        for (node, peer) in renders {
+            self.send_holders(peer, node);
         }
     }
 
@@ -66,10 +76,8 @@ impl Wall {
         node: RenderNodeId,
         addr: SocketAddr,
         remote: SocketAddr,
-    ) -> Result<()> {
-        let Some(&rank) = self.holders.rank_of.get(&node) else {
-            bail!("said where it serves blocks, but it holds no rank");
-        };
+    ) -> Result<(), NoRank> {
+        let rank = *self.ranks.rank_of.get(&node).ok_or(NoRank)?;
         let addr = if addr.ip().is_unspecified() {
             SocketAddr::new(remote.ip(), addr.port())
         } else {
@@ -79,7 +87,7 @@ impl Wall {
             "render node {} serves rank {rank}'s blocks at {addr}",
             node.0
         );
-        self.holders.addr.insert(rank, addr);
+        self.ranks.addr.insert(rank, addr);
         self.broadcast_holders();
         Ok(())
     }
@@ -88,10 +96,10 @@ impl Wall {
     /// to join, and the others are told, so that they ask its blocks' other owner or read
     /// them from the prepared files.
     pub(super) fn lose_rank(&mut self, node: RenderNodeId, who: &str) {
-        let Some(rank) = self.holders.rank_of.remove(&node) else {
+        let Some(rank) = self.ranks.rank_of.remove(&node) else {
             return;
         };
-        self.holders.addr.remove(&rank);
+        self.ranks.addr.remove(&rank);
         let replicas = match &self.cfg.data {
             DataSpec::Shared(spec) => spec.replicas,
             DataSpec::Replicated => 1,

@@ -23,7 +23,7 @@ pub struct Report {
     pub frame_period_ms: f64,
     /// Camera change → present on every display, and present skew across displays.
     #[serde(flatten)]
-    pub timing: crate::timing::TimingSummary,
+    pub timing: super::timing::TimingSummary,
     pub elapsed_s: f64,
     pub render_nodes_lost: u32,
     /// Displays lost while the others went on (`--display-loss go-on`) or waited for them

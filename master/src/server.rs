@@ -1,0 +1,285 @@
+//! The master's driver loop: accepts peers, hands what they say to the sans-IO
+//! [`Master`] with the time it happened, and carries out what it returns (messages into each
+//! peer's bounded queue, connections closed, the recording, the progress bar). Every decision
+//! is the `Master`'s; this is the only place in the master with sockets and `Instant::now()`.
+
+use crate::peers::{accept_peer, Event, PeerSender};
+use crate::record::Recorder;
+use anyhow::{Context, Result};
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tessera_core::master::report::Report;
+use tessera_core::master::{
+    CertifiedRole, CloseReason, Credentials, Join, Master, MasterConfig, MasterEvent, Now, PeerId,
+};
+use tessera_net::cluster::CertRole;
+use tessera_net::unix_ns;
+use tessera_wire::protocol::{Role, ToNode};
+use tokio::sync::mpsc;
+
+/// What a run needs to know: the master's own configuration, and what only the driver does.
+#[derive(Clone, Debug)]
+pub struct RunConfig {
+    pub master: MasterConfig,
+    pub show_progress: bool,
+    /// Where to record the session, if anywhere.
+    pub record: Option<PathBuf>,
+}
+
+/// A joined peer's connection and its queue of messages.
+struct Link {
+    tx: PeerSender,
+    conn: quinn::Connection,
+}
+
+/// The driver's side of a run: the links, the tools around the master, and the master.
+struct Driver {
+    master: Master,
+    links: HashMap<PeerId, Link>,
+    recorder: Option<Recorder>,
+    progress: Option<indicatif::ProgressBar>,
+    show_progress: bool,
+    started: Arc<AtomicBool>,
+}
+
+fn now() -> Now {
+    Now {
+        instant: Instant::now(),
+        unix_ns: unix_ns(),
+    }
+}
+
+/// Runs a whole wall on `endpoint` and returns its report. `started` is set once the first frame
+/// starts (the launcher uses it to tell a failed start from a node lost mid-run).
+///
+/// When `stop` turns true (Ctrl-C), no new frame starts; frames in flight finish and the nodes
+/// are shut down as after a normal run.
+pub async fn run_wall(
+    endpoint: quinn::Endpoint,
+    cfg: RunConfig,
+    started: Arc<AtomicBool>,
+    mut stop: tokio::sync::watch::Receiver<bool>,
+) -> Result<Report> {
+    let (events_tx, mut events) = mpsc::channel(crate::peers::EVENT_QUEUE);
+    let acceptor = {
+        let endpoint = endpoint.clone();
+        tokio::spawn(async move {
+            let mut next = 0u64;
+            while let Some(incoming) = endpoint.accept().await {
+                next += 1;
+                tokio::spawn(accept_peer(incoming, PeerId(next), events_tx.clone()));
+            }
+        })
+    };
+    tracing::info!(
+        "waiting for {} display node(s) and {} render node(s) on {}",
+        cfg.master.wall.display_count(),
+        cfg.master.render_nodes,
+        endpoint.local_addr()?
+    );
+    let mut driver = Driver {
+        recorder: cfg.record.as_deref().map(Recorder::create).transpose()?,
+        master: Master::new(cfg.master, now())?,
+        links: HashMap::new(),
+        progress: None,
+        show_progress: cfg.show_progress,
+        started,
+    };
+    let result = driver.run(&mut events, &mut stop).await;
+    if let Some(bar) = &driver.progress {
+        bar.finish_and_clear();
+    }
+    for link in driver.links.values() {
+        let reason = CloseReason::RunOver;
+        link.conn.close(reason.code().into(), reason.phrase());
+    }
+    acceptor.abort();
+    endpoint.close(0u32.into(), b"run over");
+    let _ = tokio::time::timeout(Duration::from_secs(2), endpoint.wait_idle()).await;
+    result
+}
+
+impl Driver {
+    /// Feeds the master until its run is over.
+    async fn run(
+        &mut self,
+        events: &mut mpsc::Receiver<Event>,
+        stop: &mut tokio::sync::watch::Receiver<bool>,
+    ) -> Result<Report> {
+        // Whether the interrupt was handled. Not `*stop.borrow()` in the branch's condition: an
+        // interrupt that came while an event was being handled would already read true there,
+        // disable the branch before `changed()` ever reported it, and be lost (the wall then ran
+        // on after Ctrl-C). `changed()` reports a value not yet seen whenever it is polled.
+        let mut stopping = false;
+        loop {
+            if let Some(outcome) = self.master.take_outcome() {
+                return Ok(outcome?);
+            }
+            let timer = self.master.poll_timeout();
+            let timer_at = tokio::time::Instant::from_std(
+                timer.unwrap_or_else(|| Instant::now() + Duration::from_secs(86_400)),
+            );
+            tokio::select! {
+                event = events.recv() => {
+                    let event = event.context("endpoint closed")?;
+                    self.handle(event);
+                }
+                _ = tokio::time::sleep_until(timer_at), if timer.is_some() => {
+                    // What arrived before the timer fired counts first: a master that was
+                    // paused must not find its nodes silent while their heartbeats wait here.
+                    for _ in 0..crate::peers::EVENT_QUEUE {
+                        let Ok(event) = events.try_recv() else { break };
+                        self.handle(event);
+                        self.carry_out()?;
+                    }
+                    self.master.handle_timeout(now());
+                }
+                changed = stop.changed(), if !stopping => {
+                    stopping = true;
+                    // The interrupt watcher gone without an interrupt: nothing to stop.
+                    if changed.is_ok() || *stop.borrow() {
+                        self.master.handle_interrupt(now());
+                    }
+                }
+            }
+            self.carry_out()?;
+        }
+    }
+
+    fn handle(&mut self, event: Event) {
+        match event {
+            Event::Joined {
+                peer,
+                hello,
+                conn,
+                tx,
+            } => {
+                let credentials = credentials(&conn, &hello.role, &hello.host);
+                let remote = conn.remote_address();
+                self.links.insert(peer, Link { tx, conn });
+                let join = Join {
+                    peer,
+                    hello,
+                    remote,
+                    credentials,
+                };
+                self.master.handle_join(join, now());
+            }
+            Event::Msg(peer, msg) => self.master.handle_message(peer, msg, now()),
+            Event::Closed(peer, reason) => {
+                self.links.remove(&peer);
+                self.master.handle_closed(peer, &reason, now());
+            }
+        }
+    }
+
+    /// Carries out what the master decided: messages, closes, and its events.
+    fn carry_out(&mut self) -> Result<()> {
+        loop {
+            if let Some(t) = self.master.poll_transmit() {
+                self.send(t.peer, t.msg);
+            } else if let Some((peer, reason)) = self.master.poll_close() {
+                if let Some(link) = self.links.get(&peer) {
+                    link.conn.close(reason.code().into(), reason.phrase());
+                }
+            } else if let Some(event) = self.master.poll_event() {
+                self.note(event)?;
+            } else {
+                return Ok(());
+            }
+        }
+    }
+
+    fn note(&mut self, event: MasterEvent) -> Result<()> {
+        match event {
+            MasterEvent::Started => {
+                self.started.store(true, Ordering::SeqCst);
+                if self.show_progress {
+                    self.progress = Some(progress_bar(self.master.frames_limit()));
+                }
+            }
+            MasterEvent::FrameStarted(started) => {
+                if let Some(recorder) = &mut self.recorder {
+                    recorder.frame(&started.0, started.1)?;
+                }
+            }
+            MasterEvent::FrameRendered(_) => {}
+            MasterEvent::FramePresented(_) => {
+                if let Some(bar) = &self.progress {
+                    bar.inc(1);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Queues a message for a peer; one that left its queue full is closed: it is gone or
+    /// hostile, and its `Closed` event tells the master.
+    fn send(&self, peer: PeerId, msg: ToNode) {
+        let Some(link) = self.links.get(&peer) else {
+            return;
+        };
+        match link.tx.try_send(msg) {
+            Ok(()) => {}
+            // The peer is gone; its Closed event is on the way.
+            Err(mpsc::error::TrySendError::Closed(_)) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                tracing::error!(
+                    "closing peer {}: it left {} messages unread",
+                    peer.0,
+                    crate::peers::PEER_QUEUE
+                );
+                link.conn.close(4u32.into(), b"not reading");
+            }
+        }
+    }
+}
+
+/// What the peer's certificate lets it be, read from its TLS session.
+fn credentials(conn: &quinn::Connection, role: &Role, host: &str) -> Credentials {
+    let roles = tessera_net::quic::peer_roles(conn)
+        .into_iter()
+        .map(|r| match r {
+            CertRole::Master => CertifiedRole::Master,
+            CertRole::Render => CertifiedRole::Render,
+            CertRole::Display => CertifiedRole::Display,
+            CertRole::Control => CertifiedRole::Control,
+        })
+        .collect();
+    let names_claimed_display = match role {
+        Role::Display { display, .. } => tessera_net::quic::peer_is_display(conn, display.0),
+        _ => false,
+    };
+    Credentials {
+        roles,
+        names_claimed_display,
+        same_host: host == tessera_net::hostname(),
+    }
+}
+
+fn progress_bar(frames: Option<u64>) -> indicatif::ProgressBar {
+    let bar = match frames {
+        Some(n) => indicatif::ProgressBar::new(n),
+        None => indicatif::ProgressBar::no_length(),
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} frame {pos}/{len} {per_sec} {elapsed_precise}",
+        )
+        .expect("valid template"),
+    );
+    bar
+}
+
+/// Binds the master's endpoint.
+pub fn bind(
+    addr: SocketAddr,
+    identity: &tessera_net::cluster::NodeIdentity,
+) -> Result<quinn::Endpoint> {
+    tessera_net::quic::endpoint(addr, identity, true)
+        .context("cannot start the master's QUIC endpoint")
+}
