@@ -19,5 +19,6 @@ pub mod balance;
 pub mod dsm;
 pub mod impair;
 pub mod navigate;
+pub mod node;
 pub mod sim;
 pub mod worker;
