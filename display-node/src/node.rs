@@ -15,8 +15,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_core::assemble::FrameAssembler;
 use tessera_net::cluster::NodeIdentity;
-use tessera_net::link::{LinkError, MasterLink, Welcome};
+use tessera_net::link::{MasterLink, Welcome};
 use tessera_net::quic;
+use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
 use tessera_wire::image::RgbImage;
 use tessera_wire::input::InputEvent;
@@ -100,33 +101,27 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let endpoint = quic::endpoint(cli.listen, &identity, true)?;
     let pixel_addr = cli.advertise.unwrap_or(endpoint.local_addr()?);
     let master_addr = tessera_net::resolve(&cli.master).await?;
-    let role = Role::Display {
-        display: me,
-        pixel_addr,
+    let reconnect = Reconnect {
+        endpoint: endpoint.clone(),
+        master: master_addr,
+        role: Role::Display {
+            display: me,
+            pixel_addr,
+        },
+        wait: cli.reconnect.wait(),
+        name: format!("display {}", me.0),
     };
-    let mut joined = MasterLink::join(&endpoint, master_addr, role.clone())
+    let first = reconnect
+        .join()
         .await
         .with_context(|| format!("display {} could not join", me.0))
         .context("is tessera-master running there? see --help")?;
     let mut window = window.map_or(WindowState::Headless, WindowState::ToOpen);
-    loop {
-        let (link, welcome) = joined;
-        let outcome = session(&cli, &endpoint, link, welcome, &mut window).await;
-        let within = match (outcome, cli.reconnect.wait()) {
-            (Ok(()), _) => return Ok(()),
-            (Err(e), Some(within)) if LinkError::lost_master_in(e.as_ref()) => {
-                tracing::warn!(
-                    "display {}: {e:#}; waiting up to {} s for it to come back (--reconnect)",
-                    me.0,
-                    within.as_secs()
-                );
-                within
-            }
-            (Err(e), _) => return Err(e),
-        };
-        joined = MasterLink::rejoin(&endpoint, master_addr, role.clone(), within).await?;
-        tracing::info!("display {}: the master is back; rejoined", me.0);
-    }
+    reconnect
+        .run(first, async |link, welcome| {
+            session(&cli, &endpoint, link, welcome, &mut window).await
+        })
+        .await
 }
 
 /// Opens the window at the first session's screen size; a later master must give the same.

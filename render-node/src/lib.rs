@@ -6,6 +6,7 @@
 //! `tessera-render-node` stays for render hosts. The driver loop ([`node`]) wraps the sans-IO
 //! [`tessera_core::worker::RenderWorker`]; the link to the master is `tessera_net::link`.
 
+mod batch;
 mod bench;
 mod block_server;
 mod fetch_driver;
