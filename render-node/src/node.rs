@@ -22,7 +22,7 @@ use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
-use tessera_wire::protocol::{NodeStats, Role, ToNode};
+use tessera_wire::protocol::{FromNode, NodeStats, Role, ToNode};
 use tessera_wire::wall::{DisplayId, TileGrid};
 use tokio::sync::mpsc;
 
@@ -127,7 +127,7 @@ async fn session(
             quic::connect(&side.endpoint, d.addr, &what).await?,
         );
     }
-    link.send(&tessera_wire::protocol::FromNode::Ready).await?;
+    link.send(&FromNode::Ready).await?;
     sd_notify::ready(&format!("render node {}: rendering for the wall", node.0));
     tracing::info!(
         "render node {}: ready ({} triangles, {} threads)",
@@ -155,8 +155,8 @@ async fn session(
         pool: side.pool.clone(),
         compression: session.compression(),
     };
-    let mut driver = Driver::new(RenderSession::new(setup, Instant::now()), renderer, here);
-    driver.displays = displays;
+    let started = RenderSession::new(setup, Instant::now());
+    let mut driver = Driver::new(started, renderer, here, displays);
     match driver.drive(&side.endpoint, &mut link).await? {
         End::Shutdown => {
             let stats = driver.stats().await;
@@ -218,12 +218,17 @@ impl<T> Channel<T> {
 }
 
 impl Driver {
-    fn new(session: RenderSession, renderer: Renderer, here: crate::loading::SceneHere) -> Self {
+    fn new(
+        session: RenderSession,
+        renderer: Renderer,
+        here: crate::loading::SceneHere,
+        displays: BTreeMap<DisplayId, quinn::Connection>,
+    ) -> Self {
         Driver {
             session,
             renderer,
             here,
-            displays: BTreeMap::new(),
+            displays,
             done: Channel::new(),
             delivered: Channel::new(),
             reached: Channel::new(),
