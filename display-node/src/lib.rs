@@ -1,6 +1,11 @@
 //! The display node: receives the pixels of its own screen from the render nodes, assembles
-//! each frame with the sans-IO [`tessera_core::assemble::FrameAssembler`], and presents it only
-//! when the master says so (the swap barrier), headless or in a window.
+//! each frame, and presents it only when the master says so (the swap barrier), headless or in
+//! a window.
+//!
+//! What it does with each message and tile of a session is the sans-IO
+//! [`tessera_core::node::display::DisplaySession`] (frames assembled by
+//! [`tessera_core::assemble::FrameAssembler`]); the driver loop (`node`) only moves bytes and
+//! reads clocks for it, and the loop that rejoins a lost master is `tessera_net::reconnect`.
 //!
 //! A library with a thin binary, so that `tessera-master` can run the same node from its own
 //! executable (`tessera-master display-node ...`, what `local` starts) and the installed

@@ -3,25 +3,9 @@
 //! milliseconds the tile took. It needs no scene data: who sent each tile and how long it
 //! took travel in the pixel stream's header.
 
-/// What to draw over one frame.
-#[derive(Clone, Debug, Default)]
-pub struct Overlay {
-    /// Frames per second this display presents, and its last frame time.
-    pub fps: f32,
-    pub frame_ms: f32,
-    /// Each tile of the frame: its rectangle on this screen, who rendered it, in how long.
-    pub tiles: Vec<TileInfo>,
-}
-
-#[derive(Clone, Copy, Debug)]
-pub struct TileInfo {
-    pub x: u32,
-    pub y: u32,
-    pub width: u32,
-    pub height: u32,
-    pub node: u32,
-    pub ms: f32,
-}
+// What to draw is the display session's (it times the presents and knows who rendered each
+// tile); drawing it is the window's.
+pub use tessera_core::node::display::{Overlay, TileInfo};
 
 /// A distinct, stable colour per render node (hues spread by the golden angle).
 pub fn node_colour(node: u32) -> [u8; 3] {

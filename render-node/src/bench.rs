@@ -13,6 +13,7 @@ use tessera_render::bench::{time_passes, AoReach, Pass, PassTimes};
 use tessera_render::isa::Isa;
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_tiles, FrameView, PreparedScene};
+use tessera_wire::camera::Camera;
 use tessera_wire::params::RenderParamsSpec;
 use tessera_wire::wall::{parse_size, TileGrid, WallSpec};
 
@@ -49,6 +50,10 @@ pub struct BenchArgs {
     no_bvh_cache: bool,
 }
 
+/// Runs the benchmark `args` describe and prints its figures.
+///
+/// # Errors
+/// Bad flags, a scene that cannot be loaded, a thread pool that cannot be built.
 pub fn run(args: BenchArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size).context("--size")?;
     if width == 0 || height == 0 || width > 1 << 16 || height > 1 << 16 {
@@ -57,10 +62,55 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let spec = args.scene.spec()?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;
+    let (prepared, camera) = prepare(&args, &pool, (width, height), threads)?;
+    let params = RenderParamsSpec {
+        ao_samples: args.ao,
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .context("--ao")?;
+    let reach = if args.ao_unbounded {
+        AoReach::Unbounded
+    } else {
+        AoReach::Renderer
+    };
+    let wall = WallSpec::grid(1, 1, width, height).build()?;
+    let bench = Bench {
+        prepared: &prepared,
+        view: FrameView::new(0, &camera, params, width, height),
+        shaded_view: FrameView::new(0, &camera, eyelight_params()?, width, height),
+        grid: TileGrid::new(wall),
+        size: (width, height),
+        ao: (args.ao, reach),
+        frames: args.frames,
+    };
+    let frames = bench.measure(&pool);
+    frames.print_all(width as u64 * height as u64, args.ao);
+    if threads > 1 && !args.no_scaling {
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+        let single = bench.measure(&one);
+        let (many, one) = (frames.best(|p| p.primary), single.best(|p| p.primary));
+        println!("TESSERA_PRIMARY_MRAYPS_1T {:.3}", one.mrays_per_s());
+        println!(
+            "TESSERA_SCALING_PRIMARY {:.3} ({threads} threads / 1 thread)",
+            many.mrays_per_s() / one.mrays_per_s()
+        );
+    }
+    Ok(())
+}
+
+/// Loads the scene and builds (or reads) its BVH as a render node would, printing what that
+/// took and cost; returns the prepared scene and the camera the flags ask for.
+fn prepare(
+    args: &BenchArgs,
+    pool: &rayon::ThreadPool,
+    (width, height): (u32, u32),
+    threads: usize,
+) -> Result<(PreparedScene, Camera)> {
+    let spec = args.scene.spec()?;
     map_large_allocations();
     let resident_before = resident_bytes();
     let t0 = Instant::now();
@@ -73,15 +123,14 @@ pub fn run(args: BenchArgs) -> Result<()> {
         })?
         .camera_for_frame(0);
     let t1 = Instant::now();
-    let cache = crate::cache_dir(args.bvh_cache, args.no_bvh_cache);
+    let cache = crate::cache_dir(args.bvh_cache.clone(), args.no_bvh_cache);
     let (accel, source, build) = pool.install(|| load_or_build_timed(&scene, cache.as_deref()));
     let bvh_seconds = t1.elapsed().as_secs_f64();
-    let build_seconds = build.as_secs_f64();
     let mut prepared = PreparedScene::from_accel(&scene, accel);
-    // As a render node keeps it (`node::prepare`).
+    // As a render node keeps it (`loading::prepare`).
     prepared.slim_for_rendering();
     let triangles = scene.triangles.len();
-    // What a render node keeps is the prepared scene; the loaded one goes, as in `node`.
+    // What a render node keeps is the prepared scene; the loaded one goes, as in `loading`.
     drop(scene);
     release_freed();
     eprintln!(
@@ -90,6 +139,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         prepared.accel.wide.len()
     );
     report_memory(&prepared, triangles, resident_before);
+    report_build(source, triangles, threads, build.as_secs_f64(), bvh_seconds);
+    Ok((prepared, camera))
+}
+
+/// Which traversal build runs, and how fast the BVH was built (or read from the cache).
+fn report_build(source: Source, triangles: usize, threads: usize, build_s: f64, bvh_s: f64) {
     let isas: Vec<&str> = Isa::available().iter().map(|i| i.name()).collect();
     println!(
         "TESSERA_ISA {} (packet traversal build; this CPU runs {}; TESSERA_ISA=NAME picks one)",
@@ -98,91 +153,49 @@ pub fn run(args: BenchArgs) -> Result<()> {
     );
     match source {
         Source::Built => println!(
-            "TESSERA_BUILD_MTRIS_PER_S {:.3} (obvhs preset {}, {threads} threads, {build_seconds:.3} s, flattening and the 8-wide collapse included, storing the cache not)",
-            triangles as f64 / build_seconds / 1e6,
+            "TESSERA_BUILD_MTRIS_PER_S {:.3} (obvhs preset {}, {threads} threads, {build_s:.3} s, flattening and the 8-wide collapse included, storing the cache not)",
+            triangles as f64 / build_s / 1e6,
             Accel::preset_name(triangles)
         ),
         Source::Cached => println!(
-            "TESSERA_BVH_CACHE_LOAD_S {bvh_seconds:.3} (no build: read from the cache; --no-bvh-cache to time the build)"
+            "TESSERA_BVH_CACHE_LOAD_S {bvh_s:.3} (no build: read from the cache; --no-bvh-cache to time the build)"
         ),
     }
-    let params = RenderParamsSpec {
-        ao_samples: args.ao,
-        ..RenderParamsSpec::INTERACTIVE
-    }
-    .build()
-    .context("--ao")?;
-    let view = FrameView::new(0, &camera, params, width, height);
-    let ao = (
-        args.ao,
-        if args.ao_unbounded {
-            AoReach::Unbounded
-        } else {
-            AoReach::Renderer
-        },
-    );
-    let shaded_view = FrameView::new(0, &camera, eyelight_params()?, width, height);
-    let wall = WallSpec::grid(1, 1, width, height).build()?;
-    let grid = TileGrid::new(wall.clone());
-    let measure = |pool: &rayon::ThreadPool| -> Frames {
+}
+
+/// What each timed frame renders.
+struct Bench<'a> {
+    prepared: &'a PreparedScene,
+    /// The passes' view, with the ambient-occlusion rays asked for.
+    view: FrameView,
+    /// The shaded pass's view: one primary ray a pixel, as Embree's viewer shades.
+    shaded_view: FrameView,
+    grid: TileGrid,
+    size: (u32, u32),
+    ao: (u32, AoReach),
+    frames: u32,
+}
+
+impl Bench<'_> {
+    /// Times every pass on `pool`, after one untimed warm-up frame of each.
+    fn measure(&self, pool: &rayon::ThreadPool) -> Frames {
+        let (width, height) = self.size;
+        let passes = || time_passes(self.prepared, &self.view, width, height, self.ao);
+        let shaded = || render_tiles(self.prepared, &self.shaded_view, self.grid.tiles());
         let mut frames = Frames::default();
-        // One warm-up frame of each, untimed.
-        pool.install(|| time_passes(&prepared, &view, width, height, ao));
-        pool.install(|| render_tiles(&prepared, &shaded_view, grid.tiles()));
-        for _ in 0..args.frames {
-            frames
-                .passes
-                .push(pool.install(|| time_passes(&prepared, &view, width, height, ao)));
+        pool.install(passes);
+        pool.install(shaded);
+        for _ in 0..self.frames {
+            frames.passes.push(pool.install(passes));
             let t = Instant::now();
-            std::hint::black_box(
-                pool.install(|| render_tiles(&prepared, &shaded_view, grid.tiles())),
-            );
+            std::hint::black_box(pool.install(shaded));
             frames.shaded.push(Pass {
                 rays: width as u64 * height as u64,
                 seconds: t.elapsed().as_secs_f64(),
             });
         }
         frames
-    };
-    let frames = measure(&pool);
-    frames.print(
-        "TESSERA_PRIMARY_MRAYPS",
-        |p| p.primary,
-        "8x8 packets: ray generation, traversal and intersection, closest hit only, no shading",
-    );
-    frames.print_shaded();
-    frames.print(
-        "TESSERA_SHADOW_MRAYPS",
-        |p| p.shadow,
-        "one per primary hit, towards the light, as packets",
-    );
-    frames.print(
-        "TESSERA_SHADOW_SINGLE_MRAYPS",
-        |p| p.shadow_single,
-        "the same shadow rays one by one",
-    );
-    frames.print(
-        "TESSERA_AO_MRAYPS",
-        |p| p.ambient,
-        "single rays, cosine-distributed, any hit",
-    );
-    println!(
-        "TESSERA_PRIMARY_HITS {} (of {} primary rays; {} AO rays per hit)",
-        frames.passes[0].hits,
-        width as u64 * height as u64,
-        args.ao
-    );
-    if threads > 1 && !args.no_scaling {
-        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
-        let single = measure(&one);
-        let (many, one) = (frames.best(|p| p.primary), single.best(|p| p.primary));
-        println!("TESSERA_PRIMARY_MRAYPS_1T {:.3}", one.mrays_per_s());
-        println!(
-            "TESSERA_SCALING_PRIMARY {:.3} ({threads} threads / 1 thread)",
-            many.mrays_per_s() / one.mrays_per_s()
-        );
     }
-    Ok(())
 }
 
 /// Shading as Embree's viewer does it: one primary ray a pixel, shaded and stored, no shadow or
@@ -255,6 +268,35 @@ impl Frames {
 
     fn print(&self, name: &str, pass: impl Fn(&PassTimes) -> Pass, what: &str) {
         Self::line(name, &Self::sorted(self.passes.iter().map(pass)), what);
+    }
+
+    /// Prints every pass's figures; `pixels` primary rays a frame, `ao` rays per hit.
+    fn print_all(&self, pixels: u64, ao: u32) {
+        self.print(
+            "TESSERA_PRIMARY_MRAYPS",
+            |p| p.primary,
+            "8x8 packets: ray generation, traversal and intersection, closest hit only, no shading",
+        );
+        self.print_shaded();
+        self.print(
+            "TESSERA_SHADOW_MRAYPS",
+            |p| p.shadow,
+            "one per primary hit, towards the light, as packets",
+        );
+        self.print(
+            "TESSERA_SHADOW_SINGLE_MRAYPS",
+            |p| p.shadow_single,
+            "the same shadow rays one by one",
+        );
+        self.print(
+            "TESSERA_AO_MRAYPS",
+            |p| p.ambient,
+            "single rays, cosine-distributed, any hit",
+        );
+        println!(
+            "TESSERA_PRIMARY_HITS {} (of {pixels} primary rays; {ao} AO rays per hit)",
+            self.passes[0].hits,
+        );
     }
 
     fn print_shaded(&self) {

@@ -3,9 +3,14 @@
 //!
 //! A library with a thin binary, so that `tessera-master` can run the same node from its own
 //! executable (`tessera-master render-node ...`, what `local` starts) and the installed
-//! `tessera-render-node` stays for render hosts. The driver loop ([`node`]) wraps the sans-IO
-//! [`tessera_core::worker::RenderWorker`]; the link to the master is `tessera_net::link`.
+//! `tessera-render-node` stays for render hosts. What the node does with each message of a
+//! session is the sans-IO [`tessera_core::node::render::RenderSession`] (its queue and batch
+//! sizes are [`tessera_core::worker`]'s); the driver loop ([`node`]) only moves bytes and
+//! reads clocks for it, a batch renders on the render threads in `batch`, and the link to the
+//! master and the loop that rejoins a lost one are `tessera_net::link` and
+//! `tessera_net::reconnect`.
 
+mod batch;
 mod bench;
 mod block_server;
 mod fetch_driver;

@@ -1,36 +1,30 @@
 //! The render node's driver loop: the only place in the render node with sockets and
-//! `Instant::now()`. It feeds the sans-IO [`RenderWorker`] what the master says and what the
-//! render threads and display links report, and carries out what the worker decides.
+//! `Instant::now()`. It moves bytes and reads clocks: what the master says, what the render
+//! threads and display links report and the heartbeat's timer go to the sans-IO
+//! [`RenderSession`], and the driver carries out what it returns (a batch to render, messages
+//! to the master, displays to connect to or drop, block holders for the fetcher, the
+//! shutdown). Losing the master and joining it again is `tessera_net::reconnect`'s loop.
 
+use crate::batch::{read, Rendered, Renderer};
 use crate::pixels_out::{send_pixels, Batch, Delivery};
 use anyhow::{bail, Context, Result};
-use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
-use tessera_core::worker::{BatchSizer, RenderWorker};
+use tessera_core::node::render::{
+    BatchOrder, RenderEvent, RenderSession, RenderSetup, VolumeSteps,
+};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
+use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
-use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
-use tessera_wire::protocol::pixels::BatchSource;
-use tessera_wire::protocol::{FrameId, FromNode, NodeStats, RenderStats, Role, ToNode};
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{TileGrid, TileId};
+use tessera_wire::protocol::{FromNode, NodeStats, Role, ToNode};
+use tessera_wire::wall::{DisplayId, TileGrid};
 use tokio::sync::mpsc;
-
-fn read(scene: &RwLock<PreparedScene>) -> RwLockReadGuard<'_, PreparedScene> {
-    scene.read().unwrap_or_else(|e| e.into_inner())
-}
-
-fn write(scene: &RwLock<PreparedScene>) -> RwLockWriteGuard<'_, PreparedScene> {
-    scene.write().unwrap_or_else(|e| e.into_inner())
-}
 
 /// What the node was started with.
 pub struct Options {
@@ -57,22 +51,6 @@ pub(crate) struct NodeSide {
     pub shared: crate::shared::SharedOptions,
 }
 
-/// A batch the render threads finished.
-struct Rendered {
-    frame: FrameId,
-    state: StateId,
-    tiles: Vec<TileId>,
-    /// Each tile's payload, packed as the session's compression says.
-    payloads: Vec<Vec<u8>>,
-    rays: RayCounts,
-    /// Rendering alone.
-    took: Duration,
-    /// Rendering and packing: what sizes the next batch.
-    batch_took: Duration,
-    /// For a shared scene, the other nodes' blocks each tile read.
-    footprints: Vec<Vec<u32>>,
-}
-
 /// Joins the master and renders until it shuts the wall down; with `--reconnect`, a lost
 /// master is waited for (bounded) and rejoined, as often as it is lost.
 pub async fn run(options: Options) -> Result<()> {
@@ -85,18 +63,25 @@ pub async fn run(options: Options) -> Result<()> {
             .build()?,
     );
     let identity = NodeIdentity::load(&options.cert_dir)?;
-    let master_addr = tessera_net::resolve(&options.master).await?;
-    let bind: SocketAddr = if master_addr.is_ipv6() {
+    let master = tessera_net::resolve(&options.master).await?;
+    let bind: SocketAddr = if master.is_ipv6() {
         "[::]:0"
     } else {
         "0.0.0.0:0"
     }
     .parse()?;
     let endpoint = quic::endpoint(bind, &identity, false)?;
-    let role = Role::Render {
-        cores: threads as u32,
+    let reconnect = Reconnect {
+        endpoint: endpoint.clone(),
+        master,
+        role: Role::Render {
+            cores: threads as u32,
+        },
+        wait: options.reconnect,
+        name: "render node".into(),
     };
-    let mut joined = MasterLink::join(&endpoint, master_addr, role.clone())
+    let first = reconnect
+        .join()
         .await
         .context("is tessera-master running there? see --help")?;
     let side = NodeSide {
@@ -112,23 +97,11 @@ pub async fn run(options: Options) -> Result<()> {
         },
     };
     let mut loaded = None;
-    loop {
-        let (link, welcome) = joined;
-        let outcome = session(&side, link, welcome, &mut loaded).await;
-        let within = match (outcome, options.reconnect) {
-            (Ok(()), _) => return Ok(()),
-            (Err(e), Some(within)) if LinkError::lost_master_in(e.as_ref()) => {
-                tracing::warn!(
-                    "render node: {e:#}; waiting up to {} s for it to come back (--reconnect)",
-                    within.as_secs()
-                );
-                within
-            }
-            (Err(e), _) => return Err(e),
-        };
-        joined = MasterLink::rejoin(&side.endpoint, master_addr, role.clone(), within).await?;
-        tracing::info!("render node: the master is back; rejoined");
-    }
+    reconnect
+        .run(first, async |link, welcome| {
+            session(&side, link, welcome, &mut loaded).await
+        })
+        .await
 }
 
 /// One master's wall, from the welcome to its shutdown (or the master's loss).
@@ -138,212 +111,305 @@ async fn session(
     welcome: Welcome,
     loaded: &mut Option<crate::loading::Loaded>,
 ) -> Result<()> {
-    let NodeSide {
-        pool,
-        threads,
-        endpoint,
-        ..
-    } = side;
-    let threads = *threads;
     let (node, session) = (welcome.node, welcome.session);
-    let mut here = match crate::loading::scene_here(side, &mut link, node, &session, loaded).await {
+    let here = match crate::loading::scene_here(side, &mut link, node, &session, loaded).await {
         Ok(here) => here,
         Err(e) => {
             link.fail(format!("{e:#}")).await;
             return Err(e);
         }
     };
-    let (prepared, series, shown_step) = (
-        here.prepared.clone(),
-        here.series.clone(),
-        here.shown_step.clone(),
-    );
     let mut displays = BTreeMap::new();
     for d in session.displays() {
-        let c = quic::connect(endpoint, d.addr, &format!("display {}", d.display.0)).await?;
-        displays.insert(d.display, c);
+        let what = format!("display {}", d.display.0);
+        displays.insert(
+            d.display,
+            quic::connect(&side.endpoint, d.addr, &what).await?,
+        );
     }
     link.send(&FromNode::Ready).await?;
     sd_notify::ready(&format!("render node {}: rendering for the wall", node.0));
     tracing::info!(
-        "render node {}: ready ({} triangles, {threads} threads)",
+        "render node {}: ready ({} triangles, {} threads)",
         node.0,
-        read(&prepared).triangle_count()
+        read(&here.prepared).triangle_count(),
+        side.threads
     );
-
     let grid = Arc::new(TileGrid::new(session.wall().clone()));
-    let compression = session.compression();
-    let mut sizer = BatchSizer::new(threads);
-    let mut worker = RenderWorker::new(grid.len() as u32, sizer.low_water(None));
-    let (done_tx, mut done_rx) = mpsc::unbounded_channel::<Result<Rendered, String>>();
-    let (delivered_tx, mut delivered_rx) = mpsc::unbounded_channel::<Delivery>();
-    let (reconnected_tx, mut reconnected_rx) =
-        mpsc::unbounded_channel::<(tessera_wire::wall::DisplayId, quinn::Connection)>();
-    let mut rendering = false;
-    let mut stats = RenderStats::default();
-    let first_frame = Instant::now();
-    // The master declares a node silent past its deadline dead: the driver loop beats
-    // whatever the render threads are doing (a hung loop stops beating, and is dead too).
-    let mut heartbeat = tokio::time::interval(tessera_wire::protocol::HEARTBEAT_INTERVAL);
-    heartbeat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    loop {
-        if !rendering {
-            if let Some((start, tiles)) = worker.next_batch(sizer.batch()) {
-                rendering = true;
-                if let Some(shared) = &here.shared {
-                    // This batch's blocks and the next one's, asked for together.
-                    let next = worker.upcoming().take(tiles.len());
-                    shared.prefetch(&read(&prepared), tiles.iter().copied().chain(next));
-                }
-                let (prepared, grid, pool, done_tx) = (
-                    prepared.clone(),
-                    grid.clone(),
-                    pool.clone(),
-                    done_tx.clone(),
+    let setup = RenderSetup {
+        node,
+        tile_count: grid.len() as u32,
+        threads: side.threads,
+        shared: here.shared.is_some(),
+        volume: here.series.as_ref().map(|series| VolumeSteps {
+            steps: series.len(),
+            shown: here.shown_step.load(Ordering::Relaxed),
+        }),
+        displays: displays.keys().copied().collect(),
+    };
+    let renderer = Renderer {
+        prepared: here.prepared.clone(),
+        series: here.series.clone(),
+        shown_step: here.shown_step.clone(),
+        grid,
+        pool: side.pool.clone(),
+        compression: session.compression(),
+    };
+    let started = RenderSession::new(setup, Instant::now());
+    let mut driver = Driver::new(started, renderer, here, displays);
+    match driver.drive(&side.endpoint, &mut link).await? {
+        End::Shutdown => {
+            let stats = driver.stats().await;
+            let summary = format!("{} tiles, {} rays", stats.tiles, stats.rays);
+            link.finish(NodeStats::Render(stats)).await?;
+            tracing::info!("render node {}: done, {summary}", node.0);
+            Ok(())
+        }
+        End::Failed(message) => {
+            link.fail(message.clone()).await;
+            bail!("{message}")
+        }
+    }
+}
+
+/// How a session's loop ended, when it was not by an error of the link or the master's.
+enum End {
+    /// The master shut the wall down.
+    Shutdown,
+    /// This node cannot go on; the master is told why.
+    Failed(String),
+}
+
+/// One thing that happened, for the session to hear of.
+// One lives for one turn of the loop, on the stack, as the message in it did before: boxing
+// the master's messages would allocate for each.
+#[allow(clippy::large_enum_variant)]
+enum Input {
+    Master(Result<ToNode, LinkError>),
+    Rendered(Result<Rendered, String>),
+    Beat,
+    Reached(DisplayId, quinn::Connection),
+    Delivered(Delivery),
+}
+
+/// A session's sockets, channels and render threads around its [`RenderSession`].
+struct Driver {
+    session: RenderSession,
+    renderer: Renderer,
+    here: crate::loading::SceneHere,
+    displays: BTreeMap<DisplayId, quinn::Connection>,
+    done: Channel<Result<Rendered, String>>,
+    delivered: Channel<Delivery>,
+    /// Displays reached at the new address the master gave.
+    reached: Channel<(DisplayId, quinn::Connection)>,
+}
+
+/// Both ends of an unbounded channel.
+struct Channel<T> {
+    tx: mpsc::UnboundedSender<T>,
+    rx: mpsc::UnboundedReceiver<T>,
+}
+
+impl<T> Channel<T> {
+    fn new() -> Self {
+        let (tx, rx) = mpsc::unbounded_channel();
+        Channel { tx, rx }
+    }
+}
+
+impl Driver {
+    fn new(
+        session: RenderSession,
+        renderer: Renderer,
+        here: crate::loading::SceneHere,
+        displays: BTreeMap<DisplayId, quinn::Connection>,
+    ) -> Self {
+        Driver {
+            session,
+            renderer,
+            here,
+            displays,
+            done: Channel::new(),
+            delivered: Channel::new(),
+            reached: Channel::new(),
+        }
+    }
+
+    /// Moves messages, batches and timers between the session and the world until the
+    /// session ends.
+    async fn drive(&mut self, endpoint: &quinn::Endpoint, link: &mut MasterLink) -> Result<End> {
+        loop {
+            if let Some(order) = self.session.poll_batch(Instant::now()) {
+                self.start(order);
+            }
+            self.transmit(link).await?;
+            let beat = tokio::time::Instant::from_std(self.session.poll_timeout());
+            let input = tokio::select! {
+                msg = link.recv() => Input::Master(msg),
+                Some(done) = self.done.rx.recv() => Input::Rendered(done),
+                _ = tokio::time::sleep_until(beat) => Input::Beat,
+                Some((display, conn)) = self.reached.rx.recv() => Input::Reached(display, conn),
+                Some(delivery) = self.delivered.rx.recv() => Input::Delivered(delivery),
+            };
+            if let Some(end) = self.handle(input)? {
+                return Ok(end);
+            }
+            self.transmit(link).await?;
+            if let Some(end) = self.events(endpoint) {
+                return Ok(end);
+            }
+        }
+    }
+
+    fn handle(&mut self, input: Input) -> Result<Option<End>> {
+        match input {
+            Input::Master(msg) => self
+                .session
+                .handle_message(msg?, Instant::now())
+                .context("the master broke the protocol")?,
+            Input::Rendered(Ok(rendered)) => self.rendered(rendered),
+            Input::Rendered(Err(e)) => {
+                return Ok(Some(End::Failed(format!(
+                    "cannot load the volume's time step: {e}"
+                ))))
+            }
+            Input::Beat => self.session.handle_timeout(Instant::now()),
+            Input::Reached(moved, conn) => {
+                let node = self.session.node().0;
+                tracing::info!(
+                    "render node {node}: display {} reached at its new address",
+                    moved.0
                 );
-                let (series, shown_step) = (series.clone(), shown_step.clone());
-                tokio::task::spawn_blocking(move || {
-                    let t0 = Instant::now();
-                    let view = FrameView::of_start(&start, grid.layout());
-                    if let Some(series) = &series {
-                        let step = view.params.volume().time_step as usize % series.len();
-                        if shown_step.swap(step, Ordering::Relaxed) != step {
-                            match series.get(step) {
-                                Ok(volume) => write(&prepared).set_volume(volume),
-                                Err(e) => {
-                                    let _ = done_tx.send(Err(e.to_string()));
-                                    return;
-                                }
-                            }
-                        }
-                    }
-                    let prepared = read(&prepared);
-                    let geometry: Vec<_> = tiles
-                        .iter()
-                        .map(|t| {
-                            *grid
-                                .tile(*t)
-                                .expect("the worker checked every assigned tile")
-                        })
-                        .collect();
-                    let (pixels, rays, footprints) =
-                        pool.install(|| render_tiles_footprints(&prepared, &view, &geometry));
-                    // Rendering time alone, so rays/s does not depend on the compression.
-                    let took = t0.elapsed();
-                    let payloads = pool.install(|| {
-                        pixels
-                            .into_par_iter()
-                            .map(|rgb| compression.encode_tile(rgb))
-                            .collect()
-                    });
-                    let _ = done_tx.send(Ok(Rendered {
-                        frame: start.frame,
-                        state: start.state,
-                        tiles,
-                        payloads,
-                        rays,
-                        took,
-                        batch_took: t0.elapsed(),
-                        footprints,
-                    }));
-                });
+                self.displays.insert(moved, conn);
+                self.session.handle_display_reached(moved);
             }
-            if let Some(request) = worker.poll_request(Instant::now()) {
-                link.send(&request).await?;
+            Input::Delivered(d) => {
+                self.session.handle_delivery(
+                    d.frame,
+                    &d.delivered,
+                    d.undelivered,
+                    d.lost,
+                    Instant::now(),
+                );
             }
         }
-        tokio::select! {
-            msg = link.recv() => match msg? {
-                ToNode::Shutdown => {
-                    stats.elapsed_s = first_frame.elapsed().as_secs_f64();
-                    if let Some(series) = &series {
-                        let s = series.stats();
-                        stats.volume_load_s = s.load_seconds;
-                        stats.volume_load_s.truncate(tessera_wire::protocol::MAX_REPORTED_LOADS);
-                        (stats.prefetch_hits, stats.prefetch_misses) = (s.hits, s.misses);
-                        stats.volume_stall_s = s.stall_seconds;
-                    }
-                    if let Some(shared) = &here.shared {
-                        let driver = shared.driver.stats().await;
-                        stats.dsm = Some(Box::new(shared.stats(driver, &read(&prepared))));
-                    }
-                    stats.max_rss_bytes = crate::memory::peak_resident_bytes().unwrap_or(0);
-                    let summary = format!("{} tiles, {} rays", stats.tiles, stats.rays);
-                    link.finish(NodeStats::Render(stats)).await?;
-                    tracing::info!("render node {}: done, {summary}", node.0);
-                    return Ok(());
+        Ok(None)
+    }
+
+    /// Hands a batch to the render threads.
+    fn start(&self, order: BatchOrder) {
+        if let Some(shared) = &self.here.shared {
+            shared.prefetch(
+                &read(&self.renderer.prepared),
+                order.prefetch.iter().copied(),
+            );
+        }
+        let (renderer, done) = (self.renderer.clone(), self.done.tx.clone());
+        tokio::task::spawn_blocking(move || {
+            let _ = done.send(renderer.render(order));
+        });
+    }
+
+    /// A batch is rendered: its pixels go to their displays.
+    fn rendered(&mut self, rendered: Rendered) {
+        let source = self.session.handle_rendered(rendered.done());
+        let Rendered {
+            frame,
+            state,
+            tiles,
+            payloads,
+            footprints,
+            ..
+        } = rendered;
+        if let Some(shared) = &mut self.here.shared {
+            shared.note_footprints(&tiles, footprints);
+        }
+        let batch = Batch {
+            frame,
+            state,
+            source,
+            tiles,
+            payloads,
+        };
+        let (grid, compression) = (&self.renderer.grid, self.renderer.compression);
+        send_pixels(
+            &self.displays,
+            grid,
+            compression,
+            batch,
+            self.delivered.tx.clone(),
+        );
+    }
+
+    async fn transmit(&mut self, link: &mut MasterLink) -> Result<(), LinkError> {
+        while let Some(msg) = self.session.poll_transmit() {
+            link.send(&msg).await?;
+        }
+        Ok(())
+    }
+
+    /// Carries out what the session asks besides messages; the shutdown ends the loop.
+    fn events(&mut self, endpoint: &quinn::Endpoint) -> Option<End> {
+        let node = self.session.node().0;
+        while let Some(event) = self.session.poll_event() {
+            match event {
+                RenderEvent::Shutdown => return Some(End::Shutdown),
+                RenderEvent::ConnectDisplay { display, addr } => {
+                    self.connect(endpoint, display, addr)
                 }
-                ToNode::DisplayAt { display: moved, addr } => {
-                    // Connected off the loop: a display that does not answer holds up nothing.
-                    let (endpoint, reconnected) = (endpoint.clone(), reconnected_tx.clone());
-                    tokio::spawn(async move {
-                        let id = moved.0;
-                        match quic::connect(&endpoint, addr, &format!("display {id}")).await {
-                            Ok(conn) => {
-                                let _ = reconnected.send((moved, conn));
-                            }
-                            Err(e) => tracing::warn!("cannot reach display {id} at {addr}: {e:#}"),
-                        }
-                    });
+                RenderEvent::ForgetDisplay {
+                    display: gone,
+                    reason,
+                } => {
+                    self.displays.remove(&gone);
+                    tracing::warn!(
+                        "render node {node}: display {} unreachable ({reason}); its tiles go back undelivered",
+                        gone.0
+                    );
                 }
-                ToNode::BlockHolders { holders, .. } => match &here.shared {
-                    Some(shared) => shared.driver.holders(holders),
-                    None => bail!("the master broke the protocol: block holders for a replicated scene"),
-                },
-                msg => worker
-                    .handle_message(&msg, Instant::now())
-                    .context("the master broke the protocol")?,
-            },
-            Some(done) = done_rx.recv() => {
-                let Rendered { frame, state, tiles, payloads, rays, took, batch_took, footprints } = match done {
-                    Ok(r) => r,
-                    Err(e) => {
-                        link.fail(format!("cannot load the volume's time step: {e}")).await;
-                        bail!("cannot load the volume's time step: {e}");
-                    }
-                };
-                rendering = false;
-                if let Some(shared) = &mut here.shared {
-                    shared.note_footprints(&tiles, footprints);
-                }
-                sizer.record(tiles.len(), batch_took);
-                worker.set_low_water(sizer.low_water(worker.round_trip()));
-                stats.tiles += tiles.len() as u64;
-                stats.rays += rays.total();
-                stats.busy_s += took.as_secs_f64();
-                // Per tile, averaged over the batch: what a display's overlay shows per tile.
-                let per_tile = took.as_micros() / tiles.len().max(1) as u128;
-                let source = BatchSource {
-                    node,
-                    render_us: per_tile.min(u32::MAX as u128) as u32,
-                };
-                let batch = Batch { frame, state, source, tiles, payloads };
-                send_pixels(&displays, &grid, compression, batch, delivered_tx.clone());
-            }
-            _ = heartbeat.tick() => link.send(&FromNode::Heartbeat).await?,
-            Some((moved, conn)) = reconnected_rx.recv() => {
-                tracing::info!("render node {}: display {} reached at its new address", node.0, moved.0);
-                displays.insert(moved, conn);
-            }
-            Some(Delivery { frame, delivered, undelivered, lost }) = delivered_rx.recv() => {
-                for (gone, e) in lost {
-                    // Once: later batches skip it, and the master, which hears from every
-                    // display, decides whether it is gone.
-                    if displays.remove(&gone).is_some() {
-                        tracing::warn!(
-                            "render node {}: display {} unreachable ({e}); its tiles go back undelivered",
-                            node.0,
-                            gone.0
-                        );
+                RenderEvent::BlockHolders(holders) => {
+                    if let Some(shared) = &self.here.shared {
+                        shared.driver.holders(holders);
                     }
                 }
-                if !undelivered.is_empty() {
-                    let tiles = tessera_wire::protocol::to_ranges(undelivered);
-                    link.send(&FromNode::TilesReturned { frame, tiles }).await?;
-                }
-                let report = worker.handle_delivered(frame, &delivered, Instant::now());
-                link.send(&report).await?;
             }
         }
+        None
+    }
+
+    /// Connects to a display off the loop: one that does not answer holds up nothing.
+    fn connect(&self, endpoint: &quinn::Endpoint, display: DisplayId, addr: SocketAddr) {
+        let (endpoint, reached) = (endpoint.clone(), self.reached.tx.clone());
+        tokio::spawn(async move {
+            let id = display.0;
+            match quic::connect(&endpoint, addr, &format!("display {id}")).await {
+                Ok(conn) => {
+                    let _ = reached.send((display, conn));
+                }
+                Err(e) => tracing::warn!("cannot reach display {id} at {addr}: {e:#}"),
+            }
+        });
+    }
+
+    /// The session's figures with what only the driver measures: the volume's loads, the
+    /// shared scene's reads, the node's peak memory.
+    async fn stats(&self) -> tessera_wire::protocol::RenderStats {
+        let mut stats = self.session.stats(Instant::now());
+        if let Some(series) = &self.renderer.series {
+            let s = series.stats();
+            stats.volume_load_s = s.load_seconds;
+            stats
+                .volume_load_s
+                .truncate(tessera_wire::protocol::MAX_REPORTED_LOADS);
+            (stats.prefetch_hits, stats.prefetch_misses) = (s.hits, s.misses);
+            stats.volume_stall_s = s.stall_seconds;
+        }
+        if let Some(shared) = &self.here.shared {
+            let driver = shared.driver.stats().await;
+            let prepared = read(&self.renderer.prepared);
+            stats.dsm = Some(Box::new(shared.stats(driver, &prepared)));
+        }
+        stats.max_rss_bytes = crate::memory::peak_resident_bytes().unwrap_or(0);
+        stats
     }
 }

@@ -1,4 +1,5 @@
-//! `--reconnect`: what a render or display node does when its master is lost.
+//! `--reconnect`: what a render or display node does when its master is lost. These are the
+//! flags; the loop that acts on them is `tessera_net::reconnect`.
 
 use clap::Args;
 use std::time::Duration;

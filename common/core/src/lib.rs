@@ -5,7 +5,9 @@
 //! figures and the report) holds [`balance::Coordinator`] (the load balancer, frame barrier
 //! and wall states);
 //! [`assemble::FrameAssembler`] (a display's frames, never a mix of states),
-//! [`worker::RenderWorker`] (a render node's queue) and [`master::navigate::Navigator`] (window input
+//! [`worker::RenderWorker`] (a render node's queue), [`node::RenderSession`] and
+//! [`node::DisplaySession`] (what a render node and a display do with each message of the
+//! master, around the worker and the assembler) and [`master::navigate::Navigator`] (window input
 //! to state changes) take messages and `now` and return messages, following quinn-proto's
 //! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
 //! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
@@ -22,5 +24,6 @@ pub mod balance;
 pub mod dsm;
 pub mod impair;
 pub mod master;
+pub mod node;
 pub mod sim;
 pub mod worker;

@@ -1,7 +1,9 @@
 //! Network glue shared by the three node crates: the cluster's certificates ([`cluster`]), QUIC
-//! endpoints with mutual TLS ([`quic`]), length-prefixed control streams ([`framed`]) and a
+//! endpoints with mutual TLS ([`quic`]), length-prefixed control streams ([`framed`]), a
 //! node's link to its master ([`link`]: handshake, receiving with "lost the master" handling,
-//! shutdown, the tokio runtime) and systemd's readiness notification ([`sd_notify`]).
+//! shutdown, the tokio runtime), the one loop through which render and display nodes run a
+//! master's sessions one after another and wait for a lost master (`--reconnect`,
+//! [`reconnect`]), and systemd's readiness notification ([`sd_notify`]).
 //!
 //! It holds no protocol logic: what a message means is decided by the sans-IO state machines of
 //! `tessera-core`, which never see a socket. It depends on `tessera-wire` for the messages and
@@ -11,6 +13,7 @@ pub mod cluster;
 pub mod framed;
 pub mod link;
 pub mod quic;
+pub mod reconnect;
 pub mod sd_notify;
 
 use std::net::SocketAddr;

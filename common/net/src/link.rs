@@ -1,6 +1,7 @@
 //! A node's link to its master, shared by render and display nodes: joining (connect, hello,
 //! welcome or refusal), receiving the master's messages with one notion of "the master is
-//! gone", and leaving (stats, finish, a bounded wait for the master to close).
+//! gone", and leaving (stats, finish, a bounded wait for the master to close). Joining again
+//! after the master is lost is [`crate::reconnect`]'s.
 //!
 //! The messages' meaning stays with the nodes and their sans-IO state machines; this is the
 //! plumbing every node would otherwise write again.
@@ -66,9 +67,6 @@ impl LinkError {
     }
 }
 
-/// How often a node that waits for its master to come back knocks again.
-pub const REJOIN_INTERVAL: Duration = Duration::from_millis(250);
-
 /// What the master said when it took the node in.
 #[derive(Debug)]
 pub struct Welcome {
@@ -121,40 +119,10 @@ impl MasterLink {
         Ok((link, welcome))
     }
 
-    /// Joins a master that may not be up yet (one restarting after a crash): tries again every
-    /// [`REJOIN_INTERVAL`] while the master is not there, for at most `within`.
+    /// Sends `msg` to the master.
     ///
     /// # Errors
-    /// [`LinkError::NotBack`] once `within` has passed; a refusal or a broken handshake at
-    /// once.
-    pub async fn rejoin(
-        endpoint: &quinn::Endpoint,
-        master: SocketAddr,
-        role: Role,
-        within: Duration,
-    ) -> Result<(MasterLink, Welcome), LinkError> {
-        let give_up = tokio::time::Instant::now() + within;
-        // A `Type=notify` unit stays active meanwhile; its status says why frames stopped.
-        crate::sd_notify::status(&format!(
-            "waiting up to {} s for the master at {master} to come back",
-            within.as_secs()
-        ));
-        let attempts = async {
-            loop {
-                match MasterLink::join(endpoint, master, role.clone()).await {
-                    Err(e) if e.is_lost_master() => {
-                        tracing::debug!("the master is not back yet: {e}");
-                        tokio::time::sleep(REJOIN_INTERVAL).await;
-                    }
-                    joined => return joined,
-                }
-            }
-        };
-        tokio::time::timeout_at(give_up, attempts)
-            .await
-            .unwrap_or(Err(LinkError::NotBack(within)))
-    }
-
+    /// [`LinkError::Lost`] if the stream or connection broke.
     pub async fn send(&mut self, msg: &FromNode) -> Result<(), LinkError> {
         write_msg(&mut self.send, msg)
             .await

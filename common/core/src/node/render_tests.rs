@@ -1,0 +1,282 @@
+//! A render node's session on a virtual clock: every input a driver feeds it, and what comes
+//! out in which order.
+
+use super::render::*;
+use crate::worker::WorkerError;
+use glam::Vec3;
+use std::time::{Duration, Instant};
+use tessera_wire::camera::Camera;
+use tessera_wire::params::{RenderParams, RenderParamsSpec};
+use tessera_wire::protocol::{
+    FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode, HEARTBEAT_INTERVAL,
+};
+use tessera_wire::state::StateId;
+use tessera_wire::volume_params::VolumeParams;
+use tessera_wire::wall::{DisplayId, TileId};
+
+/// The virtual clock's zero.
+fn t0() -> Instant {
+    static BASE: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    *BASE.get_or_init(Instant::now)
+}
+
+fn at_ms(ms: u64) -> Instant {
+    t0() + Duration::from_millis(ms)
+}
+
+fn setup() -> RenderSetup {
+    RenderSetup {
+        node: RenderNodeId(7),
+        tile_count: 100,
+        threads: 2,
+        shared: false,
+        volume: None,
+        displays: vec![DisplayId(0), DisplayId(1)],
+    }
+}
+
+/// A session past its first heartbeat.
+fn session(setup: RenderSetup) -> RenderSession {
+    let mut s = RenderSession::new(setup, t0());
+    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
+    s
+}
+
+fn drain(s: &mut RenderSession) -> Vec<FromNode> {
+    std::iter::from_fn(|| s.poll_transmit()).collect()
+}
+
+fn start_with(frame: u64, params: RenderParams) -> ToNode {
+    let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap();
+    ToNode::FrameStart(FrameStart::new(FrameId(frame), StateId(0), camera, params))
+}
+
+fn start(frame: u64) -> ToNode {
+    start_with(frame, RenderParams::interactive())
+}
+
+fn at_step(frame: u64, time_step: u32) -> ToNode {
+    let volume = VolumeParams {
+        time_step,
+        ..VolumeParams::default()
+    };
+    let params = RenderParamsSpec {
+        volume,
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .unwrap();
+    start_with(frame, params)
+}
+
+fn assign(frame: u64, start: u32, end: u32) -> ToNode {
+    ToNode::Assign {
+        frame: FrameId(frame),
+        tiles: vec![TileRange::new(start, end).unwrap()],
+    }
+}
+
+fn ids(tiles: &[TileId]) -> Vec<u32> {
+    tiles.iter().map(|t| t.0).collect()
+}
+
+fn done(tiles: usize, took_ms: u64) -> BatchDone {
+    let took = Duration::from_millis(took_ms);
+    BatchDone {
+        tiles,
+        rays: 100 * tiles as u64,
+        took,
+        batch_took: took,
+    }
+}
+
+#[test]
+fn one_batch_at_a_time_and_more_work_asked_for_while_the_threads_are_free() {
+    let mut s = session(setup());
+    s.handle_message(start(0), t0()).unwrap();
+    assert_eq!(s.poll_batch(t0()), None, "nothing queued yet");
+    assert_eq!(drain(&mut s), vec![], "no request before the frame's share");
+    s.handle_message(assign(0, 0, 5), t0()).unwrap();
+    let order = s.poll_batch(t0()).unwrap();
+    assert_eq!(
+        (order.start.frame, ids(&order.tiles)),
+        (FrameId(0), vec![0, 1])
+    );
+    assert!(order.prefetch.is_empty() && order.volume_step.is_none());
+    // Three left, below the low water of two per thread: ask with the batch taken.
+    let request = FromNode::TilesDone {
+        frame: FrameId(0),
+        tiles: vec![],
+        want_more: true,
+    };
+    assert_eq!(drain(&mut s), vec![request]);
+    assert!(s.is_rendering());
+    assert_eq!(s.poll_batch(at_ms(1)), None, "the threads are busy");
+    let source = s.handle_rendered(done(2, 3));
+    assert_eq!((source.node, source.render_us), (RenderNodeId(7), 1500));
+    assert_eq!(ids(&s.poll_batch(at_ms(3)).unwrap().tiles), vec![2, 3]);
+    assert_eq!(drain(&mut s), vec![], "one request outstanding at most");
+}
+
+#[test]
+fn a_shared_scene_fetches_the_blocks_of_a_batch_and_the_next_together() {
+    let mut s = session(RenderSetup {
+        shared: true,
+        ..setup()
+    });
+    s.handle_message(start(0), t0()).unwrap();
+    s.handle_message(assign(0, 10, 15), t0()).unwrap();
+    let order = s.poll_batch(t0()).unwrap();
+    assert_eq!(ids(&order.tiles), vec![10, 11]);
+    assert_eq!(ids(&order.prefetch), vec![10, 11, 12, 13]);
+}
+
+#[test]
+fn a_volume_step_is_loaded_only_when_a_frame_shows_another_and_the_series_loops() {
+    let mut s = session(RenderSetup {
+        volume: Some(VolumeSteps { steps: 4, shown: 1 }),
+        ..setup()
+    });
+    let mut step_of = |frame: u64, time_step: u32| {
+        s.handle_message(at_step(frame, time_step), t0()).unwrap();
+        s.handle_message(assign(frame, 0, 1), t0()).unwrap();
+        let order = s.poll_batch(t0()).unwrap();
+        s.handle_rendered(done(1, 1));
+        order.volume_step
+    };
+    assert_eq!(step_of(0, 1), None, "the scene holds step 1 already");
+    assert_eq!(step_of(1, 2), Some(2));
+    assert_eq!(step_of(2, 2), None);
+    assert_eq!(
+        step_of(3, 5),
+        Some(1),
+        "step 5 of a 4-step series is step 1"
+    );
+    assert_eq!(s.volume(), Some(VolumeSteps { steps: 4, shown: 1 }));
+}
+
+#[test]
+fn block_holders_go_to_the_fetcher_of_a_shared_scene_and_break_a_replicated_one() {
+    let holders = ToNode::BlockHolders {
+        rank: Some(0),
+        holders: vec![],
+    };
+    let mut replicated = session(setup());
+    let err = replicated.handle_message(holders.clone(), t0());
+    assert_eq!(err, Err(RenderSessionError::HoldersForReplicatedScene));
+    assert_eq!(replicated.poll_event(), None);
+    let mut shared = session(RenderSetup {
+        shared: true,
+        ..setup()
+    });
+    shared.handle_message(holders, t0()).unwrap();
+    assert_eq!(shared.poll_event(), Some(RenderEvent::BlockHolders(vec![])));
+}
+
+#[test]
+fn messages_for_displays_are_refused_naming_them() {
+    let mut s = session(setup());
+    let err = s
+        .handle_message(ToNode::Present { frame: FrameId(0) }, t0())
+        .unwrap_err();
+    assert_eq!(
+        err,
+        RenderSessionError::Worker(WorkerError::NotForRenderNodes("present"))
+    );
+    assert!(err.to_string().contains("a present message"), "{err}");
+}
+
+#[test]
+fn a_lost_display_is_forgotten_once_and_its_tiles_go_back_before_the_report() {
+    let mut s = session(setup());
+    s.handle_message(start(0), t0()).unwrap();
+    s.handle_message(assign(0, 0, 40), t0()).unwrap();
+    let order = s.poll_batch(t0()).unwrap();
+    assert_eq!(drain(&mut s), vec![], "the queue is long");
+    s.handle_rendered(done(order.tiles.len(), 1));
+    let lost = vec![(DisplayId(1), "reset".to_string())];
+    s.handle_delivery(
+        FrameId(0),
+        &[TileId(0)],
+        vec![TileId(1)],
+        lost.clone(),
+        at_ms(2),
+    );
+    assert_eq!(
+        s.poll_event(),
+        Some(RenderEvent::ForgetDisplay {
+            display: DisplayId(1),
+            reason: "reset".into()
+        })
+    );
+    let sent = drain(&mut s);
+    assert_eq!(
+        sent,
+        vec![
+            FromNode::TilesReturned {
+                frame: FrameId(0),
+                tiles: vec![TileRange::new(1, 2).unwrap()]
+            },
+            FromNode::TilesDone {
+                frame: FrameId(0),
+                tiles: vec![TileRange::new(0, 1).unwrap()],
+                want_more: false
+            },
+        ]
+    );
+    // Batches sent since still fail on it: nothing more to forget, the tiles still go back.
+    s.handle_delivery(FrameId(0), &[], vec![TileId(2)], lost.clone(), at_ms(3));
+    assert_eq!(s.poll_event(), None);
+    // It rejoined and was reached: lost again, it is forgotten again.
+    let addr = "127.0.0.1:9".parse().unwrap();
+    let moved = ToNode::DisplayAt {
+        display: DisplayId(1),
+        addr,
+    };
+    s.handle_message(moved, at_ms(4)).unwrap();
+    assert_eq!(
+        s.poll_event(),
+        Some(RenderEvent::ConnectDisplay {
+            display: DisplayId(1),
+            addr
+        })
+    );
+    s.handle_display_reached(DisplayId(1));
+    s.handle_delivery(FrameId(0), &[], vec![TileId(3)], lost, at_ms(5));
+    assert!(matches!(
+        s.poll_event(),
+        Some(RenderEvent::ForgetDisplay { .. })
+    ));
+}
+
+#[test]
+fn heartbeats_keep_their_schedule_and_a_late_one_pushes_the_next_back() {
+    let mut s = session(setup());
+    let interval = HEARTBEAT_INTERVAL;
+    assert_eq!(s.poll_timeout(), t0() + interval);
+    s.handle_timeout(t0() + interval / 2);
+    assert_eq!(drain(&mut s), vec![], "not due yet");
+    // A millisecond late: the next stays on the schedule.
+    s.handle_timeout(t0() + interval + Duration::from_millis(1));
+    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
+    assert_eq!(s.poll_timeout(), t0() + 2 * interval);
+    // A loop held up for a second beats once, then an interval later.
+    let late = t0() + Duration::from_secs(1);
+    s.handle_timeout(late);
+    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
+    assert_eq!(s.poll_timeout(), late + interval);
+}
+
+#[test]
+fn the_shutdown_reports_the_sessions_tiles_rays_and_seconds() {
+    let mut s = session(setup());
+    s.handle_message(start(0), t0()).unwrap();
+    s.handle_message(assign(0, 0, 2), t0()).unwrap();
+    let order = s.poll_batch(t0()).unwrap();
+    s.handle_rendered(done(order.tiles.len(), 250));
+    s.handle_message(ToNode::Shutdown, at_ms(2000)).unwrap();
+    assert_eq!(s.poll_event(), Some(RenderEvent::Shutdown));
+    let stats = s.stats(at_ms(2000));
+    assert_eq!((stats.tiles, stats.rays), (2, 200));
+    assert_eq!((stats.busy_s, stats.elapsed_s), (0.25, 2.0));
+}

@@ -1,0 +1,118 @@
+//! One batch on the render threads: the volume step it needs loaded, its tiles traced, and
+//! their pixels packed for the wire. Runs on a blocking thread, never on the driver's loop.
+
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
+use std::time::{Duration, Instant};
+use tessera_core::node::render::{BatchDone, BatchOrder};
+use tessera_render::volume::SeriesCache;
+use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
+use tessera_wire::protocol::pixels::Compression;
+use tessera_wire::protocol::FrameId;
+use tessera_wire::state::StateId;
+use tessera_wire::wall::{TileGrid, TileId};
+
+pub(crate) fn read(scene: &RwLock<PreparedScene>) -> RwLockReadGuard<'_, PreparedScene> {
+    scene.read().unwrap_or_else(|e| e.into_inner())
+}
+
+fn write(scene: &RwLock<PreparedScene>) -> RwLockWriteGuard<'_, PreparedScene> {
+    scene.write().unwrap_or_else(|e| e.into_inner())
+}
+
+/// What a batch renders with, shared by every batch of a session.
+#[derive(Clone)]
+pub(crate) struct Renderer {
+    /// Batches render one at a time: the lock is taken for writing only between them, when
+    /// a time series moves to another step.
+    pub prepared: Arc<RwLock<PreparedScene>>,
+    pub series: Option<Arc<SeriesCache>>,
+    /// The step of the series `prepared` holds, kept across sessions with the scene.
+    pub shown_step: Arc<AtomicUsize>,
+    pub grid: Arc<TileGrid>,
+    pub pool: Arc<rayon::ThreadPool>,
+    pub compression: Compression,
+}
+
+/// A batch the render threads finished.
+pub(crate) struct Rendered {
+    pub frame: FrameId,
+    pub state: StateId,
+    pub tiles: Vec<TileId>,
+    /// Each tile's payload, packed as the session's compression says.
+    pub payloads: Vec<Vec<u8>>,
+    pub rays: RayCounts,
+    /// Rendering alone.
+    pub took: Duration,
+    /// Rendering and packing: what sizes the next batch.
+    pub batch_took: Duration,
+    /// For a shared scene, the other nodes' blocks each tile read.
+    pub footprints: Vec<Vec<u32>>,
+}
+
+impl Rendered {
+    /// What the session needs to know of it.
+    pub fn done(&self) -> BatchDone {
+        BatchDone {
+            tiles: self.tiles.len(),
+            rays: self.rays.total(),
+            took: self.took,
+            batch_took: self.batch_took,
+        }
+    }
+}
+
+impl Renderer {
+    /// Renders `order`; blocks for as long as that takes.
+    ///
+    /// # Errors
+    /// The volume step the batch needs cannot be loaded.
+    pub fn render(&self, order: BatchOrder) -> Result<Rendered, String> {
+        let BatchOrder {
+            start,
+            tiles,
+            volume_step,
+            ..
+        } = order;
+        let t0 = Instant::now();
+        let view = FrameView::of_start(&start, self.grid.layout());
+        if let (Some(step), Some(series)) = (volume_step, &self.series) {
+            self.shown_step.store(step, Ordering::Relaxed);
+            let volume = series.get(step).map_err(|e| e.to_string())?;
+            write(&self.prepared).set_volume(volume);
+        }
+        let prepared = read(&self.prepared);
+        let geometry: Vec<_> = tiles
+            .iter()
+            .map(|t| {
+                *self
+                    .grid
+                    .tile(*t)
+                    .expect("the worker checked every assigned tile")
+            })
+            .collect();
+        let (pixels, rays, footprints) = self
+            .pool
+            .install(|| render_tiles_footprints(&prepared, &view, &geometry));
+        // Rendering time alone, so rays/s does not depend on the compression.
+        let took = t0.elapsed();
+        let compression = self.compression;
+        let payloads = self.pool.install(|| {
+            pixels
+                .into_par_iter()
+                .map(|rgb| compression.encode_tile(rgb))
+                .collect()
+        });
+        Ok(Rendered {
+            frame: start.frame,
+            state: start.state,
+            tiles,
+            payloads,
+            rays,
+            took,
+            batch_took: t0.elapsed(),
+            footprints,
+        })
+    }
+}
