@@ -106,7 +106,7 @@ impl Cli {
             size: self.window_size.or(base.size),
             fullscreen: self.fullscreen.or(base.fullscreen),
         };
-        placement.check().map_err(anyhow::Error::msg)?;
+        placement.check()?;
         Ok(placement)
     }
 }

@@ -145,7 +145,7 @@ fn codec(root: &Path) {
     let camera = Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap();
     let to_node = [
         ToNode::Welcome {
-            node: RenderNodeId(2),
+            node: Some(RenderNodeId(2)),
             session: Session::new(SessionSpec {
                 wall: WallSpec::grid(2, 2, 480, 270).bezel(16).build().unwrap(),
                 scene: Default::default(),

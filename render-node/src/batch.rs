@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 use tessera_core::node::render::{BatchDone, BatchOrder};
-use tessera_render::volume::SeriesCache;
+use tessera_render::volume::{SeriesCache, VolumeError};
 use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
 use tessera_wire::protocol::pixels::Compression;
 use tessera_wire::protocol::FrameId;
@@ -68,7 +68,7 @@ impl Renderer {
     ///
     /// # Errors
     /// The volume step the batch needs cannot be loaded.
-    pub fn render(&self, order: BatchOrder) -> Result<Rendered, String> {
+    pub fn render(&self, order: BatchOrder) -> Result<Rendered, VolumeError> {
         let BatchOrder {
             start,
             tiles,
@@ -79,7 +79,7 @@ impl Renderer {
         let view = FrameView::of_start(&start, self.grid.layout());
         if let (Some(step), Some(series)) = (volume_step, &self.series) {
             self.shown_step.store(step, Ordering::Relaxed);
-            let volume = series.get(step).map_err(|e| e.to_string())?;
+            let volume = series.get(step)?;
             write(&self.prepared).set_volume(volume);
         }
         let prepared = read(&self.prepared);

@@ -362,7 +362,7 @@ async fn read_blocks(
     for &k in blocks {
         let mut header = [0u8; BLOCK_HEADER_LEN];
         recv.read_exact(&mut header).await?;
-        let (got, follows) = decode_block_header(header).map_err(anyhow::Error::msg)?;
+        let (got, follows) = decode_block_header(header)?;
         if got != k {
             anyhow::bail!("asked for block {k}, got {got}");
         }

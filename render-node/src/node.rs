@@ -22,6 +22,7 @@ use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
+use tessera_render::volume::VolumeError;
 use tessera_wire::protocol::{FromNode, NodeStats, Role, ToNode};
 use tessera_wire::wall::{DisplayId, TileGrid};
 use tokio::sync::mpsc;
@@ -111,7 +112,10 @@ async fn session(
     welcome: Welcome,
     loaded: &mut Option<crate::loading::Loaded>,
 ) -> Result<()> {
-    let (node, session) = (welcome.node, welcome.session);
+    let session = welcome.session;
+    let node = welcome
+        .node
+        .context("the master welcomed this render node without a render node id")?;
     let here = match crate::loading::scene_here(side, &mut link, node, &session, loaded).await {
         Ok(here) => here,
         Err(e) => {
@@ -186,7 +190,7 @@ enum End {
 #[allow(clippy::large_enum_variant)]
 enum Input {
     Master(Result<ToNode, LinkError>),
-    Rendered(Result<Rendered, String>),
+    Rendered(Result<Rendered, VolumeError>),
     Beat,
     Reached(DisplayId, quinn::Connection),
     Delivered(Delivery),
@@ -198,7 +202,7 @@ struct Driver {
     renderer: Renderer,
     here: crate::loading::SceneHere,
     displays: BTreeMap<DisplayId, quinn::Connection>,
-    done: Channel<Result<Rendered, String>>,
+    done: Channel<Result<Rendered, VolumeError>>,
     delivered: Channel<Delivery>,
     /// Displays reached at the new address the master gave.
     reached: Channel<(DisplayId, quinn::Connection)>,

@@ -262,7 +262,7 @@ fn render_node_told(lie: &[u8]) -> Output {
                 })
                 .unwrap();
             let welcome = ToNode::Welcome {
-                node: RenderNodeId(0),
+                node: Some(RenderNodeId(0)),
                 session,
             };
             send.write_all(&codec::encode(&welcome).unwrap()).await?;

@@ -70,8 +70,8 @@ impl LinkError {
 /// What the master said when it took the node in.
 #[derive(Debug)]
 pub struct Welcome {
-    /// The node's id (render nodes; displays get a placeholder).
-    pub node: RenderNodeId,
+    /// The node's id: render nodes have one, displays and control clients none.
+    pub node: Option<RenderNodeId>,
     pub session: Session,
 }
 

@@ -48,33 +48,40 @@ impl WindowPlacement {
     /// # Errors
     /// A position or size beyond [`MAX_WINDOW_SIDE`], an empty size, a monitor past
     /// [`MAX_MONITOR`].
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), PlacementError> {
         let limit = MAX_WINDOW_SIDE as i32;
         if let Some((x, y)) = self.position {
             if x.abs() > limit || y.abs() > limit {
-                return Err(format!("window position {x},{y} is beyond ±{limit}"));
+                return Err(PlacementError::Position { x, y });
             }
         }
         if let Some((w, h)) = self.size {
             if w == 0 || h == 0 || w > MAX_WINDOW_SIDE || h > MAX_WINDOW_SIDE {
-                return Err(format!(
-                    "window size {w}x{h} must be from 1 to {MAX_WINDOW_SIDE} on each side"
-                ));
+                return Err(PlacementError::Size { w, h });
             }
         }
         if let Some(m) = self.fullscreen.filter(|&m| m > MAX_MONITOR) {
-            return Err(format!(
-                "monitor {m} is past the last one accepted ({MAX_MONITOR})"
-            ));
+            return Err(PlacementError::Monitor(m));
         }
         Ok(())
     }
 }
 
-impl TryFrom<WindowPlacementRaw> for WindowPlacement {
-    type Error = String;
+/// Why a window placement was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PlacementError {
+    #[error("window position {x},{y} is beyond ±{MAX_WINDOW_SIDE}")]
+    Position { x: i32, y: i32 },
+    #[error("window size {w}x{h} must be from 1 to {MAX_WINDOW_SIDE} on each side")]
+    Size { w: u32, h: u32 },
+    #[error("monitor {0} is past the last one accepted ({MAX_MONITOR})")]
+    Monitor(u32),
+}
 
-    fn try_from(raw: WindowPlacementRaw) -> Result<Self, String> {
+impl TryFrom<WindowPlacementRaw> for WindowPlacement {
+    type Error = PlacementError;
+
+    fn try_from(raw: WindowPlacementRaw) -> Result<Self, PlacementError> {
         let placement = WindowPlacement {
             position: raw.position,
             size: raw.size,

@@ -47,17 +47,17 @@ impl Coordinator {
         Some(n.last_progress + lease)
     }
 
-    /// The frame and node whose tiles `taker` would copy first, and when that node's lease
-    /// ends: the oldest frame with uncopied tiles held by another node, and of its holders the
-    /// one whose lease ends first.
-    fn candidate(&self, taker: RenderNodeId) -> Option<(FrameId, RenderNodeId, Instant)> {
+    /// The frame and node whose tiles `taker` would copy first (any node's, for no taker), and
+    /// when that node's lease ends: the oldest frame with uncopied tiles held by another node,
+    /// and of its holders the one whose lease ends first.
+    fn candidate(&self, taker: Option<RenderNodeId>) -> Option<(FrameId, RenderNodeId, Instant)> {
         if !self.config.speculate {
             return None;
         }
         self.in_flight.iter().find_map(|(&frame, state)| {
             state
                 .holders()
-                .filter(|&h| h != taker && state.has_uncopied(h))
+                .filter(|&h| Some(h) != taker && state.has_uncopied(h))
                 .filter_map(|h| Some((frame, h, self.lease_end(h)?)))
                 .min_by_key(|&(_, _, end)| end)
         })
@@ -70,12 +70,12 @@ impl Coordinator {
         if self.waiting.is_empty() {
             return None;
         }
-        let (_, first, end) = self.candidate(RenderNodeId(u32::MAX))?;
+        let (_, first, end) = self.candidate(None)?;
         let others = self.waiting.iter().any(|&w| w != first);
         let own = self
             .waiting
             .contains(&first)
-            .then(|| self.candidate(first).map(|(_, _, e)| e))
+            .then(|| self.candidate(Some(first)).map(|(_, _, e)| e))
             .flatten();
         others.then_some(end).into_iter().chain(own).min()
     }
@@ -83,7 +83,10 @@ impl Coordinator {
     /// Gives `taker` copies of a late node's tiles, if some node is late at `now`; true if
     /// it got any (and was told so).
     pub(super) fn speculate_for(&mut self, taker: RenderNodeId, now: Instant) -> bool {
-        let Some((frame, late, _)) = self.candidate(taker).filter(|&(_, _, end)| end <= now) else {
+        let Some((frame, late, _)) = self
+            .candidate(Some(taker))
+            .filter(|&(_, _, end)| end <= now)
+        else {
             return false;
         };
         self.note_given(taker, now);

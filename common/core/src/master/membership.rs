@@ -16,6 +16,23 @@ pub(super) fn allowed(role: &Role, roles: &[CertifiedRole], for_display: bool) -
     }
 }
 
+/// Why the master refused a peer's hello; sent to it as text in [`ToNode::Refused`].
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum JoinRefusal {
+    #[error(
+        "protocol version {0} is not the master's {PROTOCOL_VERSION}; run the same Tessera version everywhere"
+    )]
+    Version(u32),
+    #[error(
+        "its certificate is for {names}, not for joining as {role}; issue one with `tessera-master issue-cert --role ...`"
+    )]
+    Certificate { names: String, role: &'static str },
+    #[error("display {display} does not exist on a {count}-display wall")]
+    NoSuchDisplay { display: u32, count: u32 },
+    #[error("display {0} has already joined")]
+    DisplayTaken(u32),
+}
+
 fn role_name(role: &Role) -> &'static str {
     match role {
         Role::Render { .. } => "a render node",
@@ -41,8 +58,9 @@ impl Master {
             remote,
             credentials,
         } = join;
-        if let Err(reason) = self.admit(&hello, &credentials) {
-            tracing::warn!("refused {} from {remote}: {reason}", hello.host);
+        if let Err(refusal) = self.admit(&hello, &credentials) {
+            tracing::warn!("refused {} from {remote}: {refusal}", hello.host);
+            let reason = refusal.to_string();
             self.send(peer, ToNode::Refused { reason });
             return;
         }
@@ -55,8 +73,9 @@ impl Master {
                 let same_host = credentials.same_host;
                 match self.join_display(display, pixel_addr, (&host, remote, same_host)) {
                     Ok(()) => PeerRole::Display(display),
-                    Err(reason) => {
-                        tracing::warn!("refused {host} from {remote}: {reason}");
+                    Err(refusal) => {
+                        tracing::warn!("refused {host} from {remote}: {refusal}");
+                        let reason = refusal.to_string();
                         self.send(peer, ToNode::Refused { reason });
                         return;
                     }
@@ -84,12 +103,9 @@ impl Master {
 
     /// Why a peer may not join as it claims, if it may not: another protocol version, or a
     /// certificate for another role.
-    fn admit(&self, hello: &Hello, credentials: &Credentials) -> Result<(), String> {
+    fn admit(&self, hello: &Hello, credentials: &Credentials) -> Result<(), JoinRefusal> {
         if hello.version != PROTOCOL_VERSION {
-            return Err(format!(
-                "protocol version {} is not the master's {PROTOCOL_VERSION}; run the same Tessera version everywhere",
-                hello.version
-            ));
+            return Err(JoinRefusal::Version(hello.version));
         }
         let role = &hello.role;
         let roles = &credentials.roles;
@@ -104,10 +120,10 @@ impl Master {
             }
             _ => named.join(", "),
         };
-        Err(format!(
-            "its certificate is for {what}, not for joining as {}; issue one with `tessera-master issue-cert --role ...`",
-            role_name(role)
-        ))
+        Err(JoinRefusal::Certificate {
+            names: what,
+            role: role_name(role),
+        })
     }
 
     /// Records an admitted peer and welcomes it, or holds its welcome back (see below).
@@ -158,20 +174,20 @@ impl Master {
         display: DisplayId,
         pixel_addr: SocketAddr,
         (host, remote, same_host): (&str, SocketAddr, bool),
-    ) -> Result<(), String> {
+    ) -> Result<(), JoinRefusal> {
         let count = self.cfg.wall.display_count();
         if display.0 >= count {
-            return Err(format!(
-                "display {} does not exist on a {count}-display wall",
-                display.0
-            ));
+            return Err(JoinRefusal::NoSuchDisplay {
+                display: display.0,
+                count,
+            });
         }
         let joining = self
             .peers
             .values()
             .any(|p| matches!(p.role, PeerRole::Display(d) if d == display));
         if self.displays.contains_key(&display) || joining {
-            return Err(format!("display {} has already joined", display.0));
+            return Err(JoinRefusal::DisplayTaken(display.0));
         }
         let addr = if pixel_addr.ip().is_unspecified() {
             SocketAddr::new(remote.ip(), pixel_addr.port())
@@ -321,7 +337,7 @@ impl Master {
     }
 
     /// Sends a peer the session. Render nodes get it only once every display's address is
-    /// known; displays and control clients at once (their node id is a placeholder).
+    /// known; displays and control clients at once.
     fn welcome(&mut self, peer: PeerId) {
         let node = match self.peers.get(&peer).map(|p| &p.role) {
             Some(PeerRole::Render { node, .. }) => Some(*node),
@@ -329,13 +345,7 @@ impl Master {
             None => return,
         };
         let session = self.session();
-        self.send(
-            peer,
-            ToNode::Welcome {
-                node: node.unwrap_or(RenderNodeId(u32::MAX)),
-                session,
-            },
-        );
+        self.send(peer, ToNode::Welcome { node, session });
         if let Some(node) = node {
             self.send_holders(peer, node);
         }

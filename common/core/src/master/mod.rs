@@ -50,6 +50,7 @@
 mod barrier;
 mod control;
 mod membership;
+pub use membership::JoinRefusal;
 mod messages;
 pub mod navigate;
 mod ranks;

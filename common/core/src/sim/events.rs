@@ -1,6 +1,7 @@
 //! What each simulated event does: the virtual nodes' side of the protocol, the pixels'
 //! journey to the assemblers, and the master's outputs turned into events.
 
+use super::peers::STEERING_CLIENT;
 use super::*;
 
 impl SimWall {
@@ -276,7 +277,7 @@ impl SimWall {
                 }
                 if self.change_every_frame {
                     let spp = 1 + (frame.0 % 2) as u32;
-                    let peer = self.join_control(u32::MAX);
+                    let peer = self.join_control(STEERING_CLIENT);
                     let msg = FromNode::Control {
                         id: frame.0 as u32,
                         request: ControlRequest::Change(vec![StateChange::Spp(spp)]),

@@ -7,6 +7,10 @@ use std::collections::HashMap;
 use std::net::SocketAddr;
 use tessera_wire::protocol::{NodeStats, PROTOCOL_VERSION};
 
+/// The control client that steers the wall when every frame has a state of its own
+/// ([`SimConfig::change_every_frame`]); numbered apart from the clients a test scripts.
+pub(super) const STEERING_CLIENT: u32 = 1 << 31;
+
 /// The Unix clock of the simulated master at virtual time zero (any fixed time after the
 /// epoch: a stamp of 0 means "no stamp" to the master).
 const UNIX_EPOCH_NS: u64 = 1_700_000_000_000_000_000;

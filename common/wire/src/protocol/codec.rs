@@ -146,7 +146,7 @@ mod tests {
     fn to_node_samples() -> Vec<ToNode> {
         vec![
             ToNode::Welcome {
-                node: RenderNodeId(2),
+                node: Some(RenderNodeId(2)),
                 session: Session::new(SessionSpec {
                     wall: WallSpec::grid(2, 2, 480, 270).bezel(16).build().unwrap(),
                     scene: crate::scene_spec::SceneSpec::default(),

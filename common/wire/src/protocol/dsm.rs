@@ -42,23 +42,34 @@ pub struct SharedSpec {
     pub cache_fraction: Option<f32>,
 }
 
+/// Why a shared scene's spread was refused.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SharedSpecError {
+    #[error("{0} ranks (1 to {MAX_RANKS})")]
+    Ranks(u32),
+    #[error("{replicas} replicas of {ranks} ranks")]
+    Replicas { replicas: u32, ranks: u32 },
+    #[error("cache fraction {0} (0 < f <= 1)")]
+    CacheFraction(f32),
+}
+
 impl SharedSpec {
     /// # Errors
     /// No ranks or more than [`MAX_RANKS`], replicas not within 1..=ranks, a cache fraction
     /// not in (0, 1].
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), SharedSpecError> {
         if !(1..=MAX_RANKS).contains(&self.ranks) {
-            return Err(format!("{} ranks (1 to {MAX_RANKS})", self.ranks));
+            return Err(SharedSpecError::Ranks(self.ranks));
         }
         if !(1..=self.ranks).contains(&self.replicas) {
-            return Err(format!(
-                "{} replicas of {} ranks",
-                self.replicas, self.ranks
-            ));
+            return Err(SharedSpecError::Replicas {
+                replicas: self.replicas,
+                ranks: self.ranks,
+            });
         }
         if let Some(f) = self.cache_fraction {
             if !(f > 0.0 && f <= 1.0) {
-                return Err(format!("cache fraction {f} (0 < f <= 1)"));
+                return Err(SharedSpecError::CacheFraction(f));
             }
         }
         Ok(())
@@ -89,14 +100,22 @@ pub fn encode_block_header(block: u32, follows: bool) -> [u8; BLOCK_HEADER_LEN] 
     [b[0], b[1], b[2], b[3], follows as u8]
 }
 
+/// A block answer's header whose "follows" byte is neither 0 nor 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("block {block}: bad header byte {byte}")]
+pub struct BadBlockHeader {
+    pub block: u32,
+    pub byte: u8,
+}
+
 /// # Errors
 /// A "follows" byte other than 0 or 1.
-pub fn decode_block_header(raw: [u8; BLOCK_HEADER_LEN]) -> Result<(u32, bool), String> {
+pub fn decode_block_header(raw: [u8; BLOCK_HEADER_LEN]) -> Result<(u32, bool), BadBlockHeader> {
     let block = u32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]]);
     match raw[4] {
         0 => Ok((block, false)),
         1 => Ok((block, true)),
-        other => Err(format!("block {block}: bad header byte {other}")),
+        byte => Err(BadBlockHeader { block, byte }),
     }
 }
 
@@ -170,7 +189,9 @@ mod tests {
         }
         let mut bad = encode_block_header(3, true);
         bad[4] = 2;
-        assert!(decode_block_header(bad).unwrap_err().contains("block 3"));
+        let error = decode_block_header(bad).unwrap_err();
+        assert_eq!(error, BadBlockHeader { block: 3, byte: 2 });
+        assert_eq!(error.to_string(), "block 3: bad header byte 2");
     }
 
     #[test]

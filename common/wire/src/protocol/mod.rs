@@ -134,7 +134,7 @@ pub enum ProtocolError {
     #[error("stats field {field} is {value}, not a finite number of seconds")]
     BadSeconds { field: &'static str, value: f64 },
     #[error("session shares the scene with {0}")]
-    BadShared(String),
+    BadShared(#[from] dsm::SharedSpecError),
 }
 
 /// Where a display node accepts pixels.
@@ -195,7 +195,7 @@ impl Session {
             return Err(ProtocolError::UnknownDisplay { display, count });
         }
         if let dsm::DataSpec::Shared(shared) = &spec.data {
-            shared.check().map_err(ProtocolError::BadShared)?;
+            shared.check()?;
         }
         Ok(Session(spec))
     }
@@ -366,8 +366,10 @@ pub fn to_ranges(tiles: impl IntoIterator<Item = TileId>) -> Vec<TileRange> {
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum ToNode {
+    /// The peer is in: its render node id (none for a display or a control client) and the
+    /// session it takes part in.
     Welcome {
-        node: RenderNodeId,
+        node: Option<RenderNodeId>,
         session: Session,
     },
     Refused {
