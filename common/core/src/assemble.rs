@@ -20,29 +20,52 @@ use tessera_wire::wall::{ScreenRect, Tile, TileGrid, TileId};
 /// Frames beyond the next one to present that may be under assembly.
 pub const FRAMES_AHEAD: u64 = 3;
 
+/// Why a display refuses a tile, a frame start or a present.
+///
+/// Each means the peer that sent it broke the protocol: the driver closes its connection.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum AssembleError {
+    /// The tile (its wall-wide index) lies on another display's screen, or on no screen.
     #[error("tile {0} does not belong to this display")]
     NotMine(u32),
+    /// The tile's pixels are not exactly its width × height × 3 bytes of RGB8.
     #[error("tile {tile} carries {got} bytes, expected {expected}")]
     WrongLength {
+        /// The tile's wall-wide index.
         tile: u32,
+        /// The tile's pixel count × 3.
         expected: usize,
+        /// The byte length the message carried.
         got: usize,
     },
+    /// The frame is older than the next one to present: this display already showed it.
     #[error("frame {0:?} was already presented")]
     Stale(FrameId),
+    /// The frame is [`FRAMES_AHEAD`] or more frames past the next one to present.
     #[error("frame {frame:?} is too far ahead of frame {next:?}, the next to present")]
-    TooFarAhead { frame: FrameId, next: FrameId },
+    TooFarAhead {
+        /// The frame the message was for.
+        frame: FrameId,
+        /// The next frame this display will present.
+        next: FrameId,
+    },
+    /// The master said to present a frame some of whose tiles are still missing.
     #[error("asked to present frame {0:?}, which is not complete")]
     Incomplete(FrameId),
+    /// A tile was rendered with another wall state than its frame's.
     #[error("tile {tile} of frame {frame:?} was rendered with state {got:?}, but the frame's is {expected:?}")]
     WrongState {
+        /// The frame the tile belongs to.
         frame: FrameId,
+        /// The tile's wall-wide index; at a present, the display's first tile, since the
+        /// offending one is no longer known.
         tile: u32,
+        /// The state the tile says it was rendered with.
         got: StateId,
+        /// The frame's state: from its `FrameStart`, or else from its first tile.
         expected: StateId,
     },
+    /// The master said to present a frame whose `FrameStart` never arrived here.
     #[error("asked to present frame {0:?} before its frame start said its state")]
     UnknownState(FrameId),
 }
@@ -58,9 +81,13 @@ struct Partial {
 /// A frame ready to show: the screen's pixels, RGB8, row-major.
 #[derive(Debug)]
 pub struct PresentedFrame {
+    /// The frame these pixels are.
     pub frame: FrameId,
+    /// The screen's width in pixels.
     pub width: u32,
+    /// The screen's height in pixels.
     pub height: u32,
+    /// `width × height` pixels, 3 bytes each, top row first.
     pub rgb: Vec<u8>,
 }
 
@@ -109,6 +136,8 @@ pub struct FrameAssembler {
 }
 
 impl FrameAssembler {
+    /// An assembler for the display whose screen is `screen`, owning the tiles of `grid` on
+    /// it; the first frame it expects is frame 0 (see [`FrameAssembler::start_at`]).
     pub fn new(grid: &TileGrid, screen: ScreenRect) -> Self {
         let tiles = grid.display_tiles(screen.id).to_vec();
         let first_tile = tiles.first().map_or(0, |t| t.id.0);
@@ -124,10 +153,13 @@ impl FrameAssembler {
         }
     }
 
+    /// How many tiles make one frame of this display.
     pub fn tile_count(&self) -> u32 {
         self.tiles.len() as u32
     }
 
+    /// How many tiles arrived a second time (or after their frame was presented) and were
+    /// ignored, since this assembler was made.
     pub fn duplicates(&self) -> u64 {
         self.duplicates
     }
@@ -137,6 +169,7 @@ impl FrameAssembler {
         self.frames.get(&frame).is_some_and(|p| p.missing == 0)
     }
 
+    /// The next frame this display will present; older frames are stale.
     pub fn next_present(&self) -> FrameId {
         self.next_present
     }

@@ -32,6 +32,7 @@ pub struct Faults {
     pub jitter: Duration,
     /// Chance that a datagram is held back a further `reorder_by` behind those after it.
     pub reorder: f64,
+    /// How much longer a datagram chosen by `reorder` is held back.
     pub reorder_by: Duration,
     /// Chance that a datagram is sent twice.
     pub duplicate: f64,
@@ -40,6 +41,8 @@ pub struct Faults {
 }
 
 impl Faults {
+    /// A clean network: every datagram goes through at once, once. Other faults are written
+    /// as `Faults { loss: 0.1, ..Faults::NONE }`.
     pub const NONE: Faults = Faults {
         loss: 0.0,
         delay: Duration::ZERO,
@@ -54,13 +57,17 @@ impl Faults {
 /// What the relay did, counted.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct RelayStats {
+    /// Datagrams handed to the relay.
     pub received: u64,
     /// Copies sent on (duplicates included).
     pub forwarded: u64,
+    /// Datagrams of which no copy was sent: lost, or cut off by the partition.
     pub dropped: u64,
     /// Of the dropped: during the partition.
     pub partitioned: u64,
+    /// Datagrams sent twice.
     pub duplicated: u64,
+    /// Copies held back a further [`Faults::reorder_by`].
     pub reordered: u64,
 }
 
@@ -72,6 +79,7 @@ pub struct Impairment {
 }
 
 impl Impairment {
+    /// A relay that applies `faults`, its random draws seeded with `seed`.
     pub fn new(faults: Faults, seed: u64) -> Self {
         Impairment {
             faults,
@@ -116,6 +124,7 @@ impl Impairment {
         delays
     }
 
+    /// What the relay did since it was made.
     pub fn stats(&self) -> RelayStats {
         self.stats
     }

@@ -5,10 +5,10 @@
 //! figures and the report) holds [`balance::Coordinator`] (the load balancer, frame barrier
 //! and wall states);
 //! [`assemble::FrameAssembler`] (a display's frames, never a mix of states),
-//! [`worker::RenderWorker`] (a render node's queue), [`node::RenderSession`] and
-//! [`node::DisplaySession`] (what a render node and a display do with each message of the
-//! master, around the worker and the assembler) and [`master::navigate::Navigator`] (window input
-//! to state changes) take messages and `now` and return messages, following quinn-proto's
+//! [`worker::RenderWorker`] (a render node's queue), [`node::render::RenderSession`] and
+//! [`node::display::DisplaySession`] (what a render node and a display do with each message of
+//! the master, around the worker and the assembler) and [`master::navigate::Navigator`] (window
+//! input to state changes) take messages and `now` and return messages, following quinn-proto's
 //! `handle_*` / `poll_*` convention, so tests drive whole frames deterministically and
 //! [`sim::SimWall`] runs hundreds of virtual nodes in one process. The node crates wrap them
 //! in thin tokio + quinn driver loops. [`impair::Impairment`] is the model of the UDP
@@ -18,6 +18,8 @@
 //!
 //! It depends on `tessera-wire` for the messages and on nothing that does I/O: no tokio,
 //! quinn, socket or clap crate may enter its dependency tree (a test in `tests/` checks).
+
+#![warn(missing_docs)]
 
 pub mod assemble;
 pub mod balance;

@@ -20,10 +20,20 @@ use tessera_wire::wall::TileId;
 /// A message from the master that makes no sense to a render node.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum WorkerError {
+    /// Tiles of a frame whose `FrameStart` this node never received (or long forgot).
     #[error("the master assigned tiles of frame {0:?} before starting it")]
     AssignBeforeStart(FrameId),
+    /// A range of tiles that runs past the wall's.
     #[error("the master assigned tiles {start}..{end}, but the wall has {tiles}")]
-    NoSuchTiles { start: u32, end: u32, tiles: u32 },
+    NoSuchTiles {
+        /// The range's first tile.
+        start: u32,
+        /// The range's end, exclusive.
+        end: u32,
+        /// How many tiles the wall has.
+        tiles: u32,
+    },
+    /// A message only displays or the handshake take; the message's kind.
     #[error(
         "the master sent a render node a {0} message, which only displays or the handshake take"
     )]
@@ -103,6 +113,7 @@ impl RenderWorker {
         self.low_water = low_water;
     }
 
+    /// Tiles queued and not yet taken by [`RenderWorker::next_batch`].
     pub fn queued(&self) -> usize {
         self.queue.len()
     }
@@ -279,6 +290,8 @@ impl BatchSizer {
     /// Bounds the first batch after a scene that cost next to nothing.
     pub const MAX_TILES: usize = 1024;
 
+    /// A sizer for a node with `threads` render threads, with no cost per tile measured yet:
+    /// until one is, a batch is one tile per thread, and at least two.
     pub fn new(threads: usize) -> Self {
         BatchSizer {
             threads: threads.max(1),

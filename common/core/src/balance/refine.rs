@@ -17,12 +17,16 @@ use tessera_wire::volume_params::VolumeParams;
 pub struct Refinement {
     /// Frames a state must hold (camera still, nothing changed) before refining starts.
     pub still_frames: u64,
-    /// Samples per pixel and ambient-occlusion rays of the final quality.
+    /// Samples per pixel of the final quality.
     pub final_spp: u32,
+    /// Ambient-occlusion rays per hit of the final quality.
     pub final_ao: u32,
 }
 
 impl Refinement {
+    /// Refinement that starts once a state has held `still_frames` frames and ends at
+    /// `final_spp` samples per pixel with `final_ao` ambient-occlusion rays.
+    ///
     /// # Errors
     /// A final quality whose knobs are out of bounds on their own.
     pub fn new(still_frames: u64, final_spp: u32, final_ao: u32) -> Result<Self, ParamsError> {

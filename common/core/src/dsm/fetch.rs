@@ -35,13 +35,19 @@ pub enum FetchOutput {
     /// Ask node `peer` for `blocks` (one message). `ahead`: every block of it is a prefetch,
     /// which the peer may answer after the requests render threads wait for.
     Request {
+        /// The rank of the owner to ask.
         peer: u32,
+        /// The blocks to ask it for, at most [`FetchConfig::batch_max`] of them.
         blocks: Vec<BlockId>,
+        /// Whether the whole message is prefetch, with no render thread waiting on it.
         ahead: bool,
     },
     /// No owner of `block` is alive: the driver reads it from the prepared files on disk
     /// itself and then calls [`Fetcher::handle_arrived`]`(block, None, now)`.
-    ReadLocally { block: BlockId },
+    ReadLocally {
+        /// The block none of whose owners is alive.
+        block: BlockId,
+    },
 }
 
 /// What a [`Fetcher`] has counted since it was made.

@@ -53,8 +53,18 @@ pub enum DsmError {
     NoRanks,
     /// This node's rank is not one of the ranks.
     #[error("rank {rank} is not below the number of ranks, {ranks}")]
-    RankOutOfRange { rank: u32, ranks: u32 },
+    RankOutOfRange {
+        /// The rank given for this node.
+        rank: u32,
+        /// How many nodes hold the blocks.
+        ranks: u32,
+    },
     /// Each block must have at least one owner, and can have at most one per node.
     #[error("{replicas} replicas of each block: there must be between 1 and {ranks} (the ranks)")]
-    Replicas { replicas: u32, ranks: u32 },
+    Replicas {
+        /// The owners asked for per block.
+        replicas: u32,
+        /// How many nodes hold the blocks: the most owners a block can have.
+        ranks: u32,
+    },
 }

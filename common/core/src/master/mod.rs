@@ -86,6 +86,7 @@ pub const STATS_WAIT: Duration = Duration::from_secs(10);
 /// deadlines run on, and the Unix clock that displays stamp their presents with.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Now {
+    /// The monotonic clock, for deadlines and timeouts.
     pub instant: Instant,
     /// Nanoseconds since the Unix epoch.
     pub unix_ns: u64,
@@ -110,9 +111,13 @@ pub enum DisplayLoss {
 /// A role a certificate may name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum CertifiedRole {
+    /// May join as a render node.
     Render,
+    /// May join as a display (the one it names; see [`Credentials::names_claimed_display`]).
     Display,
+    /// May join as a control client.
     Control,
+    /// The master's own certificate; it lets a peer join in no role.
     Master,
 }
 
@@ -147,17 +152,22 @@ impl Credentials {
 /// A peer that finished its handshake and said hello.
 #[derive(Clone, Debug)]
 pub struct Join {
+    /// The connection, as the driver numbers it.
     pub peer: PeerId,
+    /// What the peer says it is: its role, host and protocol version.
     pub hello: Hello,
     /// Where its connection comes from.
     pub remote: SocketAddr,
+    /// What its certificate lets it be.
     pub credentials: Credentials,
 }
 
 /// A message for one peer.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Transmit {
+    /// The connection to send it on.
     pub peer: PeerId,
+    /// The message.
     pub msg: ToNode,
 }
 
@@ -208,24 +218,42 @@ pub enum MasterEvent {
 /// Why a run ended without its report.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RunError {
+    /// The nodes the wall needs were not all ready within the join timeout.
     #[error(
         "timed out after {waited:?} waiting for nodes: {missing} — start the missing nodes or raise --join-timeout"
     )]
-    JoinTimeout { waited: Duration, missing: String },
+    JoinTimeout {
+        /// The join timeout.
+        waited: Duration,
+        /// Which displays were not ready and how many render nodes were (see
+        /// [`Master::missing_summary`]).
+        missing: String,
+    },
+    /// Ctrl-C before every node was ready.
     #[error("interrupted before the first frame")]
     InterruptedBeforeStart,
+    /// A display was lost before the first frame, or under [`DisplayLoss::Stop`].
     #[error(
         "{who} disconnected ({reason}); the wall stops (--display-loss stop, or it had not started)"
     )]
-    DisplayLost { who: String, reason: String },
+    DisplayLost {
+        /// The display, as log lines name it: `display 2 (host)`.
+        who: String,
+        /// Why its connection closed.
+        reason: String,
+    },
+    /// A display lost under [`DisplayLoss::Wait`] did not rejoin within the join timeout.
     #[error(
         "display {} was not back {:.1} s after it was lost; the wall waited for it (--display-loss wait, at most --join-timeout)",
         .display.0, .waited.as_secs_f64()
     )]
     DisplayNotBack {
+        /// The display the wall waited for.
         display: DisplayId,
+        /// How long it waited since the display was lost.
         waited: Duration,
     },
+    /// Frames are in flight but every render node, or every display, is gone.
     #[error("every render node or every display is gone; the frames in flight cannot complete")]
     Stalled,
 }
@@ -233,6 +261,7 @@ pub enum RunError {
 /// Why a master could not be set up.
 #[derive(Debug, thiserror::Error)]
 pub enum MasterError {
+    /// A change of the recorded session cannot be scheduled.
     #[error("the replayed session: {0}")]
     Replay(#[from] BalanceError),
 }
@@ -256,21 +285,28 @@ pub trait VolumeProbe: Send + Sync + std::fmt::Debug {
 /// What a run needs to know.
 #[derive(Clone, Debug)]
 pub struct MasterConfig {
+    /// The wall's screens and tiles.
     pub wall: WallLayout,
     /// Progressive refinement while the camera holds still, if the run does it.
     pub refinement: Option<Refinement>,
     /// Where displays put their windows (from the wall file).
     pub windows: BTreeMap<u32, WindowPlacement>,
+    /// What render nodes load and render.
     pub scene: SceneSpec,
+    /// Content hash of the scene as the master loaded it; render nodes that load other bytes
+    /// refuse to join.
     pub scene_hash: [u8; 32],
     /// How render nodes hold the scene.
     pub data: DataSpec,
+    /// The camera of the first frame's state: fixed, or a path over the frames.
     pub camera: CameraMode,
+    /// The render knobs of the first frame's state.
     pub params: RenderParams,
     /// Frames to run; `None` runs until interrupted.
     pub frames: Option<u64>,
     /// Render nodes to wait for before the first frame.
     pub render_nodes: u32,
+    /// The frame every display saves as `display-<id>.png` (None: none).
     pub save_frame: Option<FrameId>,
     /// How render nodes pack tiles for the displays.
     pub compression: Compression,
@@ -280,14 +316,17 @@ pub struct MasterConfig {
     /// The load balancer's knobs: the node deadline, speculation; its display wait is set
     /// from `display_loss` and `join_timeout`.
     pub balance: BalanceConfig,
+    /// What a display lost mid-run does to the wall.
     pub display_loss: DisplayLoss,
     /// Displays present this long after the barrier decision, all at the same instant; zero
     /// presents on arrival.
     pub present_margin: Duration,
     /// Changes a recorded session makes, by frame.
     pub replay: Vec<(FrameId, WallState)>,
-    /// Where input from the windows orbits about, and the scene's size (half its diagonal).
+    /// Where input from the windows orbits about (the scene's centre).
     pub pivot: glam::Vec3,
+    /// The scene's size (half its diagonal), in scene units: the unit of a fly step and of the
+    /// closest zoom; a size that is not positive and finite counts as 1.
     pub scene_size: f32,
     /// Steps of the time series the wall plays, one a frame (None: it does not play).
     pub play_steps: Option<u32>,

@@ -21,19 +21,25 @@ use tessera_wire::state::StateChange;
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum NavAction {
+    /// Queue this change for the next frame barrier.
     Change(StateChange),
     /// Show or hide the overlay on every display.
     ToggleOverlay,
     /// Probe what the screen shows at `(fx, fy)` (fractions of its width and height).
     Probe {
+        /// Across the screen, 0 at its left edge, 1 at its right.
         fx: f32,
+        /// Down the screen, 0 at its top edge, 1 at its bottom.
         fy: f32,
     },
 }
 
+/// What a left drag does to the camera; `F` toggles between the two.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NavMode {
+    /// A left drag turns the camera about the pivot (the default).
     Orbit,
+    /// A left drag looks around from where the eye is.
     Fly,
 }
 
@@ -95,6 +101,7 @@ impl Navigator {
         }
     }
 
+    /// The mode input moves the camera in now.
     pub fn mode(&self) -> NavMode {
         self.mode
     }

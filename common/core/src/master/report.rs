@@ -5,13 +5,18 @@ use tessera_wire::protocol::pixels::Compression;
 use tessera_wire::protocol::{DisplayStats, RenderStats};
 use tessera_wire::wall::WallLayout;
 
+/// Everything a run measured, as `report.json` holds it.
 #[derive(Serialize, Debug)]
 pub struct Report {
+    /// Frames presented: the swap barrier sent their `Present`.
     pub frames: u64,
     /// How tiles were packed on their way to the displays (`--compress`).
     pub compression: Compression,
+    /// The wall the run had.
     pub wall: WallReport,
+    /// Each display that sent its figures at shutdown, by id.
     pub displays: Vec<DisplayReport>,
+    /// Each render node that sent its figures at shutdown, by id.
     pub render_nodes: Vec<RenderNodeReport>,
     /// Frames presented per second, from the first frame start to the last present.
     pub fps: f64,
@@ -24,7 +29,10 @@ pub struct Report {
     /// Camera change → present on every display, and present skew across displays.
     #[serde(flatten)]
     pub timing: super::timing::TimingSummary,
+    /// Seconds from the first frame start to the last present (0 if no frame started).
     pub elapsed_s: f64,
+    /// Render nodes that dropped out after the first frame started (left, broke the protocol
+    /// or went silent); their tiles went to the others.
     pub render_nodes_lost: u32,
     /// Displays lost while the others went on (`--display-loss go-on`) or waited for them
     /// (`wait`).
@@ -48,14 +56,19 @@ pub struct Report {
 /// The render nodes' reads of a shared scene, together.
 #[derive(Serialize, Debug, Default, Clone, Copy)]
 pub struct DsmSummary {
+    /// Size of one block of the scene's data, in bytes.
     pub block_bytes: u32,
+    /// Render nodes that hold blocks.
     pub ranks: u32,
+    /// Owners of each block.
     pub replicas: u32,
     /// Blocks traversals moved into, over all nodes, and per frame.
     pub block_reads: u64,
+    /// `block_reads` over the frames presented.
     pub blocks_read_per_frame: f64,
     /// Blocks fetched from other nodes (cache misses), and their share of the reads.
     pub fetched: u64,
+    /// `fetched` as a percentage of `block_reads`.
     pub miss_percent: f64,
     /// Of the reads, those of blocks the reading node held itself.
     pub local_percent: f64,
@@ -63,8 +76,11 @@ pub struct DsmSummary {
     /// another node, those fetched ahead included: over every node (the p99 is the largest
     /// node's p99, an upper bound).
     pub remote_read_avg_us: f64,
+    /// The fastest remote read of any node (0: none).
     pub remote_read_min_us: f64,
+    /// The slowest remote read of any node.
     pub remote_read_max_us: f64,
+    /// The largest of the nodes' 99th percentiles.
     pub remote_read_p99_us: f64,
     /// How long a render thread waited, on average, for a block it missed (a block fetched
     /// ahead waits behind the misses, so this is the stall the threads saw).
@@ -78,27 +94,43 @@ pub struct DsmSummary {
     pub max_rss_bytes: u64,
 }
 
+/// The wall's shape, as the report gives it.
 #[derive(Serialize, Debug)]
 pub struct WallReport {
+    /// Width in pixels of the image the wall's pixels are numbered in (a grid's virtual
+    /// image, bezels included).
     pub width: u32,
+    /// Height in pixels of that image.
     pub height: u32,
+    /// A grid's screens per row (0 for a wall of screens).
     pub columns: u32,
+    /// A grid's rows of screens (0 for a wall of screens).
     pub rows: u32,
+    /// A grid's bezel in pixels (0 for a wall of screens).
     pub bezel: u32,
+    /// Edge length of the square tiles that screens are cut into, in pixels.
     pub tile_size: u32,
+    /// Each display's screen, in display id order.
     pub displays: Vec<DisplayRect>,
 }
 
+/// One display's screen in the wall's image, in pixels.
 #[derive(Serialize, Debug)]
 pub struct DisplayRect {
+    /// The display's id.
     pub id: u32,
+    /// The screen's left edge.
     pub x: u32,
+    /// The screen's top edge.
     pub y: u32,
+    /// The screen's width.
     pub width: u32,
+    /// The screen's height.
     pub height: u32,
 }
 
 impl WallReport {
+    /// The report's view of `layout`.
     pub fn of(layout: &WallLayout) -> Self {
         WallReport {
             width: layout.width(),
@@ -121,10 +153,14 @@ impl WallReport {
     }
 }
 
+/// One display's figures.
 #[derive(Serialize, Debug)]
 pub struct DisplayReport {
+    /// The display's id.
     pub id: u32,
+    /// The host name its hello gave.
     pub host: String,
+    /// What it counted, as it sent them at shutdown.
     #[serde(flatten)]
     pub stats: DisplayStats,
     /// Wire bytes (UDP payloads, see [`DisplayStats::wire_bytes_received`]) over the pixel bytes
@@ -133,21 +169,32 @@ pub struct DisplayReport {
     pub wire_bytes_per_pixel_byte: f64,
 }
 
+/// One render node's figures.
 #[derive(Serialize, Debug)]
 pub struct RenderNodeReport {
+    /// The render node's id.
     pub id: u32,
+    /// The host name its hello gave.
     pub host: String,
+    /// Threads it rendered with.
     pub cores: u32,
+    /// What it counted, as it sent them at shutdown.
     #[serde(flatten)]
     pub stats: RenderStats,
+    /// Rays traced per second of rendering ([`RenderStats::busy_s`]); 0 if it never rendered.
     pub rays_per_s: f64,
 }
 
+/// A distribution of durations, in milliseconds; all 0 when there were no samples.
 #[derive(Serialize, Debug, Default, Clone, Copy)]
 pub struct Percentiles {
+    /// The median.
     pub p50: f64,
+    /// The 95th percentile.
     pub p95: f64,
+    /// The 99th percentile.
     pub p99: f64,
+    /// The largest sample.
     pub max: f64,
 }
 

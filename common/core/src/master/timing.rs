@@ -20,6 +20,7 @@ use tessera_wire::wall::DisplayId;
 /// Pings sent to each display when it is ready; the fastest answer wins.
 pub const PINGS: u32 = 16;
 
+/// How one display's clock relates to the master's, from the fastest ping round trip.
 #[derive(Clone, Copy, Debug, Serialize, PartialEq)]
 pub struct ClockEstimate {
     /// Display clock minus master clock, in microseconds.
@@ -30,6 +31,8 @@ pub struct ClockEstimate {
     pub same_host: bool,
 }
 
+/// The timestamps of a run (pings, frame starts, presents, input stamps), from which
+/// [`Timing::summary`] computes latency and skew.
 #[derive(Default)]
 pub struct Timing {
     pings: HashMap<(DisplayId, u32), u64>,
@@ -44,23 +47,32 @@ pub struct Timing {
 /// One frame's figures, for the per-frame CSV.
 #[derive(Clone, Copy, Debug, Serialize, PartialEq)]
 pub struct FrameTiming {
+    /// The frame's number.
     pub frame: u64,
+    /// From the frame's start to its last present, on the master's clock.
     pub latency_ms: f64,
+    /// Last present minus first present, on the master's clock.
     pub skew_ms: f64,
 }
 
+/// Latency and skew over a run, for the report.
 #[derive(Debug, Default, Serialize)]
 pub struct TimingSummary {
+    /// A frame's start (the barrier where the camera changes) → its present on every display.
     pub latency_ms: Percentiles,
     /// Input event or control command entering the wall (stamped where it entered, mapped to
     /// the master's clock) → the first frame with it presented on every display.
     pub input_latency_ms: Percentiles,
     /// Inputs and commands that `input_latency_ms` measured.
     pub inputs_measured: u64,
+    /// Each frame's last present minus its first, across the displays.
     pub skew_ms: Percentiles,
     /// Frames every display reported a present for (a window may coalesce frames).
     pub frames_measured: u64,
+    /// Each display's clock estimate, by display id (none for a display that answered no
+    /// ping).
     pub clocks: BTreeMap<u32, ClockEstimate>,
+    /// The figures of each frame measured, in frame order (for the CSV, not the report).
     #[serde(skip)]
     pub per_frame: Vec<FrameTiming>,
 }
@@ -79,10 +91,14 @@ impl Timing {
         self.clocks.get(&display).map_or(0, |c| c.1)
     }
 
+    /// Ping `seq` left for `display` at `master_ns` (master clock).
     pub fn ping_sent(&mut self, display: DisplayId, seq: u32, master_ns: u64) {
         self.pings.insert((display, seq), master_ns);
     }
 
+    /// The answer to ping `seq` came back at `master_ns`, saying the display's clock read
+    /// `display_ns`; it replaces the estimate if its round trip is the fastest yet. An answer
+    /// to no ping sent, or a second one, is ignored.
     pub fn pong(&mut self, display: DisplayId, seq: u32, display_ns: u64, master_ns: u64) {
         let Some(sent) = self.pings.remove(&(display, seq)) else {
             return;
@@ -105,10 +121,12 @@ impl Timing {
         }
     }
 
+    /// `frame` started at `master_ns` (master clock).
     pub fn frame_started(&mut self, frame: FrameId, master_ns: u64) {
         self.starts.insert(frame, master_ns);
     }
 
+    /// `display` presented `frame` at `display_ns`, on its own clock.
     pub fn presented(&mut self, display: DisplayId, frame: FrameId, display_ns: u64) {
         self.presents
             .entry(frame)

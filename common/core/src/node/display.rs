@@ -22,10 +22,14 @@ const PRESENTS_TIMED: usize = 64;
 /// A message from the master that makes no sense to this display.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum DisplaySessionError {
+    /// A `FrameStart` for a frame already presented, or too far ahead.
     #[error("the master broke the frame barrier: {0}")]
     FrameBarrier(AssembleError),
+    /// A present of a frame already presented or not complete, or whose tiles' state its
+    /// `FrameStart` did not announce.
     #[error("the master broke the swap barrier: {0}")]
     SwapBarrier(AssembleError),
+    /// A message only render nodes, control clients or the handshake take; the message's kind.
     #[error("the master broke the protocol: it sent a display a {0} message")]
     NotForDisplays(&'static str),
 }
@@ -45,10 +49,13 @@ pub struct Overlay {
 /// One tile as the overlay shows it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TileInfo {
-    /// Its rectangle in the screen's pixels.
+    /// Its left edge, in the screen's pixels.
     pub x: u32,
+    /// Its top edge, in the screen's pixels.
     pub y: u32,
+    /// Its width in pixels.
     pub width: u32,
+    /// Its height in pixels.
     pub height: u32,
     /// The render node that drew it.
     pub node: u32,
@@ -79,7 +86,10 @@ pub enum DisplayEvent {
     /// save it under its names.
     Present(PresentOrder),
     /// Answer the master's clock probe with this display's clock, read now.
-    Pong { seq: u32 },
+    Pong {
+        /// The sequence number of the ping, to send back with the clock.
+        seq: u32,
+    },
     /// The master ended the wall: send [`DisplaySession::stats`] (with the bytes received
     /// added) and leave.
     Shutdown,

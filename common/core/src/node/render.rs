@@ -22,8 +22,11 @@ use tessera_wire::wall::{DisplayId, TileId};
 /// A message from the master that makes no sense to this render node.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum RenderSessionError {
+    /// A message the node's queue refuses: an assignment it cannot take, or a message for
+    /// displays.
     #[error(transparent)]
     Worker(#[from] WorkerError),
+    /// `BlockHolders` sent to a node whose scene is not in distributed shared memory.
     #[error("block holders for a replicated scene")]
     HoldersForReplicatedScene,
 }
@@ -75,6 +78,7 @@ impl VolumeSteps {
 pub struct BatchOrder {
     /// The frame the tiles belong to, with its camera, parameters and state.
     pub start: FrameStart,
+    /// The tiles to render, in order.
     pub tiles: Vec<TileId>,
     /// For a shared scene, the tiles whose blocks to fetch now: this batch's and as many of
     /// the next ones, asked for together so the owners answer them in one round. Empty for a
@@ -87,6 +91,7 @@ pub struct BatchOrder {
 /// How a batch went on the render threads.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BatchDone {
+    /// Tiles the batch rendered.
     pub tiles: usize,
     /// Rays of every kind the batch traced.
     pub rays: u64,
@@ -102,12 +107,19 @@ pub enum RenderEvent {
     /// A display (re)joined at `addr`: connect to it off the loop, so that one that does not
     /// answer holds up nothing, and say so with [`RenderSession::handle_display_reached`].
     ConnectDisplay {
+        /// The display to connect to.
         display: DisplayId,
+        /// Where it takes tiles.
         addr: SocketAddr,
     },
     /// A delivery to `display` failed: drop its connection, once. Later batches skip it, and
     /// the master, which hears from every display, decides whether it is gone.
-    ForgetDisplay { display: DisplayId, reason: String },
+    ForgetDisplay {
+        /// The display whose connection to drop.
+        display: DisplayId,
+        /// Why the delivery failed, for the log.
+        reason: String,
+    },
     /// Where the blocks of the shared scene are held now: for the fetcher.
     BlockHolders(Vec<BlockHolder>),
     /// The master ended the wall: send [`RenderSession::stats`] (with the driver's own

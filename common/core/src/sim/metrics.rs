@@ -17,14 +17,20 @@ pub(super) struct NodeClock {
 /// Min, percentiles and max of a set of fractions.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Spread {
+    /// The smallest value.
     pub min: f64,
+    /// The 10th percentile.
     pub p10: f64,
+    /// The median.
     pub p50: f64,
+    /// The 90th percentile.
     pub p90: f64,
+    /// The largest value.
     pub max: f64,
 }
 
 impl Spread {
+    /// The spread of `values`; all 0 for no values.
     pub fn of(values: &[f64]) -> Spread {
         if values.is_empty() {
             return Spread::default();
@@ -45,10 +51,15 @@ impl Spread {
 /// The figures of one simulated run, all in virtual time.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SimReport {
+    /// Render nodes over the run, those that joined it late included.
     pub render_nodes: u32,
+    /// Of those, the nodes killed (see [`SimWall::kill_at`](crate::sim::SimWall::kill_at)).
     pub render_nodes_killed: u32,
+    /// Displays of the wall.
     pub displays: u32,
+    /// Tiles of the whole wall.
     pub tiles_per_frame: u32,
+    /// Frames the run was asked for.
     pub frames_requested: u64,
     /// Frames presented, in order, on every display.
     pub frames_completed: u64,
@@ -66,7 +77,9 @@ pub struct SimReport {
     pub elapsed_s: f64,
     /// Frames completed per second of virtual time.
     pub fps: f64,
+    /// One-way latency of every link, in virtual microseconds, before jitter.
     pub latency_us: u64,
+    /// Probability that one transmission of a message is lost.
     pub loss: f64,
     /// Messages sent (control messages, pixel batches, acknowledgements).
     pub messages: u64,

@@ -1,7 +1,7 @@
-//! A whole wall in one process, no sockets: the real [`Coordinator`], [`RenderWorker`]s and
-//! [`FrameAssembler`]s exchanging the real messages through a simulated network with a virtual
-//! clock, seeded latency, jitter and loss, render nodes of different speeds, and scripted
-//! render-node deaths.
+//! A whole wall in one process, no sockets: the real
+//! [`Coordinator`](crate::balance::Coordinator), [`RenderWorker`]s and [`FrameAssembler`]s
+//! exchanging the real messages through a simulated network with a virtual clock, seeded
+//! latency, jitter and loss, render nodes of different speeds, and scripted render-node deaths.
 //!
 //! Pixels are a cheap function of (frame, tile, byte) instead of ray-traced, so hundreds of
 //! virtual nodes run in milliseconds and every presented frame can be checked byte for byte.
@@ -79,7 +79,13 @@ pub enum NodeSpeeds {
     /// Node k takes `100 + 37k mod 200` µs: a fixed, even spread over 100..300 µs.
     Cycle,
     /// Each node takes `fastest_us` times a seeded factor drawn uniformly from `[1, spread]`.
-    Spread { fastest_us: u64, spread: f64 },
+    Spread {
+        /// Virtual microseconds a full tile takes on the fastest node there can be.
+        fastest_us: u64,
+        /// The slowest node's factor: a node takes up to this many times `fastest_us`
+        /// (below 1 counts as 1).
+        spread: f64,
+    },
     /// Node k takes `tile_us[k mod len]` µs.
     List(Vec<u64>),
 }
@@ -91,7 +97,12 @@ pub enum Batching {
     /// the measured request round trip, for one render thread.
     Measured,
     /// `batch` tiles at once, asking for more below `low_water` queued tiles.
-    Fixed { batch: usize, low_water: usize },
+    Fixed {
+        /// Tiles per batch (0 counts as 1).
+        batch: usize,
+        /// The queue length below which the node asks for more.
+        low_water: usize,
+    },
 }
 
 /// How much of the picture the displays assemble and check.
@@ -106,7 +117,9 @@ pub enum PixelCheck {
 /// A simulated wall's nodes and network.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SimConfig {
+    /// Render nodes the wall waits for before the first frame.
     pub render_nodes: u32,
+    /// How fast each of them renders a tile.
     pub speeds: NodeSpeeds,
     /// One-way latency of every link, in virtual microseconds, before jitter.
     pub latency_us: u64,
@@ -114,7 +127,9 @@ pub struct SimConfig {
     pub loss: f64,
     /// How many tiles a render node takes at once, and when it asks for more.
     pub batching: Batching,
+    /// How much of the picture the displays assemble and check.
     pub pixels: PixelCheck,
+    /// The master's load balancer knobs.
     pub balance: BalanceConfig,
     /// Queue a state change (samples per pixel, alternating) as every frame starts, so every
     /// frame has a state of its own: what a person steering the wall does, at its worst.
@@ -126,6 +141,9 @@ pub struct SimConfig {
 }
 
 impl SimConfig {
+    /// `render_nodes` nodes of [`NodeSpeeds::Cycle`] speeds and measured batches, 50 µs links
+    /// with no loss, every pixel checked, the balancer's defaults, no change every frame, a wall
+    /// that goes on without a lost display, and a replicated scene.
     pub fn new(render_nodes: u32) -> Self {
         SimConfig {
             render_nodes,
@@ -314,6 +332,8 @@ impl SimWall {
         Self::with_config(seed, layout, &SimConfig::new(render_nodes))
     }
 
+    /// A wall of `layout` with the nodes and network of `config`; `seed` draws the node
+    /// speeds, the jitter and the losses, so the same seed replays the same run.
     pub fn with_config(seed: u64, layout: WallLayout, config: &SimConfig) -> Self {
         let grid = TileGrid::new(layout.clone());
         let pixel_grid = match config.pixels {
@@ -414,14 +434,18 @@ impl SimWall {
         &self.states
     }
 
+    /// Each (display, frame) whose presented pixels differed from what the frame's state
+    /// renders, in the order presented: empty on a correct run.
     pub fn corrupt_frames(&self) -> &[(DisplayId, FrameId)] {
         &self.corrupt
     }
 
+    /// Render nodes joined and not killed.
     pub fn live_render_nodes(&self) -> usize {
         self.nodes.len()
     }
 
+    /// Virtual time since the simulation began.
     pub fn virtual_time(&self) -> Duration {
         Duration::from_micros(self.now_us)
     }

@@ -8,6 +8,8 @@ use std::collections::HashMap;
 pub struct Rng(u64);
 
 impl Rng {
+    /// A generator from `seed` (seeds that differ only in their lowest bit give the same
+    /// numbers).
     pub fn new(seed: u64) -> Self {
         Rng(seed | 1)
     }
@@ -22,6 +24,7 @@ impl Rng {
         Rng::new(z ^ (z >> 31))
     }
 
+    /// The next number, uniform over `u64` except 0.
     pub fn next_u64(&mut self) -> u64 {
         self.0 ^= self.0 << 13;
         self.0 ^= self.0 >> 7;

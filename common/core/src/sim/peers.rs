@@ -51,8 +51,12 @@ pub(super) enum Scripted {
 /// A control client's answer from the master.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ControlAnswer {
+    /// The client the answer went to, as the script numbered it.
     pub client: u32,
+    /// The id of the request it answers: requests are numbered from 0 as they are sent,
+    /// across every client.
     pub id: u32,
+    /// What the master answered.
     pub reply: ControlReply,
 }
 
