@@ -15,6 +15,7 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use tessera_cli::png::PngFile;
 use tessera_core::node::display::{DisplayEvent, DisplaySession, PresentOrder};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};

@@ -4,6 +4,7 @@
 use crate::args::{Aov, RenderArgs};
 use anyhow::{Context, Result};
 use std::time::Instant;
+use tessera_cli::png::PngFile;
 use tessera_render::aov::{primary_aovs, write_pfm, write_pfm_rgb};
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_wall, render_wall_linear, FrameView, PreparedScene};

@@ -189,7 +189,7 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
     check(&args)?;
     let (width, height) = args.screen;
     let wall = match &args.wall_file {
-        Some(path) => tessera_wire::wall::WallLayout::from_file(path)?,
+        Some(path) => tessera_cli::wall_file::read_layout(path)?,
         None => near_square_wall(args.displays, width, height, args.tile_size)
             .with_context(|| format!("a wall of {} displays of {width}x{height}", args.displays))?,
     };

@@ -20,7 +20,7 @@ pub struct ValidateArgs {
 }
 
 pub fn validate(args: ValidateArgs) -> Result<()> {
-    let wall = WallLayout::from_file(&args.wall)?;
+    let wall = tessera_cli::wall_file::read_layout(&args.wall)?;
     let grid = TileGrid::new(wall.clone());
     let stereo = wall.stereo();
     println!(

@@ -12,6 +12,7 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
+use tessera_cli::png::PngFile;
 use tessera_net::cluster::{CertRole, ClusterCa, NodeIdentity};
 use tessera_wire::image::{compose_wall, RgbImage};
 use tessera_wire::wall::WallLayout;

@@ -8,9 +8,11 @@
 
 pub mod bytes;
 pub mod logging;
+pub mod png;
 pub mod procs;
 pub mod reconnect;
 pub mod transfer_file;
+pub mod wall_file;
 
 use clap::Args;
 use glam::{DVec3, Vec3};
@@ -105,7 +107,7 @@ impl WallArgs {
     pub fn wall_file(&self) -> Result<WallFile, ArgError> {
         let wall = |flag| move |source| ArgError::Wall { flag, source };
         if let Some(path) = &self.wall_file {
-            return WallFile::from_file(path).map_err(wall("--wall-file"));
+            return wall_file::read(path).map_err(wall("--wall-file"));
         }
         let (columns, rows) = parse_size(&self.wall).map_err(wall("--wall"))?;
         let (w, h) = parse_size(&self.screen).map_err(wall("--screen"))?;

@@ -1,7 +1,7 @@
-//! Whole-wall images: composing screens into the virtual image (bezels black), PNG in and out.
+//! Whole-wall images: composing screens into the virtual image (bezels black). Reading and
+//! writing them as PNG files is `tessera-cli`'s (`png`): this crate does no file I/O.
 
 use crate::wall::{ScreenRect, WallLayout};
-use std::path::Path;
 
 /// An RGB8 image, row-major, row 0 at the top.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -11,19 +11,9 @@ pub struct RgbImage {
     pub rgb: Vec<u8>,
 }
 
-/// Why an image could not be read, written or put together.
+/// Why screens' images could not be put together.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
-    #[error("cannot write {path}")]
-    Write {
-        path: String,
-        source: image::ImageError,
-    },
-    #[error("cannot read image {path}")]
-    Read {
-        path: String,
-        source: image::ImageError,
-    },
     #[error("display {display} image is {got:?}, but its screen is {want:?}")]
     WrongSize {
         display: u32,
@@ -59,43 +49,6 @@ impl RgbImage {
             out.rgb[r * row..(r + 1) * row].copy_from_slice(&self.rgb[src..src + row]);
         }
         out
-    }
-
-    /// Writes the image as PNG. It is written beside `path` and renamed into place, so whoever
-    /// waits for the file (a script, a test, a viewer) never reads half of it.
-    pub fn save_png(&self, path: &Path) -> Result<(), ImageError> {
-        let error = |source| ImageError::Write {
-            path: path.display().to_string(),
-            source,
-        };
-        let name = path
-            .file_name()
-            .map_or_else(|| "image".into(), |n| n.to_string_lossy().into_owned());
-        let partial = path.with_file_name(format!(".{name}.partial"));
-        image::save_buffer_with_format(
-            &partial,
-            &self.rgb,
-            self.width,
-            self.height,
-            image::ColorType::Rgb8,
-            image::ImageFormat::Png,
-        )
-        .map_err(error)?;
-        std::fs::rename(&partial, path).map_err(|e| error(image::ImageError::IoError(e)))
-    }
-
-    pub fn load_png(path: &Path) -> Result<RgbImage, ImageError> {
-        let img = image::open(path)
-            .map_err(|source| ImageError::Read {
-                path: path.display().to_string(),
-                source,
-            })?
-            .to_rgb8();
-        Ok(RgbImage {
-            width: img.width(),
-            height: img.height(),
-            rgb: img.into_raw(),
-        })
     }
 }
 

@@ -170,6 +170,25 @@ impl ScreenSpec {
                 format!("{w}x{h} is not 1 to {max} pixels a side"),
             ));
         }
+        let (bl, br, tl) = self.corners(index)?;
+        let geometry = self.turned(index, bl, br, tl)?;
+        if dot(sub(viewer, geometry.centre()), geometry.normal()) <= 0.0 {
+            return Err(screen_error(
+                index,
+                "bottom_left_mm",
+                "faces away from the viewer, who is behind its plane and cannot see it (swap bottom_left_mm and bottom_right_mm to turn it round)",
+            ));
+        }
+        Ok(Screen {
+            width: w,
+            height: h,
+            geometry,
+        })
+    }
+
+    /// The bottom-left, bottom-right and top-left corners of screen `index`, from whichever
+    /// of the two sets of fields it gives, checked to make a rectangle.
+    fn corners(&self, index: usize) -> Result<(V, V, V), WallError> {
         let flat = [self.x_mm, self.y_mm, self.width_mm, self.height_mm];
         let corners = [self.bottom_left_mm, self.bottom_right_mm, self.top_left_mm];
         let (bl, br, tl) = match (
@@ -224,11 +243,16 @@ impl ScreenSpec {
                 "makes the screen a parallelogram: its edges must be at right angles",
             ));
         }
+        Ok((bl, br, tl))
+    }
+
+    /// Where the framebuffer's first row starts, and which way its rows and columns run, as
+    /// the panel is turned.
+    fn turned(&self, index: usize, bl: V, br: V, tl: V) -> Result<ScreenGeometry, WallError> {
+        let (right, up) = (sub(br, bl), sub(tl, bl));
         let tr = add(tl, right);
         let down = scale(up, -1.0);
         let left = scale(right, -1.0);
-        // Where the framebuffer's first row starts, and which way its rows and columns run,
-        // as the panel is turned.
         let (origin, across, down) = match self.rotation {
             0 => (tl, right, down),
             90 => (tr, down, left),
@@ -242,22 +266,10 @@ impl ScreenSpec {
                 ))
             }
         };
-        let geometry = ScreenGeometry {
+        Ok(ScreenGeometry {
             origin,
             across,
             down,
-        };
-        if dot(sub(viewer, geometry.centre()), geometry.normal()) <= 0.0 {
-            return Err(screen_error(
-                index,
-                "bottom_left_mm",
-                "faces away from the viewer, who is behind its plane and cannot see it (swap bottom_left_mm and bottom_right_mm to turn it round)",
-            ));
-        }
-        Ok(Screen {
-            width: w,
-            height: h,
-            geometry,
         })
     }
 }

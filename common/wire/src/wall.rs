@@ -15,7 +15,6 @@
 use crate::screens::{PhysicalSpec, Viewer};
 use crate::stereo::{viewports_of, Eye, Stereo, StereoMode, ViewSource, Viewport};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
 use std::sync::Arc;
 
 /// Identifies one display (one screen) of the wall, row-major from the top-left screen.
@@ -381,11 +380,6 @@ impl WallLayout {
     /// checked but not kept: see [`crate::window::WallFile`]); `origin` names the source.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, WallError> {
         crate::window::WallFile::from_toml(text, origin).map(|f| f.layout)
-    }
-
-    /// Reads a wall file (see `deploy/walls/*.toml` for examples).
-    pub fn from_file(path: &Path) -> Result<Self, WallError> {
-        crate::window::WallFile::from_file(path).map(|f| f.layout)
     }
 
     /// A grid's screens per row (0 for a wall of screens).

@@ -18,7 +18,6 @@
 use crate::wall::{WallError, WallLayout, WallSpec};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::Path;
 
 /// Largest window side and position offset accepted, in pixels.
 pub const MAX_WINDOW_SIDE: u32 = 1 << 15;
@@ -188,15 +187,6 @@ impl WallFile {
             }
         }
         Ok(WallFile { layout, windows })
-    }
-
-    /// Reads a wall file (see `deploy/walls/*.toml` for examples).
-    pub fn from_file(path: &Path) -> Result<WallFile, WallError> {
-        let text = std::fs::read_to_string(path).map_err(|e| WallError::File {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-        Self::from_toml(&text, &path.display().to_string())
     }
 }
 

@@ -19,16 +19,30 @@ pub(super) fn allowed(role: &Role, roles: &[CertifiedRole], for_display: bool) -
 /// Why the master refused a peer's hello; sent to it as text in [`ToNode::Refused`].
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum JoinRefusal {
+    /// The peer speaks this other protocol version.
     #[error(
         "protocol version {0} is not the master's {PROTOCOL_VERSION}; run the same Tessera version everywhere"
     )]
     Version(u32),
+    /// The peer's certificate names other roles (`names`, or none) than the `role` it claims.
     #[error(
         "its certificate is for {names}, not for joining as {role}; issue one with `tessera-master issue-cert --role ...`"
     )]
-    Certificate { names: String, role: &'static str },
+    Certificate {
+        /// The roles the certificate names, as `issue-cert --role` spells them.
+        names: String,
+        /// The role claimed, as a log line names it ("a render node").
+        role: &'static str,
+    },
+    /// A display claimed a place past the wall's last display.
     #[error("display {display} does not exist on a {count}-display wall")]
-    NoSuchDisplay { display: u32, count: u32 },
+    NoSuchDisplay {
+        /// The display claimed.
+        display: u32,
+        /// Displays the wall has.
+        count: u32,
+    },
+    /// Another peer holds (or is joining as) that display.
     #[error("display {0} has already joined")]
     DisplayTaken(u32),
 }

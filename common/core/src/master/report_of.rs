@@ -95,48 +95,8 @@ impl Master {
     ) -> Report {
         let elapsed = elapsed.as_secs_f64();
         let record = &self.record;
-        let mut displays: Vec<DisplayReport> = self
-            .peers
-            .values()
-            .filter_map(|p| match (&p.role, &p.stats) {
-                (PeerRole::Display(d), Some(NodeStats::Display(s))) => {
-                    let owned = s.pixels_owned as f64 * 3.0 * s.frames_presented as f64;
-                    Some(DisplayReport {
-                        id: d.0,
-                        host: p.host.clone(),
-                        stats: s.clone(),
-                        wire_bytes_per_pixel_byte: if owned > 0.0 {
-                            s.wire_bytes_received as f64 / owned
-                        } else {
-                            0.0
-                        },
-                    })
-                }
-                _ => None,
-            })
-            .collect();
-        displays.sort_by_key(|d| d.id);
-        let mut render_nodes: Vec<RenderNodeReport> = self
-            .peers
-            .values()
-            .filter_map(|p| match (&p.role, &p.stats) {
-                (PeerRole::Render { node, cores }, Some(NodeStats::Render(s))) => {
-                    Some(RenderNodeReport {
-                        id: node.0,
-                        host: p.host.clone(),
-                        cores: *cores,
-                        stats: s.clone(),
-                        rays_per_s: if s.busy_s > 0.0 {
-                            s.rays as f64 / s.busy_s
-                        } else {
-                            0.0
-                        },
-                    })
-                }
-                _ => None,
-            })
-            .collect();
-        render_nodes.sort_by_key(|r| r.id);
+        let displays = self.display_reports();
+        let render_nodes = self.render_node_reports();
         let frames = record.presents.len() as u64;
         let dsm = self.dsm_summary(&render_nodes, frames);
         Report {
@@ -171,5 +131,57 @@ impl Master {
             },
             dsm,
         }
+    }
+
+    /// What each display said at shutdown, by id.
+    fn display_reports(&self) -> Vec<DisplayReport> {
+        let mut displays: Vec<DisplayReport> = self
+            .peers
+            .values()
+            .filter_map(|p| match (&p.role, &p.stats) {
+                (PeerRole::Display(d), Some(NodeStats::Display(s))) => {
+                    let owned = s.pixels_owned as f64 * 3.0 * s.frames_presented as f64;
+                    Some(DisplayReport {
+                        id: d.0,
+                        host: p.host.clone(),
+                        stats: s.clone(),
+                        wire_bytes_per_pixel_byte: if owned > 0.0 {
+                            s.wire_bytes_received as f64 / owned
+                        } else {
+                            0.0
+                        },
+                    })
+                }
+                _ => None,
+            })
+            .collect();
+        displays.sort_by_key(|d| d.id);
+        displays
+    }
+
+    /// What each render node said at shutdown, by id.
+    fn render_node_reports(&self) -> Vec<RenderNodeReport> {
+        let mut render_nodes: Vec<RenderNodeReport> = self
+            .peers
+            .values()
+            .filter_map(|p| match (&p.role, &p.stats) {
+                (PeerRole::Render { node, cores }, Some(NodeStats::Render(s))) => {
+                    Some(RenderNodeReport {
+                        id: node.0,
+                        host: p.host.clone(),
+                        cores: *cores,
+                        stats: s.clone(),
+                        rays_per_s: if s.busy_s > 0.0 {
+                            s.rays as f64 / s.busy_s
+                        } else {
+                            0.0
+                        },
+                    })
+                }
+                _ => None,
+            })
+            .collect();
+        render_nodes.sort_by_key(|r| r.id);
+        render_nodes
     }
 }

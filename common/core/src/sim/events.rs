@@ -6,17 +6,8 @@ use super::*;
 
 impl SimWall {
     pub(super) fn handle(&mut self, event: Event) {
-        let now = self.now();
         match event {
-            Event::Kill(node) => {
-                if self.nodes.remove(&node).is_some() {
-                    let clock = &mut self.clocks[node.0 as usize];
-                    if let Some(since) = clock.busy_since.take() {
-                        clock.busy_us += self.now_us - since;
-                    }
-                    clock.died_at = Some(self.now_us);
-                }
-            }
+            Event::Kill(node) => self.kill(node),
             Event::DisplayBeat(display) => self.display_beat(display),
             Event::DisplayLeaves(display) => self.display_leaves(display),
             Event::DisplayJoins(display) => self.join_display(display),
@@ -42,58 +33,8 @@ impl SimWall {
                     self.master.handle_message(peer, msg, self.master_now());
                 }
             }
-            Event::ToRender(node, msg) => {
-                let Some(n) = self.nodes.get_mut(&node) else {
-                    return;
-                };
-                if matches!(msg, ToNode::Shutdown) {
-                    let stats = Self::stats_of(peers::Who::Render(node));
-                    self.send(Event::FromRender(node, stats.expect("a render node's")));
-                    return;
-                }
-                n.worker
-                    .handle_message(&msg, now)
-                    .expect("valid assignment");
-                self.start_rendering(node);
-            }
-            Event::ToDisplay(peer, display, msg) => {
-                if self.peers.who(peer).is_none() {
-                    return;
-                }
-                if let ToNode::StartAt { frame } = msg {
-                    self.displays[display.0 as usize].start_at(frame);
-                }
-                if matches!(msg, ToNode::Shutdown) {
-                    let stats = Self::stats_of(peers::Who::Display(display));
-                    let stats = stats.expect("a display's");
-                    self.send(Event::FromDisplay(peer, display, stats));
-                }
-                if let ToNode::FrameStart(start) = msg {
-                    self.displays[display.0 as usize]
-                        .handle_frame_start(start.frame, start.state)
-                        .expect("the master starts at most two frames ahead");
-                    self.states.insert(start.frame, start.state);
-                }
-                if let ToNode::Present { frame } | ToNode::PresentAt { frame, .. } = msg {
-                    let assembler = &mut self.displays[display.0 as usize];
-                    let shown = assembler
-                        .handle_present(frame)
-                        .expect("present only complete frames");
-                    if let Some(frame) = assembler.poll_complete() {
-                        self.send(Event::FromDisplay(
-                            peer,
-                            display,
-                            FromNode::FrameComplete { frame },
-                        ));
-                    }
-                    let screen = self.pixel_grid.layout().screen(display).expect("display");
-                    if !self.frame_matches(screen, frame, self.states[&frame], &shown.rgb) {
-                        self.corrupt.push((display, frame));
-                    }
-                    self.presented[display.0 as usize].push(frame);
-                    self.last_present_us = self.now_us;
-                }
-            }
+            Event::ToRender(node, msg) => self.render_node_receives(node, msg),
+            Event::ToDisplay(peer, display, msg) => self.display_receives(peer, display, msg),
             Event::Pixels {
                 from,
                 last_tx,
@@ -103,49 +44,10 @@ impl SimWall {
                 tiles,
             } => self.handle_pixels(from, last_tx, display, (frame, state), &tiles),
             Event::Rendered(node, frame, state, tiles) => {
-                let Some(n) = self.nodes.get_mut(&node) else {
-                    return;
-                };
-                n.busy = false;
-                let clock = &mut self.clocks[node.0 as usize];
-                if let Some(since) = clock.busy_since.take() {
-                    clock.busy_us += self.now_us - since;
-                    if let Some(sizer) = &mut n.sizer {
-                        sizer.record(tiles.len(), Duration::from_micros(self.now_us - since));
-                        n.worker
-                            .set_low_water(sizer.low_water(n.worker.round_trip()));
-                    }
-                }
-                // One pixel batch per display, as the real node batches its writes.
-                let mut arrived = self.now_us;
-                let mut rest = &tiles[..];
-                while let Some(first) = rest.first() {
-                    let display = self.grid.tile(*first).expect("tile").display;
-                    let n = rest
-                        .iter()
-                        .take_while(|t| self.grid.tile(**t).expect("tile").display == display)
-                        .count();
-                    let d = self.net.deliver(self.now_us, Stream::Own);
-                    arrived = arrived.max(d.at);
-                    self.schedule_at(
-                        d.at,
-                        Event::Pixels {
-                            from: node,
-                            last_tx: d.last_tx,
-                            display,
-                            frame,
-                            state,
-                            tiles: rest[..n].to_vec(),
-                        },
-                    );
-                    rest = &rest[n..];
-                }
-                // The node learns its pixels arrived from the displays' acknowledgements.
-                let ack = self.net.deliver(arrived, Stream::Own).at;
-                self.schedule_at(ack, Event::Delivered(node, frame, tiles));
-                self.start_rendering(node);
+                self.rendered(node, (frame, state), tiles)
             }
             Event::Delivered(node, frame, tiles) => {
+                let now = self.now();
                 let Some(n) = self.nodes.get_mut(&node) else {
                     return;
                 };
@@ -153,6 +55,127 @@ impl SimWall {
                 self.send(Event::FromRender(node, report));
             }
         }
+    }
+
+    /// Render node `node` dies: its clock stops, and what it sends from now on is lost.
+    fn kill(&mut self, node: RenderNodeId) {
+        if self.nodes.remove(&node).is_some() {
+            let clock = &mut self.clocks[node.0 as usize];
+            if let Some(since) = clock.busy_since.take() {
+                clock.busy_us += self.now_us - since;
+            }
+            clock.died_at = Some(self.now_us);
+        }
+    }
+
+    /// A render node receives a message of the master's.
+    fn render_node_receives(&mut self, node: RenderNodeId, msg: ToNode) {
+        let now = self.now();
+        let Some(n) = self.nodes.get_mut(&node) else {
+            return;
+        };
+        if matches!(msg, ToNode::Shutdown) {
+            let stats = Self::stats_of(peers::Who::Render(node));
+            self.send(Event::FromRender(node, stats.expect("a render node's")));
+            return;
+        }
+        n.worker
+            .handle_message(&msg, now)
+            .expect("valid assignment");
+        self.start_rendering(node);
+    }
+
+    /// A display receives a message of the master's on connection `peer` (one that closed
+    /// receives nothing).
+    fn display_receives(&mut self, peer: PeerId, display: DisplayId, msg: ToNode) {
+        if self.peers.who(peer).is_none() {
+            return;
+        }
+        let d = display.0 as usize;
+        match msg {
+            ToNode::StartAt { frame } => self.displays[d].start_at(frame),
+            ToNode::Shutdown => {
+                let stats = Self::stats_of(peers::Who::Display(display));
+                let stats = stats.expect("a display's");
+                self.send(Event::FromDisplay(peer, display, stats));
+            }
+            ToNode::FrameStart(start) => {
+                self.displays[d]
+                    .handle_frame_start(start.frame, start.state)
+                    .expect("the master starts at most two frames ahead");
+                self.states.insert(start.frame, start.state);
+            }
+            ToNode::Present { frame } | ToNode::PresentAt { frame, .. } => {
+                self.present(peer, display, frame)
+            }
+            _ => {}
+        }
+    }
+
+    /// A display presents `frame`: what it shows is checked against what was rendered.
+    fn present(&mut self, peer: PeerId, display: DisplayId, frame: FrameId) {
+        let assembler = &mut self.displays[display.0 as usize];
+        let shown = assembler
+            .handle_present(frame)
+            .expect("present only complete frames");
+        if let Some(frame) = assembler.poll_complete() {
+            let msg = FromNode::FrameComplete { frame };
+            self.send(Event::FromDisplay(peer, display, msg));
+        }
+        let screen = self.pixel_grid.layout().screen(display).expect("display");
+        if !self.frame_matches(screen, frame, self.states[&frame], &shown.rgb) {
+            self.corrupt.push((display, frame));
+        }
+        self.presented[display.0 as usize].push(frame);
+        self.last_present_us = self.now_us;
+    }
+
+    /// Render node `node` finished a batch: its pixels leave for their displays, one batch per
+    /// display as the real node batches its writes, and it takes its next batch.
+    fn rendered(
+        &mut self,
+        node: RenderNodeId,
+        (frame, state): (FrameId, StateId),
+        tiles: Vec<TileId>,
+    ) {
+        let Some(n) = self.nodes.get_mut(&node) else {
+            return;
+        };
+        n.busy = false;
+        let clock = &mut self.clocks[node.0 as usize];
+        if let Some(since) = clock.busy_since.take() {
+            clock.busy_us += self.now_us - since;
+            if let Some(sizer) = &mut n.sizer {
+                sizer.record(tiles.len(), Duration::from_micros(self.now_us - since));
+                n.worker
+                    .set_low_water(sizer.low_water(n.worker.round_trip()));
+            }
+        }
+        let mut arrived = self.now_us;
+        let mut rest = &tiles[..];
+        while let Some(first) = rest.first() {
+            let display = self.grid.tile(*first).expect("tile").display;
+            let n = rest
+                .iter()
+                .take_while(|t| self.grid.tile(**t).expect("tile").display == display)
+                .count();
+            let d = self.net.deliver(self.now_us, Stream::Own);
+            arrived = arrived.max(d.at);
+            let pixels = Event::Pixels {
+                from: node,
+                last_tx: d.last_tx,
+                display,
+                frame,
+                state,
+                tiles: rest[..n].to_vec(),
+            };
+            self.schedule_at(d.at, pixels);
+            rest = &rest[n..];
+        }
+        // The node learns its pixels arrived from the displays' acknowledgements.
+        let ack = self.net.deliver(arrived, Stream::Own).at;
+        self.schedule_at(ack, Event::Delivered(node, frame, tiles));
+        self.start_rendering(node);
     }
 
     fn handle_pixels(
