@@ -12,6 +12,8 @@
 //! `tessera-display-node` stays for display hosts. It never compiles the renderer: a test in
 //! `tests/` checks that `tessera-render` is not in its dependency tree.
 
+#![warn(missing_docs)]
+
 mod node;
 pub mod overlay;
 mod pixels_in;
@@ -64,7 +66,7 @@ pub struct Cli {
     /// With --window, borderless full screen on monitor N (0: the first), the frame scaled.
     #[arg(long, num_args = 0..=1, default_missing_value = "0")]
     fullscreen: Option<u32>,
-    /// Directory for display-<id>.png when the master asks to save a frame.
+    /// Directory for `display-<id>.png` when the master asks to save a frame.
     #[arg(long)]
     out: Option<PathBuf>,
     #[command(flatten)]

@@ -22,9 +22,13 @@ use winit::window::{Fullscreen, Window, WindowId};
 
 /// One frame to show: `rgb` is width*height*3 bytes, RGB8, row-major, row 0 at the top.
 pub struct WindowFrame {
+    /// The frame's number, handed back to `on_presented` once it is on screen.
     pub frame: u64,
+    /// Pixels across; a frame not of the window's screen size is dropped with a warning.
     pub width: u32,
+    /// Pixels down.
     pub height: u32,
+    /// The pixels, as above.
     pub rgb: Vec<u8>,
     /// Drawn over the frame when the overlay is on.
     pub overlay: Option<Overlay>,
@@ -32,7 +36,9 @@ pub struct WindowFrame {
 
 /// Messages from the (tokio) network side to the window.
 pub enum WindowCommand {
+    /// Present this frame at the next redraw (a later one before then replaces it).
     Show(WindowFrame),
+    /// Close the window and end [`WindowRunner::run`].
     Close,
 }
 

@@ -36,10 +36,13 @@ pub struct ControlArgs {
 pub enum Command {
     /// Set the camera: --eye and --target (with --up and --fov), or --orbit.
     Camera {
+        /// Camera position X,Y,Z, in render coordinates (as `state` shows them).
         #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "target")]
         eye: Option<glam::Vec3>,
+        /// Point the camera looks at, X,Y,Z, in render coordinates.
         #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "eye")]
         target: Option<glam::Vec3>,
+        /// Up direction X,Y,Z (keeps the others if alone).
         #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
         up: Option<glam::Vec3>,
         /// Vertical field of view of the whole wall, degrees (keeps the others if alone).
@@ -51,6 +54,7 @@ pub enum Command {
     },
     /// Set quality knobs; those not given stay as they are.
     Quality {
+        /// Shadow rays: on or off.
         #[arg(long, value_parser = parse_on_off)]
         shadows: Option<bool>,
         /// Ambient-occlusion rays per hit.
@@ -63,15 +67,19 @@ pub enum Command {
     /// Set the cutting planes (NX,NY,NZ,D, up to 4), or --clear them. In render coordinates,
     /// as `state` shows them: a file's mesh is centred on its middle.
     Cut {
+        /// A plane NX,NY,NZ,D: cuts away what lies where N·p > D. Repeat for more planes.
         #[arg(long = "plane", value_parser = parse_plane, allow_hyphen_values = true)]
         planes: Vec<(glam::Vec3, f64)>,
+        /// Remove every cutting plane.
         #[arg(long, conflicts_with = "planes")]
         clear: bool,
     },
     /// Draw only particles whose attribute is in LO,HI, or --off.
     Crop {
+        /// The attribute's range kept, LO,HI.
         #[arg(value_parser = parse_range, allow_hyphen_values = true, required_unless_present = "off")]
         range: Option<(f32, f32)>,
+        /// Draw every particle again.
         #[arg(long)]
         off: bool,
     },
@@ -83,14 +91,17 @@ pub enum Command {
         /// A point light at X,Y,Z with intensity I: X,Y,Z,I.
         #[arg(long, value_parser = parse_light_point, allow_hyphen_values = true)]
         point: Vec<Light>,
+        /// Back to the scene's own lights.
         #[arg(long, conflicts_with_all = ["directional", "point"])]
         scene: bool,
     },
     /// How volumes are drawn; what is not given stays as it is. --iso replaces the iso-values
     /// (repeat for up to 4), --no-iso goes back to the transfer function.
     Volume {
+        /// Draw the iso-surface at this value, in the data's own units.
         #[arg(long = "iso", value_name = "VALUE", allow_hyphen_values = true)]
         iso: Vec<f32>,
+        /// Drop the iso-values: back to the transfer function.
         #[arg(long, conflicts_with = "iso")]
         no_iso: bool,
         /// Ray-marching step in world units (0: half the smallest voxel spacing).
@@ -108,9 +119,15 @@ pub enum Command {
     /// Print live figures (fps, frame time, per node) as JSON.
     Figures,
     /// Keep the current camera as a named view.
-    SaveView { name: String },
+    SaveView {
+        /// The view's name.
+        name: String,
+    },
     /// Go back to a named view.
-    View { name: String },
+    View {
+        /// The view's name, as saved with `save-view`.
+        name: String,
+    },
     /// List the saved views.
     Views,
     /// Show or hide the displays' overlay.
@@ -123,10 +140,18 @@ pub enum Command {
     Snapshot,
     /// Print the volume's value and world position under wall pixel X Y (of the whole wall,
     /// bezels included, 0,0 at the top left) as JSON: null where the pixel shows no volume.
-    Probe { x: u32, y: u32 },
+    Probe {
+        /// Pixel column, from the wall's left edge.
+        x: u32,
+        /// Pixel row, from the wall's top edge.
+        y: u32,
+    },
     /// Run control commands from FILE (`-`: standard input), one per line, as written after
     /// `control ... ` on the command line; blank lines and lines starting with # are skipped.
-    Script { file: PathBuf },
+    Script {
+        /// The script's path, or `-`.
+        file: PathBuf,
+    },
 }
 
 fn parse_on_off(text: &str) -> Result<bool, String> {

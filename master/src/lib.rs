@@ -5,8 +5,10 @@
 //! A library with a thin binary (`tessera-master`). The binary also runs the node roles
 //! (`tessera-master render-node ...`, `tessera-master display-node ...`, the very code of
 //! `tessera-render-node` and `tessera-display-node`), so a local wall needs nothing but the
-//! master's executable. The driver loop ([`server`]) moves bytes and reads clocks for the
+//! master's executable. The driver loop (`server`) moves bytes and reads clocks for the
 //! sans-IO [`tessera_core::master::Master`], which makes every decision of the run.
+
+#![warn(missing_docs)]
 
 mod args;
 mod bench;

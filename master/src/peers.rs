@@ -21,19 +21,31 @@ pub const PEER_QUEUE: usize = 4096;
 /// than the master handles (a flood, a hostile client) is slowed down, not buffered.
 pub const EVENT_QUEUE: usize = 4096;
 
+/// What a peer's task tells the driver loop.
 pub enum Event {
+    /// The peer passed the TLS handshake and said hello; the master has yet to take it in.
     Joined {
+        /// Its number, in the order connections came.
         peer: PeerId,
+        /// What it says it is.
         hello: Hello,
+        /// Its connection, from which its certificate's roles are read.
         conn: quinn::Connection,
+        /// Its writer's queue.
         tx: PeerSender,
     },
+    /// A message from a joined peer.
     Msg(PeerId, FromNode),
+    /// A joined peer's stream or connection ended; the text says why.
     Closed(PeerId, String),
 }
 
+/// How long a connecting peer has for the TLS handshake, and then for its hello.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// The task of one connecting peer: handshake and hello (a peer that fails them is logged and
+/// dropped, never reported), then `Joined`, each message and `Closed` on `events`, while a
+/// writer task of its own sends what the driver queues for it.
 pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::Sender<Event>) {
     let remote = incoming.remote_address();
     let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {

@@ -35,6 +35,7 @@ pub struct RelayArgs {
     /// Share of datagrams held back a further --reorder-ms.
     #[arg(long, default_value_t = 0.0, value_parser = unit)]
     reorder: f64,
+    /// How much longer, in ms, a datagram --reorder holds back waits.
     #[arg(long, default_value_t = 30.0, value_parser = millis)]
     reorder_ms: f64,
     /// Share of datagrams sent twice.

@@ -24,7 +24,10 @@ use tokio::sync::mpsc;
 /// What a run needs to know: the master's own configuration, and what only the driver does.
 #[derive(Clone, Debug)]
 pub struct RunConfig {
+    /// Everything the sans-IO master decides with: the wall, the scene, the camera, the
+    /// frames to run, the nodes to wait for.
     pub master: MasterConfig,
+    /// Whether to draw a bar of the frames presented on stderr, from the first frame on.
     pub show_progress: bool,
     /// Where to record the session, if anywhere.
     pub record: Option<PathBuf>,
@@ -32,20 +35,29 @@ pub struct RunConfig {
 
 /// A joined peer's connection and its queue of messages.
 struct Link {
+    /// The peer's bounded queue; a task of its own writes it to the peer's stream.
     tx: PeerSender,
+    /// The connection, to close when the master says so or the run ends.
     conn: quinn::Connection,
 }
 
 /// The driver's side of a run: the links, the tools around the master, and the master.
 struct Driver {
+    /// The sans-IO master, which makes every decision.
     master: Master,
+    /// Every joined peer's link, until its connection closes.
     links: HashMap<PeerId, Link>,
+    /// With `--record`: writes what each frame is rendered with, a line when it changes.
     recorder: Option<Recorder>,
+    /// The progress bar, once the first frame started, if one was asked for.
     progress: Option<indicatif::ProgressBar>,
+    /// [`RunConfig::show_progress`].
     show_progress: bool,
+    /// Set at the first frame (see [`run_wall`]).
     started: Arc<AtomicBool>,
 }
 
+/// This moment on both of the master's clocks, for the event about to be handed to it.
 fn now() -> Now {
     Now {
         instant: Instant::now(),
@@ -150,6 +162,8 @@ impl Driver {
         }
     }
 
+    /// Hands one peer event to the master: a join (with what the peer's certificate lets it
+    /// be), a message, or a closed connection.
     fn handle(&mut self, event: Event) {
         match event {
             Event::Joined {
@@ -194,6 +208,8 @@ impl Driver {
         }
     }
 
+    /// Does the driver's part of one of the master's events: the launcher's started flag,
+    /// the recording, the progress bar.
     fn note(&mut self, event: MasterEvent) -> Result<()> {
         match event {
             MasterEvent::Started => {
@@ -261,6 +277,7 @@ fn credentials(conn: &quinn::Connection, role: &Role, host: &str) -> Credentials
     }
 }
 
+/// A bar of frames presented, out of `frames` (`None`: a run until interrupted, no total).
 fn progress_bar(frames: Option<u64>) -> indicatif::ProgressBar {
     let bar = match frames {
         Some(n) => indicatif::ProgressBar::new(n),

@@ -5,10 +5,12 @@
 //! executable (`tessera-master render-node ...`, what `local` starts) and the installed
 //! `tessera-render-node` stays for render hosts. What the node does with each message of a
 //! session is the sans-IO [`tessera_core::node::render::RenderSession`] (its queue and batch
-//! sizes are [`tessera_core::worker`]'s); the driver loop ([`node`]) only moves bytes and
+//! sizes are [`tessera_core::worker`]'s); the driver loop (`node`) only moves bytes and
 //! reads clocks for it, a batch renders on the render threads in `batch`, and the link to the
 //! master and the loop that rejoins a lost one are `tessera_net::link` and
 //! `tessera_net::reconnect`.
+
+#![warn(missing_docs)]
 
 mod batch;
 mod bench;

@@ -1,6 +1,8 @@
 //! Helpers for Tessera's end-to-end tests: find the built binaries, run them with a time bound,
 //! and never leave a process behind.
 
+#![warn(missing_docs)]
+
 pub mod xvfb;
 
 use std::io::{BufRead, BufReader, Read};
@@ -68,6 +70,7 @@ impl Captured {
 /// A child process that is killed and reaped when dropped, whatever the test does.
 pub struct Proc {
     child: Option<Child>,
+    /// What it was started as (a binary's name, a program's path), for failure messages.
     pub name: String,
     stdout: Captured,
     stderr: Captured,
@@ -76,10 +79,12 @@ pub struct Proc {
 }
 
 impl Proc {
+    /// Starts the workspace binary `name` (found by [`bin`]) with `args`.
     pub fn start(name: &str, args: &[&str]) -> Proc {
         Self::start_with_env(name, args, &[])
     }
 
+    /// [`Proc::start`] with the variables `env` set on top of the test's own environment.
     pub fn start_with_env(name: &str, args: &[&str], env: &[(&str, &str)]) -> Proc {
         Self::start_program(&bin(name), name, args, env)
     }
@@ -117,6 +122,7 @@ impl Proc {
         }
     }
 
+    /// Its process id.
     pub fn pid(&self) -> u32 {
         self.child.as_ref().expect("running").id()
     }
@@ -124,8 +130,11 @@ impl Proc {
     /// Whether the process has already exited (it stays reapable for `wait`/`fail`).
     pub fn has_exited(&self) -> bool {
         let pid = self.pid() as i32;
+        // SAFETY: siginfo_t is a plain C struct, for which all zero bytes are a valid value.
         let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
         // WNOWAIT leaves the child to be reaped by `wait` later.
+        // SAFETY: `info` is a live siginfo_t of ours that waitid only writes into; the call has
+        // no other precondition.
         let r = unsafe {
             libc::waitid(
                 libc::P_PID,
@@ -134,10 +143,15 @@ impl Proc {
                 libc::WEXITED | libc::WNOHANG | libc::WNOWAIT,
             )
         };
+        // SAFETY: si_pid reads a field of the union in `info`, which was zeroed and, if waitid
+        // reported a child, filled by it with a child's record, which has that field.
         r == 0 && unsafe { info.si_pid() } == pid
     }
 
+    /// Sends signal `sig` (`libc::SIGINT`, say) to the process.
     pub fn signal(&self, sig: i32) {
+        // SAFETY: kill only sends a signal and touches no memory of ours. The pid is our child's,
+        // not yet reaped (the `Child` is still held), so it names no other process.
         unsafe {
             libc::kill(self.pid() as i32, sig);
         }
@@ -226,13 +240,18 @@ impl Drop for Proc {
     }
 }
 
+/// What a process that finished left behind: its exit status and everything it printed.
 pub struct Output {
+    /// How it exited.
     pub status: ExitStatus,
+    /// Everything it wrote to stdout.
     pub stdout: String,
+    /// Everything it wrote to stderr.
     pub stderr: String,
 }
 
 impl Output {
+    /// Fails the test, naming `what` and showing stderr, unless the process exited with 0.
     pub fn assert_success(&self, what: &str) {
         assert!(
             self.status.success(),
@@ -375,6 +394,8 @@ pub fn assert_same_pixels(shown: &Path, expected: &Path, what: &str) {
     assert_eq!(differing, 0, "{what}: {differing} bytes differ");
 }
 
+/// Reads an image file (PNG, say) as its width, height and 8-bit RGB bytes, row by row;
+/// panics if it cannot.
 pub fn load_rgb(path: &Path) -> (u32, u32, Vec<u8>) {
     let img = image::open(path)
         .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()))
@@ -382,6 +403,7 @@ pub fn load_rgb(path: &Path) -> (u32, u32, Vec<u8>) {
     (img.width(), img.height(), img.into_raw())
 }
 
+/// Reads and parses a JSON file (a report, say); panics if it cannot.
 pub fn read_json(path: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(path)
         .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
@@ -460,6 +482,7 @@ pub fn issue_cert(cluster: &Path, name: &str) -> String {
 
 /// Whether the tests run as root (what starting daemons such as sshd or slurmd needs).
 pub fn is_root() -> bool {
+    // SAFETY: geteuid has no preconditions and cannot fail.
     unsafe { libc::geteuid() == 0 }
 }
 

@@ -8,6 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
+/// A private X server, running; killed and reaped when dropped.
 pub struct Xvfb {
     child: Child,
     /// `:N`, for `DISPLAY`.

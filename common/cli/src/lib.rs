@@ -6,6 +6,8 @@
 //! It depends on clap, tracing-subscriber and `tessera-wire` only, so display nodes use it
 //! without compiling the renderer.
 
+#![warn(missing_docs)]
+
 pub mod bytes;
 pub mod logging;
 pub mod png;
@@ -31,21 +33,31 @@ use tessera_wire::window::WallFile;
 /// A flag whose value was refused, named with its flag.
 #[derive(Debug, thiserror::Error)]
 pub enum ArgError {
+    /// The wall flags or the wall file do not make a wall.
     #[error("{flag}")]
     Wall {
+        /// The flag or flags at fault, such as `--screen` or `--wall-file`.
         flag: &'static str,
+        /// Why the wall was refused.
         source: WallError,
     },
+    /// `--scene` names no scene (a malformed `knot:SEGMENTS:SIDES`, for one).
     #[error("--scene")]
     Scene(#[from] SceneSpecError),
+    /// The camera flags make no camera (the eye on the target, up along the view), or no orbit
+    /// could be made around the scene.
     #[error("camera flags")]
     Camera(#[from] CameraError),
+    /// More `--cut` planes than supported, or a degenerate one.
     #[error("--cut")]
     Cut(#[from] CutError),
+    /// A quality knob (`--ao`, `--spp`, `--crop`, `--iso`, `--volume-step`) is out of its bounds.
     #[error("quality flags")]
     Params(#[from] ParamsError),
+    /// Only one of `--eye` and `--target` was given.
     #[error("--eye and --target go together")]
     EyeWithoutTarget,
+    /// `--transfer` names no preset or a file that does not hold a transfer function.
     #[error("--transfer")]
     Transfer(#[from] transfer_file::TransferFileError),
 }
@@ -76,7 +88,7 @@ pub struct WallArgs {
     #[arg(long, default_value_t = 0.0, requires = "stereo", value_parser = parse_separation)]
     pub eye_separation: f64,
     /// A TOML wall file: a grid (columns, rows, screen_width, screen_height, bezel, tile_size)
-    /// or physical screens (a [viewer] and [[screen]] tables; see deploy/walls/).
+    /// or physical screens (a `[viewer]` and `[[screen]]` tables; see deploy/walls/).
     #[arg(long)]
     pub wall_file: Option<PathBuf>,
 }
@@ -84,10 +96,14 @@ pub struct WallArgs {
 /// `--stereo`.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum StereoArg {
+    /// No stereo: one image, from the viewer's centre.
     #[default]
     Mono,
+    /// Each display's left half the left eye, its right half the right.
     SideBySide,
+    /// Each display's top half the left eye, its bottom half the right.
     TopBottom,
+    /// Two displays a screen: display 2k the left eye of screen k, 2k+1 the right.
     Displays,
 }
 
@@ -99,6 +115,8 @@ fn parse_separation(text: &str) -> Result<f64, String> {
 }
 
 impl WallArgs {
+    /// The wall's layout, from the wall file or the shorthand flags (without where a wall
+    /// file puts the displays' windows: see [`WallArgs::wall_file`]).
     pub fn layout(&self) -> Result<WallLayout, ArgError> {
         Ok(self.wall_file()?.layout)
     }
@@ -211,6 +229,7 @@ pub fn parse_dvec3(text: &str) -> Result<DVec3, BadValue> {
 }
 
 impl SceneArgs {
+    /// What `--scene` names, checked but not loaded (a path is not opened here).
     pub fn spec(&self) -> Result<SceneSpec, ArgError> {
         Ok(SceneSpec::from_arg(&self.scene)?)
     }

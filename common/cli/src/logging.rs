@@ -3,6 +3,8 @@
 
 use std::io::IsTerminal;
 
+/// Installs this process's log subscriber; call it once (a second call panics), first thing
+/// in `main`.
 pub fn init() {
     tracing_subscriber::fmt()
         .with_env_filter(

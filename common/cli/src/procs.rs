@@ -5,7 +5,9 @@
 /// A process, its parent and its command line.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Process {
+    /// Its process id.
     pub pid: u32,
+    /// Its parent's process id (0 for one the kernel started); `None` if `/proc` did not say.
     pub parent: Option<u32>,
     /// Exited, not yet reaped.
     pub zombie: bool,

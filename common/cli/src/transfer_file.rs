@@ -22,18 +22,31 @@ use tessera_wire::volume_params::{
 /// Why `--transfer` was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum TransferFileError {
+    /// The argument is no preset's name and does not end in `.toml`; it holds the argument.
     #[error("`{0}` is neither a preset (ramp, ct-bone, ct-skin) nor a .toml file")]
     Unknown(String),
+    /// The file could not be read.
     #[error("{path}: {source}")]
     Io {
+        /// The file, as given to `--transfer`.
         path: String,
+        /// Why reading it failed.
         source: std::io::Error,
     },
+    /// The file is not TOML of the expected shape.
     #[error("{path}: {message}")]
-    Parse { path: String, message: String },
+    Parse {
+        /// The file, as given to `--transfer`.
+        path: String,
+        /// The TOML parser's message, with the line at fault.
+        message: String,
+    },
+    /// The points do not make a transfer function (too few or too many, or a bad one).
     #[error("{path}: {source}")]
     Invalid {
+        /// The file, as given to `--transfer`.
         path: String,
+        /// What is wrong with the points (a bad one by its index).
         source: VolumeParamsError,
     },
 }

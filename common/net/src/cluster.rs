@@ -22,14 +22,18 @@ pub const CLUSTER_SERVER_NAME: &str = "tessera.cluster";
 /// a holder cannot claim a role its certificate does not name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum CertRole {
+    /// The master: the certificate its endpoint presents to the nodes.
     Master,
+    /// A render node.
     Render,
+    /// A display node; its certificate may also name the one display it may show.
     Display,
     /// An operator's or a script's control client.
     Control,
 }
 
 impl CertRole {
+    /// Every role, for going through them.
     pub const ALL: [CertRole; 4] = [
         CertRole::Master,
         CertRole::Render,
@@ -37,6 +41,7 @@ impl CertRole {
         CertRole::Control,
     ];
 
+    /// The role's word, as its subject name carries it: `render` in `render.role.tessera.cluster`.
     pub fn name(self) -> &'static str {
         match self {
             CertRole::Master => "master",
@@ -101,30 +106,53 @@ pub const DEFAULT_VALID_DAYS: i64 = 3650;
 /// Why a certificate or key could not be made, read or written.
 #[derive(Debug, thiserror::Error)]
 pub enum CertError {
+    /// The cluster directory holds the CA's certificate or its key, not both.
     #[error(
         "cluster directory {dir} has only one of {CA_CERT} and {CA_KEY}; restore the other or remove both to start a new cluster"
     )]
-    HalfCa { dir: PathBuf },
+    HalfCa {
+        /// The master's cluster directory.
+        dir: PathBuf,
+    },
+    /// A node's certificate directory does not exist.
     #[error(
         "certificate directory {dir} does not exist (create it with `tessera-master issue-cert --name NODE --out {dir}`)"
     )]
-    NoCertDir { dir: PathBuf },
+    NoCertDir {
+        /// The node's certificate directory (`--cert-dir`).
+        dir: PathBuf,
+    },
+    /// A file or directory could not be read, written or created.
     #[error("cannot {what} {path}")]
     Io {
+        /// What was being done: `read`, `write`, `create cluster directory`.
         what: &'static str,
+        /// The file or directory.
         path: PathBuf,
+        /// The operating system's reason.
         source: std::io::Error,
     },
+    /// A certificate or key file is missing or holds no PEM item of its kind.
     #[error(
         "cannot read {what} {path} (create node certificates with `tessera-master issue-cert`)"
     )]
     Pem {
+        /// `certificate` or `private key`.
         what: &'static str,
+        /// The file.
         path: PathBuf,
+        /// Why it is not what was expected (missing, not PEM, no such item in it).
         source: rustls_pki_types::pem::Error,
     },
+    /// The CA's key file holds no key rcgen can sign with.
     #[error("{path} is not a private key")]
-    BadKey { path: PathBuf, source: rcgen::Error },
+    BadKey {
+        /// The CA's `ca.key`.
+        path: PathBuf,
+        /// rcgen's reason.
+        source: rcgen::Error,
+    },
+    /// rcgen could not make a key or a certificate.
     #[error("cannot make a certificate")]
     Make(#[from] rcgen::Error),
 }
@@ -192,6 +220,7 @@ impl ClusterCa {
         })
     }
 
+    /// The cluster directory the CA was opened from.
     pub fn dir(&self) -> &Path {
         &self.dir
     }
@@ -254,12 +283,21 @@ impl ClusterCa {
 /// A node's certificate, key and the CA it trusts, loaded from a node directory.
 #[derive(Debug)]
 pub struct NodeIdentity {
+    /// The node's certificate (`node.pem`), signed by the cluster CA.
     pub cert: CertificateDer<'static>,
+    /// The certificate's private key (`node.key`).
     pub key: PrivateKeyDer<'static>,
+    /// The cluster CA's certificate (`ca.pem`), the only one the node trusts.
     pub ca: CertificateDer<'static>,
 }
 
 impl NodeIdentity {
+    /// Reads `node.pem`, `node.key` and `ca.pem` from the node directory `dir` (what
+    /// `tessera-master issue-cert` wrote).
+    ///
+    /// # Errors
+    /// [`CertError::NoCertDir`] if `dir` is no directory, [`CertError::Pem`] for a file that is
+    /// missing or holds no certificate or key.
     pub fn load(dir: &Path) -> Result<NodeIdentity, CertError> {
         if !dir.is_dir() {
             return Err(CertError::NoCertDir {

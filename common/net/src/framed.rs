@@ -5,6 +5,7 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 use tessera_wire::protocol::codec;
 
+/// Writes one message, length-prefixed.
 pub async fn write_msg<T: Serialize>(
     send: &mut quinn::SendStream,
     msg: &T,

@@ -9,6 +9,8 @@
 //! `tessera-core`, which never see a socket. It depends on `tessera-wire` for the messages and
 //! on tokio, quinn and rustls (ring provider, set explicitly).
 
+#![warn(missing_docs)]
+
 pub mod cluster;
 pub mod framed;
 pub mod link;
@@ -22,33 +24,57 @@ use tessera_wire::protocol::codec::CodecError;
 /// What can go wrong on the network side.
 #[derive(Debug, thiserror::Error)]
 pub enum NetError {
+    /// The node's certificates could not be read (or the CA's made).
     #[error(transparent)]
     Cert(#[from] cluster::CertError),
+    /// The `ca.pem` of the node's directory is no CA certificate rustls can trust.
     #[error("cluster CA certificate is not usable: {0}")]
     BadCa(rustls::Error),
+    /// `node.pem` and `node.key` are not one certificate and its key.
     #[error("node certificate and key do not match: {0}")]
     KeyMismatch(rustls::Error),
+    /// rustls or quinn refused the TLS configuration; the text says which step.
     #[error("TLS set-up failed: {0}")]
     Tls(String),
+    /// The endpoint's UDP socket could not be bound (address in use, not this host's).
     #[error("cannot bind a UDP socket on {addr}")]
     Bind {
+        /// The address the endpoint was to listen on.
         addr: SocketAddr,
+        /// The operating system's reason.
         source: std::io::Error,
     },
+    /// An endpoint was made outside a tokio runtime.
     #[error("no async runtime for QUIC")]
     NoRuntime,
+    /// A peer did not answer, refused the handshake, or did not answer within
+    /// [`quic::CONNECT_TIMEOUT`]; for a node's master, a lost master (see
+    /// [`link::LinkError::is_lost_master`]).
     #[error("cannot connect to {what} at {addr}: {reason}")]
     Connect {
+        /// The peer, for the message: `the master`, `display 3`.
         what: String,
+        /// Where it was looked for.
         addr: SocketAddr,
+        /// quinn's reason, or the timeout.
         reason: String,
     },
+    /// A HOST:PORT did not resolve to any address.
     #[error("cannot resolve address {addr}: {reason}")]
-    Resolve { addr: String, reason: String },
+    Resolve {
+        /// The address as given.
+        addr: String,
+        /// The resolver's reason.
+        reason: String,
+    },
+    /// A message could not be written: the stream or its connection is closed.
     #[error("control stream closed: {0}")]
     StreamClosed(String),
+    /// A message could not be read whole: the stream or its connection broke.
     #[error("control stream broken: {0}")]
     StreamBroken(String),
+    /// A message could not be encoded, or the bytes read are no message (bad length prefix,
+    /// malformed body).
     #[error(transparent)]
     Codec(#[from] CodecError),
 }

@@ -21,18 +21,27 @@ pub const GOODBYE_WAIT: Duration = Duration::from_secs(10);
 /// Why a node lost, or never got, its place in the wall.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
+    /// Joining failed on the network side: connecting (a lost master if
+    /// [`NetError::Connect`]) or the hello and welcome.
     #[error(transparent)]
     Net(#[from] NetError),
+    /// The master answered the hello with a refusal; it holds the master's reason.
     #[error("the master refused this node: {0}")]
     Refused(String),
+    /// The master answered the hello with something else than a welcome, shown here.
     #[error("expected a welcome from the master, got {0}")]
     NoWelcome(String),
+    /// The master finished the stream before it answered the hello.
     #[error("the master closed the connection during the handshake")]
     ClosedInHandshake,
+    /// The master finished the control stream (or its reader ended) without a shutdown.
     #[error("the master ended the session without a shutdown")]
     Ended,
+    /// The control stream or the connection broke once joined, or the master sent a
+    /// malformed message.
     #[error("lost the master: {0}")]
     Lost(NetError),
+    /// With `--reconnect`: the master was lost and not back within this wait.
     #[error("the master did not come back within {} s (--reconnect-timeout)", .0.as_secs())]
     NotBack(Duration),
 }
@@ -72,6 +81,7 @@ impl LinkError {
 pub struct Welcome {
     /// The node's id: render nodes have one, displays and control clients none.
     pub node: Option<RenderNodeId>,
+    /// The session the node is to run: the wall, the scene and the displays' addresses.
     pub session: Session,
 }
 

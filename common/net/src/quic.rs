@@ -85,6 +85,8 @@ fn base_transport() -> quinn::TransportConfig {
     t
 }
 
+/// The server side of control and pixel connections, with windows for pixel traffic: it
+/// accepts only peers whose certificate the cluster CA signed.
 pub fn server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
     server_config_with(id, transport())
 }
@@ -121,6 +123,8 @@ fn server_config_with(
     Ok(config)
 }
 
+/// The client side of control and pixel connections: it presents `id`'s certificate and trusts
+/// only servers whose certificate the cluster CA signed.
 pub fn client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
     let mut tls = rustls::ClientConfig::builder_with_provider(provider())
         .with_protocol_versions(&[&rustls::version::TLS13])
@@ -168,8 +172,6 @@ pub fn endpoint(bind: SocketAddr, id: &NodeIdentity, accept: bool) -> Result<qui
     Ok(endpoint)
 }
 
-/// The roles the certificate a connected peer presented names (see [`cert_roles`]); empty if
-/// it presented none, which mutual TLS does not let happen.
 /// Whether the peer's certificate was issued for display `display`.
 pub fn peer_is_display(conn: &quinn::Connection, display: u32) -> bool {
     conn.peer_identity()
@@ -182,6 +184,8 @@ pub fn peer_is_display(conn: &quinn::Connection, display: u32) -> bool {
         .unwrap_or(false)
 }
 
+/// The roles the certificate a connected peer presented names (see [`cert_roles`]); empty if
+/// it presented none, which mutual TLS does not let happen.
 pub fn peer_roles(conn: &quinn::Connection) -> Vec<CertRole> {
     conn.peer_identity()
         .and_then(|id| id.downcast::<Vec<CertificateDer<'static>>>().ok())

@@ -98,6 +98,8 @@ fn soak_driver(
                     .extend(sample);
                 if start.elapsed() >= length {
                     // The wall ends as on Ctrl-C: frames in flight finish, nodes report.
+                    // SAFETY: kill only sends a signal, here to this process, and touches no
+                    // memory.
                     unsafe { libc::kill(me as i32, libc::SIGINT) };
                     return Ok(());
                 }
@@ -113,6 +115,8 @@ fn soak_driver(
                 };
                 let before = frames_presented(&mut client).await?;
                 let killed = Instant::now();
+                // SAFETY: kill only sends a signal and touches no memory; `victim` is a child
+                // of this process, listed just above.
                 unsafe { libc::kill(victim as i32, libc::SIGKILL) };
                 let child = tokio::process::Command::new(&exe)
                     .args([

@@ -212,6 +212,8 @@ impl RemoteNode {
             Some(s) => Some(format!("{} exited with {}", self.label, describe(s))),
             None => {
                 if let Some(pid) = self.child.id() {
+                    // SAFETY: kill only sends a signal and touches no memory of ours. `id` is
+                    // `Some` only while the child is not reaped, so the pid is still ssh's.
                     unsafe {
                         libc::kill(pid as i32, libc::SIGTERM);
                     }
