@@ -25,8 +25,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
-use tessera_wire::input::InputEvent;
-use tessera_wire::window::WindowPlacement;
+use tessera_model::input::InputEvent;
+use tessera_model::window::WindowPlacement;
 use tokio::sync::mpsc;
 use window::{window_presenter, WindowCallbacks, WindowSender};
 
@@ -96,7 +96,7 @@ fn parse_position(text: &str) -> Result<(i32, i32), String> {
 }
 
 fn parse_window_size(text: &str) -> Result<(u32, u32), String> {
-    tessera_wire::wall::parse_size(text).map_err(|e| e.to_string())
+    tessera_model::wall::parse_size(text).map_err(|e| e.to_string())
 }
 
 impl Cli {

@@ -17,16 +17,16 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_cli::png::PngFile;
 use tessera_core::node::display::{DisplayEvent, DisplaySession, PresentOrder};
+use tessera_model::image::RgbImage;
+use tessera_model::input::InputEvent;
+use tessera_model::wall::{DisplayId, ScreenRect, TileGrid};
+use tessera_model::window::WindowPlacement;
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
-use tessera_wire::image::RgbImage;
-use tessera_wire::input::InputEvent;
-use tessera_wire::protocol::{DisplayStats, FrameId, FromNode, NodeStats, Role};
-use tessera_wire::wall::{DisplayId, ScreenRect, TileGrid};
-use tessera_wire::window::WindowPlacement;
+use tessera_protocol::{DisplayStats, FrameId, FromNode, NodeStats, Role};
 use tokio::sync::mpsc;
 
 /// What the window thread and the network side hand each other (see `run_with_window`).
@@ -102,7 +102,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
 async fn open_window(
     cli: &Cli,
     state: &mut WindowState,
-    session: &tessera_wire::protocol::Session,
+    session: &tessera_protocol::Session,
     screen: ScreenRect,
 ) -> Result<()> {
     let size = (screen.width, screen.height);

@@ -5,12 +5,12 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use tessera_wire::protocol::pixels::{
+use tessera_model::state::StateId;
+use tessera_model::wall::{DisplayId, TileGrid, TileId};
+use tessera_protocol::pixels::{
     BatchSource, Compression, StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
 };
-use tessera_wire::protocol::FrameId;
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{DisplayId, TileGrid, TileId};
+use tessera_protocol::FrameId;
 use tokio::sync::mpsc;
 
 pub struct IncomingTile {

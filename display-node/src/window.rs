@@ -11,8 +11,8 @@ use std::rc::Rc;
 
 use crate::overlay::{self, Overlay};
 use anyhow::{anyhow, bail, Context as _};
-use tessera_wire::input::{Button, InputEvent, Key};
-use tessera_wire::window::WindowPlacement;
+use tessera_model::input::{Button, InputEvent, Key};
+use tessera_model::window::WindowPlacement;
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -344,8 +344,8 @@ impl App {
                 };
                 (lines != 0.0).then_some(InputEvent::Scroll {
                     lines: lines.clamp(
-                        -tessera_wire::input::MAX_MOVE,
-                        tessera_wire::input::MAX_MOVE,
+                        -tessera_model::input::MAX_MOVE,
+                        tessera_model::input::MAX_MOVE,
                     ),
                 })
             }

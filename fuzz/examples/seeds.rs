@@ -9,14 +9,14 @@ use glam::Vec3;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use tessera_render::scene::particles::{write_tpart, Particle};
-use tessera_wire::camera::Camera;
-use tessera_wire::control::{ControlReply, ControlRequest, LiveFigures, ViewName};
-use tessera_wire::params::RenderParams;
-use tessera_wire::protocol::pixels::{encode_batch, BatchSource, Compression};
-use tessera_wire::protocol::*;
-use tessera_wire::state::StateId;
-use tessera_wire::protocol::dsm::{BlockHolder, BlockRequest, DataSpec, DsmStats, SharedSpec};
-use tessera_wire::wall::{DisplayId, TileGrid, TileId, WallSpec};
+use tessera_model::camera::Camera;
+use tessera_protocol::control::{ControlReply, ControlRequest, LiveFigures, ViewName};
+use tessera_model::params::RenderParams;
+use tessera_protocol::pixels::{encode_batch, BatchSource, Compression};
+use tessera_protocol::*;
+use tessera_model::state::StateId;
+use tessera_protocol::dsm::{BlockHolder, BlockRequest, DataSpec, DsmStats, SharedSpec};
+use tessera_model::wall::{DisplayId, TileGrid, TileId, WallSpec};
 
 fn main() {
     let root = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "corpus".into()));
@@ -34,7 +34,7 @@ fn main() {
 /// Every seed must load: a seed that fails at its first field only teaches the fuzzer errors.
 fn check(root: &Path) {
     use tessera_render::scene::Scene;
-    use tessera_wire::scene_spec::SceneSpec;
+    use tessera_model::scene_spec::SceneSpec;
     let dir = std::env::temp_dir().join(format!("tessera-seed-check-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene_parts = [
@@ -105,7 +105,7 @@ fn check(root: &Path) {
     }
     for seed in seeds(root, "wall_file") {
         let text = std::fs::read_to_string(&seed).unwrap();
-        tessera_wire::window::WallFile::from_toml(&text, "seed").unwrap();
+        tessera_model::window::WallFile::from_toml(&text, "seed").unwrap();
     }
     for seed in seeds(root, "transfer_file") {
         let path = dir.join("transfer.toml");

@@ -3,7 +3,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tessera_wire::protocol::{codec, FromNode};
+use tessera_protocol::{codec, FromNode};
 
 fuzz_target!(|frame: &[u8]| {
     if let Ok(msg) = codec::decode_frame::<FromNode>(frame) {

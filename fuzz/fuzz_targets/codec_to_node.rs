@@ -3,7 +3,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tessera_wire::protocol::{codec, ToNode};
+use tessera_protocol::{codec, ToNode};
 
 fuzz_target!(|frame: &[u8]| {
     if let Ok(msg) = codec::decode_frame::<ToNode>(frame) {

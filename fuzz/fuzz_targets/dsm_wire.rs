@@ -3,8 +3,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tessera_wire::protocol::codec;
-use tessera_wire::protocol::dsm::{decode_block_header, encode_block_header, BlockRequest};
+use tessera_protocol::codec;
+use tessera_protocol::dsm::{decode_block_header, encode_block_header, BlockRequest};
 
 fuzz_target!(|frame: &[u8]| {
     if let Ok(request) = codec::decode_frame::<BlockRequest>(frame) {

@@ -5,10 +5,10 @@
 
 use libfuzzer_sys::fuzz_target;
 use std::sync::OnceLock;
-use tessera_wire::protocol::pixels::{
+use tessera_protocol::pixels::{
     StreamHeader, TileHeader, STREAM_HEADER_LEN, TILE_HEADER_LEN,
 };
-use tessera_wire::wall::{DisplayId, TileGrid, WallSpec};
+use tessera_model::wall::{DisplayId, TileGrid, WallSpec};
 
 /// A 2×1 wall whose screens are not multiples of the tile size, so edge tiles are short.
 fn grid() -> &'static TileGrid {

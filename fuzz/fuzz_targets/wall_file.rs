@@ -3,8 +3,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tessera_wire::wall::TileGrid;
-use tessera_wire::window::WallFile;
+use tessera_model::wall::TileGrid;
+use tessera_model::window::WallFile;
 
 fuzz_target!(|data: &[u8]| {
     let Ok(text) = std::str::from_utf8(data) else {
@@ -20,7 +20,7 @@ fuzz_target!(|data: &[u8]| {
         let grid = TileGrid::new(file.layout);
         let screens = grid.layout().display_count();
         assert!((0..screens).all(|d| !grid
-            .display_tiles(tessera_wire::wall::DisplayId(d))
+            .display_tiles(tessera_model::wall::DisplayId(d))
             .is_empty()));
     }
 });

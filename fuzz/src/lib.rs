@@ -45,7 +45,7 @@ pub fn names_outside_paths(bytes: &[u8]) -> bool {
 /// and checks that what loaded passes the scene's own validation again.
 pub fn load_scene_bytes(name: &str, bytes: &[u8]) {
     use tessera_render::scene::Scene;
-    use tessera_wire::scene_spec::SceneSpec;
+    use tessera_model::scene_spec::SceneSpec;
     let path = scratch_file(name, bytes);
     let spec = SceneSpec::from_arg(path.to_str().expect("scratch paths are UTF-8"))
         .expect("a scratch path is a valid scene name");

@@ -8,9 +8,9 @@ use std::time::Duration;
 use tessera_cli::{CompressArg, QualityArgs, SceneArgs, WallArgs};
 use tessera_core::balance::BalanceConfig;
 use tessera_core::master::MasterConfig;
+use tessera_protocol::FrameId;
 use tessera_render::orbit_of;
 use tessera_render::scene::Scene;
-use tessera_wire::protocol::FrameId;
 
 /// Most render nodes `local` starts on one machine.
 pub const MAX_LOCAL_RENDER_NODES: u32 = 256;
@@ -271,7 +271,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     let spec = run.scene.spec()?;
     // Checked here; the cutting planes are moved into the scene's frame once it is loaded.
     run.quality
-        .params(&tessera_wire::local_frame::RenderFromWorld::IDENTITY)?;
+        .params(&tessera_model::local_frame::RenderFromWorld::IDENTITY)?;
     let refinement = run.refinement()?;
     let scene = Scene::load(&spec)?;
     let params = run.quality.params(&scene.render_from_world)?;

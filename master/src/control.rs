@@ -10,15 +10,15 @@ use std::process::ExitCode;
 use std::time::Duration;
 use tessera_cli::transfer_file::transfer_function;
 use tessera_cli::{parse_plane, parse_range, parse_vec3};
+use tessera_model::camera::{Camera, CameraMode};
+use tessera_model::cut::CutPlanes;
+use tessera_model::light::{Light, Lights};
+use tessera_model::state::{StateChange, WallState};
+use tessera_model::volume_params::IsoValues;
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::MasterLink;
-use tessera_wire::camera::{Camera, CameraMode};
-use tessera_wire::control::{ControlReply, ControlRequest, ViewName};
-use tessera_wire::cut::CutPlanes;
-use tessera_wire::light::{Light, Lights};
-use tessera_wire::protocol::{FromNode, Role, ToNode};
-use tessera_wire::state::{StateChange, WallState};
-use tessera_wire::volume_params::IsoValues;
+use tessera_protocol::control::{ControlReply, ControlRequest, ViewName};
+use tessera_protocol::{FromNode, Role, ToNode};
 
 #[derive(clap::Args, Debug)]
 pub struct ControlArgs {

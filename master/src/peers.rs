@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 use tessera_net::framed::{read_msg, write_msg};
-use tessera_wire::protocol::{FromNode, Hello, ToNode};
+use tessera_protocol::{FromNode, Hello, ToNode};
 use tokio::sync::mpsc;
 
 pub use tessera_core::master::PeerId;

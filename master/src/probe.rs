@@ -4,14 +4,14 @@
 
 use std::sync::Arc;
 use tessera_core::master::VolumeProbe;
+use tessera_model::camera::Camera;
+use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::params::RenderParams;
+use tessera_model::wall::WallLayout;
+use tessera_protocol::control::{ProbeHit, Refusal};
 use tessera_render::scene::Scene;
 use tessera_render::volume::PreparedVolume;
 use tessera_render::PixelRays;
-use tessera_wire::camera::Camera;
-use tessera_wire::control::{ProbeHit, Refusal};
-use tessera_wire::local_frame::RenderFromWorld;
-use tessera_wire::params::RenderParams;
-use tessera_wire::wall::WallLayout;
 
 /// The scene's volume, for probing.
 pub struct Prober {

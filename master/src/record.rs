@@ -14,9 +14,9 @@ use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::Path;
-use tessera_wire::camera::Camera;
-use tessera_wire::protocol::FrameStart;
-use tessera_wire::state::{StateId, WallState};
+use tessera_model::camera::Camera;
+use tessera_model::state::{StateId, WallState};
+use tessera_protocol::FrameStart;
 
 /// One line of a session file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -112,10 +112,10 @@ impl Session {
     }
 
     /// The state each recorded frame starts with, for the master to replay.
-    pub fn changes(&self) -> Vec<(tessera_wire::protocol::FrameId, WallState)> {
+    pub fn changes(&self) -> Vec<(tessera_protocol::FrameId, WallState)> {
         self.lines
             .iter()
-            .map(|l| (tessera_wire::protocol::FrameId(l.frame), l.wall))
+            .map(|l| (tessera_protocol::FrameId(l.frame), l.wall))
             .collect()
     }
 
@@ -139,13 +139,13 @@ impl Session {
 mod tests {
     use super::*;
     use glam::Vec3;
-    use tessera_wire::camera::CameraMode;
-    use tessera_wire::params::RenderParams;
-    use tessera_wire::protocol::FrameId;
+    use tessera_model::camera::CameraMode;
+    use tessera_model::params::RenderParams;
+    use tessera_protocol::FrameId;
 
     fn start(frame: u64, state: u64, ao: u32) -> (FrameStart, WallState) {
         let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap();
-        let params = tessera_wire::params::RenderParamsSpec {
+        let params = tessera_model::params::RenderParamsSpec {
             ao_samples: ao,
             ..RenderParams::interactive().spec()
         }

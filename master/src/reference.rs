@@ -5,16 +5,16 @@ use crate::args::{Aov, RenderArgs};
 use anyhow::{Context, Result};
 use std::time::Instant;
 use tessera_cli::png::PngFile;
+use tessera_model::wall::TileGrid;
 use tessera_render::aov::{primary_aovs, write_pfm, write_pfm_rgb};
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_wall, render_wall_linear, FrameView, PreparedScene};
-use tessera_wire::wall::TileGrid;
 
 pub fn render_reference(args: RenderArgs) -> Result<()> {
     let wall = args.wall.layout()?;
     // Checked before the (long) load; the cutting planes are then moved into the scene's frame.
     args.quality
-        .params(&tessera_wire::local_frame::RenderFromWorld::IDENTITY)?;
+        .params(&tessera_model::local_frame::RenderFromWorld::IDENTITY)?;
     let replayed = args
         .replay
         .as_deref()

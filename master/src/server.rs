@@ -18,7 +18,7 @@ use tessera_core::master::{
 };
 use tessera_net::cluster::CertRole;
 use tessera_net::unix_ns;
-use tessera_wire::protocol::{Role, ToNode};
+use tessera_protocol::{Role, ToNode};
 use tokio::sync::mpsc;
 
 /// What a run needs to know: the master's own configuration, and what only the driver does.

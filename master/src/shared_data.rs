@@ -5,9 +5,9 @@
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use tessera_cli::bytes::{parse_bytes, show_bytes};
+use tessera_protocol::dsm::{DataSpec, SharedSpec};
 use tessera_render::dsm::prepare::{self, Manifest, PrepareError};
 use tessera_render::scene::Scene;
-use tessera_wire::protocol::dsm::{DataSpec, SharedSpec};
 
 /// How render nodes hold the scene.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -134,7 +134,7 @@ pub fn ensure_prepared(
 
 /// `tessera-master prepare`.
 pub fn prepare_command(args: PrepareArgs) -> Result<()> {
-    let spec = tessera_wire::scene_spec::SceneSpec::from_arg(&args.scene)?;
+    let spec = tessera_model::scene_spec::SceneSpec::from_arg(&args.scene)?;
     let scene = Scene::load(&spec)?;
     let bytes = block_bytes(args.block_size)?;
     let dir = match args.out {

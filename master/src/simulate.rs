@@ -8,8 +8,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 use tessera_core::balance::BalanceConfig;
 use tessera_core::sim::{near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall};
-use tessera_wire::protocol::{FrameId, RenderNodeId};
-use tessera_wire::wall::parse_size;
+use tessera_model::wall::parse_size;
+use tessera_protocol::{FrameId, RenderNodeId};
 
 #[derive(clap::Args, Debug)]
 pub struct SimulateArgs {

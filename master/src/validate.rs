@@ -6,9 +6,9 @@
 use anyhow::{Context, Result};
 use std::fmt::Write as _;
 use std::path::PathBuf;
-use tessera_wire::screens::ScreenGeometry;
-use tessera_wire::stereo::{Eye, ViewSource};
-use tessera_wire::wall::{TileGrid, WallLayout};
+use tessera_model::screens::ScreenGeometry;
+use tessera_model::stereo::{Eye, ViewSource};
+use tessera_model::wall::{TileGrid, WallLayout};
 
 #[derive(clap::Args)]
 pub struct ValidateArgs {

@@ -13,9 +13,9 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 use tessera_cli::png::PngFile;
+use tessera_model::image::{compose_wall, RgbImage};
+use tessera_model::wall::WallLayout;
 use tessera_net::cluster::{CertRole, ClusterCa, NodeIdentity};
-use tessera_wire::image::{compose_wall, RgbImage};
-use tessera_wire::wall::WallLayout;
 
 pub fn stop_on_ctrl_c() -> (tokio::sync::watch::Receiver<bool>, Arc<AtomicBool>) {
     let (tx, rx) = tokio::sync::watch::channel(false);

@@ -6,12 +6,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 use tessera_core::node::render::{BatchDone, BatchOrder};
+use tessera_model::state::StateId;
+use tessera_model::wall::{TileGrid, TileId};
+use tessera_protocol::pixels::Compression;
+use tessera_protocol::FrameId;
 use tessera_render::volume::{SeriesCache, VolumeError};
 use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
-use tessera_wire::protocol::pixels::Compression;
-use tessera_wire::protocol::FrameId;
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{TileGrid, TileId};
 
 pub(crate) fn read(scene: &RwLock<PreparedScene>) -> RwLockReadGuard<'_, PreparedScene> {
     scene.read().unwrap_or_else(|e| e.into_inner())

@@ -7,15 +7,15 @@ use crate::memory::{map_large_allocations, release_freed, resident_bytes};
 use anyhow::{Context, Result};
 use std::time::Instant;
 use tessera_cli::SceneArgs;
+use tessera_model::camera::Camera;
+use tessera_model::params::RenderParamsSpec;
+use tessera_model::wall::{parse_size, TileGrid, WallSpec};
 use tessera_render::accel::Accel;
 use tessera_render::accel_cache::{load_or_build_timed, Source};
 use tessera_render::bench::{time_passes, AoReach, Pass, PassTimes};
 use tessera_render::isa::Isa;
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_tiles, FrameView, PreparedScene};
-use tessera_wire::camera::Camera;
-use tessera_wire::params::RenderParamsSpec;
-use tessera_wire::wall::{parse_size, TileGrid, WallSpec};
 
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
@@ -200,7 +200,7 @@ impl Bench<'_> {
 
 /// Shading as Embree's viewer does it: one primary ray a pixel, shaded and stored, no shadow or
 /// ambient-occlusion rays.
-fn eyelight_params() -> Result<tessera_wire::params::RenderParams> {
+fn eyelight_params() -> Result<tessera_model::params::RenderParams> {
     Ok(RenderParamsSpec {
         shadows: false,
         ao_samples: 0,

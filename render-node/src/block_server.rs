@@ -5,8 +5,8 @@
 use std::sync::{Arc, RwLock};
 use tessera_net::cluster::CertRole;
 use tessera_net::framed::read_msg;
+use tessera_protocol::dsm::{encode_block_header, BlockRequest, MAX_BLOCKS_PER_REQUEST};
 use tessera_render::PreparedScene;
-use tessera_wire::protocol::dsm::{encode_block_header, BlockRequest, MAX_BLOCKS_PER_REQUEST};
 
 /// Serves `scene`'s local blocks on `endpoint` until the task is aborted or the endpoint
 /// closes.

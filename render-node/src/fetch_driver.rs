@@ -14,12 +14,10 @@ use tessera_core::dsm::{
 };
 use tessera_net::framed::write_msg;
 use tessera_net::quic;
+use tessera_protocol::dsm::{decode_block_header, BlockHolder, BlockRequest, BLOCK_HEADER_LEN};
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::BlockFile;
 use tessera_render::dsm::Block;
-use tessera_wire::protocol::dsm::{
-    decode_block_header, BlockHolder, BlockRequest, BLOCK_HEADER_LEN,
-};
 use tokio::sync::{mpsc, oneshot, OnceCell};
 
 /// Most blocks in flight that a prefetch may add to: blocks fetched ahead wait in buffers and

@@ -25,8 +25,8 @@ mod shared;
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use tessera_model::scene_spec::SceneSpec;
 use tessera_render::scene::Scene;
-use tessera_wire::scene_spec::SceneSpec;
 
 /// Most rendering threads a node may be asked for.
 pub const MAX_THREADS: usize = 1024;

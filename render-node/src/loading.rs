@@ -11,11 +11,11 @@ use std::sync::{Arc, RwLock};
 use std::time::Instant;
 use tessera_net::link::MasterLink;
 use tessera_net::quic;
+use tessera_protocol::dsm::DataSpec;
+use tessera_protocol::{FromNode, RenderNodeId, Session, ToNode};
 use tessera_render::scene::Scene;
 use tessera_render::volume::SeriesCache;
 use tessera_render::PreparedScene;
-use tessera_wire::protocol::dsm::DataSpec;
-use tessera_wire::protocol::{FromNode, RenderNodeId, Session, ToNode};
 
 /// A scene prepared for rendering, kept across sessions: a node that rejoins a restarted
 /// master for the same replicated scene does not load it again.
@@ -102,7 +102,7 @@ async fn shared_here(
     link: &mut MasterLink,
     node: RenderNodeId,
     session: &Session,
-    spec: &tessera_wire::protocol::dsm::SharedSpec,
+    spec: &tessera_protocol::dsm::SharedSpec,
 ) -> Result<SceneHere> {
     // The master says the node's rank right after the welcome.
     let (rank, holders) = match link.recv().await? {

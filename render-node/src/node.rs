@@ -17,14 +17,14 @@ use std::time::{Duration, Instant};
 use tessera_core::node::render::{
     BatchOrder, RenderEvent, RenderSession, RenderSetup, VolumeSteps,
 };
+use tessera_model::wall::{DisplayId, TileGrid};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
+use tessera_protocol::{FromNode, NodeStats, Role, ToNode};
 use tessera_render::volume::VolumeError;
-use tessera_wire::protocol::{FromNode, NodeStats, Role, ToNode};
-use tessera_wire::wall::{DisplayId, TileGrid};
 use tokio::sync::mpsc;
 
 /// What the node was started with.
@@ -397,14 +397,14 @@ impl Driver {
 
     /// The session's figures with what only the driver measures: the volume's loads, the
     /// shared scene's reads, the node's peak memory.
-    async fn stats(&self) -> tessera_wire::protocol::RenderStats {
+    async fn stats(&self) -> tessera_protocol::RenderStats {
         let mut stats = self.session.stats(Instant::now());
         if let Some(series) = &self.renderer.series {
             let s = series.stats();
             stats.volume_load_s = s.load_seconds;
             stats
                 .volume_load_s
-                .truncate(tessera_wire::protocol::MAX_REPORTED_LOADS);
+                .truncate(tessera_protocol::MAX_REPORTED_LOADS);
             (stats.prefetch_hits, stats.prefetch_misses) = (s.hits, s.misses);
             stats.volume_stall_s = s.stall_seconds;
         }

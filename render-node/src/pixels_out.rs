@@ -3,10 +3,10 @@
 //! stream, so tiles lost with a display connection are never counted as done.
 
 use std::collections::BTreeMap;
-use tessera_wire::protocol::pixels::{encode_batch, BatchSource, Compression};
-use tessera_wire::protocol::FrameId;
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{DisplayId, TileGrid, TileId};
+use tessera_model::state::StateId;
+use tessera_model::wall::{DisplayId, TileGrid, TileId};
+use tessera_protocol::pixels::{encode_batch, BatchSource, Compression};
+use tessera_protocol::FrameId;
 use tokio::sync::mpsc;
 
 /// A rendered batch of one frame's tiles, each tile's payload packed for the wire.

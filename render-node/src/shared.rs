@@ -12,12 +12,12 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 use tessera_cli::bytes::show_bytes;
 use tessera_core::dsm::{BlockCache, BlockId, Residency};
+use tessera_model::wall::TileId;
+use tessera_protocol::dsm::{BlockHolder, DsmStats, SharedSpec};
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
 use tessera_render::dsm::{Block, BlockFetch, SharedTree, NODE_OVERHEAD_BYTES};
 use tessera_render::PreparedScene;
-use tessera_wire::protocol::dsm::{BlockHolder, DsmStats, SharedSpec};
-use tessera_wire::wall::TileId;
 use tokio::sync::mpsc;
 
 /// What the node was told, by its own flags, about shared scenes.

@@ -63,9 +63,14 @@ fn the_sans_io_core_has_no_runtime_socket_or_cli_in_its_tree() {
 }
 
 #[test]
-fn the_wire_types_are_usable_by_every_layer() {
-    assert_none_of("tessera-wire", IO);
-    assert_none_of("tessera-wire", &["tessera-render", "obvhs", "rayon"]);
+fn the_model_and_the_protocol_are_usable_by_every_layer() {
+    for crate_name in ["tessera-model", "tessera-protocol"] {
+        assert_none_of(crate_name, IO);
+        assert_none_of(crate_name, &["tessera-render", "obvhs", "rayon"]);
+    }
+    // The model does no file I/O of its own: images and wall files are read and written at
+    // the edge (tessera-cli).
+    assert_none_of("tessera-model", &["image", "png", "tessera-protocol"]);
 }
 
 #[test]
@@ -91,7 +96,7 @@ fn the_display_node_does_not_compile_the_renderer() {
 #[test]
 fn the_check_sees_what_is_there() {
     // The test above must be able to fail: the render node does pull in what the display may
-    // not, and the core's tree holds the wire crate.
+    // not, and the core's tree holds the model and the protocol.
     let render = dependency_tree("tessera-render-node");
     for expected in ["tessera-render", "obvhs", "tokio", "quinn"] {
         assert!(
@@ -99,7 +104,8 @@ fn the_check_sees_what_is_there() {
             "{expected} in {render:?}"
         );
     }
-    assert!(dependency_tree("tessera-core")
-        .iter()
-        .any(|c| c == "tessera-wire"));
+    let core = dependency_tree("tessera-core");
+    for expected in ["tessera-model", "tessera-protocol"] {
+        assert!(core.iter().any(|c| c == expected), "{expected} in {core:?}");
+    }
 }

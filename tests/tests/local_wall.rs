@@ -1,8 +1,8 @@
 //! The local wall against the single-process reference, and what each display received.
 
 use std::time::Duration;
+use tessera_protocol::pixels::{STREAM_HEADER_LEN, TILE_HEADER_LEN};
 use tessera_tests::*;
-use tessera_wire::protocol::pixels::{STREAM_HEADER_LEN, TILE_HEADER_LEN};
 
 // Ambient occlusion is on so the comparison covers random samples too: they are keyed on
 // (frame, pixel, sample), so any render node draws the same ones.

@@ -5,16 +5,16 @@
 use serde::Serialize;
 use std::path::Path;
 use std::time::Duration;
+use tessera_model::camera::Camera;
+use tessera_model::params::RenderParamsSpec;
+use tessera_model::scene_spec::SceneSpec;
+use tessera_model::state::StateId;
+use tessera_model::wall::WallSpec;
 use tessera_net::cluster::{CertRole, ClusterCa, NodeIdentity};
 use tessera_net::framed::read_msg;
 use tessera_net::quic;
+use tessera_protocol::{codec, FrameId, FromNode, RenderNodeId, ToNode};
 use tessera_tests::*;
-use tessera_wire::camera::Camera;
-use tessera_wire::params::RenderParamsSpec;
-use tessera_wire::protocol::{codec, FrameId, FromNode, RenderNodeId, ToNode};
-use tessera_wire::scene_spec::SceneSpec;
-use tessera_wire::state::StateId;
-use tessera_wire::wall::WallSpec;
 
 /// A refusal comes at once: well before anything could have been rendered.
 const QUICK: Duration = Duration::from_secs(60);
@@ -180,7 +180,7 @@ struct RawParams {
     cuts: Vec<[f32; 4]>,
     spp: u32,
     first_sample: u32,
-    volume: tessera_wire::volume_params::VolumeParams,
+    volume: tessera_model::volume_params::VolumeParams,
 }
 
 impl RawParams {
@@ -249,18 +249,17 @@ fn render_node_told(lie: &[u8]) -> Output {
                 sides: 4,
             };
             let scene = tessera_render::scene::Scene::load(&spec).unwrap();
-            let session =
-                tessera_wire::protocol::Session::new(tessera_wire::protocol::SessionSpec {
-                    wall: WallSpec::grid(1, 1, 64, 64).build().unwrap(),
-                    scene: spec,
-                    scene_hash: scene.content_hash(),
-                    displays: Vec::new(),
-                    save_frame: None,
-                    compression: Default::default(),
-                    windows: Default::default(),
-                    data: tessera_wire::protocol::dsm::DataSpec::Replicated,
-                })
-                .unwrap();
+            let session = tessera_protocol::Session::new(tessera_protocol::SessionSpec {
+                wall: WallSpec::grid(1, 1, 64, 64).build().unwrap(),
+                scene: spec,
+                scene_hash: scene.content_hash(),
+                displays: Vec::new(),
+                save_frame: None,
+                compression: Default::default(),
+                windows: Default::default(),
+                data: tessera_protocol::dsm::DataSpec::Replicated,
+            })
+            .unwrap();
             let welcome = ToNode::Welcome {
                 node: Some(RenderNodeId(0)),
                 session,
@@ -326,7 +325,7 @@ fn an_assignment_of_tiles_the_wall_lacks_is_refused_by_the_render_node() {
     let frame = frame_start(RawParams::interactive());
     let assign = codec::encode(&ToNode::Assign {
         frame: FrameId(0),
-        tiles: vec![tessera_wire::protocol::TileRange::new(0, 4_000_000).unwrap()],
+        tiles: vec![tessera_protocol::TileRange::new(0, 4_000_000).unwrap()],
     })
     .unwrap();
     let lie = [frame, assign].concat();

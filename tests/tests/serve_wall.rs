@@ -6,8 +6,8 @@ use std::time::Duration;
 use tessera_net::cluster::{ClusterCa, NodeIdentity};
 use tessera_net::framed::{read_msg, write_msg};
 use tessera_net::quic;
+use tessera_protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
 use tessera_tests::*;
-use tessera_wire::protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
 
 /// Hostile and foreign peers, in-process. Returns what each attempt ended with.
 async fn knock(master: std::net::SocketAddr, cluster: &Path, foreign: &Path) -> Vec<String> {

@@ -1,10 +1,11 @@
 //! What Tessera's binaries share at their edge: command-line arguments for the wall, the
 //! scene, the camera and the quality knobs (clap derive), their checks, and the log set-up.
 //!
-//! Every argument ends up in a `tessera-wire` type through that type's validating constructor,
+//! Every argument ends up in a `tessera-model` type through that type's validating constructor,
 //! so the command line can give no value the network would refuse; each error names the flag.
-//! It depends on clap, tracing-subscriber and `tessera-wire` only, so display nodes use it
-//! without compiling the renderer.
+//! It depends on clap, tracing-subscriber, image (PNG files, [`png`]) and `tessera-model`
+//! only, so display nodes use it without compiling the renderer. Reading wall files
+//! ([`wall_file`]) and writing images are here, at the edge, so the model does no file I/O.
 
 #![warn(missing_docs)]
 
@@ -19,16 +20,16 @@ pub mod wall_file;
 use clap::Args;
 use glam::{DVec3, Vec3};
 use std::path::PathBuf;
-use tessera_wire::camera::{check_fov, Camera, CameraError, CameraMode, DEFAULT_FOV_DEG};
-use tessera_wire::cut::{CutError, CutPlanes};
-use tessera_wire::local_frame::RenderFromWorld;
-use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
-use tessera_wire::protocol::pixels::Compression;
-use tessera_wire::scene_spec::{SceneSpec, SceneSpecError};
-use tessera_wire::stereo::{Stereo, StereoMode};
-use tessera_wire::volume_params::{IsoValues, VolumeParams};
-use tessera_wire::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
-use tessera_wire::window::WallFile;
+use tessera_model::camera::{check_fov, Camera, CameraError, CameraMode, DEFAULT_FOV_DEG};
+use tessera_model::cut::{CutError, CutPlanes};
+use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
+use tessera_model::scene_spec::{SceneSpec, SceneSpecError};
+use tessera_model::stereo::{Stereo, StereoMode};
+use tessera_model::volume_params::{IsoValues, VolumeParams};
+use tessera_model::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
+use tessera_model::window::WallFile;
+use tessera_protocol::pixels::Compression;
 
 /// A flag whose value was refused, named with its flag.
 #[derive(Debug, thiserror::Error)]
@@ -296,7 +297,7 @@ pub struct QualityArgs {
 impl QualityArgs {
     /// # Errors
     /// More cutting planes than supported, or knobs out of their bounds
-    /// ([`tessera_wire::params`]). Cutting planes are given in world coordinates and moved by
+    /// ([`tessera_model::params`]). Cutting planes are given in world coordinates and moved by
     /// `frame`, the scene's.
     pub fn params(&self, frame: &RenderFromWorld) -> Result<RenderParams, ArgError> {
         let cuts: Vec<(Vec3, f32)> = self

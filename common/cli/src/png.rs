@@ -3,19 +3,25 @@
 //! for a file (a script, a test, a viewer) never reads half of it.
 
 use std::path::Path;
-use tessera_wire::image::RgbImage;
+use tessera_model::image::RgbImage;
 
 /// Why an image file could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum PngError {
+    /// The image could not be written to `path`.
     #[error("cannot write {path}")]
     Write {
+        /// The file that was to be written.
         path: String,
+        /// What the encoder or the file system said.
         source: image::ImageError,
     },
+    /// The file at `path` could not be read as an image.
     #[error("cannot read image {path}")]
     Read {
+        /// The file that was to be read.
         path: String,
+        /// What the decoder or the file system said.
         source: image::ImageError,
     },
 }

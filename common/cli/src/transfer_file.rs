@@ -15,7 +15,7 @@
 
 use serde::Deserialize;
 use std::path::Path;
-use tessera_wire::volume_params::{
+use tessera_model::volume_params::{
     TransferDomain, TransferFunction, TransferPoint, VolumeParamsError,
 };
 

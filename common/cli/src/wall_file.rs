@@ -1,9 +1,9 @@
 //! Wall files read from disk (see `deploy/walls/*.toml` for examples); the text itself is
-//! parsed and checked by `tessera_wire::window::WallFile::from_toml`.
+//! parsed and checked by `tessera_model::window::WallFile::from_toml`.
 
 use std::path::Path;
-use tessera_wire::wall::{WallError, WallLayout};
-use tessera_wire::window::WallFile;
+use tessera_model::wall::{WallError, WallLayout};
+use tessera_model::window::WallFile;
 
 /// Reads the wall file at `path`: the wall and where its displays put their windows.
 ///

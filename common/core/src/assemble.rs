@@ -13,9 +13,9 @@
 //! tile's state is kept and checked again once the frame's state is known.)
 
 use std::collections::BTreeMap;
-use tessera_wire::protocol::FrameId;
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{ScreenRect, Tile, TileGrid, TileId};
+use tessera_model::state::StateId;
+use tessera_model::wall::{ScreenRect, Tile, TileGrid, TileId};
+use tessera_protocol::FrameId;
 
 /// Frames beyond the next one to present that may be under assembly.
 pub const FRAMES_AHEAD: u64 = 3;
@@ -97,9 +97,9 @@ pub struct PresentedFrame {
 ///
 /// ```
 /// use tessera_core::assemble::{AssembleError, FrameAssembler};
-/// use tessera_wire::protocol::FrameId;
-/// use tessera_wire::state::StateId;
-/// use tessera_wire::wall::{DisplayId, TileGrid, WallSpec};
+/// use tessera_protocol::FrameId;
+/// use tessera_model::state::StateId;
+/// use tessera_model::wall::{DisplayId, TileGrid, WallSpec};
 ///
 /// // Two 32×16 screens in 16-pixel tiles: display 1 owns tiles 2 and 3.
 /// let wall = WallSpec::grid(2, 1, 32, 16).tile_size(16).build().unwrap();
@@ -351,7 +351,7 @@ impl FrameAssembler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tessera_wire::wall::{DisplayId, WallSpec};
+    use tessera_model::wall::{DisplayId, WallSpec};
 
     fn setup() -> (TileGrid, FrameAssembler) {
         let wall = WallSpec::grid(2, 1, 20, 10)

@@ -16,7 +16,7 @@
 //! memory through which render nodes share a scene larger than any one node's memory: who
 //! holds which block, the cache their threads share, and the protocol that fetches the rest.
 //!
-//! It depends on `tessera-wire` for the messages and on nothing that does I/O: no tokio,
+//! It depends on `tessera-model` and `tessera-protocol` for the messages and on nothing that does I/O: no tokio,
 //! quinn, socket or clap crate may enter its dependency tree (a test in `tests/` checks).
 
 #![warn(missing_docs)]

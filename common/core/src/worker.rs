@@ -14,8 +14,8 @@
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
-use tessera_wire::protocol::{to_ranges, FrameId, FrameStart, FromNode, TileRange, ToNode};
-use tessera_wire::wall::TileId;
+use tessera_model::wall::TileId;
+use tessera_protocol::{to_ranges, FrameId, FrameStart, FromNode, TileRange, ToNode};
 
 /// A message from the master that makes no sense to a render node.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -48,10 +48,10 @@ pub enum WorkerError {
 /// use std::time::Instant;
 /// use glam::Vec3;
 /// use tessera_core::worker::RenderWorker;
-/// use tessera_wire::camera::Camera;
-/// use tessera_wire::params::RenderParams;
-/// use tessera_wire::protocol::{FrameId, FrameStart, FromNode, TileRange, ToNode};
-/// use tessera_wire::state::StateId;
+/// use tessera_model::camera::Camera;
+/// use tessera_model::params::RenderParams;
+/// use tessera_protocol::{FrameId, FrameStart, FromNode, TileRange, ToNode};
+/// use tessera_model::state::StateId;
 ///
 /// let now = Instant::now();
 /// // A wall of 100 tiles; ask for more below 4 queued tiles.
@@ -346,9 +346,9 @@ impl BatchSizer {
 mod tests {
     use super::*;
     use glam::Vec3;
-    use tessera_wire::camera::Camera;
-    use tessera_wire::params::RenderParams;
-    use tessera_wire::state::StateId;
+    use tessera_model::camera::Camera;
+    use tessera_model::params::RenderParams;
+    use tessera_model::state::StateId;
 
     /// Tiles of the wall the tests' assignments come from.
     const TILES: u32 = 1000;

@@ -1,9 +1,9 @@
-//! Control messages over a QUIC stream, framed by [`tessera_wire::protocol::codec`].
+//! Control messages over a QUIC stream, framed by [`tessera_protocol::codec`].
 
 use crate::NetError;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
-use tessera_wire::protocol::codec;
+use tessera_protocol::codec;
 
 /// Writes one message, length-prefixed.
 pub async fn write_msg<T: Serialize>(

@@ -6,8 +6,8 @@
 //! [`reconnect`]), and systemd's readiness notification ([`sd_notify`]).
 //!
 //! It holds no protocol logic: what a message means is decided by the sans-IO state machines of
-//! `tessera-core`, which never see a socket. It depends on `tessera-wire` for the messages and
-//! on tokio, quinn and rustls (ring provider, set explicitly).
+//! `tessera-core`, which never see a socket. It depends on `tessera-protocol` for the messages
+//! and on tokio, quinn and rustls (ring provider, set explicitly).
 
 #![warn(missing_docs)]
 
@@ -19,7 +19,7 @@ pub mod reconnect;
 pub mod sd_notify;
 
 use std::net::SocketAddr;
-use tessera_wire::protocol::codec::CodecError;
+use tessera_protocol::codec::CodecError;
 
 /// What can go wrong on the network side.
 #[derive(Debug, thiserror::Error)]

@@ -10,7 +10,7 @@ use crate::framed::{read_msg, spawn_reader, write_msg};
 use crate::{hostname, quic, NetError};
 use std::net::SocketAddr;
 use std::time::Duration;
-use tessera_wire::protocol::{
+use tessera_protocol::{
     FromNode, Hello, NodeStats, RenderNodeId, Role, Session, ToNode, PROTOCOL_VERSION,
 };
 use tokio::sync::mpsc;

@@ -9,7 +9,7 @@ use rustls_pki_types::CertificateDer;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
-use tessera_wire::protocol::ALPN;
+use tessera_protocol::ALPN;
 
 type Result<T, E = NetError> = std::result::Result<T, E>;
 

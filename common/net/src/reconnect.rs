@@ -12,7 +12,7 @@ use std::error::Error;
 use std::fmt::Display;
 use std::net::SocketAddr;
 use std::time::Duration;
-use tessera_wire::protocol::Role;
+use tessera_protocol::Role;
 
 /// How often a node that waits for its master to come back knocks again.
 pub const REJOIN_INTERVAL: Duration = Duration::from_millis(250);

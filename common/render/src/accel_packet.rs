@@ -646,8 +646,8 @@ mod tests {
     use super::*;
     use crate::scene::knot_scene;
     use crate::{orbit_of, PixelRays};
-    use tessera_wire::camera::Camera;
-    use tessera_wire::cut::CutPlanes;
+    use tessera_model::camera::Camera;
+    use tessera_model::cut::CutPlanes;
 
     #[test]
     fn packet_traversal_finds_what_single_rays_find_on_every_simd_path() {

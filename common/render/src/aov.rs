@@ -4,7 +4,7 @@
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
 use crate::{nearest_surface, FrameView, PreparedScene, PACKET};
 use rayon::prelude::*;
-use tessera_wire::wall::{Tile, TileGrid};
+use tessera_model::wall::{Tile, TileGrid};
 
 /// Per-pixel AOVs of the whole virtual image, row-major, row 0 at the top.
 pub struct Aovs {
@@ -114,9 +114,9 @@ pub fn write_pfm_rgb(
 mod tests {
     use super::*;
     use crate::scene::{Material, Scene};
-    use tessera_wire::camera::Camera;
-    use tessera_wire::params::RenderParams;
-    use tessera_wire::wall::WallSpec;
+    use tessera_model::camera::Camera;
+    use tessera_model::params::RenderParams;
+    use tessera_model::wall::WallSpec;
 
     use glam::Vec3;
 

@@ -19,11 +19,11 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
-use tessera_wire::camera::Camera;
-use tessera_wire::light::Lights;
-use tessera_wire::params::RenderParams;
-use tessera_wire::protocol::FrameStart;
-use tessera_wire::wall::{Tile, WallLayout};
+use tessera_model::camera::Camera;
+use tessera_model::light::Lights;
+use tessera_model::params::RenderParams;
+use tessera_model::wall::{Tile, WallLayout};
+use tessera_protocol::FrameStart;
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
 pub const PACKET: u32 = 8;

@@ -2,7 +2,7 @@
 //! nodes and the master's reference render link it; display nodes never compile it.
 //!
 //! A frame is rendered by [`render_tiles`] from a [`PreparedScene`] (the scene and its BVH) and
-//! a [`FrameView`] (camera rays and [`tessera_wire::params::RenderParams`]). Every pixel is a
+//! a [`FrameView`] (camera rays and [`tessera_model::params::RenderParams`]). Every pixel is a
 //! pure function of those and the pixel, so any render node draws a tile byte for byte as the
 //! single-process reference ([`render_wall`]) does.
 //!

@@ -8,7 +8,7 @@
 use crate::PixelRays;
 use glam::Vec3;
 use std::ops::Range;
-use tessera_wire::cut::CutPlanes;
+use tessera_model::cut::CutPlanes;
 
 pub const PACKET_RAYS: usize = 64;
 
@@ -197,7 +197,7 @@ pub fn runs_by<K: PartialEq + Copy>(keys: &[K]) -> impl Iterator<Item = (K, Rang
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tessera_wire::camera::Camera;
+    use tessera_model::camera::Camera;
 
     #[test]
     fn primary_packets_share_origin_and_compute_inverses_once() {

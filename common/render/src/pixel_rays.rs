@@ -4,7 +4,7 @@
 
 use crate::geometry::Bounds;
 use glam::Vec3;
-use tessera_wire::camera::{Camera, CameraError, CameraMode};
+use tessera_model::camera::{Camera, CameraError, CameraMode};
 
 /// The default orbit around a scene's bounds, with the given field of view. A scene with
 /// nothing in it (no finite bounds) is orbited around the origin at unit radius: there is

@@ -2,8 +2,8 @@
 
 use crate::frame::{render_tiles, render_tiles_linear, FrameView, PreparedScene};
 use glam::Vec3;
-use tessera_wire::image::RgbImage;
-use tessera_wire::wall::TileGrid;
+use tessera_model::image::RgbImage;
+use tessera_model::wall::TileGrid;
 
 /// Every tile of the wall rendered in this process, bezels black.
 pub fn render_wall(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) -> RgbImage {

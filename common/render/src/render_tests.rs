@@ -5,10 +5,10 @@ use crate::frame::{render_tiles_with, ShadowRays};
 use crate::scene::{knot_scene, Scene};
 use crate::*;
 use glam::Vec3;
-use tessera_wire::camera::Camera;
-use tessera_wire::cut::CutPlanes;
-use tessera_wire::params::{RenderParams, RenderParamsSpec};
-use tessera_wire::wall::{TileGrid, WallLayout, WallSpec};
+use tessera_model::camera::Camera;
+use tessera_model::cut::CutPlanes;
+use tessera_model::params::{RenderParams, RenderParamsSpec};
+use tessera_model::wall::{TileGrid, WallLayout, WallSpec};
 
 #[test]
 fn a_tile_is_identical_alone_or_in_a_batch_and_on_any_thread_count() {
@@ -119,7 +119,7 @@ fn particles_are_drawn_colour_mapped_and_cropped_and_only_they_get_a_sphere_bvh(
         })
         .collect();
     write_tpart(&path, &particles).unwrap();
-    let scene = Scene::load(&tessera_wire::scene_spec::SceneSpec::File(path)).unwrap();
+    let scene = Scene::load(&tessera_model::scene_spec::SceneSpec::File(path)).unwrap();
     assert_eq!(scene.particles.len(), 50);
     let prepared = PreparedScene::new(&scene);
     assert!(prepared.spheres.is_some() && prepared.accel.nodes.is_empty());
@@ -347,7 +347,7 @@ fn an_empty_scene_traces_nothing() {
 fn shadow_packets_give_the_pixels_of_single_shadow_rays() {
     use crate::scene::particles::Particle;
     use crate::scene::Light;
-    use tessera_wire::scene_spec::SceneSpec;
+    use tessera_model::scene_spec::SceneSpec;
     // Mirrors and glass (their bounces trace single shadow rays), a point light, two
     // directional lights, particles that cast shadows, and a cutting plane.
     let mut scene = Scene::load(&SceneSpec::Gallery).unwrap();

@@ -19,7 +19,7 @@ use crate::volume::FrameTables;
 use crate::{FrameView, PreparedScene, RayCounts};
 use glam::Vec3;
 use std::sync::Arc;
-use tessera_wire::cut::CutPlanes;
+use tessera_model::cut::CutPlanes;
 
 /// Bounces of reflection and transmission (together) after the primary hit.
 pub const MAX_DEPTH: u32 = 6;

@@ -15,7 +15,7 @@ use crate::shade::{
 use crate::tracer::Tracer;
 use crate::{FrameView, PreparedScene};
 use glam::Vec3;
-use tessera_wire::cut::CutPlanes;
+use tessera_model::cut::CutPlanes;
 
 /// Lights whose shadows are traced as packets; further lights use single rays.
 pub const PACKET_LIGHTS: usize = 64;

@@ -5,10 +5,10 @@
 use crate::PixelRays;
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
-use tessera_wire::camera::Camera;
-use tessera_wire::screens::{ScreenGeometry, Viewer};
-use tessera_wire::stereo::{ViewSource, Viewport};
-use tessera_wire::wall::WallLayout;
+use tessera_model::camera::Camera;
+use tessera_model::screens::{ScreenGeometry, Viewer};
+use tessera_model::stereo::{ViewSource, Viewport};
+use tessera_model::wall::WallLayout;
 
 /// Eye separation of a grid wall's stereo when none is given, in scene units.
 pub const DEFAULT_EYE_SEPARATION: f64 = 0.065;

@@ -6,13 +6,13 @@
 mod real_mesh;
 
 use glam::{DVec3, Vec3};
+use tessera_model::camera::Camera;
+use tessera_model::params::RenderParams;
+use tessera_model::scene_spec::SceneSpec;
+use tessera_model::wall::{TileGrid, WallSpec};
 use tessera_render::aov::primary_aovs;
 use tessera_render::scene::Scene;
 use tessera_render::{FrameView, PreparedScene};
-use tessera_wire::camera::Camera;
-use tessera_wire::params::RenderParams;
-use tessera_wire::scene_spec::SceneSpec;
-use tessera_wire::wall::{TileGrid, WallSpec};
 
 const SHIFT: f64 = 1e6;
 const SIZE: (u32, u32) = (320, 240);

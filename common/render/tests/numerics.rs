@@ -5,11 +5,11 @@ mod real_mesh;
 
 use glam::{DVec3, Vec3};
 use proptest::prelude::*;
+use tessera_model::scene_spec::SceneSpec;
 use tessera_render::accel::Accel;
 use tessera_render::geometry::Ray;
 use tessera_render::offset_origin;
 use tessera_render::scene::{knot_scene, Material, Scene};
-use tessera_wire::scene_spec::SceneSpec;
 
 /// A closed sphere mesh with shared vertices: an octahedron subdivided `levels` times.
 fn sphere(center: Vec3, radius: f32, levels: u32) -> Scene {

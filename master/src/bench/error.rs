@@ -14,12 +14,12 @@ use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
+use tessera_model::image::RgbImage;
+use tessera_model::params::{RenderParams, RenderParamsSpec};
+use tessera_model::wall::{TileGrid, WallLayout};
 use tessera_render::render_wall;
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, FrameView, PreparedScene};
-use tessera_wire::image::RgbImage;
-use tessera_wire::params::{RenderParams, RenderParamsSpec};
-use tessera_wire::wall::{TileGrid, WallLayout};
 
 const AO_STEPS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
 const SPP_STEPS: [u32; 5] = [1, 2, 4, 8, 16];
@@ -277,7 +277,7 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tessera_wire::wall::WallSpec;
+    use tessera_model::wall::WallSpec;
 
     #[test]
     fn rmse_ignores_bezels_and_psnr_follows() {

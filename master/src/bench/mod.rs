@@ -17,10 +17,10 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
-use tessera_wire::camera::{Camera, CameraMode};
-use tessera_wire::control::{ControlReply, ControlRequest};
-use tessera_wire::protocol::pixels::Compression;
-use tessera_wire::state::StateChange;
+use tessera_model::camera::{Camera, CameraMode};
+use tessera_model::state::StateChange;
+use tessera_protocol::control::{ControlReply, ControlRequest};
+use tessera_protocol::pixels::Compression;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Experiment {

@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tessera_wire::control::{ControlReply, ControlRequest};
+use tessera_protocol::control::{ControlReply, ControlRequest};
 
 /// What the driver saw while the wall ran.
 #[derive(Default)]

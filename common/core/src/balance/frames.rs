@@ -2,8 +2,8 @@
 
 use super::BalanceError;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use tessera_wire::protocol::{FrameId, FrameStart, RenderNodeId};
-use tessera_wire::wall::{DisplayId, TileId};
+use tessera_model::wall::{DisplayId, TileId};
+use tessera_protocol::{FrameId, FrameStart, RenderNodeId};
 
 pub(super) struct InFlight {
     pub start: FrameStart,

@@ -3,7 +3,7 @@
 //! A node that dies without closing its connection (killed, its host gone, its cable pulled)
 //! is otherwise noticed only when the transport's idle timeout fires: ten seconds in which its
 //! tiles stay assigned and every display waits on them. Render nodes send a heartbeat every
-//! [`HEARTBEAT_INTERVAL`](tessera_wire::protocol::HEARTBEAT_INTERVAL); anything a node sends
+//! [`HEARTBEAT_INTERVAL`](tessera_protocol::HEARTBEAT_INTERVAL); anything a node sends
 //! counts, and a node silent for the deadline is declared gone, so its tiles go elsewhere after
 //! the deadline and not after the transport's timeout.
 

@@ -2,9 +2,9 @@
 
 use super::tests::{assigned_to, drain};
 use super::*;
-use tessera_wire::camera::Camera;
-use tessera_wire::protocol::TileRange;
-use tessera_wire::wall::TileId;
+use tessera_model::camera::Camera;
+use tessera_model::wall::TileId;
+use tessera_protocol::TileRange;
 
 fn coordinator(tiles: u32, frames: u64) -> Coordinator {
     super::tests::coordinator(tiles, 1, frames)
@@ -77,7 +77,7 @@ fn heartbeats_keep_a_busy_node_alive_however_long_its_batch_takes() {
     let _ = drain(&mut c);
     // Ten seconds of rendering one batch, a heartbeat every 50 ms, the driver calling back
     // whenever the coordinator asked.
-    let beat = tessera_wire::protocol::HEARTBEAT_INTERVAL;
+    let beat = tessera_protocol::HEARTBEAT_INTERVAL;
     let mut now = t0;
     for _ in 0..200 {
         now += beat;

@@ -40,11 +40,11 @@ use frames::InFlight;
 use liveness::Liveness;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
-use tessera_wire::camera::CameraMode;
-use tessera_wire::params::{ParamsError, RenderParams};
-use tessera_wire::protocol::{to_ranges, FrameId, FrameStart, RenderNodeId, TileRange, ToNode};
-use tessera_wire::state::{StateChange, StateId, WallState};
-use tessera_wire::wall::{DisplayId, TileId};
+use tessera_model::camera::CameraMode;
+use tessera_model::params::{ParamsError, RenderParams};
+use tessera_model::state::{StateChange, StateId, WallState};
+use tessera_model::wall::{DisplayId, TileId};
+use tessera_protocol::{to_ranges, FrameId, FrameStart, RenderNodeId, TileRange, ToNode};
 
 /// Tuning of the load balancer.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -197,10 +197,10 @@ struct RenderNode {
 /// use std::time::Instant;
 /// use glam::Vec3;
 /// use tessera_core::balance::{BalanceConfig, Coordinator, Output};
-/// use tessera_wire::camera::{Camera, CameraMode};
-/// use tessera_wire::params::RenderParams;
-/// use tessera_wire::protocol::{FrameId, RenderNodeId, ToNode};
-/// use tessera_wire::wall::DisplayId;
+/// use tessera_model::camera::{Camera, CameraMode};
+/// use tessera_model::params::RenderParams;
+/// use tessera_protocol::{FrameId, RenderNodeId, ToNode};
+/// use tessera_model::wall::DisplayId;
 ///
 /// let camera = CameraMode::fixed(Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap());
 /// let now = Instant::now();

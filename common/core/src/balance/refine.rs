@@ -9,8 +9,8 @@
 //! quality equals the single-process reference at that quality bit for bit. Doubling keeps
 //! the cost of all passes under twice that of the last one.
 
-use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec};
-use tessera_wire::volume_params::VolumeParams;
+use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec};
+use tessera_model::volume_params::VolumeParams;
 
 /// When and how far to refine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

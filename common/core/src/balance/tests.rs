@@ -1,10 +1,10 @@
 use super::*;
 use crate::sim::SimWall;
 use glam::Vec3;
-use tessera_wire::camera::Camera;
-use tessera_wire::protocol::{TileRange, ToNode};
-use tessera_wire::state::StateId;
-use tessera_wire::wall::WallSpec;
+use tessera_model::camera::Camera;
+use tessera_model::state::StateId;
+use tessera_model::wall::WallSpec;
+use tessera_protocol::{TileRange, ToNode};
 
 pub(super) fn coordinator(tiles: u32, displays: u32, frames: u64) -> Coordinator {
     let camera = CameraMode::fixed(Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap());

@@ -3,10 +3,10 @@
 //! all of it or none. Window input goes through the [`Navigator`] to the same queue.
 
 use super::*;
-use tessera_wire::control::{
+use tessera_protocol::control::{
     ControlReply, ControlRequest, DisplayFigures, LiveFigures, NodeFigures, ViewName,
 };
-use tessera_wire::protocol::FrameStart;
+use tessera_protocol::FrameStart;
 
 /// Most saved views and outstanding snapshots a run keeps: a client asking for more is
 /// refused rather than allowed to grow the master's memory.
@@ -126,7 +126,7 @@ impl Master {
     pub(super) fn handle_input(
         &mut self,
         display: DisplayId,
-        event: tessera_wire::input::InputEvent,
+        event: tessera_model::input::InputEvent,
         stamp: u64,
         now: Now,
     ) {

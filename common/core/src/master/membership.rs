@@ -3,7 +3,7 @@
 //! and what a departure costs the run under each display-loss policy.
 
 use super::*;
-use tessera_wire::protocol::{DisplayEndpoint, Session, SessionSpec, PROTOCOL_VERSION};
+use tessera_protocol::{DisplayEndpoint, Session, SessionSpec, PROTOCOL_VERSION};
 
 /// Whether a certificate naming `roles` may join as `role` (a display certificate also names
 /// its display: `for_display` says whether it names the one claimed). A certificate from

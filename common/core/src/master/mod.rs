@@ -21,8 +21,8 @@
 //! ```
 //! use std::time::Instant;
 //! use tessera_core::master::{Credentials, Join, Master, MasterConfig, Now, PeerId};
-//! use tessera_wire::protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
-//! use tessera_wire::wall::{DisplayId, WallSpec};
+//! use tessera_protocol::{FromNode, Hello, Role, ToNode, PROTOCOL_VERSION};
+//! use tessera_model::wall::{DisplayId, WallSpec};
 //!
 //! let wall = WallSpec::grid(1, 1, 64, 64).tile_size(32).build().unwrap();
 //! let now = Now { instant: Instant::now(), unix_ns: 1 };
@@ -67,16 +67,16 @@ use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tessera_wire::camera::{Camera, CameraMode};
-use tessera_wire::control::{ProbeHit, Refusal};
-use tessera_wire::params::RenderParams;
-use tessera_wire::protocol::dsm::DataSpec;
-use tessera_wire::protocol::pixels::Compression;
-use tessera_wire::protocol::{FrameId, FromNode, Hello, NodeStats, RenderNodeId, Role, ToNode};
-use tessera_wire::scene_spec::SceneSpec;
-use tessera_wire::state::{StateChange, WallState};
-use tessera_wire::wall::{DisplayId, TileGrid, TileId, WallLayout};
-use tessera_wire::window::WindowPlacement;
+use tessera_model::camera::{Camera, CameraMode};
+use tessera_model::params::RenderParams;
+use tessera_model::scene_spec::SceneSpec;
+use tessera_model::state::{StateChange, WallState};
+use tessera_model::wall::{DisplayId, TileGrid, TileId, WallLayout};
+use tessera_model::window::WindowPlacement;
+use tessera_protocol::control::{ProbeHit, Refusal};
+use tessera_protocol::dsm::DataSpec;
+use tessera_protocol::pixels::Compression;
+use tessera_protocol::{FrameId, FromNode, Hello, NodeStats, RenderNodeId, Role, ToNode};
 use timing::Timing;
 
 /// How long the master waits, once the frames are over, for the nodes' figures.
@@ -208,7 +208,7 @@ pub enum MasterEvent {
     /// Every node is ready and the first frame started.
     Started,
     /// A frame started, and the wall state it started with (what a session recording keeps).
-    FrameStarted(Box<(tessera_wire::protocol::FrameStart, WallState)>),
+    FrameStarted(Box<(tessera_protocol::FrameStart, WallState)>),
     /// Every display still in the run presented this frame.
     FramePresented(FrameId),
     /// The last tile of this frame is done (the frame may still wait for its present).

@@ -11,10 +11,10 @@
 //! event with the camera on the wall at that moment and queues what it returns.
 
 use glam::{Quat, Vec3};
-use tessera_wire::camera::{Camera, CameraMode};
-use tessera_wire::input::{Button, InputEvent, Key};
-use tessera_wire::params::RenderParams;
-use tessera_wire::state::StateChange;
+use tessera_model::camera::{Camera, CameraMode};
+use tessera_model::input::{Button, InputEvent, Key};
+use tessera_model::params::RenderParams;
+use tessera_model::state::StateChange;
 
 /// What an input event asks of the wall.
 // A state change can carry a whole light set; actions live one at a time, on the stack.
@@ -50,10 +50,10 @@ pub enum NavMode {
 /// ```
 /// use glam::Vec3;
 /// use tessera_core::master::navigate::{NavAction, Navigator};
-/// use tessera_wire::camera::{Camera, CameraMode};
-/// use tessera_wire::input::{Button, InputEvent};
-/// use tessera_wire::params::RenderParams;
-/// use tessera_wire::state::StateChange;
+/// use tessera_model::camera::{Camera, CameraMode};
+/// use tessera_model::input::{Button, InputEvent};
+/// use tessera_model::params::RenderParams;
+/// use tessera_model::state::StateChange;
 ///
 /// let camera = Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 45.0).unwrap();
 /// let mut nav = Navigator::new(CameraMode::fixed(camera), Vec3::ZERO, 1.0);

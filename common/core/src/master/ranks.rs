@@ -5,7 +5,7 @@
 
 use super::*;
 use std::collections::BTreeSet;
-use tessera_wire::protocol::dsm::BlockHolder;
+use tessera_protocol::dsm::BlockHolder;
 
 /// Which render node holds each rank, and where it answers for its blocks.
 #[derive(Default)]

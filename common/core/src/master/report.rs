@@ -1,9 +1,9 @@
 //! `report.json`: what a run measured.
 
 use serde::Serialize;
-use tessera_wire::protocol::pixels::Compression;
-use tessera_wire::protocol::{DisplayStats, RenderStats};
-use tessera_wire::wall::WallLayout;
+use tessera_model::wall::WallLayout;
+use tessera_protocol::pixels::Compression;
+use tessera_protocol::{DisplayStats, RenderStats};
 
 /// Everything a run measured, as `report.json` holds it.
 #[derive(Serialize, Debug)]

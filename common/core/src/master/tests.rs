@@ -30,7 +30,7 @@ fn a_certificate_lets_its_holder_join_only_as_its_role_and_display() {
 }
 
 fn wall(displays: u32) -> WallLayout {
-    tessera_wire::wall::WallSpec::grid(displays, 1, 64, 64)
+    tessera_model::wall::WallSpec::grid(displays, 1, 64, 64)
         .tile_size(32)
         .build()
         .unwrap()
@@ -48,7 +48,7 @@ fn join(peer: u64, role: Role) -> Join {
         peer: PeerId(peer),
         credentials: Credentials::for_role(&role),
         hello: Hello {
-            version: tessera_wire::protocol::PROTOCOL_VERSION,
+            version: tessera_protocol::PROTOCOL_VERSION,
             role,
             host: "test".into(),
         },
@@ -159,7 +159,7 @@ fn displays_present_at_one_instant_on_their_own_clocks_after_the_margin() {
     // The render node renders what it is given until the frame is done.
     let mut transmits = sent(&mut master);
     for _ in 0..8 {
-        let tiles: Vec<tessera_wire::protocol::TileRange> = transmits
+        let tiles: Vec<tessera_protocol::TileRange> = transmits
             .iter()
             .filter_map(|t| match &t.msg {
                 ToNode::Assign { frame, tiles } if *frame == FrameId(0) => Some(tiles.clone()),

@@ -14,8 +14,8 @@
 use super::report::Percentiles;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
-use tessera_wire::protocol::FrameId;
-use tessera_wire::wall::DisplayId;
+use tessera_model::wall::DisplayId;
+use tessera_protocol::FrameId;
 
 /// Pings sent to each display when it is ready; the fastest answer wins.
 pub const PINGS: u32 = 16;

@@ -11,10 +11,10 @@ use crate::assemble::{AssembleError, FrameAssembler, PresentedFrame};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
-use tessera_wire::protocol::pixels::BatchSource;
-use tessera_wire::protocol::{DisplayStats, FrameId, FromNode, ToNode};
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{ScreenRect, TileGrid, TileId};
+use tessera_model::state::StateId;
+use tessera_model::wall::{ScreenRect, TileGrid, TileId};
+use tessera_protocol::pixels::BatchSource;
+use tessera_protocol::{DisplayStats, FrameId, FromNode, ToNode};
 
 /// Presents whose times the overlay's frame rate is measured over.
 const PRESENTS_TIMED: usize = 64;
@@ -110,10 +110,10 @@ pub enum DisplayEvent {
 /// use std::sync::Arc;
 /// use std::time::Instant;
 /// use tessera_core::node::display::{DisplayEvent, DisplaySession};
-/// use tessera_wire::protocol::pixels::BatchSource;
-/// use tessera_wire::protocol::{FrameId, FromNode, ToNode};
-/// use tessera_wire::state::StateId;
-/// use tessera_wire::wall::{DisplayId, TileGrid, WallSpec};
+/// use tessera_protocol::pixels::BatchSource;
+/// use tessera_protocol::{FrameId, FromNode, ToNode};
+/// use tessera_model::state::StateId;
+/// use tessera_model::wall::{DisplayId, TileGrid, WallSpec};
 ///
 /// // One 16×16 screen, one tile.
 /// let wall = WallSpec::grid(1, 1, 16, 16).tile_size(16).build().unwrap();
@@ -126,11 +126,11 @@ pub enum DisplayEvent {
 /// let (frame, state) = (FrameId(0), StateId(0));
 /// display.handle_tile(frame, state, tile, &[9; 16 * 16 * 3], BatchSource::default())?;
 /// assert_eq!(display.poll_transmit(), Some(FromNode::FrameComplete { frame }));
-/// display.handle_message(ToNode::FrameStart(tessera_wire::protocol::FrameStart::new(
+/// display.handle_message(ToNode::FrameStart(tessera_protocol::FrameStart::new(
 ///     frame,
 ///     state,
-///     tessera_wire::camera::Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
-///     tessera_wire::params::RenderParams::interactive(),
+///     tessera_model::camera::Camera::new(glam::Vec3::Z, glam::Vec3::ZERO, glam::Vec3::Y, 45.0).unwrap(),
+///     tessera_model::params::RenderParams::interactive(),
 /// )))?;
 /// display.handle_message(ToNode::Present { frame })?;
 /// let Some(DisplayEvent::Present(order)) = display.poll_event() else { panic!() };

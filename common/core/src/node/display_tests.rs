@@ -6,14 +6,12 @@ use crate::assemble::AssembleError;
 use glam::Vec3;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tessera_wire::camera::Camera;
-use tessera_wire::params::RenderParams;
-use tessera_wire::protocol::pixels::BatchSource;
-use tessera_wire::protocol::{
-    FrameId, FrameStart, FromNode, RenderNodeId, ToNode, HEARTBEAT_INTERVAL,
-};
-use tessera_wire::state::StateId;
-use tessera_wire::wall::{DisplayId, TileGrid, TileId, WallSpec};
+use tessera_model::camera::Camera;
+use tessera_model::params::RenderParams;
+use tessera_model::state::StateId;
+use tessera_model::wall::{DisplayId, TileGrid, TileId, WallSpec};
+use tessera_protocol::pixels::BatchSource;
+use tessera_protocol::{FrameId, FrameStart, FromNode, RenderNodeId, ToNode, HEARTBEAT_INTERVAL};
 
 const STATE: StateId = StateId(4);
 

@@ -18,7 +18,7 @@ mod display_tests;
 mod render_tests;
 
 use std::time::{Duration, Instant};
-use tessera_wire::protocol::HEARTBEAT_INTERVAL;
+use tessera_protocol::HEARTBEAT_INTERVAL;
 
 /// When a node says it is alive next: at once when its session starts, then every
 /// [`HEARTBEAT_INTERVAL`] after the last beat went out.

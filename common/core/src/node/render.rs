@@ -12,12 +12,12 @@ use crate::worker::{BatchSizer, RenderWorker, WorkerError};
 use std::collections::{BTreeSet, VecDeque};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
-use tessera_wire::protocol::dsm::BlockHolder;
-use tessera_wire::protocol::pixels::BatchSource;
-use tessera_wire::protocol::{
+use tessera_model::wall::{DisplayId, TileId};
+use tessera_protocol::dsm::BlockHolder;
+use tessera_protocol::pixels::BatchSource;
+use tessera_protocol::{
     to_ranges, FrameId, FrameStart, FromNode, RenderNodeId, RenderStats, ToNode,
 };
-use tessera_wire::wall::{DisplayId, TileId};
 
 /// A message from the master that makes no sense to this render node.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -142,11 +142,11 @@ pub enum RenderEvent {
 /// use std::time::{Duration, Instant};
 /// use glam::Vec3;
 /// use tessera_core::node::render::{BatchDone, RenderSession, RenderSetup};
-/// use tessera_wire::camera::Camera;
-/// use tessera_wire::params::RenderParams;
-/// use tessera_wire::protocol::{FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode};
-/// use tessera_wire::state::StateId;
-/// use tessera_wire::wall::DisplayId;
+/// use tessera_model::camera::Camera;
+/// use tessera_model::params::RenderParams;
+/// use tessera_protocol::{FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode};
+/// use tessera_model::state::StateId;
+/// use tessera_model::wall::DisplayId;
 ///
 /// let t0 = Instant::now();
 /// let setup = RenderSetup {

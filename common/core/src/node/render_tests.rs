@@ -5,14 +5,14 @@ use super::render::*;
 use crate::worker::WorkerError;
 use glam::Vec3;
 use std::time::{Duration, Instant};
-use tessera_wire::camera::Camera;
-use tessera_wire::params::{RenderParams, RenderParamsSpec};
-use tessera_wire::protocol::{
+use tessera_model::camera::Camera;
+use tessera_model::params::{RenderParams, RenderParamsSpec};
+use tessera_model::state::StateId;
+use tessera_model::volume_params::VolumeParams;
+use tessera_model::wall::{DisplayId, TileId};
+use tessera_protocol::{
     FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode, HEARTBEAT_INTERVAL,
 };
-use tessera_wire::state::StateId;
-use tessera_wire::volume_params::VolumeParams;
-use tessera_wire::wall::{DisplayId, TileId};
 
 /// The virtual clock's zero.
 fn t0() -> Instant {

@@ -5,9 +5,9 @@
 use super::*;
 use crate::master::RunError;
 use glam::Vec3;
-use tessera_wire::camera::{Camera, CameraMode};
-use tessera_wire::control::Refusal;
-use tessera_wire::protocol::dsm::SharedSpec;
+use tessera_model::camera::{Camera, CameraMode};
+use tessera_protocol::control::Refusal;
+use tessera_protocol::dsm::SharedSpec;
 
 fn two_displays() -> WallLayout {
     WallSpec::grid(2, 1, 256, 144)

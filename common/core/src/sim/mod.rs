@@ -61,17 +61,17 @@ use net::{Network, Stream};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
 use std::time::{Duration, Instant};
-use tessera_wire::protocol::HEARTBEAT_INTERVAL;
+use tessera_protocol::HEARTBEAT_INTERVAL;
 
 const HEARTBEAT_US: u64 = HEARTBEAT_INTERVAL.as_micros() as u64;
-use tessera_wire::control::{ControlReply, ControlRequest};
-use tessera_wire::protocol::dsm::DataSpec;
-use tessera_wire::protocol::{FrameId, FromNode, Hello, RenderNodeId, Role, ToNode};
-use tessera_wire::screens::{PhysicalSpec, ScreenSpec, Viewer};
-use tessera_wire::state::{StateChange, StateId};
-use tessera_wire::wall::{
+use tessera_model::screens::{PhysicalSpec, ScreenSpec, Viewer};
+use tessera_model::state::{StateChange, StateId};
+use tessera_model::wall::{
     DisplayId, ScreenRect, TileGrid, TileId, WallDescription, WallError, WallLayout, WallSpec,
 };
+use tessera_protocol::control::{ControlReply, ControlRequest};
+use tessera_protocol::dsm::DataSpec;
+use tessera_protocol::{FrameId, FromNode, Hello, RenderNodeId, Role, ToNode};
 
 /// How fast each render node renders a full tile.
 #[derive(Clone, Debug, PartialEq)]
@@ -273,8 +273,8 @@ struct SimNode {
 ///
 /// ```
 /// use tessera_core::sim::{SimConfig, SimWall};
-/// use tessera_wire::protocol::{FrameId, RenderNodeId};
-/// use tessera_wire::wall::{DisplayId, WallSpec};
+/// use tessera_protocol::{FrameId, RenderNodeId};
+/// use tessera_model::wall::{DisplayId, WallSpec};
 ///
 /// let wall = WallSpec::grid(4, 2, 256, 144).tile_size(32).build().unwrap();
 /// let config = SimConfig { loss: 0.01, ..SimConfig::new(64) };

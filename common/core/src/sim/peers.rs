@@ -5,7 +5,7 @@
 use super::*;
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use tessera_wire::protocol::{NodeStats, PROTOCOL_VERSION};
+use tessera_protocol::{NodeStats, PROTOCOL_VERSION};
 
 /// The control client that steers the wall when every frame has a state of its own
 /// ([`SimConfig::change_every_frame`]); numbered apart from the clients a test scripts.

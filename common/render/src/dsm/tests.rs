@@ -7,8 +7,8 @@ use crate::{orbit_of, render_tiles, FrameView};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use tessera_core::dsm::{BlockCache, BlockId, Residency};
-use tessera_wire::params::{RenderParams, RenderParamsSpec};
-use tessera_wire::wall::{TileGrid, WallSpec};
+use tessera_model::params::{RenderParams, RenderParamsSpec};
+use tessera_model::wall::{TileGrid, WallSpec};
 
 /// Every block at hand, as if every owner answered at once; counts what is asked.
 struct AllBlocks {
@@ -144,7 +144,7 @@ fn reader_overhead_against_replicated() {
         eprintln!("skipped: {} is not installed", path.display());
         return;
     }
-    let scene = Scene::load(&tessera_wire::scene_spec::SceneSpec::File(path.into())).unwrap();
+    let scene = Scene::load(&tessera_model::scene_spec::SceneSpec::File(path.into())).unwrap();
     let (w, h) = (640, 360);
     let wall = WallSpec::grid(1, 1, w, h).tile_size(32).build().unwrap();
     let grid = TileGrid::new(wall.clone());

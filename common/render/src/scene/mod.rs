@@ -17,8 +17,8 @@ use crate::volume::{self, Volume, VolumeError};
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use tessera_wire::local_frame::RenderFromWorld;
-use tessera_wire::scene_spec::SceneSpec;
+use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::scene_spec::SceneSpec;
 
 pub use files::load_mesh_file;
 pub use procedural::{gallery_scene, knot_scene};
@@ -137,7 +137,7 @@ pub struct Scene {
     pub render_from_world: RenderFromWorld,
 }
 
-pub use tessera_wire::light::Light;
+pub use tessera_model::light::Light;
 
 /// Why a scene could not be loaded; every variant names the file and what is wrong.
 #[derive(Debug, thiserror::Error)]

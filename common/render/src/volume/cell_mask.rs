@@ -15,7 +15,7 @@
 use super::bricks::{BrickView, CELL_WORDS};
 use super::transfer::TransferTable;
 use std::sync::OnceLock;
-use tessera_wire::volume_params::TransferFunction;
+use tessera_model::volume_params::TransferFunction;
 
 /// One bit per cell of every brick: set where the cell may show something.
 #[derive(Debug)]
@@ -72,7 +72,7 @@ mod tests {
     use super::*;
     use crate::volume::bricks::{cell_bit, Bricks, BRICK_CELLS};
     use glam::UVec3;
-    use tessera_wire::volume_params::{TransferDomain, TransferPoint};
+    use tessera_model::volume_params::{TransferDomain, TransferPoint};
 
     #[test]
     fn a_cell_is_set_exactly_where_its_corners_reach_a_visible_value() {

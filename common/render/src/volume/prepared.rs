@@ -12,8 +12,8 @@ use super::transfer::TransferTable;
 use super::Volume;
 use glam::{DMat3, DVec3, Mat3, Vec3, Vec4};
 use std::sync::{Arc, Mutex};
-use tessera_wire::local_frame::RenderFromWorld;
-use tessera_wire::volume_params::{TransferFunction, VolumeParams};
+use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::volume_params::{TransferFunction, VolumeParams};
 
 /// Composited opacity past which a ray stops: what lies behind shows by less than this.
 pub const OPAQUE_ENOUGH: f32 = 0.9995;
@@ -41,8 +41,8 @@ pub struct FrameTables {
 ///
 /// ```
 /// use tessera_render::volume::{PreparedVolume, Volume, VoxelType};
-/// use tessera_wire::local_frame::RenderFromWorld;
-/// use tessera_wire::volume_params::VolumeParams;
+/// use tessera_model::local_frame::RenderFromWorld;
+/// use tessera_model::volume_params::VolumeParams;
 /// use glam::Vec3;
 ///
 /// let v = Volume::new([2, 2, 2], [1.0; 3], [0.0; 3], VoxelType::F32, vec![0., 1., 0., 1., 0., 1., 0., 1.])?;

@@ -8,13 +8,13 @@ use crate::scene::{Scene, NEUTRAL};
 use crate::shade::background;
 use crate::{orbit_of, render_tiles, FrameView, PreparedScene};
 use glam::Vec3;
-use tessera_wire::camera::Camera;
-use tessera_wire::local_frame::RenderFromWorld;
-use tessera_wire::params::{RenderParams, RenderParamsSpec};
-use tessera_wire::volume_params::{
+use tessera_model::camera::Camera;
+use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::params::{RenderParams, RenderParamsSpec};
+use tessera_model::volume_params::{
     IsoValues, TransferDomain, TransferFunction, TransferPoint, VolumeParams,
 };
-use tessera_wire::wall::{TileGrid, WallLayout};
+use tessera_model::wall::{TileGrid, WallLayout};
 
 /// `n`³ samples of `f` over -1..1 on each axis (spacing 2 / (n - 1)).
 fn field(n: usize, f: impl Fn(Vec3) -> f32) -> Volume {

@@ -9,7 +9,7 @@
 
 use super::bricks::whole4;
 use glam::Vec4;
-use tessera_wire::volume_params::{TransferDomain, TransferFunction};
+use tessera_model::volume_params::{TransferDomain, TransferFunction};
 
 /// Entries of the table; between them colour and opacity are interpolated linearly.
 pub const TABLE_ENTRIES: usize = 4096;
@@ -124,7 +124,7 @@ impl TransferTable {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tessera_wire::volume_params::TransferPoint;
+    use tessera_model::volume_params::TransferPoint;
 
     #[test]
     fn opacity_correction_is_exact_at_the_ends_and_composes() {

@@ -20,7 +20,7 @@ pub const DEFAULT_FOV_DEG: f32 = 45.0;
 ///
 /// ```
 /// use glam::Vec3;
-/// use tessera_wire::camera::{Camera, CameraError};
+/// use tessera_model::camera::{Camera, CameraError};
 ///
 /// let camera = Camera::new(Vec3::new(0.0, 1.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0)?;
 /// assert_eq!(camera.fov_y_deg(), 40.0);

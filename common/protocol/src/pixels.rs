@@ -8,10 +8,10 @@
 //! (equal to the tile's pixel bytes: raw; shorter: LZ4), so a tile never grows on the wire and
 //! needs no flag of its own.
 
-use crate::protocol::{FrameId, RenderNodeId};
-use crate::state::StateId;
-use crate::wall::TileId;
+use crate::{FrameId, RenderNodeId};
 use serde::{Deserialize, Serialize};
+use tessera_model::state::StateId;
+use tessera_model::wall::TileId;
 
 pub const STREAM_MAGIC: [u8; 4] = *b"TSPX";
 pub const STREAM_HEADER_LEN: usize = 40;

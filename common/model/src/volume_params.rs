@@ -112,7 +112,7 @@ pub enum TransferDomain {
 /// # Examples
 ///
 /// ```
-/// use tessera_wire::volume_params::{TransferFunction, TransferPoint, TransferDomain};
+/// use tessera_model::volume_params::{TransferFunction, TransferPoint, TransferDomain};
 ///
 /// let ramp = TransferFunction::ramp();
 /// assert_eq!(ramp.domain(), TransferDomain::Normalized);
@@ -419,10 +419,10 @@ mod tests {
             points: vec![p(2.0, 0.5), p(1.0, 0.5)],
         };
         let bytes = postcard::to_allocvec(&bad).unwrap();
-        let err = crate::protocol::codec::decode::<TransferFunction>(&bytes).unwrap_err();
+        let err = crate::checked::decode_for_test::<TransferFunction>(&bytes).unwrap_err();
         assert!(err.to_string().contains("below the previous"), "{err}");
         let bytes = postcard::to_allocvec(&vec![1.0f32; 9]).unwrap();
-        assert!(crate::protocol::codec::decode::<IsoValues>(&bytes).is_err());
+        assert!(crate::checked::decode_for_test::<IsoValues>(&bytes).is_err());
         let good = VolumeParams {
             step: 0.5,
             iso: IsoValues::new(&[100.0, 300.0]).unwrap(),

@@ -23,7 +23,7 @@ pub const MAX_SAMPLE_INDEX: u32 = 1 << 20;
 /// # Examples
 ///
 /// ```
-/// use tessera_wire::params::{ParamsError, RenderParams, RenderParamsSpec};
+/// use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec};
 ///
 /// let params = RenderParamsSpec { ao_samples: 8, ..RenderParamsSpec::INTERACTIVE }.build()?;
 /// assert_eq!(params.ao_samples(), 8);
@@ -285,7 +285,7 @@ mod tests {
             ..RenderParamsSpec::INTERACTIVE
         };
         let bytes = postcard::to_allocvec(&bad).unwrap();
-        let err = crate::protocol::codec::decode::<RenderParams>(&bytes).unwrap_err();
+        let err = crate::checked::decode_for_test::<RenderParams>(&bytes).unwrap_err();
         assert!(err.to_string().contains("4000000000"), "{err}");
         let good = RenderParams::final_frame();
         let bytes = postcard::to_allocvec(&good).unwrap();

@@ -66,10 +66,10 @@ pub fn decode<T: DeserializeOwned>(body: &[u8]) -> Result<T, CodecError> {
             limit: MAX_CONTROL_BODY,
         });
     }
-    crate::checked::clear();
+    tessera_model::checked::clear();
     let (msg, rest) = postcard::take_from_bytes(body).map_err(|e| {
         // A value that parsed but broke an invariant says which; anything else is garbage.
-        crate::checked::take_refusal()
+        tessera_model::checked::take_refusal()
             .map_or_else(|| CodecError::Malformed(e.to_string()), CodecError::Invalid)
     })?;
     if !rest.is_empty() {
@@ -98,12 +98,12 @@ pub fn decode_frame<T: DeserializeOwned>(frame: &[u8]) -> Result<T, CodecError> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::Camera;
-    use crate::params::{RenderParams, RenderParamsSpec};
-    use crate::protocol::*;
-    use crate::wall::{DisplayId, WallSpec};
+    use crate::*;
     use glam::Vec3;
     use proptest::prelude::*;
+    use tessera_model::camera::Camera;
+    use tessera_model::params::{RenderParams, RenderParamsSpec};
+    use tessera_model::wall::{DisplayId, WallSpec};
 
     fn samples() -> Vec<FromNode> {
         vec![
@@ -130,7 +130,7 @@ mod tests {
                 prefetch_misses: 1,
                 volume_stall_s: 0.25,
                 max_rss_bytes: 123 << 20,
-                dsm: Some(Box::new(crate::protocol::dsm::DsmStats {
+                dsm: Some(Box::new(crate::dsm::DsmStats {
                     rank: Some(1),
                     fetched: 9,
                     latency_p99_us: 350.5,
@@ -149,50 +149,51 @@ mod tests {
                 node: Some(RenderNodeId(2)),
                 session: Session::new(SessionSpec {
                     wall: WallSpec::grid(2, 2, 480, 270).bezel(16).build().unwrap(),
-                    scene: crate::scene_spec::SceneSpec::default(),
+                    scene: tessera_model::scene_spec::SceneSpec::default(),
                     scene_hash: [7; 32],
                     displays: vec![DisplayEndpoint {
                         display: DisplayId(0),
                         addr: "[::1]:9".parse().unwrap(),
                     }],
                     save_frame: Some(FrameId(3)),
-                    compression: crate::protocol::pixels::Compression::Lz4,
+                    compression: crate::pixels::Compression::Lz4,
                     windows: [(
                         0,
-                        crate::window::WindowPlacement {
+                        tessera_model::window::WindowPlacement {
                             position: Some((-10, 20)),
                             ..Default::default()
                         },
                     )]
                     .into(),
-                    data: crate::protocol::dsm::DataSpec::Shared(
-                        crate::protocol::dsm::SharedSpec {
-                            dir: "/var/tessera/prepared".into(),
-                            block_bytes: 8192,
-                            ranks: 4,
-                            replicas: 2,
-                            memory_budget: Some(512 << 20),
-                            cache_fraction: None,
-                        },
-                    ),
+                    data: crate::dsm::DataSpec::Shared(crate::dsm::SharedSpec {
+                        dir: "/var/tessera/prepared".into(),
+                        block_bytes: 8192,
+                        ranks: 4,
+                        replicas: 2,
+                        memory_budget: Some(512 << 20),
+                        cache_fraction: None,
+                    }),
                 })
                 .unwrap(),
             },
             ToNode::BlockHolders {
                 rank: Some(2),
-                holders: vec![crate::protocol::dsm::BlockHolder {
+                holders: vec![crate::dsm::BlockHolder {
                     rank: 0,
                     addr: "127.0.0.1:5000".parse().unwrap(),
                 }],
             },
             ToNode::FrameStart(FrameStart {
                 lights: Some(
-                    crate::light::Lights::new(&[crate::light::Light::directional(Vec3::Y, 0.5)])
-                        .unwrap(),
+                    tessera_model::light::Lights::new(&[tessera_model::light::Light::directional(
+                        Vec3::Y,
+                        0.5,
+                    )])
+                    .unwrap(),
                 ),
                 ..FrameStart::new(
                     FrameId(1),
-                    crate::state::StateId(7),
+                    tessera_model::state::StateId(7),
                     Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
                     RenderParams::interactive(),
                 )
@@ -275,7 +276,7 @@ mod tests {
             cuts: Vec<[f32; 4]>,
             spp: u32,
             first_sample: u32,
-            volume: crate::volume_params::VolumeParams,
+            volume: tessera_model::volume_params::VolumeParams,
         }
         #[allow(clippy::large_enum_variant)]
         #[derive(serde::Serialize)]
@@ -284,7 +285,7 @@ mod tests {
             _Refused,
             FrameStart(
                 FrameId,
-                crate::state::StateId,
+                tessera_model::state::StateId,
                 Camera,
                 RawParams,
                 Option<()>,
@@ -293,7 +294,7 @@ mod tests {
         let i = RenderParamsSpec::INTERACTIVE;
         let msg = RawToNode::FrameStart(
             FrameId(1),
-            crate::state::StateId(1),
+            tessera_model::state::StateId(1),
             Camera::new(Vec3::ONE, Vec3::ZERO, Vec3::Y, 40.0).unwrap(),
             RawParams {
                 shadows: i.shadows,

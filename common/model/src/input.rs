@@ -132,7 +132,7 @@ mod tests {
         assert_eq!(postcard::from_bytes::<InputEvent>(&bytes).unwrap(), ok);
         let bad = InputEvent::Scroll { lines: f32::NAN };
         let bytes = postcard::to_allocvec(&bad).unwrap();
-        let err = crate::protocol::codec::decode::<InputEvent>(&bytes).unwrap_err();
+        let err = crate::checked::decode_for_test::<InputEvent>(&bytes).unwrap_err();
         assert!(err.to_string().contains("NaN"), "{err}");
         let outside = InputEvent::Click {
             button: Button::Left,
@@ -140,6 +140,6 @@ mod tests {
             fy: 0.5,
         };
         let bytes = postcard::to_allocvec(&outside).unwrap();
-        assert!(crate::protocol::codec::decode::<InputEvent>(&bytes).is_err());
+        assert!(crate::checked::decode_for_test::<InputEvent>(&bytes).is_err());
     }
 }

@@ -36,7 +36,7 @@ pub const MAX_WALL_SIDE: u32 = 1 << 16;
 
 /// Most displays a wall may have. The largest walls built have a few hundred screens; the
 /// session that lists every display's address must fit one control message
-/// ([`crate::protocol::codec::MAX_CONTROL_BODY`]) with room to spare.
+/// (`tessera_protocol::codec::MAX_CONTROL_BODY`) with room to spare.
 pub const MAX_DISPLAYS: u32 = 4096;
 
 /// Most tiles a wall may be cut into: a 65536×65536 wall in 64-pixel tiles. Tile ids are
@@ -178,7 +178,7 @@ pub enum WallDescription {
 /// # Examples
 ///
 /// ```
-/// use tessera_wire::wall::{DisplayId, TileGrid, WallLayout, WallSpec};
+/// use tessera_model::wall::{DisplayId, TileGrid, WallLayout, WallSpec};
 ///
 /// // Two screens side by side with a 16-pixel bezel between them.
 /// let wall = WallSpec::grid(2, 1, 480, 270).bezel(16).build()?;
@@ -196,7 +196,7 @@ pub enum WallDescription {
 /// assert_eq!(file, wall);
 /// let err = WallSpec::grid(2, 0, 480, 270).build().unwrap_err();
 /// assert!(err.to_string().contains("rows"));
-/// # Ok::<(), tessera_wire::wall::WallError>(())
+/// # Ok::<(), tessera_model::wall::WallError>(())
 /// ```
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(into = "WallDescription")]

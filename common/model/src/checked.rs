@@ -4,7 +4,7 @@
 //! `TryFrom` its callers use, so a value that breaks an invariant never exists (the pattern of
 //! `#[serde(try_from = ...)]`). postcard drops the text of a custom error, and "malformed
 //! message" alone would hide *what* was wrong, so the reason is also kept here, per thread,
-//! for [`crate::protocol::codec::decode`] to report.
+//! for `tessera_protocol::codec::decode` to report.
 
 use serde::{de::Error as _, Deserialize, Deserializer};
 use std::cell::RefCell;
@@ -31,11 +31,31 @@ where
 }
 
 /// Forgets an earlier refusal, before a new message is decoded.
-pub(crate) fn clear() {
+pub fn clear() {
     REFUSAL.with(|r| r.borrow_mut().take());
 }
 
 /// Why the last value deserialized on this thread was refused, if one was.
-pub(crate) fn take_refusal() -> Option<String> {
+pub fn take_refusal() -> Option<String> {
     REFUSAL.with(|r| r.borrow_mut().take())
+}
+
+/// Decodes postcard `bytes` as the codec does, for this crate's tests (the codec itself is
+/// `tessera-protocol`'s): the refusal's reason if a check refused the value.
+#[cfg(test)]
+pub(crate) fn decode_for_test<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, Refusal> {
+    clear();
+    postcard::from_bytes(bytes).map_err(|e| Refusal(take_refusal().unwrap_or(e.to_string())))
+}
+
+/// Why a test's value was refused.
+#[cfg(test)]
+#[derive(Debug)]
+pub(crate) struct Refusal(pub String);
+
+#[cfg(test)]
+impl Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
 }

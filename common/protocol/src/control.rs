@@ -1,13 +1,13 @@
 //! The control interface: what an operator's or a script's client asks a running wall, and
-//! what it answers. Requests travel in [`crate::protocol::FromNode::Control`], answers in
-//! [`crate::protocol::ToNode::ControlReply`], on the client's control stream to the master.
+//! what it answers. Requests travel in [`crate::FromNode::Control`], answers in
+//! [`crate::ToNode::ControlReply`], on the client's control stream to the master.
 //!
 //! Every value a request carries is checked by its type on arrival (cameras, cuts, lights),
 //! and a change is checked against the state it would make before it is queued, so a bad
 //! value comes back as [`ControlReply::Refused`] with the reason and the wall goes on.
 
-use crate::state::{StateChange, StateId, WallState};
 use serde::{Deserialize, Serialize};
+use tessera_model::state::{StateChange, StateId, WallState};
 
 /// Longest name of a saved view.
 pub const MAX_VIEW_NAME: usize = 64;
@@ -47,7 +47,7 @@ impl TryFrom<String> for ViewName {
 
 impl<'de> Deserialize<'de> for ViewName {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        crate::checked::deserialize::<D, String, Self>(d)
+        tessera_model::checked::deserialize::<D, String, Self>(d)
     }
 }
 
@@ -200,6 +200,6 @@ mod tests {
             assert!(ViewName::new(bad).is_err(), "{bad:?}");
         }
         let bytes = postcard::to_allocvec(&"no spaces".to_string()).unwrap();
-        assert!(crate::protocol::codec::decode::<ViewName>(&bytes).is_err());
+        assert!(crate::codec::decode::<ViewName>(&bytes).is_err());
     }
 }

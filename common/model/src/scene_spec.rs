@@ -185,7 +185,7 @@ mod tests {
             sides: 65536,
         })
         .unwrap();
-        assert!(crate::protocol::codec::decode::<SceneSpec>(&bytes).is_err());
+        assert!(crate::checked::decode_for_test::<SceneSpec>(&bytes).is_err());
     }
 
     #[test]

@@ -1,4 +1,7 @@
-//! Every message on the wire.
+//! Tessera's protocol: every message between the master, render nodes, displays and control
+//! clients ([`ToNode`], [`FromNode`]), the control interface's requests and answers
+//! ([`control`]), how render nodes share a scene's blocks ([`dsm`]), and their framing.
+//! What the messages carry (walls, cameras, wall states) is `tessera-model`'s.
 //!
 //! Control messages are postcard-encoded enums in length-prefixed frames ([`codec`]) on one
 //! bidirectional QUIC stream per node–master connection. Pixels travel separately, render node to
@@ -8,21 +11,22 @@
 //! state machine that consumes the message.
 
 pub mod codec;
+pub mod control;
 pub mod dsm;
 pub mod pixels;
 
-use crate::camera::Camera;
 use crate::control::{ControlReply, ControlRequest};
-use crate::input::InputEvent;
-use crate::light::Lights;
-use crate::params::RenderParams;
-use crate::scene_spec::SceneSpec;
-use crate::state::StateId;
-use crate::wall::{DisplayId, TileId, WallLayout};
-use crate::window::WindowPlacement;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
+use tessera_model::camera::Camera;
+use tessera_model::input::InputEvent;
+use tessera_model::light::Lights;
+use tessera_model::params::RenderParams;
+use tessera_model::scene_spec::SceneSpec;
+use tessera_model::state::StateId;
+use tessera_model::wall::{DisplayId, TileId, WallLayout};
+use tessera_model::window::WindowPlacement;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
 pub const PROTOCOL_VERSION: u32 = 6;
@@ -114,7 +118,7 @@ impl TryFrom<HelloRaw> for Hello {
 
 impl<'de> Deserialize<'de> for Hello {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        crate::checked::deserialize::<D, HelloRaw, Self>(d)
+        tessera_model::checked::deserialize::<D, HelloRaw, Self>(d)
     }
 }
 
@@ -148,8 +152,8 @@ pub struct DisplayEndpoint {
 ///
 /// Its wall and scene are checked by their own types; [`Session::new`] (and deserializing)
 /// also checks that the displays it lists are the wall's, each at most once. With at most
-/// [`crate::wall::MAX_DISPLAYS`] displays and a path of at most
-/// [`crate::scene_spec::MAX_PATH_BYTES`], a session is always far below the control codec's
+/// [`tessera_model::wall::MAX_DISPLAYS`] displays and a path of at most
+/// [`tessera_model::scene_spec::MAX_PATH_BYTES`], a session is always far below the control codec's
 /// size limit.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(into = "SessionSpec")]
@@ -251,7 +255,7 @@ impl From<Session> for SessionSpec {
 
 impl<'de> Deserialize<'de> for Session {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        crate::checked::deserialize::<D, SessionSpec, Self>(d)
+        tessera_model::checked::deserialize::<D, SessionSpec, Self>(d)
     }
 }
 
@@ -304,7 +308,7 @@ impl TryFrom<TileRangeRaw> for TileRange {
 
 impl<'de> Deserialize<'de> for TileRange {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        crate::checked::deserialize::<D, TileRangeRaw, Self>(d)
+        tessera_model::checked::deserialize::<D, TileRangeRaw, Self>(d)
     }
 }
 
@@ -602,7 +606,7 @@ impl TryFrom<RenderStatsRaw> for RenderStats {
 
 impl<'de> Deserialize<'de> for RenderStats {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        crate::checked::deserialize::<D, RenderStatsRaw, Self>(d)
+        tessera_model::checked::deserialize::<D, RenderStatsRaw, Self>(d)
     }
 }
 
