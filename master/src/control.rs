@@ -14,7 +14,7 @@ use tessera_model::camera::{Camera, CameraMode};
 use tessera_model::cut::CutPlanes;
 use tessera_model::light::{Light, Lights};
 use tessera_model::state::{StateChange, WallState};
-use tessera_model::volume_params::IsoValues;
+use tessera_model::volume_params::{IsoValues, VolumeParams};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::MasterLink;
 use tessera_protocol::control::{ControlReply, ControlRequest, ViewName};
@@ -279,6 +279,7 @@ impl ControlClient {
     /// Turns a command into its request (reading the state where a change keeps what it does
     /// not name) and asks it.
     pub async fn run(&mut self, command: &Command) -> Result<ControlReply> {
+        let change = |c: StateChange| ControlRequest::Change(vec![c]);
         let request = match command {
             Command::Camera {
                 eye,
@@ -286,68 +287,29 @@ impl ControlClient {
                 up,
                 fov,
                 orbit,
-            } => ControlRequest::Change(vec![StateChange::Camera(
+            } => change(StateChange::Camera(
                 self.camera(*eye, *target, *up, *fov, *orbit).await?,
-            )]),
-            Command::Quality { shadows, ao, spp } => {
-                let mut changes = Vec::new();
-                changes.extend(shadows.map(StateChange::Shadows));
-                changes.extend(ao.map(StateChange::AoSamples));
-                changes.extend(spp.map(StateChange::Spp));
-                if changes.is_empty() {
-                    bail!("quality: give --shadows, --ao or --spp");
-                }
-                ControlRequest::Change(changes)
-            }
-            Command::Cut { planes, clear } => {
-                let planes: Vec<(glam::Vec3, f32)> = if *clear {
-                    Vec::new()
-                } else {
-                    planes.iter().map(|&(n, d)| (n, d as f32)).collect()
-                };
-                ControlRequest::Change(vec![StateChange::Cuts(
-                    CutPlanes::new(&planes).context("--plane")?,
-                )])
-            }
+            )),
+            Command::Quality { shadows, ao, spp } => quality(*shadows, *ao, *spp)?,
+            Command::Cut { planes, clear } => change(cuts(planes, *clear)?),
             Command::Crop { range, off } => {
-                ControlRequest::Change(vec![StateChange::Crop(if *off { None } else { *range })])
+                change(StateChange::Crop(if *off { None } else { *range }))
             }
             Command::Lights {
                 directional,
                 point,
                 scene,
-            } => {
-                let lights: Vec<Light> = directional.iter().chain(point).copied().collect();
-                let set = if *scene {
-                    None
-                } else {
-                    Some(Lights::new(&lights).context("lights")?)
-                };
-                ControlRequest::Change(vec![StateChange::Lights(set)])
-            }
+            } => change(lights(directional, point, *scene)?),
             Command::Volume {
                 iso,
                 no_iso,
                 step,
                 transfer,
                 time_step,
-            } => {
-                let mut volume = *self.state_and_frame().await?.0.params.volume();
-                if let Some(t) = time_step {
-                    volume.time_step = *t;
-                }
-                if !iso.is_empty() || *no_iso {
-                    volume.iso = IsoValues::new(iso).context("--iso")?;
-                }
-                if let Some(step) = step {
-                    volume.step = *step;
-                }
-                if let Some(name) = transfer {
-                    volume.transfer = transfer_function(name).context("--transfer")?;
-                }
-                volume.check().context("volume")?;
-                ControlRequest::Change(vec![StateChange::Volume(volume)])
-            }
+            } => change(StateChange::Volume(
+                self.volume(iso, *no_iso, *step, transfer.as_deref(), *time_step)
+                    .await?,
+            )),
             Command::State => ControlRequest::State,
             Command::Figures => ControlRequest::Figures,
             Command::SaveView { name } => ControlRequest::SaveView(ViewName::new(name)?),
@@ -359,6 +321,32 @@ impl ControlClient {
             Command::Script { .. } => bail!("a script cannot run a script"),
         };
         self.ask(request).await
+    }
+
+    /// The volume settings after the next barrier, changed as the `volume` command's flags say.
+    async fn volume(
+        &mut self,
+        iso: &[f32],
+        no_iso: bool,
+        step: Option<f32>,
+        transfer: Option<&str>,
+        time_step: Option<u32>,
+    ) -> Result<VolumeParams> {
+        let mut volume = *self.state_and_frame().await?.0.params.volume();
+        if let Some(t) = time_step {
+            volume.time_step = t;
+        }
+        if !iso.is_empty() || no_iso {
+            volume.iso = IsoValues::new(iso).context("--iso")?;
+        }
+        if let Some(step) = step {
+            volume.step = step;
+        }
+        if let Some(name) = transfer {
+            volume.transfer = transfer_function(name).context("--transfer")?;
+        }
+        volume.check().context("volume")?;
+        Ok(volume)
     }
 
     /// The wall's state after the next barrier, and the frame it is at.
@@ -394,6 +382,41 @@ impl ControlClient {
         .context("camera")?;
         Ok(CameraMode::fixed(camera))
     }
+}
+
+/// The `quality` command's request: a change for each knob given.
+fn quality(shadows: Option<bool>, ao: Option<u32>, spp: Option<u32>) -> Result<ControlRequest> {
+    let mut changes = Vec::new();
+    changes.extend(shadows.map(StateChange::Shadows));
+    changes.extend(ao.map(StateChange::AoSamples));
+    changes.extend(spp.map(StateChange::Spp));
+    if changes.is_empty() {
+        bail!("quality: give --shadows, --ao or --spp");
+    }
+    Ok(ControlRequest::Change(changes))
+}
+
+/// The `cut` command's change: its planes, or none with --clear.
+fn cuts(planes: &[(glam::Vec3, f64)], clear: bool) -> Result<StateChange> {
+    let planes: Vec<(glam::Vec3, f32)> = if clear {
+        Vec::new()
+    } else {
+        planes.iter().map(|&(n, d)| (n, d as f32)).collect()
+    };
+    Ok(StateChange::Cuts(
+        CutPlanes::new(&planes).context("--plane")?,
+    ))
+}
+
+/// The `lights` command's change: its lights, or the scene's with --scene.
+fn lights(directional: &[Light], point: &[Light], scene: bool) -> Result<StateChange> {
+    let lights: Vec<Light> = directional.iter().chain(point).copied().collect();
+    let set = if scene {
+        None
+    } else {
+        Some(Lights::new(&lights).context("lights")?)
+    };
+    Ok(StateChange::Lights(set))
 }
 
 /// Prints an answer: queries as JSON on stdout, refusals on stderr. Whether it was refused.

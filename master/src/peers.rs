@@ -48,57 +48,13 @@ const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// writer task of its own sends what the driver queues for it.
 pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::Sender<Event>) {
     let remote = incoming.remote_address();
-    let conn = match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
-        Ok(Ok(conn)) => conn,
-        Ok(Err(e)) => {
-            let text = e.to_string();
-            let hint = if text.contains("expired") {
-                "issue the node a new certificate with `tessera-master issue-cert`"
-            } else {
-                "is its certificate from this cluster's CA?"
-            };
-            tracing::warn!("refused a connection from {remote}: {text} ({hint})");
-            return;
-        }
-        Err(_) => {
-            tracing::warn!("refused a connection from {remote}: TLS handshake timed out");
-            return;
-        }
+    let Some(conn) = handshake(incoming, remote).await else {
+        return;
     };
-    let opened = tokio::time::timeout(HANDSHAKE_TIMEOUT, async {
-        let (send, mut recv) = conn.accept_bi().await?;
-        let hello = read_msg::<FromNode>(&mut recv).await?;
-        anyhow::Ok((send, recv, hello))
-    })
-    .await;
-    let (mut send, mut recv, hello) = match opened {
-        Ok(Ok((s, r, Some(FromNode::Hello(hello))))) => (s, r, hello),
-        Ok(Ok((_, _, other))) => {
-            tracing::warn!("closing {remote}: expected a hello, got {other:?}");
-            conn.close(1u32.into(), b"expected hello");
-            return;
-        }
-        Ok(Err(e)) => {
-            tracing::warn!("closing {remote}: {e:#}");
-            conn.close(1u32.into(), b"bad handshake");
-            return;
-        }
-        Err(_) => {
-            tracing::warn!("closing {remote}: no hello within {HANDSHAKE_TIMEOUT:?}");
-            conn.close(1u32.into(), b"handshake timeout");
-            return;
-        }
+    let Some((send, recv, hello)) = read_hello(&conn, remote).await else {
+        return;
     };
-    let (tx, mut rx) = mpsc::channel::<ToNode>(PEER_QUEUE);
-    tokio::spawn(async move {
-        while let Some(msg) = rx.recv().await {
-            let refused = matches!(msg, ToNode::Refused { .. });
-            if write_msg(&mut send, &msg).await.is_err() || refused {
-                break;
-            }
-        }
-        let _ = send.finish();
-    });
+    let tx = spawn_writer(send);
     if events
         .send(Event::Joined {
             peer,
@@ -111,27 +67,109 @@ pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::
     {
         return;
     }
-    let reason = loop {
+    if let Some(reason) = forward(&conn, recv, peer, &events).await {
+        let _ = events.send(Event::Closed(peer, reason)).await;
+    }
+}
+
+/// The TLS handshake of a connecting node, bounded; None (logged) if it fails.
+async fn handshake(
+    incoming: quinn::Incoming,
+    remote: std::net::SocketAddr,
+) -> Option<quinn::Connection> {
+    match tokio::time::timeout(HANDSHAKE_TIMEOUT, incoming).await {
+        Ok(Ok(conn)) => Some(conn),
+        Ok(Err(e)) => {
+            let text = e.to_string();
+            let hint = if text.contains("expired") {
+                "issue the node a new certificate with `tessera-master issue-cert`"
+            } else {
+                "is its certificate from this cluster's CA?"
+            };
+            tracing::warn!("refused a connection from {remote}: {text} ({hint})");
+            None
+        }
+        Err(_) => {
+            tracing::warn!("refused a connection from {remote}: TLS handshake timed out");
+            None
+        }
+    }
+}
+
+/// The node's control stream and its hello, bounded; None (logged, connection closed) if it
+/// sends anything else or nothing in time.
+async fn read_hello(
+    conn: &quinn::Connection,
+    remote: std::net::SocketAddr,
+) -> Option<(quinn::SendStream, quinn::RecvStream, Hello)> {
+    let opened = tokio::time::timeout(HANDSHAKE_TIMEOUT, async {
+        let (send, mut recv) = conn.accept_bi().await?;
+        let hello = read_msg::<FromNode>(&mut recv).await?;
+        anyhow::Ok((send, recv, hello))
+    })
+    .await;
+    match opened {
+        Ok(Ok((s, r, Some(FromNode::Hello(hello))))) => Some((s, r, hello)),
+        Ok(Ok((_, _, other))) => {
+            tracing::warn!("closing {remote}: expected a hello, got {other:?}");
+            conn.close(1u32.into(), b"expected hello");
+            None
+        }
+        Ok(Err(e)) => {
+            tracing::warn!("closing {remote}: {e:#}");
+            conn.close(1u32.into(), b"bad handshake");
+            None
+        }
+        Err(_) => {
+            tracing::warn!("closing {remote}: no hello within {HANDSHAKE_TIMEOUT:?}");
+            conn.close(1u32.into(), b"handshake timeout");
+            None
+        }
+    }
+}
+
+/// The peer's writer: a task that sends what is queued on the returned sender, and finishes
+/// the stream after a refusal or when the queue closes.
+fn spawn_writer(mut send: quinn::SendStream) -> PeerSender {
+    let (tx, mut rx) = mpsc::channel::<ToNode>(PEER_QUEUE);
+    tokio::spawn(async move {
+        while let Some(msg) = rx.recv().await {
+            let refused = matches!(msg, ToNode::Refused { .. });
+            if write_msg(&mut send, &msg).await.is_err() || refused {
+                break;
+            }
+        }
+        let _ = send.finish();
+    });
+    tx
+}
+
+/// Forwards the peer's messages to the driver loop until the peer goes: why it went, or None
+/// if the driver loop is gone.
+async fn forward(
+    conn: &quinn::Connection,
+    mut recv: quinn::RecvStream,
+    peer: PeerId,
+    events: &mpsc::Sender<Event>,
+) -> Option<String> {
+    loop {
         match read_msg::<FromNode>(&mut recv).await {
             Ok(Some(msg)) => {
                 // Waits while the driver is behind: the peer's stream stops being read, and
                 // QUIC's flow control holds the peer back instead of the master's memory.
-                if events.send(Event::Msg(peer, msg)).await.is_err() {
-                    return;
-                }
+                events.send(Event::Msg(peer, msg)).await.ok()?;
             }
-            Ok(None) => break "closed its control stream".to_string(),
+            Ok(None) => return Some("closed its control stream".to_string()),
             Err(e) => {
-                break match conn.close_reason() {
+                return Some(match conn.close_reason() {
                     Some(reason) => reason.to_string(),
                     None => {
                         // A malformed or oversized message: this peer is not to be trusted.
                         conn.close(2u32.into(), b"malformed message");
                         format!("{e:#}")
                     }
-                };
+                });
             }
         }
-    };
-    let _ = events.send(Event::Closed(peer, reason)).await;
+    }
 }

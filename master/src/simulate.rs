@@ -3,12 +3,12 @@
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 use tessera_core::balance::BalanceConfig;
 use tessera_core::sim::{near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall};
-use tessera_model::wall::parse_size;
+use tessera_model::wall::{parse_size, WallLayout};
 use tessera_protocol::{FrameId, RenderNodeId};
 
 #[derive(clap::Args, Debug)]
@@ -187,13 +187,43 @@ fn check(args: &SimulateArgs) -> Result<()> {
 
 pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
     check(&args)?;
+    let wall = wall_of(&args)?;
+    let t0 = Instant::now();
+    let mut sim = SimWall::with_config(args.seed, wall.clone(), &config_of(&args));
+    for k in &args.kills {
+        sim.kill_at(RenderNodeId(k.node), FrameId(k.frame));
+    }
+    sim.run_frames(args.frames);
+    let run_time_s = t0.elapsed().as_secs_f64();
+    let r = sim.report();
+    print_summary(&r, &wall, run_time_s);
+    if let Some(dir) = &args.out {
+        write_report(dir, &args, &wall, &r, run_time_s)?;
+    }
+    if r.frames_completed < r.frames_requested || r.corrupt_frames > 0 {
+        bail!(
+            "the simulated wall completed {} of {} frames with {} corrupt frames",
+            r.frames_completed,
+            r.frames_requested,
+            r.corrupt_frames
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The wall of --wall-file, or else a near-square grid of --displays screens.
+fn wall_of(args: &SimulateArgs) -> Result<WallLayout> {
     let (width, height) = args.screen;
-    let wall = match &args.wall_file {
+    Ok(match &args.wall_file {
         Some(path) => tessera_cli::wall_file::read_layout(path)?,
         None => near_square_wall(args.displays, width, height, args.tile_size)
             .with_context(|| format!("a wall of {} displays of {width}x{height}", args.displays))?,
-    };
-    let config = SimConfig {
+    })
+}
+
+/// The simulator's model as the flags set it.
+fn config_of(args: &SimulateArgs) -> SimConfig {
+    SimConfig {
         render_nodes: args.render_nodes,
         speeds: NodeSpeeds::Spread {
             fastest_us: args.tile_us,
@@ -208,16 +238,11 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
         },
         balance: BalanceConfig::default(),
         ..SimConfig::new(args.render_nodes)
-    };
-    let t0 = Instant::now();
-    let mut sim = SimWall::with_config(args.seed, wall.clone(), &config);
-    for k in &args.kills {
-        sim.kill_at(RenderNodeId(k.node), FrameId(k.frame));
     }
-    sim.run_frames(args.frames);
-    let run_time_s = t0.elapsed().as_secs_f64();
-    let r = sim.report();
+}
 
+/// The wall's shape and a line for each of the run's figures.
+fn print_summary(r: &SimReport, wall: &WallLayout, run_time_s: f64) {
     let shape = match wall.grid_spec() {
         Some(g) => format!(
             "a {}x{} grid of {}x{}",
@@ -236,8 +261,15 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
         wall.tile_size(),
         r.frames_requested
     );
+    for (name, value) in summary_rows(r, run_time_s) {
+        println!("  {name:<20} {value}");
+    }
+}
+
+/// The summary's lines: a figure's name and its values.
+fn summary_rows(r: &SimReport, run_time_s: f64) -> [(&'static str, String); 8] {
     let b = r.busy_fraction;
-    let rows = [
+    [
         (
             "frames completed",
             format!("{} of {} on every display", r.frames_completed, r.frames_requested),
@@ -287,45 +319,42 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
             "run time",
             format!("{run_time_s:.2} s wall clock, {} events", r.events),
         ),
-    ];
-    for (name, value) in rows {
-        println!("  {name:<20} {value}");
-    }
+    ]
+}
 
-    if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create --out {}", dir.display()))?;
-        let report = Report {
-            sim: &r,
-            seed: args.seed,
-            screen_width: width,
-            screen_height: height,
-            columns: wall.columns(),
-            rows: wall.rows(),
-            tile_size: args.tile_size,
-            tile_us: args.tile_us,
-            speed_spread: args.speed_spread,
-            kills: args
-                .kills
-                .iter()
-                .map(|k| format!("{}@{}", k.node, k.frame))
-                .collect(),
-            run_time_s,
-        };
-        let path = dir.join("report.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        eprintln!("wrote {}", path.display());
-    }
-    if r.frames_completed < r.frames_requested || r.corrupt_frames > 0 {
-        bail!(
-            "the simulated wall completed {} of {} frames with {} corrupt frames",
-            r.frames_completed,
-            r.frames_requested,
-            r.corrupt_frames
-        );
-    }
-    Ok(ExitCode::SUCCESS)
+/// Writes report.json into `dir`, creating it.
+fn write_report(
+    dir: &Path,
+    args: &SimulateArgs,
+    wall: &WallLayout,
+    r: &SimReport,
+    run_time_s: f64,
+) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create --out {}", dir.display()))?;
+    let (screen_width, screen_height) = args.screen;
+    let report = Report {
+        sim: r,
+        seed: args.seed,
+        screen_width,
+        screen_height,
+        columns: wall.columns(),
+        rows: wall.rows(),
+        tile_size: args.tile_size,
+        tile_us: args.tile_us,
+        speed_spread: args.speed_spread,
+        kills: args
+            .kills
+            .iter()
+            .map(|k| format!("{}@{}", k.node, k.frame))
+            .collect(),
+        run_time_s,
+    };
+    let path = dir.join("report.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 //! wall image.
 
 use crate::args::{prepare_run, LocalArgs, RunArgs, ServeArgs};
-use crate::launcher::{reap, spawn, watch};
+use crate::launcher::{reap, spawn, watch, NodeProcess};
 use crate::report;
 use crate::server::{bind, run_wall};
 use anyhow::{bail, Context, Result};
@@ -84,72 +84,24 @@ pub async fn run_local_driven(
     // Every node runs from this very executable (`tessera-master display-node|render-node`),
     // so whatever built the master is enough for a local wall.
     let this = std::env::current_exe().context("cannot locate the running executable")?;
-    let certs = tempfile::Builder::new()
-        .prefix("tessera-local-")
-        .tempdir()?;
-    let ca = ClusterCa::open_or_create(&certs.path().join("ca"))?;
-    let cert_dir = |name: &str, role: CertRole| -> Result<PathBuf> {
-        let dir = certs.path().join(name);
-        ca.issue(name, &dir, Some(role))?;
-        Ok(dir)
-    };
-    let display_cert_dir = |display: u32| -> Result<PathBuf> {
-        let dir = certs.path().join(format!("display-{display}"));
-        ca.issue_display(&format!("display-{display}"), &dir, display)?;
-        Ok(dir)
-    };
-    let identity = NodeIdentity::load(&cert_dir("master", CertRole::Master)?)?;
+    let certs = LocalCerts::new()?;
+    let identity = NodeIdentity::load(&certs.issue("master", CertRole::Master)?)?;
     let endpoint = bind("127.0.0.1:0".parse()?, &identity)?;
     let master_addr = endpoint.local_addr()?.to_string();
     // The control interface of this run: the same endpoint, with a certificate of its own.
-    let control_dir = cert_dir("control", CertRole::Control)?;
+    let control_dir = certs.issue("control", CertRole::Control)?;
     eprintln!(
         "tessera-master: control with `tessera-master control --connect {master_addr} --cert-dir {}` (while the wall runs)",
         control_dir.display()
     );
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get() as u32);
-    let threads = args.threads.unwrap_or((cores / args.render_nodes).max(1));
-
-    let mut children = Vec::new();
-    for d in 0..cfg.master.wall.display_count() {
-        let mut a = vec![
-            "display-node".into(),
-            "--master".into(),
-            master_addr.clone(),
-            "--display".into(),
-            d.to_string(),
-            "--cert-dir".into(),
-            display_cert_dir(d)?.display().to_string(),
-            "--listen".into(),
-            "127.0.0.1:0".into(),
-        ];
-        if let Some(out) = &args.run.out {
-            a.extend(["--out".into(), out.display().to_string()]);
-        }
-        if args.window {
-            a.push("--window".into());
-            a.extend(["--linger".into(), args.linger.to_string()]);
-        }
-        // Essential only if losing it ends the run.
-        let essential = args.run.display_loss == crate::args::DisplayLoss::Stop;
-        children.push(spawn(format!("display node {d}"), essential, &this, &a)?);
-    }
-    for r in 0..args.render_nodes {
-        let name = format!("render-{r}");
-        let mut a = vec![
-            "render-node".into(),
-            "--master".into(),
-            master_addr.clone(),
-            "--cert-dir".into(),
-            cert_dir(&name, CertRole::Render)?.display().to_string(),
-            "--threads".into(),
-            threads.to_string(),
-        ];
-        if let Some(mb) = args.volume_cache_mb {
-            a.extend(["--volume-cache-mb".into(), mb.to_string()]);
-        }
-        children.push(spawn(format!("render node {r}"), false, &this, &a)?);
-    }
+    let nodes = Nodes {
+        args,
+        this: &this,
+        master_addr: &master_addr,
+        certs: &certs,
+    };
+    let mut children = nodes.spawn_displays(cfg.master.wall.display_count())?;
+    children.extend(nodes.spawn_render_nodes()?);
 
     let (stop, interrupted) = stop_on_ctrl_c();
     let started = Arc::new(AtomicBool::new(false));
@@ -178,6 +130,111 @@ pub async fn run_local_driven(
         lost,
         failures,
     })
+}
+
+/// A local wall's certificates: a new CA in a temporary directory, removed when dropped.
+struct LocalCerts {
+    dir: tempfile::TempDir,
+    ca: ClusterCa,
+}
+
+impl LocalCerts {
+    fn new() -> Result<LocalCerts> {
+        let dir = tempfile::Builder::new()
+            .prefix("tessera-local-")
+            .tempdir()?;
+        let ca = ClusterCa::open_or_create(&dir.path().join("ca"))?;
+        Ok(LocalCerts { dir, ca })
+    }
+
+    /// The directory of a new certificate for `name` in `role`.
+    fn issue(&self, name: &str, role: CertRole) -> Result<PathBuf> {
+        let dir = self.dir.path().join(name);
+        self.ca.issue(name, &dir, Some(role))?;
+        Ok(dir)
+    }
+
+    /// The directory of a new certificate for display `display`.
+    fn issue_display(&self, display: u32) -> Result<PathBuf> {
+        let dir = self.dir.path().join(format!("display-{display}"));
+        self.ca
+            .issue_display(&format!("display-{display}"), &dir, display)?;
+        Ok(dir)
+    }
+}
+
+/// What starting a local wall's node processes takes.
+struct Nodes<'a> {
+    args: &'a LocalArgs,
+    this: &'a Path,
+    master_addr: &'a str,
+    certs: &'a LocalCerts,
+}
+
+impl Nodes<'_> {
+    /// Starts display nodes 0..`displays`.
+    fn spawn_displays(&self, displays: u32) -> Result<Vec<NodeProcess>> {
+        let args = self.args;
+        let mut children = Vec::new();
+        for d in 0..displays {
+            let mut a = vec![
+                "display-node".into(),
+                "--master".into(),
+                self.master_addr.to_string(),
+                "--display".into(),
+                d.to_string(),
+                "--cert-dir".into(),
+                self.certs.issue_display(d)?.display().to_string(),
+                "--listen".into(),
+                "127.0.0.1:0".into(),
+            ];
+            if let Some(out) = &args.run.out {
+                a.extend(["--out".into(), out.display().to_string()]);
+            }
+            if args.window {
+                a.push("--window".into());
+                a.extend(["--linger".into(), args.linger.to_string()]);
+            }
+            // Essential only if losing it ends the run.
+            let essential = args.run.display_loss == crate::args::DisplayLoss::Stop;
+            children.push(spawn(
+                format!("display node {d}"),
+                essential,
+                self.this,
+                &a,
+            )?);
+        }
+        Ok(children)
+    }
+
+    /// Starts --render-nodes render nodes, the machine's cores shared among them unless
+    /// --threads says otherwise.
+    fn spawn_render_nodes(&self) -> Result<Vec<NodeProcess>> {
+        let args = self.args;
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get() as u32);
+        let threads = args.threads.unwrap_or((cores / args.render_nodes).max(1));
+        let mut children = Vec::new();
+        for r in 0..args.render_nodes {
+            let name = format!("render-{r}");
+            let mut a = vec![
+                "render-node".into(),
+                "--master".into(),
+                self.master_addr.to_string(),
+                "--cert-dir".into(),
+                self.certs
+                    .issue(&name, CertRole::Render)?
+                    .display()
+                    .to_string(),
+                "--threads".into(),
+                threads.to_string(),
+            ];
+            if let Some(mb) = args.volume_cache_mb {
+                a.extend(["--volume-cache-mb".into(), mb.to_string()]);
+            }
+            children.push(spawn(format!("render node {r}"), false, self.this, &a)?);
+        }
+        Ok(children)
+    }
 }
 
 /// Writes the report and wall image and turns the run's outcome into an exit code.

@@ -5,8 +5,8 @@
 //! (avg/min/max/p99) beside the QUIC round trip measured on the same connections, and the
 //! frame rate relative to replicated.
 
-use super::plot::{line_plot, Series};
-use super::{wall_run, write_csv, write_json, wrote, BenchArgs};
+use super::plot::Series;
+use super::{wall_run, wrote, BenchArgs, Outputs, Plot};
 use crate::report::Report;
 use crate::shared_data::DataMode;
 use anyhow::{bail, Result};
@@ -130,82 +130,38 @@ pub async fn dsm(args: &BenchArgs, out: &Path) -> Result<()> {
     if args.cache_fractions.iter().any(|&f| !(f > 0.0 && f <= 1.0)) {
         bail!("--cache-fractions must lie in (0, 1]");
     }
-    let mut rows = Vec::new();
     let mut caches: Vec<Option<f32>> = vec![None];
     caches.extend(args.cache_fractions.iter().map(|&f| Some(f)));
+    let mut rows = Vec::new();
     for &shading in &args.shadings {
         for &nodes in &args.nodes {
-            // Every configuration once per round, in turn, so that a slow spell of a shared
-            // machine falls on all of them; each keeps its median run.
-            let mut runs: Vec<Vec<Report>> = caches.iter().map(|_| Vec::new()).collect();
-            for _ in 0..args.repeats {
-                for (i, &cache) in caches.iter().enumerate() {
-                    runs[i].push(measure(args, shading, nodes, cache).await?);
-                }
-            }
-            let medians: Vec<Report> = runs.into_iter().map(median).collect();
-            let replicated_fps = medians[0].fps;
-            for (report, &cache) in medians.into_iter().zip(&caches) {
-                rows.push(Row {
-                    shading,
-                    nodes,
-                    cache,
-                    report,
-                    replicated_fps,
-                });
-            }
+            rows.extend(measure_caches(args, shading, nodes, &caches).await?);
         }
     }
     print_table(&rows);
-    let csv = out.join("dsm.csv");
-    write_csv(
-        &csv,
-        "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,miss_wait_avg_us,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
-        &rows.iter().map(Row::csv).collect::<Vec<_>>(),
-    )?;
-    let by_cache = out.join("dsm.svg");
-    let series: Vec<Series> = rows
-        .iter()
-        .filter(|r| r.cache.is_none())
-        .map(|base| Series {
-            name: format!("{}, {} nodes", base.shading.name(), base.nodes),
-            points: rows
-                .iter()
-                .filter(|r| r.shading == base.shading && r.nodes == base.nodes)
-                .filter_map(|r| Some(((r.cache? as f64).log2(), r.ratio())))
-                .collect(),
-        })
-        .collect();
-    line_plot(
-        &by_cache,
-        "shared over replicated frame rate against the cache (log2 of its share: -3 = 1/8)",
-        "log2(cache / scene)",
-        "fps shared / fps replicated",
-        &series,
-    )?;
-    let by_nodes = out.join("fps-vs-nodes.svg");
     let first = args.shadings.first().copied().unwrap_or(Shading::Cast);
-    let series: Vec<Series> = caches
-        .iter()
-        .map(|&c| Series {
-            name: c.map_or("replicated".into(), |f| format!("cache {f}")),
-            points: rows
-                .iter()
-                .filter(|r| r.shading == first && r.cache == c)
-                .map(|r| (r.nodes as f64, r.report.fps))
-                .collect(),
-        })
-        .collect();
-    line_plot(
-        &by_nodes,
-        &format!("frames per second against render nodes ({})", first.name()),
-        "render nodes",
-        "fps",
-        &series,
-    )?;
-    let json = write_json(
-        out,
-        &json!({
+    let by_nodes_title = format!("frames per second against render nodes ({})", first.name());
+    let written = Outputs {
+        csv: "dsm.csv",
+        header: "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,miss_wait_avg_us,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
+        rows: rows.iter().map(Row::csv).collect(),
+        plots: vec![
+            Plot {
+                file: "dsm.svg",
+                title: "shared over replicated frame rate against the cache (log2 of its share: -3 = 1/8)",
+                x_label: "log2(cache / scene)",
+                y_label: "fps shared / fps replicated",
+                series: by_cache(&rows),
+            },
+            Plot {
+                file: "fps-vs-nodes.svg",
+                title: &by_nodes_title,
+                x_label: "render nodes",
+                y_label: "fps",
+                series: by_nodes(&rows, &caches, first),
+            },
+        ],
+        report: json!({
             "experiment": "dsm",
             "scene": args.local.run.scene.scene,
             "repeats": args.repeats,
@@ -219,9 +175,72 @@ pub async fn dsm(args: &BenchArgs, out: &Path) -> Result<()> {
                 "run": r.report,
             })).collect::<Vec<_>>(),
         }),
-    )?;
-    wrote(&[&json, &csv, &by_cache, &by_nodes]);
+    }
+    .write(out)?;
+    wrote(&written);
     Ok(())
+}
+
+/// A row for each of `caches` (replicated first) with `nodes` render nodes shaded as
+/// `shading`, each the median of `--repeats` runs.
+async fn measure_caches(
+    args: &BenchArgs,
+    shading: Shading,
+    nodes: u32,
+    caches: &[Option<f32>],
+) -> Result<Vec<Row>> {
+    // Every configuration once per round, in turn, so that a slow spell of a shared machine
+    // falls on all of them; each keeps its median run.
+    let mut runs: Vec<Vec<Report>> = caches.iter().map(|_| Vec::new()).collect();
+    for _ in 0..args.repeats {
+        for (i, &cache) in caches.iter().enumerate() {
+            runs[i].push(measure(args, shading, nodes, cache).await?);
+        }
+    }
+    let medians: Vec<Report> = runs.into_iter().map(median).collect();
+    let replicated_fps = medians[0].fps;
+    Ok(medians
+        .into_iter()
+        .zip(caches)
+        .map(|(report, &cache)| Row {
+            shading,
+            nodes,
+            cache,
+            report,
+            replicated_fps,
+        })
+        .collect())
+}
+
+/// Shared over replicated frame rate against log2 of the cache, a line per shading and
+/// render-node count.
+fn by_cache(rows: &[Row]) -> Vec<Series> {
+    rows.iter()
+        .filter(|r| r.cache.is_none())
+        .map(|base| Series {
+            name: format!("{}, {} nodes", base.shading.name(), base.nodes),
+            points: rows
+                .iter()
+                .filter(|r| r.shading == base.shading && r.nodes == base.nodes)
+                .filter_map(|r| Some(((r.cache? as f64).log2(), r.ratio())))
+                .collect(),
+        })
+        .collect()
+}
+
+/// Frame rate against render nodes of the shading `first`, a line per cache.
+fn by_nodes(rows: &[Row], caches: &[Option<f32>], first: Shading) -> Vec<Series> {
+    caches
+        .iter()
+        .map(|&c| Series {
+            name: c.map_or("replicated".into(), |f| format!("cache {f}")),
+            points: rows
+                .iter()
+                .filter(|r| r.shading == first && r.cache == c)
+                .map(|r| (r.nodes as f64, r.report.fps))
+                .collect(),
+        })
+        .collect()
 }
 
 /// The run of median frame rate.

@@ -8,12 +8,13 @@
 //! volume scene the ray-marching step (`step`, in units of the smallest voxel spacing, against
 //! a reference at 1/32 of it).
 
-use super::plot::{line_plot, Series};
-use super::{write_csv, write_json, wrote, BenchArgs};
+use super::plot::Series;
+use super::{wrote, BenchArgs, Outputs, Plot};
 use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
+use tessera_model::camera::Camera;
 use tessera_model::image::RgbImage;
 use tessera_model::params::{RenderParams, RenderParamsSpec};
 use tessera_model::wall::{TileGrid, WallLayout};
@@ -67,143 +68,222 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     let run = &args.local.run;
     let wall = run.wall.layout()?;
     let scene = Scene::load(&run.scene.spec()?)?;
-    let base = run.quality.params(&scene.render_from_world)?.spec();
-    let knobs = |change: &dyn Fn(&mut RenderParamsSpec)| -> Result<RenderParams> {
-        let mut spec = base;
-        change(&mut spec);
-        Ok(spec.build()?)
+    let settings = Settings::check(args, &scene)?;
+    let renders =
+        2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize + settings.step_params.len();
+    let renderer = Renderer {
+        prepared: PreparedScene::new(&scene),
+        grid: TileGrid::new(wall.clone()),
+        wall: &wall,
+        camera: settings.camera,
+        bar: indicatif::ProgressBar::new(renders as u64).with_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} {msg} {pos}/{len} renders {elapsed_precise}",
+            )
+            .expect("valid template"),
+        ),
     };
-    // Every setting is checked before the first (long) render.
-    let ao_reference_params =
-        knobs(&|s| s.ao_samples = args.reference_ao).context("--reference-ao")?;
-    let spp_reference_params = knobs(&|s| s.spp = args.reference_spp).context("--reference-spp")?;
-    let ao_params = AO_STEPS
-        .iter()
-        .map(|&ao| knobs(&|s| s.ao_samples = ao))
-        .collect::<Result<Vec<_>>>()
-        .context("the ambient-occlusion steps with these flags")?;
-    let spp_params = SPP_STEPS
-        .iter()
-        .map(|&spp| knobs(&|s| s.spp = spp))
-        .collect::<Result<Vec<_>>>()
-        .context("the samples-per-pixel steps with these flags")?;
-    let pass_params = (0..PASSES)
-        .map(|pass| {
-            knobs(&|s| {
-                s.spp = 1;
-                s.first_sample = pass;
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let camera = run
-        .scene
-        .camera_mode(&scene.render_from_world, |fov| {
-            orbit_of(&scene.bounds(), fov)
-        })?
-        .camera_for_frame(0);
-    // The volume's step knob: steps in world units, checked like the others.
-    let spacing = scene
-        .volume
-        .as_ref()
-        .map(|v| v.spacing().into_iter().fold(f64::INFINITY, f64::min));
-    let step_params = match spacing {
-        Some(unit) => STEP_FRACTIONS
-            .iter()
-            .chain([&REFERENCE_STEP_FRACTION])
-            .map(|f| knobs(&|s| s.volume.step = (unit * f) as f32))
-            .collect::<Result<Vec<_>>>()?,
-        None => Vec::new(),
-    };
-    let prepared = PreparedScene::new(&scene);
-    let grid = TileGrid::new(wall.clone());
-    let renders = 2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize + step_params.len();
-    let bar = indicatif::ProgressBar::new(renders as u64).with_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} {msg} {pos}/{len} renders {elapsed_precise}",
-        )
-        .expect("valid template"),
-    );
-    // The reference draws its samples under another frame key: sharing the measured images'
-    // first samples would make their error look smaller than it is.
-    let render_keyed = |key: u64, params: RenderParams, what: String| {
-        bar.set_message(what);
-        let view = FrameView::for_wall(key, &camera, params, &wall);
-        let t0 = Instant::now();
-        let image = render_wall(&prepared, &view, &grid);
-        let ms = t0.elapsed().as_secs_f64() * 1000.0;
-        bar.inc(1);
-        (image, ms)
-    };
-    let render = |params, what| render_keyed(0, params, what);
-    let reference = |params, what| render_keyed(REFERENCE_KEY, params, what);
-    let ao_reference = reference(
-        ao_reference_params,
-        format!("ao reference ({} rays)", args.reference_ao),
-    )
-    .0;
-    let spp_reference = reference(
-        spp_reference_params,
-        format!("spp reference ({} samples)", args.reference_spp),
-    )
-    .0;
-    let mut points = Vec::new();
-    for (ao, params) in AO_STEPS.into_iter().zip(ao_params) {
-        let (image, ms) = render(params, format!("ao {ao}"));
-        points.push(Point {
-            knob: "ao",
-            value: ao as f64,
-            ms,
-            rmse: rmse(&wall, &image, &ao_reference),
-        });
-    }
-    for (spp, params) in SPP_STEPS.into_iter().zip(spp_params) {
-        let (image, ms) = render(params, format!("spp {spp}"));
-        points.push(Point {
-            knob: "spp",
-            value: spp as f64,
-            ms,
-            rmse: rmse(&wall, &image, &spp_reference),
-        });
-    }
-    // Progressive: linear-light running sum of the passes' images, as a display would blend.
-    let mut linear = vec![0f64; (wall.width() * wall.height() * 3) as usize];
-    let mut total_ms = 0.0;
-    for (pass, params) in (0..PASSES).zip(pass_params) {
-        let (image, ms) = render(params, format!("pass {}", pass + 1));
-        total_ms += ms;
-        for (acc, &v) in linear.iter_mut().zip(&image.rgb) {
-            let c = v as f64 / 255.0;
-            *acc += c * c;
-        }
-        let shown = RgbImage {
-            width: image.width,
-            height: image.height,
-            rgb: linear
-                .iter()
-                .map(|&s| ((s / (pass + 1) as f64).sqrt() * 255.0 + 0.5) as u8)
-                .collect(),
+    let spacing = settings.spacing;
+    let points = renderer.measure(args, settings);
+    renderer.bar.finish_and_clear();
+    write_outputs(args, out, &wall, spacing, &points)
+}
+
+/// Every render's settings, all checked before the first (long) render.
+struct Settings {
+    ao_reference_params: RenderParams,
+    spp_reference_params: RenderParams,
+    ao_params: Vec<RenderParams>,
+    spp_params: Vec<RenderParams>,
+    pass_params: Vec<RenderParams>,
+    camera: Camera,
+    /// The volume's smallest voxel spacing (None: the scene has no volume).
+    spacing: Option<f64>,
+    /// A setting per step of [`STEP_FRACTIONS`], then the reference's (empty without a volume).
+    step_params: Vec<RenderParams>,
+}
+
+impl Settings {
+    /// The settings `args` give for `scene`, each checked.
+    fn check(args: &BenchArgs, scene: &Scene) -> Result<Settings> {
+        let run = &args.local.run;
+        let base = run.quality.params(&scene.render_from_world)?.spec();
+        let knobs = |change: &dyn Fn(&mut RenderParamsSpec)| -> Result<RenderParams> {
+            let mut spec = base;
+            change(&mut spec);
+            Ok(spec.build()?)
         };
-        points.push(Point {
-            knob: "passes",
-            value: (pass + 1) as f64,
-            ms: total_ms,
-            rmse: rmse(&wall, &shown, &spp_reference),
-        });
+        let ao_reference_params =
+            knobs(&|s| s.ao_samples = args.reference_ao).context("--reference-ao")?;
+        let spp_reference_params =
+            knobs(&|s| s.spp = args.reference_spp).context("--reference-spp")?;
+        let ao_params = AO_STEPS
+            .iter()
+            .map(|&ao| knobs(&|s| s.ao_samples = ao))
+            .collect::<Result<Vec<_>>>()
+            .context("the ambient-occlusion steps with these flags")?;
+        let spp_params = SPP_STEPS
+            .iter()
+            .map(|&spp| knobs(&|s| s.spp = spp))
+            .collect::<Result<Vec<_>>>()
+            .context("the samples-per-pixel steps with these flags")?;
+        let pass_params = (0..PASSES)
+            .map(|pass| {
+                knobs(&|s| {
+                    s.spp = 1;
+                    s.first_sample = pass;
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let camera = run
+            .scene
+            .camera_mode(&scene.render_from_world, |fov| {
+                orbit_of(&scene.bounds(), fov)
+            })?
+            .camera_for_frame(0);
+        let spacing = scene
+            .volume
+            .as_ref()
+            .map(|v| v.spacing().into_iter().fold(f64::INFINITY, f64::min));
+        // The volume's step knob: steps in world units, checked like the others.
+        let step_params = match spacing {
+            Some(unit) => STEP_FRACTIONS
+                .iter()
+                .chain([&REFERENCE_STEP_FRACTION])
+                .map(|f| knobs(&|s| s.volume.step = (unit * f) as f32))
+                .collect::<Result<Vec<_>>>()?,
+            None => Vec::new(),
+        };
+        Ok(Settings {
+            ao_reference_params,
+            spp_reference_params,
+            ao_params,
+            spp_params,
+            pass_params,
+            camera,
+            spacing,
+            step_params,
+        })
     }
-    if let Some((reference_params, steps)) = step_params.split_last() {
-        let step_reference = render(*reference_params, "step reference".into()).0;
-        for (fraction, params) in STEP_FRACTIONS.iter().zip(steps) {
-            let (image, ms) = render(*params, format!("step {fraction}"));
+}
+
+/// Renders and times frames of the wall in this process, counting them on a progress bar.
+struct Renderer<'a> {
+    prepared: PreparedScene,
+    grid: TileGrid,
+    wall: &'a WallLayout,
+    camera: Camera,
+    bar: indicatif::ProgressBar,
+}
+
+impl Renderer<'_> {
+    /// The image under frame key `key`, and the milliseconds it took.
+    fn render_keyed(&self, key: u64, params: RenderParams, what: String) -> (RgbImage, f64) {
+        self.bar.set_message(what);
+        let view = FrameView::for_wall(key, &self.camera, params, self.wall);
+        let t0 = Instant::now();
+        let image = render_wall(&self.prepared, &view, &self.grid);
+        let ms = t0.elapsed().as_secs_f64() * 1000.0;
+        self.bar.inc(1);
+        (image, ms)
+    }
+
+    /// A measured image: frame 0's samples.
+    fn render(&self, params: RenderParams, what: String) -> (RgbImage, f64) {
+        self.render_keyed(0, params, what)
+    }
+
+    /// A reference image. Its samples are drawn under another frame key: sharing the measured
+    /// images' first samples would make their error look smaller than it is.
+    fn reference(&self, params: RenderParams, what: String) -> RgbImage {
+        self.render_keyed(REFERENCE_KEY, params, what).0
+    }
+
+    /// Every knob's points, in the order of the table: ao, spp, passes, step.
+    fn measure(&self, args: &BenchArgs, s: Settings) -> Vec<Point> {
+        let ao_reference = self.reference(
+            s.ao_reference_params,
+            format!("ao reference ({} rays)", args.reference_ao),
+        );
+        let spp_reference = self.reference(
+            s.spp_reference_params,
+            format!("spp reference ({} samples)", args.reference_spp),
+        );
+        let ao = AO_STEPS.map(f64::from);
+        let mut points = self.knob("ao", &ao, s.ao_params, &ao_reference);
+        let spp = SPP_STEPS.map(f64::from);
+        points.extend(self.knob("spp", &spp, s.spp_params, &spp_reference));
+        points.extend(self.passes(s.pass_params, &spp_reference));
+        if let Some((reference_params, steps)) = s.step_params.split_last() {
+            let step_reference = self.render(*reference_params, "step reference".into()).0;
+            points.extend(self.knob("step", &STEP_FRACTIONS, steps.to_vec(), &step_reference));
+        }
+        points
+    }
+
+    /// A point for each of a knob's `values`, rendered with its `params`.
+    fn knob(
+        &self,
+        knob: &'static str,
+        values: &[f64],
+        params: Vec<RenderParams>,
+        reference: &RgbImage,
+    ) -> Vec<Point> {
+        values
+            .iter()
+            .zip(params)
+            .map(|(&value, params)| {
+                let (image, ms) = self.render(params, format!("{knob} {value}"));
+                Point {
+                    knob,
+                    value,
+                    ms,
+                    rmse: rmse(self.wall, &image, reference),
+                }
+            })
+            .collect()
+    }
+
+    /// Progressive passes: what a display shows after each, against the time of all so far.
+    fn passes(&self, params: Vec<RenderParams>, reference: &RgbImage) -> Vec<Point> {
+        // A linear-light running sum of the passes' images, as a display would blend.
+        let mut linear = vec![0f64; (self.wall.width() * self.wall.height() * 3) as usize];
+        let mut total_ms = 0.0;
+        let mut points = Vec::new();
+        for (pass, params) in (0..PASSES).zip(params) {
+            let (image, ms) = self.render(params, format!("pass {}", pass + 1));
+            total_ms += ms;
+            for (acc, &v) in linear.iter_mut().zip(&image.rgb) {
+                let c = v as f64 / 255.0;
+                *acc += c * c;
+            }
+            let shown = RgbImage {
+                width: image.width,
+                height: image.height,
+                rgb: linear
+                    .iter()
+                    .map(|&s| ((s / (pass + 1) as f64).sqrt() * 255.0 + 0.5) as u8)
+                    .collect(),
+            };
             points.push(Point {
-                knob: "step",
-                value: *fraction,
-                ms,
-                rmse: rmse(&wall, &image, &step_reference),
+                knob: "passes",
+                value: (pass + 1) as f64,
+                ms: total_ms,
+                rmse: rmse(self.wall, &shown, reference),
             });
         }
+        points
     }
-    bar.finish_and_clear();
+}
 
+/// The CSV, the plot and report.json, then the table.
+fn write_outputs(
+    args: &BenchArgs,
+    out: &Path,
+    wall: &WallLayout,
+    spacing: Option<f64>,
+    points: &[Point],
+) -> Result<()> {
     let rows: Vec<String> = points
         .iter()
         .map(|p| {
@@ -217,8 +297,6 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
             )
         })
         .collect();
-    let csv = out.join("error-vs-time.csv");
-    write_csv(&csv, "knob,value,time_ms,rmse,psnr_db", &rows)?;
     let series: Vec<Series> = ["ao", "spp", "passes", "step"]
         .iter()
         .filter(|k| points.iter().any(|p| p.knob == **k))
@@ -231,17 +309,18 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
                 .collect(),
         })
         .collect();
-    let svg = out.join("error-vs-time.svg");
-    line_plot(
-        &svg,
-        "image error against render time per frame",
-        "ms per frame",
-        "RMSE",
-        &series,
-    )?;
-    let json = write_json(
-        out,
-        &json!({
+    let written = Outputs {
+        csv: "error-vs-time.csv",
+        header: "knob,value,time_ms,rmse,psnr_db",
+        rows,
+        plots: vec![Plot {
+            file: "error-vs-time.svg",
+            title: "image error against render time per frame",
+            x_label: "ms per frame",
+            y_label: "RMSE",
+            series,
+        }],
+        report: json!({
             "experiment": "error-vs-time",
             "wall": { "width": wall.width(), "height": wall.height() },
             "reference": {
@@ -255,12 +334,20 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
                 "psnr_db": if p.rmse > 0.0 { json!(psnr(p.rmse)) } else { json!(null) },
             })).collect::<Vec<_>>(),
         }),
-    )?;
+    }
+    .write(out)?;
+    print_table(points);
+    wrote(&written);
+    Ok(())
+}
+
+/// A line a point: knob, value, time, RMSE and PSNR.
+fn print_table(points: &[Point]) {
     println!(
         "{:<7} {:>6} {:>10} {:>9} {:>9}",
         "knob", "value", "ms/frame", "RMSE", "PSNR dB"
     );
-    for p in &points {
+    for p in points {
         println!(
             "{:<7} {:>6} {:>10.1} {:>9.5} {:>9.2}",
             p.knob,
@@ -270,8 +357,6 @@ pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
             psnr(p.rmse)
         );
     }
-    wrote(&[&json, &csv, &svg]);
-    Ok(())
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 
 mod dsm;
 mod error;
+mod max_fps;
 mod plot;
 mod soak;
 mod transport;
@@ -20,7 +21,6 @@ use std::time::Duration;
 use tessera_model::camera::{Camera, CameraMode};
 use tessera_model::state::StateChange;
 use tessera_protocol::control::{ControlReply, ControlRequest};
-use tessera_protocol::pixels::Compression;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Experiment {
@@ -130,7 +130,7 @@ pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
     match args.experiment {
         Experiment::Latency => latency(&args, &out).await?,
         Experiment::Scaling => scaling(&args, &out).await?,
-        Experiment::MaxFps => max_fps(&args, &out).await?,
+        Experiment::MaxFps => max_fps::max_fps(&args, &out).await?,
         Experiment::ErrorVsTime => error::error_vs_time(&args, &out)?,
         Experiment::Soak => soak::soak(&args, &out).await?,
         Experiment::Dsm => dsm::dsm(&args, &out).await?,
@@ -174,7 +174,42 @@ fn write_csv(path: &Path, header: &str, rows: &[String]) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-fn wrote(paths: &[&Path]) {
+/// One plot of an experiment: its file name in `--out`, title, axis labels and lines.
+struct Plot<'a> {
+    file: &'a str,
+    title: &'a str,
+    x_label: &'a str,
+    y_label: &'a str,
+    series: Vec<Series>,
+}
+
+/// What an experiment writes into `--out`: a CSV table, its plots and report.json.
+struct Outputs<'a> {
+    csv: &'a str,
+    header: &'a str,
+    rows: Vec<String>,
+    plots: Vec<Plot<'a>>,
+    report: serde_json::Value,
+}
+
+impl Outputs<'_> {
+    /// Writes the CSV, the plots and report.json, in that order, and returns their paths in
+    /// the order [`wrote`] lists them: report.json, the CSV, the plots.
+    fn write(&self, out: &Path) -> Result<Vec<PathBuf>> {
+        let csv = out.join(self.csv);
+        write_csv(&csv, self.header, &self.rows)?;
+        let mut paths = vec![csv];
+        for plot in &self.plots {
+            let path = out.join(plot.file);
+            line_plot(&path, plot.title, plot.x_label, plot.y_label, &plot.series)?;
+            paths.push(path);
+        }
+        paths.insert(0, write_json(out, &self.report)?);
+        Ok(paths)
+    }
+}
+
+fn wrote(paths: &[PathBuf]) {
     for p in paths {
         println!("wrote {}", p.display());
     }
@@ -214,19 +249,24 @@ fn efficiency(report: &Report) -> (f64, f64) {
     (mean, shares.iter().copied().fold(f64::INFINITY, f64::min))
 }
 
+/// A control client of the wall at `addr`: the wall takes a moment to start, and a client
+/// that comes too early retries.
+async fn connect_when_up(addr: &str, cert_dir: &Path) -> ControlClient {
+    loop {
+        match ControlClient::connect(addr, cert_dir).await {
+            Ok(c) => return c,
+            Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
+}
+
 /// Moves the camera along a circle about the scene through the control interface, one
 /// command every `every`, for as long as the wall runs: each command's entry stamp is what
 /// `input_latency_ms` measures from.
 fn camera_path(every: Duration) -> Driver {
     Box::new(move |addr, cert_dir| {
         Box::pin(async move {
-            // The wall takes a moment to start; a client that comes too early retries.
-            let mut client = loop {
-                match ControlClient::connect(&addr, &cert_dir).await {
-                    Ok(c) => break c,
-                    Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
-                }
-            };
+            let mut client = connect_when_up(&addr, &cert_dir).await;
             let ControlReply::State { current, frame, .. } =
                 client.ask(ControlRequest::State).await?
             else {
@@ -248,6 +288,15 @@ fn camera_path(every: Duration) -> Driver {
     })
 }
 
+/// `ms` in frame periods of `period` ms (0 where the period is unknown).
+fn in_frame_periods(ms: f64, period: f64) -> f64 {
+    if period > 0.0 {
+        ms / period
+    } else {
+        0.0
+    }
+}
+
 async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
     let run = run_local_driven(&args.local, true, Some(camera_path(args.command_every()))).await?;
     let report = checked_run(run, "latency run")?;
@@ -256,49 +305,21 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
         bail!("no frame was reported presented by every display");
     }
     let period = report.frame_period_ms;
-    let rows: Vec<String> = t
-        .per_frame
-        .iter()
-        .map(|f| format!("{},{:.4},{:.4}", f.frame, f.latency_ms, f.skew_ms))
-        .collect();
-    let csv = out.join("latency.csv");
-    write_csv(&csv, "frame,latency_ms,skew_ms", &rows)?;
-    let svg = out.join("latency.svg");
-    let series = |name: &str, pick: fn(&crate::timing::FrameTiming) -> f64| Series {
-        name: name.into(),
-        points: t
+    let in_periods = in_frame_periods(t.latency_ms.p95, period);
+    let written = Outputs {
+        csv: "latency.csv",
+        header: "frame,latency_ms,skew_ms",
+        rows: t
             .per_frame
             .iter()
-            .map(|f| (f.frame as f64, pick(f)))
+            .map(|f| format!("{},{:.4},{:.4}", f.frame, f.latency_ms, f.skew_ms))
             .collect(),
-    };
-    line_plot(
-        &svg,
-        "camera change → present on every display, and present skew",
-        "frame",
-        "ms",
-        &[
-            series("latency", |f| f.latency_ms),
-            series("skew", |f| f.skew_ms),
-        ],
-    )?;
-    let in_periods = if period > 0.0 {
-        t.latency_ms.p95 / period
-    } else {
-        0.0
-    };
-    let input_in_periods = if period > 0.0 {
-        t.input_latency_ms.p95 / period
-    } else {
-        0.0
-    };
-    let json = write_json(
-        out,
-        &json!({
+        plots: vec![latency_plot(t)],
+        report: json!({
             "experiment": "latency",
             "latency_ms": t.latency_ms,
             "input_latency_ms": t.input_latency_ms,
-            "input_latency_p95_in_frame_periods": input_in_periods,
+            "input_latency_p95_in_frame_periods": in_frame_periods(t.input_latency_ms.p95, period),
             "inputs_measured": t.inputs_measured,
             "skew_ms": t.skew_ms,
             "frame_period_ms": period,
@@ -307,7 +328,37 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
             "wire_bytes_per_pixel_byte": wire_ratio(&report),
             "run": report,
         }),
-    )?;
+    }
+    .write(out)?;
+    print_latency(t, period, in_periods);
+    wrote(&written);
+    Ok(())
+}
+
+/// Latency and skew against the frame.
+fn latency_plot(t: &crate::timing::TimingSummary) -> Plot<'static> {
+    let series = |name: &str, pick: fn(&crate::timing::FrameTiming) -> f64| Series {
+        name: name.into(),
+        points: t
+            .per_frame
+            .iter()
+            .map(|f| (f.frame as f64, pick(f)))
+            .collect(),
+    };
+    Plot {
+        file: "latency.svg",
+        title: "camera change → present on every display, and present skew",
+        x_label: "frame",
+        y_label: "ms",
+        series: vec![
+            series("latency", |f| f.latency_ms),
+            series("skew", |f| f.skew_ms),
+        ],
+    }
+}
+
+/// The percentiles of latency, input latency and skew, then the latency in frame periods.
+fn print_latency(t: &crate::timing::TimingSummary, period: f64, in_periods: f64) {
     println!(
         "{:<10} {:>8} {:>8} {:>8} {:>8}",
         "ms", "p50", "p95", "p99", "max"
@@ -326,11 +377,57 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
         "frame period {period:.2} ms; latency p95 = {in_periods:.2} frame periods; {} frames measured",
         t.frames_measured
     );
-    wrote(&[&json, &csv, &svg]);
-    Ok(())
 }
 
 async fn scaling(args: &BenchArgs, out: &Path) -> Result<()> {
+    let runs = scaling_runs(args).await?;
+    let num = |r: &serde_json::Value, key: &str| r[key].as_f64().unwrap_or(0.0);
+    let rows: Vec<String> = runs
+        .iter()
+        .map(|r| {
+            format!(
+                "{},{},{:.3},{:.4},{:.4}",
+                r["render_nodes"],
+                r["threads"],
+                num(r, "fps"),
+                num(r, "efficiency"),
+                num(r, "efficiency_min")
+            )
+        })
+        .collect();
+    let series: Vec<Series> = args
+        .thread_counts
+        .iter()
+        .map(|&t| Series {
+            name: format!("{t} thread(s) per node"),
+            points: runs
+                .iter()
+                .filter(|r| r["threads"] == t)
+                .map(|r| (num(r, "render_nodes"), num(r, "fps")))
+                .collect(),
+        })
+        .collect();
+    let written = Outputs {
+        csv: "scaling.csv",
+        header: "render_nodes,threads,fps,efficiency,efficiency_min",
+        rows,
+        plots: vec![Plot {
+            file: "scaling.svg",
+            title: "frames/s against render nodes",
+            x_label: "render nodes",
+            y_label: "frames/s",
+            series,
+        }],
+        report: json!({ "experiment": "scaling", "runs": runs }),
+    }
+    .write(out)?;
+    print_scaling(&runs);
+    wrote(&written);
+    Ok(())
+}
+
+/// A wall for each thread count and render-node count: its frame rate and efficiency.
+async fn scaling_runs(args: &BenchArgs) -> Result<Vec<serde_json::Value>> {
     let mut runs = Vec::new();
     for &threads in &args.thread_counts {
         for &nodes in &args.nodes {
@@ -354,56 +451,16 @@ async fn scaling(args: &BenchArgs, out: &Path) -> Result<()> {
             }));
         }
     }
-    let rows: Vec<String> = runs
-        .iter()
-        .map(|r| {
-            format!(
-                "{},{},{:.3},{:.4},{:.4}",
-                r["render_nodes"],
-                r["threads"],
-                r["fps"].as_f64().unwrap_or(0.0),
-                r["efficiency"].as_f64().unwrap_or(0.0),
-                r["efficiency_min"].as_f64().unwrap_or(0.0)
-            )
-        })
-        .collect();
-    let csv = out.join("scaling.csv");
-    write_csv(
-        &csv,
-        "render_nodes,threads,fps,efficiency,efficiency_min",
-        &rows,
-    )?;
-    let series: Vec<Series> = args
-        .thread_counts
-        .iter()
-        .map(|&t| Series {
-            name: format!("{t} thread(s) per node"),
-            points: runs
-                .iter()
-                .filter(|r| r["threads"] == t)
-                .map(|r| {
-                    (
-                        r["render_nodes"].as_f64().unwrap_or(0.0),
-                        r["fps"].as_f64().unwrap_or(0.0),
-                    )
-                })
-                .collect(),
-        })
-        .collect();
-    let svg = out.join("scaling.svg");
-    line_plot(
-        &svg,
-        "frames/s against render nodes",
-        "render nodes",
-        "frames/s",
-        &series,
-    )?;
-    let json = write_json(out, &json!({ "experiment": "scaling", "runs": runs }))?;
+    Ok(runs)
+}
+
+/// A line a run: nodes, threads, frame rate and efficiency (mean and lowest).
+fn print_scaling(runs: &[serde_json::Value]) {
     println!(
         "{:>6} {:>8} {:>9} {:>11} {:>9}",
         "nodes", "threads", "fps", "efficiency", "min"
     );
-    for r in &runs {
+    for r in runs {
         println!(
             "{:>6} {:>8} {:>9.2} {:>10.1}% {:>8.1}%",
             r["render_nodes"].as_u64().unwrap_or(0),
@@ -413,148 +470,4 @@ async fn scaling(args: &BenchArgs, out: &Path) -> Result<()> {
             100.0 * r["efficiency_min"].as_f64().unwrap_or(0.0)
         );
     }
-    wrote(&[&json, &csv, &svg]);
-    Ok(())
-}
-
-/// One max-fps wall run: its settings and what it measured.
-#[derive(Clone, Copy)]
-struct FpsRun {
-    compress: Compression,
-    nodes: u32,
-    fps: f64,
-    wire_per_frame: f64,
-    wire_ratio: f64,
-}
-
-async fn max_fps(args: &BenchArgs, out: &Path) -> Result<()> {
-    let displays = args.local.run.wall.layout()?.display_count();
-    let mut runs = Vec::new();
-    for compress in [Compression::None, Compression::Lz4] {
-        for &nodes in &args.nodes {
-            let mut local = args.local.clone();
-            local.render_nodes = nodes;
-            local.run.scene.scene = "empty".into();
-            local.run.compress = compress.into();
-            local.run.out = None;
-            let what = format!("empty scene, {nodes} render node(s), compression {compress:?}");
-            let report = wall_run(&local, &what).await?;
-            let frames = report.frames.max(1) as f64;
-            let wire: f64 = report
-                .displays
-                .iter()
-                .map(|d| d.stats.wire_bytes_received as f64)
-                .sum();
-            runs.push(FpsRun {
-                compress,
-                nodes,
-                fps: report.fps,
-                wire_per_frame: wire / frames,
-                wire_ratio: wire_ratio(&report),
-            });
-        }
-    }
-    eprintln!(
-        "bench: bulk transfer over {displays} link(s) for {} s",
-        args.transport_seconds
-    );
-    let bulk = transport::bulk_throughput(displays, args.transport_seconds, 256 * 1024).await?;
-    let limit_of = |r: &FpsRun| bulk.wire_bytes_per_s / r.wire_per_frame.max(1.0);
-    let best = |c: Compression| {
-        runs.iter()
-            .filter(|r| r.compress == c)
-            .copied()
-            .max_by(|a, b| a.fps.total_cmp(&b.fps))
-            .context("no run")
-    };
-    let (raw, lz4) = (best(Compression::None)?, best(Compression::Lz4)?);
-    let summary = |r: &FpsRun| {
-        json!({
-            "fps": r.fps,
-            "render_nodes_at_best": r.nodes,
-            "transport_limit_fps": limit_of(r),
-            "ratio": r.fps / limit_of(r),
-            "wire_bytes_per_frame": r.wire_per_frame,
-            "wire_bytes_per_pixel_byte": r.wire_ratio,
-        })
-    };
-    let name = |c: Compression| if c == Compression::Lz4 { "lz4" } else { "none" };
-    let rows: Vec<String> = runs
-        .iter()
-        .map(|r| {
-            format!(
-                "{},{},{:.3},{:.0},{:.5},{:.3}",
-                name(r.compress),
-                r.nodes,
-                r.fps,
-                r.wire_per_frame,
-                r.wire_ratio,
-                limit_of(r)
-            )
-        })
-        .collect();
-    let csv = out.join("max-fps.csv");
-    write_csv(
-        &csv,
-        "compression,render_nodes,fps,wire_bytes_per_frame,wire_bytes_per_pixel_byte,transport_limit_fps",
-        &rows,
-    )?;
-    let mut series = Vec::new();
-    for c in [Compression::None, Compression::Lz4] {
-        let of = || runs.iter().filter(move |r| r.compress == c);
-        series.push(Series {
-            name: format!("fps, compression {}", name(c)),
-            points: of().map(|r| (r.nodes as f64, r.fps)).collect(),
-        });
-        series.push(Series {
-            name: format!("transport limit, compression {}", name(c)),
-            points: of().map(|r| (r.nodes as f64, limit_of(r))).collect(),
-        });
-    }
-    let svg = out.join("max-fps.svg");
-    line_plot(
-        &svg,
-        "frame rate on an empty scene against the transport limit",
-        "render nodes",
-        "frames/s",
-        &series,
-    )?;
-    let mut report = summary(&raw);
-    report["experiment"] = json!("max-fps");
-    report["lz4"] = summary(&lz4);
-    report["bulk_transfer"] = json!(bulk);
-    report["runs"] = runs
-        .iter()
-        .map(|r| {
-            json!({
-                "compression": name(r.compress), "render_nodes": r.nodes, "fps": r.fps,
-                "wire_bytes_per_frame": r.wire_per_frame, "wire_bytes_per_pixel_byte": r.wire_ratio,
-                "transport_limit_fps": limit_of(r),
-            })
-        })
-        .collect();
-    let json = write_json(out, &report)?;
-    println!(
-        "{:<6} {:>6} {:>9} {:>14} {:>10} {:>11}",
-        "comp", "nodes", "fps", "wire B/frame", "wire/pixel", "limit fps"
-    );
-    for r in &runs {
-        println!(
-            "{:<6} {:>6} {:>9.1} {:>14.0} {:>10.4} {:>11.1}",
-            name(r.compress),
-            r.nodes,
-            r.fps,
-            r.wire_per_frame,
-            r.wire_ratio,
-            limit_of(r)
-        );
-    }
-    println!(
-        "bulk transfer: {:.1} MB/s over {displays} link(s); best fps / transport limit: {:.3} raw, {:.3} with lz4",
-        bulk.wire_bytes_per_s / 1e6,
-        raw.fps / limit_of(&raw),
-        lz4.fps / limit_of(&lz4)
-    );
-    wrote(&[&json, &csv, &svg]);
-    Ok(())
 }

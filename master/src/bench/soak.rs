@@ -3,8 +3,8 @@
 //! wall. Reports frames lost (goal 0), every process's resident memory each second (flat
 //! after warm-up is the goal) and how long the wall took to present again after each kill.
 
-use super::plot::{line_plot, Series};
-use super::{write_csv, write_json, BenchArgs};
+use super::plot::Series;
+use super::{connect_when_up, BenchArgs, Outputs, Plot};
 use crate::control::ControlClient;
 use crate::wall_run::{run_local_driven, Driver};
 use anyhow::{bail, Context, Result};
@@ -70,32 +70,25 @@ fn soak_driver(
     Box::new(move |addr, cert_dir| {
         Box::pin(async move {
             let me = std::process::id();
-            let exe = std::env::current_exe()?;
-            // The launcher's certificates lie side by side: a render node's serves a new one.
-            let render_certs = cert_dir
-                .parent()
-                .context("the control certificate has no parent directory")?
-                .join("render-0");
-            let mut client = loop {
-                match ControlClient::connect(&addr, &cert_dir).await {
-                    Ok(c) => break c,
-                    Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
-                }
+            let soak = Soak {
+                me,
+                exe: std::env::current_exe()?,
+                // The launcher's certificates lie side by side: a render node's serves a new one.
+                render_certs: cert_dir
+                    .parent()
+                    .context("the control certificate has no parent directory")?
+                    .join("render-0"),
+                threads,
+                log,
             };
+            let mut client = connect_when_up(&addr, &cert_dir).await;
             let start = Instant::now();
             let mut next_kill = start + kill_every;
             let mut tick = tokio::time::interval(Duration::from_secs(1));
             loop {
                 tick.tick().await;
                 let t = start.elapsed().as_secs_f64();
-                let mut sample = vec![(t, "master".to_string(), resident_kib(me).unwrap_or(0))];
-                for (pid, name) in children(me) {
-                    sample.push((t, name, resident_kib(pid).unwrap_or(0)));
-                }
-                log.lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .rss
-                    .extend(sample);
+                soak.sample_rss(t);
                 if start.elapsed() >= length {
                     // The wall ends as on Ctrl-C: frames in flight finish, nodes report.
                     // SAFETY: kill only sends a signal, here to this process, and touches no
@@ -107,51 +100,79 @@ fn soak_driver(
                     continue;
                 }
                 next_kill += kill_every;
-                let Some((victim, _)) = children(me)
-                    .into_iter()
-                    .find(|(_, n)| n.starts_with("render-node"))
-                else {
-                    continue;
-                };
-                let before = frames_presented(&mut client).await?;
-                let killed = Instant::now();
-                // SAFETY: kill only sends a signal and touches no memory; `victim` is a child
-                // of this process, listed just above.
-                unsafe { libc::kill(victim as i32, libc::SIGKILL) };
-                let child = tokio::process::Command::new(&exe)
-                    .args([
-                        "render-node",
-                        "--master",
-                        &addr,
-                        "--threads",
-                        &threads.to_string(),
-                    ])
-                    .arg("--cert-dir")
-                    .arg(&render_certs)
-                    .stdout(std::process::Stdio::null())
-                    .kill_on_drop(true)
-                    .spawn()
-                    .context("cannot start a render node in place of the killed one")?;
-                log.lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .restarted
-                    .push(child);
-                // Recovered once two more frames are presented (bounded).
-                let mut recovery = f64::NAN;
-                for _ in 0..500 {
-                    if frames_presented(&mut client).await? >= before + 2 {
-                        recovery = killed.elapsed().as_secs_f64();
-                        break;
-                    }
-                    tokio::time::sleep(Duration::from_millis(10)).await;
-                }
-                log.lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .kills
-                    .push((t, recovery));
+                soak.kill_and_replace(&mut client, &addr, t).await?;
             }
         })
     })
+}
+
+/// What the soak driver needs to measure the wall's processes and replace its render nodes.
+struct Soak {
+    /// This process: the master, whose children the nodes are.
+    me: u32,
+    exe: std::path::PathBuf,
+    render_certs: std::path::PathBuf,
+    threads: u32,
+    log: Arc<Mutex<SoakLog>>,
+}
+
+impl Soak {
+    /// The log, even if a panic elsewhere poisoned it.
+    fn log(&self) -> std::sync::MutexGuard<'_, SoakLog> {
+        self.log.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Logs every process's resident memory at `t` seconds.
+    fn sample_rss(&self, t: f64) {
+        let me = self.me;
+        let mut sample = vec![(t, "master".to_string(), resident_kib(me).unwrap_or(0))];
+        for (pid, name) in children(me) {
+            sample.push((t, name, resident_kib(pid).unwrap_or(0)));
+        }
+        self.log().rss.extend(sample);
+    }
+
+    /// Kills a render node, starts another in its place, and logs how long the wall took to
+    /// present two more frames; nothing if no render node is running.
+    async fn kill_and_replace(&self, client: &mut ControlClient, addr: &str, t: f64) -> Result<()> {
+        let Some((victim, _)) = children(self.me)
+            .into_iter()
+            .find(|(_, n)| n.starts_with("render-node"))
+        else {
+            return Ok(());
+        };
+        let before = frames_presented(client).await?;
+        let killed = Instant::now();
+        // SAFETY: kill only sends a signal and touches no memory; `victim` is a child of this
+        // process, listed just above.
+        unsafe { libc::kill(victim as i32, libc::SIGKILL) };
+        let child = tokio::process::Command::new(&self.exe)
+            .args([
+                "render-node",
+                "--master",
+                addr,
+                "--threads",
+                &self.threads.to_string(),
+            ])
+            .arg("--cert-dir")
+            .arg(&self.render_certs)
+            .stdout(std::process::Stdio::null())
+            .kill_on_drop(true)
+            .spawn()
+            .context("cannot start a render node in place of the killed one")?;
+        self.log().restarted.push(child);
+        // Recovered once two more frames are presented (bounded).
+        let mut recovery = f64::NAN;
+        for _ in 0..500 {
+            if frames_presented(client).await? >= before + 2 {
+                recovery = killed.elapsed().as_secs_f64();
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        self.log().kills.push((t, recovery));
+        Ok(())
+    }
 }
 
 pub async fn soak(args: &BenchArgs, out: &Path) -> Result<()> {
@@ -197,51 +218,33 @@ fn write_outputs(
     log: &SoakLog,
     lost: u64,
 ) -> Result<()> {
-    let rows: Vec<String> = log
-        .rss
-        .iter()
-        .map(|(t, n, k)| format!("{t:.1},{n},{k}"))
-        .collect();
-    write_csv(&out.join("soak.csv"), "seconds,process,rss_kib", &rows)?;
-    let mut by_process: BTreeMap<&str, Vec<(f64, f64)>> = BTreeMap::new();
-    for (t, name, kib) in &log.rss {
-        by_process
-            .entry(name)
-            .or_default()
-            .push((*t, *kib as f64 / 1024.0));
-    }
     let end = log.rss.last().map_or(0.0, |r| r.0);
-    // The processes that lived through the run: the master and the displays.
-    let lasting: Vec<(&str, Vec<(f64, f64)>)> = by_process
-        .into_iter()
-        .filter(|(n, _)| *n == "master" || n.starts_with("display-node"))
-        .collect();
-    let series: Vec<Series> = lasting
-        .iter()
-        .map(|(n, p)| Series {
-            name: n.to_string(),
-            points: p.clone(),
-        })
-        .collect();
-    line_plot(
-        &out.join("soak.svg"),
-        "resident memory over the soak",
-        "seconds",
-        "MiB",
-        &series,
-    )?;
-    let memory: Vec<serde_json::Value> = lasting
-        .iter()
-        .filter_map(|(n, p)| {
-            let (first, last) = growth(p, end * 0.2)?;
-            Some(json!({"process": n, "mib_after_warm_up": first, "mib_at_end": last, "ratio": last / first}))
-        })
-        .collect();
+    let lasting = lasting_processes(log);
+    let memory = memory_growth(&lasting, end);
     let recoveries: Vec<f64> = log.kills.iter().map(|k| k.1).collect();
     let worst = recoveries.iter().copied().fold(0.0, f64::max);
-    let path = write_json(
-        out,
-        &json!({
+    let written = Outputs {
+        csv: "soak.csv",
+        header: "seconds,process,rss_kib",
+        rows: log
+            .rss
+            .iter()
+            .map(|(t, n, k)| format!("{t:.1},{n},{k}"))
+            .collect(),
+        plots: vec![Plot {
+            file: "soak.svg",
+            title: "resident memory over the soak",
+            x_label: "seconds",
+            y_label: "MiB",
+            series: lasting
+                .iter()
+                .map(|(n, p)| Series {
+                    name: n.to_string(),
+                    points: p.clone(),
+                })
+                .collect(),
+        }],
+        report: json!({
             "experiment": "soak",
             "seconds": end,
             "frames": report.frames,
@@ -254,7 +257,8 @@ fn write_outputs(
             "frame_ms": report.frame_ms,
             "tiles_speculated": report.tiles_speculated,
         }),
-    )?;
+    }
+    .write(out)?;
     println!(
         "soak: {:.0} s, {} frames at {:.1} fps, {lost} lost; {} render nodes killed and replaced, \
          longest recovery {:.3} s",
@@ -264,7 +268,14 @@ fn write_outputs(
         log.kills.len(),
         worst
     );
-    for m in &memory {
+    print_memory(&memory);
+    println!("wrote {}, soak.csv and soak.svg", written[0].display());
+    Ok(())
+}
+
+/// A line per process of [`memory_growth`]: its memory after warm-up and at the end.
+fn print_memory(memory: &[serde_json::Value]) {
+    for m in memory {
         println!(
             "  {}: {:.1} MiB after warm-up, {:.1} MiB at the end",
             m["process"].as_str().unwrap_or("?"),
@@ -272,6 +283,31 @@ fn write_outputs(
             m["mib_at_end"].as_f64().unwrap_or(0.0)
         );
     }
-    println!("wrote {}, soak.csv and soak.svg", path.display());
-    Ok(())
+}
+
+/// Resident MiB over time of the processes that lived through the run: the master and the
+/// displays.
+fn lasting_processes(log: &SoakLog) -> Vec<(&str, Vec<(f64, f64)>)> {
+    let mut by_process: BTreeMap<&str, Vec<(f64, f64)>> = BTreeMap::new();
+    for (t, name, kib) in &log.rss {
+        by_process
+            .entry(name)
+            .or_default()
+            .push((*t, *kib as f64 / 1024.0));
+    }
+    by_process
+        .into_iter()
+        .filter(|(n, _)| *n == "master" || n.starts_with("display-node"))
+        .collect()
+}
+
+/// Each process's memory after warm-up (a fifth of the `end` seconds) and at the end.
+fn memory_growth(lasting: &[(&str, Vec<(f64, f64)>)], end: f64) -> Vec<serde_json::Value> {
+    lasting
+        .iter()
+        .filter_map(|(n, p)| {
+            let (first, last) = growth(p, end * 0.2)?;
+            Some(json!({"process": n, "mib_after_warm_up": first, "mib_at_end": last, "ratio": last / first}))
+        })
+        .collect()
 }

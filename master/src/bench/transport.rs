@@ -3,6 +3,7 @@
 
 use anyhow::{Context, Result};
 use std::net::SocketAddr;
+use std::path::Path;
 use std::time::{Duration, Instant};
 use tessera_net::cluster::{ClusterCa, NodeIdentity};
 use tessera_net::quic;
@@ -18,13 +19,55 @@ pub struct Throughput {
     pub wire_bytes_per_s: f64,
 }
 
+/// One end of a link: its endpoint and the connection to the other end.
+type End = (quinn::Endpoint, quinn::Connection);
+
 /// Sends as fast as possible over `links` connections for about `seconds`, in streams of
 /// `stream_bytes` (as render nodes send batches), and measures what arrives.
 pub async fn bulk_throughput(links: u32, seconds: f64, stream_bytes: usize) -> Result<Throughput> {
     let certs = tempfile::Builder::new().prefix("tessera-bulk-").tempdir()?;
-    let ca = ClusterCa::open_or_create(&certs.path().join("ca"))?;
+    let (receivers, senders) = connect_links(links, certs.path()).await?;
+    let deadline = Instant::now() + Duration::from_secs_f64(seconds);
+    let started = Instant::now();
+    let tasks: Vec<_> = receivers
+        .iter()
+        .map(|(_, conn)| tokio::spawn(receive_all(conn.clone())))
+        .collect();
+    let payload = vec![0x5au8; stream_bytes];
+    let mut sends = Vec::new();
+    for (_, conn) in &senders {
+        let (conn, payload) = (conn.clone(), payload.clone());
+        sends.push(tokio::spawn(send_until(conn, payload, deadline)));
+    }
+    for s in sends {
+        s.await??;
+    }
+    let elapsed = started.elapsed().as_secs_f64();
+    let wire: u64 = receivers.iter().map(|(_, c)| c.stats().udp_rx.bytes).sum();
+    for (_, conn) in &senders {
+        conn.close(0u32.into(), b"done");
+    }
+    let mut payload_total = 0u64;
+    for t in tasks {
+        payload_total += t.await??;
+    }
+    for (endpoint, _) in receivers.iter().chain(&senders) {
+        endpoint.close(0u32.into(), b"done");
+    }
+    Ok(Throughput {
+        links,
+        seconds: elapsed,
+        payload_bytes_per_s: payload_total as f64 / elapsed,
+        wire_bytes_per_s: wire as f64 / elapsed,
+    })
+}
+
+/// `links` connected pairs of endpoints on the loopback, certificates from a new CA under
+/// `certs`: the receiving ends, then the sending ends.
+async fn connect_links(links: u32, certs: &Path) -> Result<(Vec<End>, Vec<End>)> {
+    let ca = ClusterCa::open_or_create(&certs.join("ca"))?;
     let identity = |name: &str| -> Result<NodeIdentity> {
-        let dir = certs.path().join(name);
+        let dir = certs.join(name);
         ca.issue(name, &dir, None)?;
         Ok(NodeIdentity::load(&dir)?)
     };
@@ -50,58 +93,31 @@ pub async fn bulk_throughput(links: u32, seconds: f64, stream_bytes: usize) -> R
         receivers.push((rx, inbound));
         senders.push((tx, out));
     }
-    let deadline = Instant::now() + Duration::from_secs_f64(seconds);
-    let started = Instant::now();
-    let mut tasks = Vec::new();
-    for (_, conn) in &receivers {
-        let conn = conn.clone();
-        tasks.push(tokio::spawn(async move {
-            let mut total = 0u64;
-            while let Ok(mut stream) = conn.accept_uni().await {
-                match stream.read_to_end(usize::MAX).await {
-                    Ok(bytes) => total += bytes.len() as u64,
-                    Err(_) => break,
-                }
-            }
-            anyhow::Ok(total)
-        }));
+    Ok((receivers, senders))
+}
+
+/// Reads every stream `conn` is sent until it closes; the payload bytes read.
+async fn receive_all(conn: quinn::Connection) -> Result<u64> {
+    let mut total = 0u64;
+    while let Ok(mut stream) = conn.accept_uni().await {
+        match stream.read_to_end(usize::MAX).await {
+            Ok(bytes) => total += bytes.len() as u64,
+            Err(_) => break,
+        }
     }
-    let payload = vec![0x5au8; stream_bytes];
-    let mut sends = Vec::new();
-    for (_, conn) in &senders {
-        let (conn, payload) = (conn.clone(), payload.clone());
-        sends.push(tokio::spawn(async move {
-            while Instant::now() < deadline {
-                let mut stream = conn.open_uni().await?;
-                stream.write_all(&payload).await?;
-                stream.finish()?;
-                // Wait until the receiver has it all, as a render node does before it reports.
-                stream.stopped().await.ok();
-            }
-            anyhow::Ok(())
-        }));
+    Ok(total)
+}
+
+/// Sends `payload` a stream at a time over `conn` until `deadline`.
+async fn send_until(conn: quinn::Connection, payload: Vec<u8>, deadline: Instant) -> Result<()> {
+    while Instant::now() < deadline {
+        let mut stream = conn.open_uni().await?;
+        stream.write_all(&payload).await?;
+        stream.finish()?;
+        // Wait until the receiver has it all, as a render node does before it reports.
+        stream.stopped().await.ok();
     }
-    for s in sends {
-        s.await??;
-    }
-    let elapsed = started.elapsed().as_secs_f64();
-    let wire: u64 = receivers.iter().map(|(_, c)| c.stats().udp_rx.bytes).sum();
-    for (_, conn) in &senders {
-        conn.close(0u32.into(), b"done");
-    }
-    let mut payload_total = 0u64;
-    for t in tasks {
-        payload_total += t.await??;
-    }
-    for (endpoint, _) in receivers.iter().chain(&senders) {
-        endpoint.close(0u32.into(), b"done");
-    }
-    Ok(Throughput {
-        links,
-        seconds: elapsed,
-        payload_bytes_per_s: payload_total as f64 / elapsed,
-        wire_bytes_per_s: wire as f64 / elapsed,
-    })
+    Ok(())
 }
 
 #[cfg(test)]
