@@ -74,25 +74,42 @@ impl From<Camera> for CameraSpec {
     }
 }
 
+/// Why a camera or a camera mode was refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CameraError {
+    /// A position or direction has a NaN or infinite component.
     #[error("camera {field} {value:?} is not finite")]
     NotFinite {
+        /// Which vector: `"eye"`, `"target"` or `"up"`.
         field: &'static str,
+        /// The vector as given.
         value: [f32; 3],
     },
+    /// `eye` and `target` coincide (or are so close that the viewing direction cannot be
+    /// normalized), so there is no viewing direction; carries the eye.
     #[error("camera eye and target are the same point {0:?}")]
     EyeIsTarget([f32; 3]),
+    /// `up` is parallel to the viewing direction (or too small), so the image's horizontal axis is
+    /// undefined; carries `up`.
     #[error("camera up {0:?} is parallel to the viewing direction")]
     UpParallel([f32; 3]),
+    /// The vertical field of view, in degrees, is not strictly between 0 and 180 (or is NaN).
     #[error("field of view {0} must be between 0 and 180 degrees (exclusive)")]
     BadFov(f32),
+    /// The orbit radius, in world units, is zero, negative, infinite or NaN.
     #[error("orbit radius {0} must be finite and above 0")]
     BadRadius(f32),
+    /// The orbit is so small next to its distance from the origin that, in `f32`, some frame's eye
+    /// would round onto its target.
     #[error(
         "an orbit of radius {radius} around {center:?} cannot place a camera at single precision; move the scene nearer the origin or scale it up"
     )]
-    OrbitTooSmall { center: [f32; 3], radius: f32 },
+    OrbitTooSmall {
+        /// The orbit's centre, in world units.
+        center: [f32; 3],
+        /// The orbit's radius, in world units.
+        radius: f32,
+    },
 }
 
 /// Checks a field of view in degrees: strictly between 0 and 180.
@@ -139,14 +156,18 @@ impl Camera {
         })
     }
 
+    /// Where the pinhole is, in world coordinates.
     pub fn eye(&self) -> Vec3 {
         self.eye
     }
 
+    /// The point the camera looks at, in world coordinates: `target - eye` is the viewing
+    /// direction.
     pub fn target(&self) -> Vec3 {
         self.target
     }
 
+    /// Roughly up, as given: the image's vertical is `up` made orthogonal to the viewing direction.
     pub fn up(&self) -> Vec3 {
         self.up
     }

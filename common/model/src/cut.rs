@@ -22,12 +22,17 @@ pub struct CutPlanes {
     count: u8,
 }
 
+/// Why a set of cutting planes was refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CutError {
+    /// More than [`MAX_CUTS`] planes were given; carries how many.
     #[error("at most {MAX_CUTS} cutting planes are supported, got {0}")]
     TooMany(usize),
+    /// The plane at this index has a zero or non-finite normal, or a non-finite offset.
     #[error("cutting plane {0} needs a finite, non-zero normal and a finite offset")]
     Degenerate(usize),
+    /// The plane at this index arrived (deserialized) with a normal that is not of unit length:
+    /// the sender must normalize; carries the index and the length.
     #[error("cutting plane {0} arrived with a normal of length {1}, not 1")]
     NotNormalized(usize, f32),
 }
@@ -72,6 +77,7 @@ impl From<CutPlanes> for Vec<[f32; 4]> {
 }
 
 impl CutPlanes {
+    /// No planes: nothing is cut away. The same as [`CutPlanes::default`], usable in `const`s.
     pub const EMPTY: CutPlanes = CutPlanes {
         planes: [Vec4::ZERO; MAX_CUTS],
         count: 0,
@@ -95,10 +101,13 @@ impl CutPlanes {
         Ok(out)
     }
 
+    /// Whether there are no planes, so that the whole scene is kept.
     pub fn is_empty(&self) -> bool {
         self.count == 0
     }
 
+    /// The planes in use, each `(nx, ny, nz, d)` with a unit normal: it removes the points with
+    /// `n·p > d`.
     pub fn planes(&self) -> &[Vec4] {
         &self.planes[..self.count as usize]
     }

@@ -6,23 +6,31 @@ use crate::wall::{ScreenRect, WallLayout};
 /// An RGB8 image, row-major, row 0 at the top.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RgbImage {
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
+    /// The pixels, three bytes (red, green, blue) each, `width * height * 3` bytes in all.
     pub rgb: Vec<u8>,
 }
 
 /// Why screens' images could not be put together.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
+    /// A display's image is not the size of its screen rectangle on the wall.
     #[error("display {display} image is {got:?}, but its screen is {want:?}")]
     WrongSize {
+        /// The display whose image it is.
         display: u32,
+        /// The image's `(width, height)`, in pixels.
         got: (u32, u32),
+        /// The screen's `(width, height)`, in pixels.
         want: (u32, u32),
     },
 }
 
 impl RgbImage {
+    /// An all-black image of `width` × `height` pixels.
     pub fn black(width: u32, height: u32) -> Self {
         RgbImage {
             width,

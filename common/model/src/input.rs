@@ -6,12 +6,17 @@ use serde::{Deserialize, Serialize};
 /// The keys that do something on a wall.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum Key {
-    /// Fly mode: forward, left, back, right, down, up.
+    /// Flies forward, along the viewing direction, one step (a fraction of the scene's size).
     W,
+    /// Flies left one step.
     A,
+    /// Flies back one step, away from the target.
     S,
+    /// Flies right one step.
     D,
+    /// Flies down one step, along the camera's `-up`.
     Q,
+    /// Flies up one step, along the camera's `up`.
     E,
     /// Switch between orbiting a pivot and flying.
     F,
@@ -27,10 +32,14 @@ pub enum Key {
     Digit3,
 }
 
+/// A mouse button, as held in a drag or pressed in a click.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 pub enum Button {
+    /// Orbits the pivot when dragged (turns the view, in fly mode).
     Left,
+    /// Pans the view when dragged.
     Right,
+    /// Pans the view when dragged, like [`Button::Right`].
     Middle,
 }
 
@@ -41,25 +50,35 @@ pub const MAX_MOVE: f32 = 100.0;
 /// across one screen turns the view the same whatever its resolution.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub enum InputEvent {
+    /// A key went down (`pressed`) or up; the master acts on presses only.
     Key {
+        /// The key, by its physical position (where it sits on a US layout).
         key: Key,
+        /// `true` when the key went down, `false` when it came up.
         pressed: bool,
     },
     /// The mouse moved by `(dx, dy)` with `button` held (x right, y down).
     Drag {
+        /// The button held during the movement.
         button: Button,
+        /// Rightward movement, in heights of the screen it happened on, within ±[`MAX_MOVE`].
         dx: f32,
+        /// Downward movement, in heights of the screen it happened on, within ±[`MAX_MOVE`].
         dy: f32,
     },
     /// The wheel turned by `lines` (positive: away from the user, zoom in).
     Scroll {
+        /// Wheel lines, within ±[`MAX_MOVE`].
         lines: f32,
     },
     /// A button pressed and released without a drag, at `(fx, fy)` of the screen (fractions
     /// of its width and height from the top left, each in 0..=1): the probe's click.
     Click {
+        /// The button clicked; any button probes.
         button: Button,
+        /// Horizontal position, 0 at the screen's left edge, 1 at its right.
         fx: f32,
+        /// Vertical position, 0 at the screen's top edge, 1 at its bottom.
         fy: f32,
     },
 }

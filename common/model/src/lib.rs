@@ -17,6 +17,8 @@
 //! and writing PNGs is `tessera-cli`'s), so the sans-IO core and the display nodes build on it.
 //! It depends on serde, glam, toml and thiserror only.
 
+#![warn(missing_docs)]
+
 pub mod camera;
 pub mod checked;
 pub mod cut;

@@ -8,9 +8,20 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Light {
     /// Infinitely far: `towards` is the unit direction from the surface to the light.
-    Directional { towards: Vec3, intensity: f32 },
+    Directional {
+        /// Unit vector from any surface point towards the light.
+        towards: Vec3,
+        /// Linear multiplier of the diffuse term, the same at every distance; 0 or more.
+        intensity: f32,
+    },
     /// A point light; falls off with the square of the distance.
-    Point { position: Vec3, intensity: f32 },
+    Point {
+        /// Where the light is, in render coordinates (see [`crate::local_frame`]).
+        position: Vec3,
+        /// Linear multiplier of the diffuse term at distance 1, divided by the squared distance
+        /// elsewhere; 0 or more.
+        intensity: f32,
+    },
 }
 
 /// Most lights a frame's light set may hold: shadow rays cost one ray per light per hit.
@@ -19,12 +30,17 @@ pub const MAX_LIGHTS: usize = 8;
 /// Why a light was refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum LightError {
+    /// More than [`MAX_LIGHTS`] lights were given; carries how many.
     #[error("at most {MAX_LIGHTS} lights are supported, got {0}")]
     TooMany(usize),
+    /// The light at this index has a NaN or infinite position, direction or intensity.
     #[error("light {0} has a non-finite position, direction or intensity")]
     NotFinite(usize),
+    /// The light at this index has an intensity below 0.
     #[error("light {0} has a negative intensity")]
     Negative(usize),
+    /// The directional light at this index has a direction that is not of unit length (zero, when
+    /// made by [`Light::directional`]).
     #[error("directional light {0} needs a non-zero direction")]
     NoDirection(usize),
 }
@@ -72,6 +88,8 @@ pub struct Lights {
 }
 
 impl Lights {
+    /// A set of the given lights, in order.
+    ///
     /// # Errors
     /// More than [`MAX_LIGHTS`] lights, or one that [`Light::check`] refuses.
     pub fn new(lights: &[Light]) -> Result<Lights, LightError> {
@@ -93,6 +111,7 @@ impl Lights {
         Ok(out)
     }
 
+    /// The lights in use, in the order given.
     pub fn as_slice(&self) -> &[Light] {
         &self.lights[..self.count as usize]
     }

@@ -27,10 +27,12 @@ pub struct RenderFromWorld {
 }
 
 impl RenderFromWorld {
+    /// Render coordinates are world coordinates: for scenes near the origin.
     pub const IDENTITY: RenderFromWorld = RenderFromWorld {
         world_origin: DVec3::ZERO,
     };
 
+    /// The frame whose origin is the world point `world_origin`.
     pub fn new(world_origin: DVec3) -> Self {
         RenderFromWorld { world_origin }
     }

@@ -62,20 +62,39 @@ pub struct RenderParamsSpec {
 /// Why render parameters were refused.
 #[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum ParamsError {
+    /// More than [`MAX_AO_SAMPLES`] ambient-occlusion rays per hit were asked for.
     #[error("{0} ambient-occlusion rays per hit is more than the {MAX_AO_SAMPLES} supported")]
     TooManyAoSamples(u32),
+    /// Samples per pixel were 0 or more than [`MAX_SPP`].
     #[error("{0} samples per pixel: must be from 1 to {MAX_SPP}")]
     BadSpp(u32),
+    /// Samples per pixel times (1 + ambient-occlusion rays) is more than [`MAX_RAYS_PER_PIXEL`].
     #[error(
         "{spp} samples per pixel with {ao} ambient-occlusion rays each is {rays} rays per pixel, more than the {MAX_RAYS_PER_PIXEL} supported; lower --spp or --ao"
     )]
-    TooManyRays { spp: u32, ao: u32, rays: u64 },
+    TooManyRays {
+        /// The samples per pixel asked for.
+        spp: u32,
+        /// The ambient-occlusion rays per hit asked for.
+        ao: u32,
+        /// Rays per pixel they add up to: `spp × (1 + ao)`.
+        rays: u64,
+    },
+    /// The frame's samples would reach past [`MAX_SAMPLE_INDEX`]: too many progressive passes.
     #[error("samples {first}..{end} go past sample index {MAX_SAMPLE_INDEX}")]
-    SampleIndex { first: u32, end: u64 },
+    SampleIndex {
+        /// Index of the first sample asked for.
+        first: u32,
+        /// One past the last sample's index: `first + spp`.
+        end: u64,
+    },
+    /// The ambient-occlusion range is zero, negative, infinite or NaN.
     #[error("ambient-occlusion range {0} must be finite and above 0")]
     BadAoRange(f32),
+    /// A particle crop range with a non-finite bound or its low bound above its high one.
     #[error("particle crop {0}..{1} must be finite with LO <= HI")]
     BadCrop(f32, f32),
+    /// The volume parameters were refused.
     #[error(transparent)]
     Volume(#[from] VolumeParamsError),
 }
@@ -174,41 +193,49 @@ impl RenderParams {
         self.0
     }
 
+    /// Whether shadow rays are traced towards the lights.
     #[inline]
     pub const fn shadows(&self) -> bool {
         self.0.shadows
     }
 
+    /// Ambient-occlusion rays per hit, 0 to [`MAX_AO_SAMPLES`] (0: none traced).
     #[inline]
     pub const fn ao_samples(&self) -> u32 {
         self.0.ao_samples
     }
 
+    /// Reach of ambient-occlusion rays, as a fraction of the scene's bounding-box diagonal.
     #[inline]
     pub const fn ao_range(&self) -> f32 {
         self.0.ao_range
     }
 
+    /// The range `(lo, hi)` of attribute values whose particles are drawn; `None` draws them all.
     #[inline]
     pub const fn crop(&self) -> Option<(f32, f32)> {
         self.0.crop
     }
 
+    /// Half-spaces removed from the scene.
     #[inline]
     pub const fn cuts(&self) -> &CutPlanes {
         &self.0.cuts
     }
 
+    /// Samples per pixel, 1 to [`MAX_SPP`].
     #[inline]
     pub const fn spp(&self) -> u32 {
         self.0.spp
     }
 
+    /// Index of the frame's first sample, so that successive progressive passes draw new samples.
     #[inline]
     pub const fn first_sample(&self) -> u32 {
         self.0.first_sample
     }
 
+    /// How volumes are drawn (ignored by scenes without one).
     #[inline]
     pub const fn volume(&self) -> &VolumeParams {
         &self.0.volume

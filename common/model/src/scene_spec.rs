@@ -18,7 +18,12 @@ pub const MAX_PATH_BYTES: usize = 4096;
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub enum SceneSpec {
     /// The default procedural scene: a bumpy torus-knot tube over a ground plane.
-    Knot { segments: u32, sides: u32 },
+    Knot {
+        /// Rings of quads along the tube, 3 to 65536.
+        segments: u32,
+        /// Quads around each ring, 3 to 65536.
+        sides: u32,
+    },
     /// The knot in a small gallery that shows every material: a glossy (Phong) knot, a mirror
     /// wall behind it and a pane of tinted glass in front.
     Gallery,
@@ -41,18 +46,28 @@ enum SceneSpecRaw {
 /// Why a scene name was refused.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum SceneSpecError {
+    /// A `knot:` name that is not `knot:SEGMENTS:SIDES`, or a knot with a count outside 3 to 65536.
     #[error("`{text}`: expected knot:SEGMENTS:SIDES with two numbers from 3 to 65536")]
-    BadKnot { text: String },
+    BadKnot {
+        /// The scene name as given (or rebuilt from an arriving knot).
+        text: String,
+    },
+    /// A knot with more than [`MAX_KNOT_TRIANGLES`] triangles.
     #[error(
         "a knot of {segments}x{sides} has {triangles} triangles, more than the {MAX_KNOT_TRIANGLES} supported"
     )]
     KnotTooLarge {
+        /// Rings of quads along the tube.
         segments: u32,
+        /// Quads around each ring.
         sides: u32,
+        /// Triangles they make: 2 × segments × sides.
         triangles: u64,
     },
+    /// A file scene with an empty path.
     #[error("the scene path is empty")]
     EmptyPath,
+    /// A file scene whose path is longer than [`MAX_PATH_BYTES`]; carries its length in bytes.
     #[error(
         "the scene path is {0} bytes long, more than the {MAX_PATH_BYTES} a file system takes"
     )]

@@ -20,11 +20,15 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PhysicalSpec {
+    /// Edge length of the square tiles each viewport is cut into, in pixels (default 64).
     #[serde(default = "crate::wall::default_tile_size")]
     pub tile_size: u32,
+    /// The `[viewer]` table: where the viewer's eyes are and the scene's scale. Required.
     pub viewer: Viewer,
+    /// The `[stereo]` table; mono when absent.
     #[serde(default)]
     pub stereo: Stereo,
+    /// The `[[screen]]` tables, in display order (two displays a screen in `displays` stereo).
     #[serde(default, rename = "screen")]
     pub screens: Vec<ScreenSpec>,
     /// Screens placed around the viewer, after those of `screens`.
@@ -54,12 +58,23 @@ fn one() -> f64 {
 pub struct ScreenSpec {
     /// Its framebuffer, WIDTH and HEIGHT in pixels, as the panel has them (before rotation).
     pub resolution: [u32; 2],
+    /// Left edge of a screen on the plane z = 0, in wall millimetres; given with `y_mm`,
+    /// `width_mm` and `height_mm` instead of the three corners.
     pub x_mm: Option<f64>,
+    /// Bottom edge of a screen on the plane z = 0, in millimetres.
     pub y_mm: Option<f64>,
+    /// Width of a screen on the plane z = 0 as it hangs (after rotation), in millimetres.
     pub width_mm: Option<f64>,
+    /// Height of a screen on the plane z = 0 as it hangs (after rotation), in millimetres.
     pub height_mm: Option<f64>,
+    /// Bottom-left corner as the viewer sees the screen hang, `[x, y, z]` in millimetres; given
+    /// with `bottom_right_mm` and `top_left_mm`, for a screen at any angle.
     pub bottom_left_mm: Option<[f64; 3]>,
+    /// Bottom-right corner, `[x, y, z]` in millimetres: the bottom edge runs from
+    /// `bottom_left_mm` to it.
     pub bottom_right_mm: Option<[f64; 3]>,
+    /// Top-left corner, `[x, y, z]` in millimetres; the left edge must be at right angles to the
+    /// bottom edge.
     pub top_left_mm: Option<[f64; 3]>,
     /// Degrees clockwise the panel is turned as mounted: 0, 90, 180 or 270.
     #[serde(default)]
@@ -70,11 +85,15 @@ pub struct ScreenSpec {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RingSpec {
-    /// Screens around the full circle, and rows of them.
+    /// Screens in each row, spread evenly around the full circle; 3 or more.
     pub screens_around: u32,
+    /// Rows of screens, stacked upwards from `bottom_mm`; 1 or more.
     pub rows: u32,
+    /// Each screen's framebuffer, `[width, height]` in pixels.
     pub resolution: [u32; 2],
+    /// Width of each screen, in millimetres.
     pub screen_width_mm: f64,
+    /// Height of each screen, in millimetres.
     pub screen_height_mm: f64,
     /// Between neighbouring screens, around and up.
     #[serde(default)]
@@ -89,8 +108,11 @@ pub struct RingSpec {
 /// first column (whole lengths, wall millimetres).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ScreenGeometry {
+    /// The corner where the framebuffer's first row starts, in wall millimetres.
     pub origin: [f64; 3],
+    /// From `origin` to the end of the first row: the framebuffer's x axis, full width.
     pub across: [f64; 3],
+    /// From `origin` to the end of the first column: the framebuffer's y axis, full height.
     pub down: [f64; 3],
 }
 
@@ -126,6 +148,7 @@ impl ScreenGeometry {
         scale(n, 1.0 / length(n))
     }
 
+    /// The screen's centre, in wall millimetres.
     pub fn centre(&self) -> [f64; 3] {
         add(self.origin, scale(add(self.across, self.down), 0.5))
     }
@@ -145,8 +168,11 @@ impl ScreenGeometry {
 /// A screen's framebuffer size and where it lies, checked.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Screen {
+    /// Framebuffer width in pixels, as the panel has it (before rotation).
     pub width: u32,
+    /// Framebuffer height in pixels, as the panel has it (before rotation).
     pub height: u32,
+    /// Where the framebuffer lies on the wall, as the panel is turned.
     pub geometry: ScreenGeometry,
 }
 

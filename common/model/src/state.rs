@@ -23,7 +23,9 @@ pub struct StateId(pub u64);
 /// Everything a frame is rendered with, besides its number and the scene.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WallState {
+    /// The fixed camera or the orbit; the frame's camera follows from it and the frame number.
     pub camera: CameraMode,
+    /// The quality knobs: shadows, ambient occlusion, samples, cuts, crop, volume.
     pub params: RenderParams,
     /// Lights in place of the scene's own, if any were set.
     pub lights: Option<Lights>,
@@ -38,11 +40,13 @@ pub struct WallState {
 pub enum StateChange {
     /// A fixed camera, or the orbit.
     Camera(CameraMode),
+    /// Shadow rays on or off.
     Shadows(bool),
     /// Ambient-occlusion rays per hit.
     AoSamples(u32),
     /// Samples per pixel.
     Spp(u32),
+    /// The cutting planes, in place of the current ones (empty: nothing cut).
     Cuts(CutPlanes),
     /// Draw only the particles whose attribute lies in this range (`None`: all).
     Crop(Option<(f32, f32)>),

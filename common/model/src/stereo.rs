@@ -37,6 +37,8 @@ impl StereoMode {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Stereo {
+    /// How the two eyes are shown; `mode = "side-by-side"` in a wall file's `[stereo]` table
+    /// (`mono`, `side-by-side`, `top-bottom` or `displays`). Mono when absent.
     #[serde(default)]
     pub mode: StereoMode,
     /// Distance between the eyes: in scene units for a grid wall, in millimetres for a wall
@@ -49,8 +51,11 @@ pub struct Stereo {
 /// Which eye a viewport is seen from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Eye {
+    /// Midway between the eyes: what mono walls are seen from.
     Centre,
+    /// The left eye, half an eye separation left of the centre.
     Left,
+    /// The right eye, half an eye separation right of the centre.
     Right,
 }
 
@@ -68,14 +73,20 @@ impl Eye {
 /// A rectangle in the wall's pixels, and the part of the world it shows.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Viewport {
+    /// The display whose framebuffer it is drawn into.
     pub display: crate::wall::DisplayId,
-    /// Where its pixels are in the wall's image (the virtual image of a grid wall, the atlas
-    /// of a wall of screens): left, top, width, height.
+    /// Left edge of its pixels in the wall's image (the virtual image of a grid wall, the atlas
+    /// of a wall of screens).
     pub x: u32,
+    /// Top edge of its pixels in the wall's image.
     pub y: u32,
+    /// Width in pixels: the display's, or half of it in side-by-side stereo.
     pub width: u32,
+    /// Height in pixels: the display's, or half of it in top-bottom stereo.
     pub height: u32,
+    /// The eye it is seen from.
     pub eye: Eye,
+    /// The part of the world drawn into it.
     pub view: ViewSource,
 }
 

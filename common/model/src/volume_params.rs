@@ -15,18 +15,30 @@ pub const MAX_TRANSFER_POINTS: usize = 16;
 /// Why volume parameters were refused.
 #[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum VolumeParamsError {
+    /// More than [`MAX_ISO_VALUES`] iso-values were given; carries how many.
     #[error("at most {MAX_ISO_VALUES} iso-values are supported, got {0}")]
     TooManyIso(usize),
+    /// An iso-value is NaN or infinite.
     #[error("iso-value {0} is not a finite number")]
     BadIso(f32),
+    /// The ray-marching step is negative, infinite or NaN.
     #[error("the volume step {0} must be finite and above 0 (or 0 for the default)")]
     BadStep(f32),
+    /// The step factor [`VolumeParams::coarsen`] is outside 1 to [`VolumeParams::MAX_COARSEN`].
     #[error("the step factor {0} must be from 1 to 16")]
     BadCoarsen(f32),
+    /// A transfer function has no points or more than [`MAX_TRANSFER_POINTS`]; carries how many.
     #[error("a transfer function needs 1 to {MAX_TRANSFER_POINTS} points, got {0}")]
     TransferPointCount(usize),
+    /// A transfer-function point has a non-finite value or one below the previous point's, a
+    /// negative or non-finite colour, or an opacity outside 0 to 1.
     #[error("transfer function point {index}: {why}")]
-    BadTransferPoint { index: usize, why: String },
+    BadTransferPoint {
+        /// Which point, from 0.
+        index: usize,
+        /// What is wrong with it, for the message.
+        why: String,
+    },
 }
 
 /// Up to [`MAX_ISO_VALUES`] iso-values, in the data's own units.
@@ -38,11 +50,14 @@ pub struct IsoValues {
 }
 
 impl IsoValues {
+    /// No iso-values: volumes are drawn through their transfer function.
     pub const NONE: IsoValues = IsoValues {
         values: [0.0; MAX_ISO_VALUES],
         count: 0,
     };
 
+    /// The given iso-values, in order.
+    ///
     /// # Errors
     /// More than [`MAX_ISO_VALUES`] values, or one that is not finite.
     pub fn new(values: &[f32]) -> Result<Self, VolumeParamsError> {
@@ -60,10 +75,12 @@ impl IsoValues {
         Ok(out)
     }
 
+    /// The iso-values in use, in the order given.
     pub fn as_slice(&self) -> &[f32] {
         &self.values[..self.count as usize]
     }
 
+    /// Whether there are none, so that volumes are drawn through their transfer function.
     pub fn is_empty(&self) -> bool {
         self.count == 0
     }
@@ -92,8 +109,11 @@ impl<'de> Deserialize<'de> for IsoValues {
 /// and opacity `opacity` per reference step (the volume's smallest voxel spacing).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TransferPoint {
+    /// The data value the point sits at, in the function's [`TransferDomain`].
     pub value: f32,
+    /// Linear RGB colour, not premultiplied, each component 0 or more.
     pub color: [f32; 3],
+    /// Opacity per reference step (the volume's smallest voxel spacing), 0 to 1.
     pub opacity: f32,
 }
 
@@ -130,11 +150,15 @@ pub struct TransferFunction {
 /// [`TransferFunction`] as it travels: the used points only.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TransferSpec {
+    /// Whether the points' values are fractions of the data's range or its own units.
     pub domain: TransferDomain,
+    /// The control points, 1 to [`MAX_TRANSFER_POINTS`], in order of increasing value.
     pub points: Vec<TransferPoint>,
 }
 
 impl TransferFunction {
+    /// The function through `points`, in order of increasing value, read in `domain`.
+    ///
     /// # Errors
     /// No points or more than [`MAX_TRANSFER_POINTS`]; a value that is not finite or smaller
     /// than the one before; a colour that is negative or not finite; an opacity outside 0..1.
@@ -179,10 +203,12 @@ impl TransferFunction {
         Ok(out)
     }
 
+    /// Whether the points' values are fractions of the data's range or its own units.
     pub fn domain(&self) -> TransferDomain {
         self.domain
     }
 
+    /// The control points, in order of increasing value.
     pub fn points(&self) -> &[TransferPoint] {
         &self.points[..self.count as usize]
     }
@@ -326,6 +352,7 @@ pub struct VolumeParams {
     pub step: f32,
     /// Iso-values of direct iso-surfaces; none draws the volume through its transfer function.
     pub iso: IsoValues,
+    /// Colour and opacity of each data value, when there are no iso-values.
     pub transfer: TransferFunction,
     /// Factor on the step: progressive refinement renders frames of a moving view with a
     /// larger step (opacity correction keeps their look) and the still view with the full
@@ -337,6 +364,8 @@ pub struct VolumeParams {
 }
 
 impl VolumeParams {
+    /// Half-voxel steps, no iso-surface, the [`TransferFunction::ramp`], full step, the first
+    /// volume of a series.
     pub const DEFAULT: VolumeParams = VolumeParams {
         step: 0.0,
         iso: IsoValues::NONE,
@@ -348,6 +377,9 @@ impl VolumeParams {
     /// Most [`VolumeParams::coarsen`] allowed.
     pub const MAX_COARSEN: f32 = 16.0;
 
+    /// Checks the step and the coarsening (the iso-values and the transfer function were
+    /// checked when they were made).
+    ///
     /// # Errors
     /// A step that is negative or not finite, or a coarsening outside 1..=16.
     pub fn check(&self) -> Result<(), VolumeParamsError> {

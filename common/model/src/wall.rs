@@ -81,11 +81,13 @@ impl WallSpec {
         }
     }
 
+    /// The same grid with `bezel` pixels hidden between neighbouring screens.
     pub const fn bezel(mut self, bezel: u32) -> Self {
         self.bezel = bezel;
         self
     }
 
+    /// The same grid cut into tiles of `tile_size` pixels a side.
     pub const fn tile_size(mut self, tile_size: u32) -> Self {
         self.tile_size = tile_size;
         self
@@ -165,7 +167,14 @@ fn extent(count: u32, size: u32, bezel: u32) -> u64 {
 /// How a wall was described: the grid shorthand (or a grid wall file), or physical screens.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum WallDescription {
-    Grid { spec: WallSpec, stereo: Stereo },
+    /// A grid of equal screens seen as one virtual image.
+    Grid {
+        /// The grid's size, its screens' resolution, bezels and tiles.
+        spec: WallSpec,
+        /// How the grid shows the two eyes, if at all.
+        stereo: Stereo,
+    },
+    /// Physical screens in millimetres, each with its own resolution and frustum.
     Screens(PhysicalSpec),
 }
 
@@ -238,28 +247,70 @@ impl From<WallLayout> for WallDescription {
 /// Why a wall description was refused.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum WallError {
+    /// A grid's count, screen size or tile size, or a wall of screens' tile size, is 0.
     #[error("wall field `{field}` must be at least 1, got {value}")]
-    Zero { field: &'static str, value: u32 },
+    Zero {
+        /// The field's name as written in a wall file: `columns`, `rows`, `screen_width`,
+        /// `screen_height` or `tile_size`.
+        field: &'static str,
+        /// The value given (0).
+        value: u32,
+    },
+    /// The grid's virtual image, or the atlas of a wall of screens, would be more than
+    /// [`MAX_WALL_SIDE`] pixels on a side.
     #[error("wall is {width}x{height} pixels, larger than the {max}x{max} limit")]
-    TooLarge { width: u64, height: u64, max: u32 },
+    TooLarge {
+        /// Width the image would have, in pixels.
+        width: u64,
+        /// Height the image would have, in pixels.
+        height: u64,
+        /// The limit on each side, [`MAX_WALL_SIDE`].
+        max: u32,
+    },
+    /// The wall would have more than [`MAX_DISPLAYS`] displays.
     #[error("wall has {displays} screens (columns x rows), more than the {max} supported")]
-    TooManyDisplays { displays: u64, max: u32 },
+    TooManyDisplays {
+        /// Displays the wall would have.
+        displays: u64,
+        /// The limit, [`MAX_DISPLAYS`].
+        max: u32,
+    },
+    /// The wall would be cut into more than [`MAX_TILES`] tiles.
     #[error(
         "wall cut into {tile_size}-pixel tiles has {tiles} tiles, more than the {max} supported; use larger tiles"
     )]
     TooManyTiles {
+        /// Tiles the wall would be cut into.
         tiles: u64,
+        /// The tile edge, in pixels.
         tile_size: u32,
+        /// The limit, [`MAX_TILES`].
         max: u64,
     },
+    /// Text given to [`parse_size`] is not two numbers joined by `x`.
     #[error("`{text}` is not a size like 2x2 or 480x270")]
-    BadSize { text: String },
+    BadSize {
+        /// The text as given.
+        text: String,
+    },
+    /// A wall file is not valid TOML, has an unknown or ill-typed field, a bad `[[window]]`,
+    /// `[viewer]` or `[ring]`, or describes a wall that is refused (the message says why).
     #[error("wall file {path}: {message}")]
-    File { path: String, message: String },
+    File {
+        /// The file as named to the reader (its path, or the name of the section at fault, such
+        /// as `[ring]`).
+        path: String,
+        /// What is wrong: the TOML parser's message, or the check that failed.
+        message: String,
+    },
+    /// A `[[screen]]` of a wall of screens (or one of its ring's) has a bad field.
     #[error("screen {screen}: `{field}` {message}")]
     Screen {
+        /// Which screen, from 0, in the order of the `[[screen]]` tables then the ring's.
         screen: usize,
+        /// The field at fault, as written in the wall file.
         field: &'static str,
+        /// What is wrong with it.
         message: String,
     },
 }
@@ -267,10 +318,16 @@ pub enum WallError {
 /// One screen's rectangle in the virtual image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ScreenRect {
+    /// The display that owns these pixels.
     pub id: DisplayId,
+    /// Left edge in the wall's image (a grid's virtual image, a wall of screens' atlas), in
+    /// pixels.
     pub x: u32,
+    /// Top edge in the wall's image, in pixels (row 0 at the top).
     pub y: u32,
+    /// Width in pixels: the display's framebuffer width.
     pub width: u32,
+    /// Height in pixels: the display's framebuffer height.
     pub height: u32,
 }
 
@@ -284,7 +341,9 @@ impl ScreenRect {
 /// One tile: a rectangle inside exactly one screen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Tile {
+    /// The tile's place in the [`TileGrid`].
     pub id: TileId,
+    /// The display whose pixels it covers.
     pub display: DisplayId,
     /// The viewport it is in (an index of [`WallLayout::viewports`]): whose rays it traces.
     pub viewport: u32,
@@ -292,11 +351,14 @@ pub struct Tile {
     pub x: u32,
     /// Top edge in virtual-image pixels (row 0 at the top).
     pub y: u32,
+    /// Width in pixels: the tile size, or less at a viewport's right edge.
     pub width: u32,
+    /// Height in pixels: the tile size, or less at a viewport's bottom edge.
     pub height: u32,
 }
 
 impl Tile {
+    /// Pixels in the tile: `width × height`.
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize
     }
@@ -407,6 +469,7 @@ impl WallLayout {
         self.grid_spec().map_or(0, |s| s.bezel)
     }
 
+    /// Edge length of the square tiles the wall is cut into, in pixels.
     pub fn tile_size(&self) -> u32 {
         self.0.tile_size
     }
@@ -441,6 +504,7 @@ impl WallLayout {
         }
     }
 
+    /// How the wall shows the two eyes (mono by default).
     pub fn stereo(&self) -> Stereo {
         match &self.0.description {
             WallDescription::Screens(spec) => spec.stereo,
@@ -464,6 +528,7 @@ impl WallLayout {
         })
     }
 
+    /// How many displays the wall has; their ids are `0..display_count()`.
     pub fn display_count(&self) -> u32 {
         self.0.screens.len() as u32
     }
@@ -474,6 +539,7 @@ impl WallLayout {
         self.0.screens.get(id.0 as usize).copied()
     }
 
+    /// Every display's framebuffer in the wall's image, in display order.
     pub fn screens(&self) -> impl Iterator<Item = ScreenRect> + '_ {
         self.0.screens.iter().copied()
     }
@@ -642,6 +708,7 @@ pub struct TileGrid {
 }
 
 impl TileGrid {
+    /// `layout` cut into tiles of its tile size.
     pub fn new(layout: WallLayout) -> Self {
         let t = layout.tile_size();
         let mut tiles = Vec::new();
@@ -673,22 +740,27 @@ impl TileGrid {
         }
     }
 
+    /// The wall this grid cuts.
     pub fn layout(&self) -> &WallLayout {
         &self.layout
     }
 
+    /// How many tiles there are; their ids are `0..len()`.
     pub fn len(&self) -> usize {
         self.tiles.len()
     }
 
+    /// Whether the grid has no tiles at all.
     pub fn is_empty(&self) -> bool {
         self.tiles.is_empty()
     }
 
+    /// The tile `id`, or `None` if the grid has no such tile.
     pub fn tile(&self, id: TileId) -> Option<&Tile> {
         self.tiles.get(id.0 as usize)
     }
 
+    /// Every tile, in id order.
     pub fn tiles(&self) -> &[Tile] {
         &self.tiles
     }

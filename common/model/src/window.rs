@@ -44,6 +44,8 @@ struct WindowPlacementRaw {
 }
 
 impl WindowPlacement {
+    /// Checks the placement's bounds.
+    ///
     /// # Errors
     /// A position or size beyond [`MAX_WINDOW_SIDE`], an empty size, a monitor past
     /// [`MAX_MONITOR`].
@@ -69,10 +71,24 @@ impl WindowPlacement {
 /// Why a window placement was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum PlacementError {
+    /// The window's corner is more than [`MAX_WINDOW_SIDE`] pixels from the desktop's origin on
+    /// either axis.
     #[error("window position {x},{y} is beyond ±{MAX_WINDOW_SIDE}")]
-    Position { x: i32, y: i32 },
+    Position {
+        /// Left edge asked for, in desktop pixels.
+        x: i32,
+        /// Top edge asked for, in desktop pixels.
+        y: i32,
+    },
+    /// The window's size is 0 or more than [`MAX_WINDOW_SIDE`] pixels on a side.
     #[error("window size {w}x{h} must be from 1 to {MAX_WINDOW_SIDE} on each side")]
-    Size { w: u32, h: u32 },
+    Size {
+        /// Inner width asked for, in pixels.
+        w: u32,
+        /// Inner height asked for, in pixels.
+        h: u32,
+    },
+    /// A full-screen window names a monitor past [`MAX_MONITOR`].
     #[error("monitor {0} is past the last one accepted ({MAX_MONITOR})")]
     Monitor(u32),
 }
@@ -112,7 +128,9 @@ struct WindowEntry {
 /// A wall file: the wall, and where its displays' windows go.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WallFile {
+    /// The wall the file describes.
     pub layout: WallLayout,
+    /// Each `[[window]]` table's placement, by display id; displays without a table are absent.
     pub windows: BTreeMap<u32, WindowPlacement>,
 }
 

@@ -9,16 +9,28 @@ use serde::Serialize;
 /// anything bigger is a bug or an attack.
 pub const MAX_CONTROL_BODY: usize = 1 << 20;
 
+/// Why a control message could not be framed or read.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum CodecError {
+    /// A body (to send, or announced by a length prefix) is over [`MAX_CONTROL_BODY`] bytes.
     #[error("control message of {len} bytes exceeds the {limit}-byte limit")]
-    TooLarge { len: usize, limit: usize },
+    TooLarge {
+        /// The body's length, in bytes.
+        len: usize,
+        /// The most accepted, [`MAX_CONTROL_BODY`].
+        limit: usize,
+    },
+    /// A length prefix announces a body of 0 bytes: no message is empty.
     #[error("empty control message")]
     Empty,
+    /// The bytes are not a postcard encoding of the expected type (or, when encoding, the value
+    /// could not be serialized); carries postcard's message.
     #[error("malformed control message: {0}")]
     Malformed(String),
+    /// A body decoded with this many bytes left over.
     #[error("control message has {0} trailing bytes")]
     Trailing(usize),
+    /// The body decoded, but a value broke its type's invariant; carries the check's refusal.
     #[error("invalid control message: {0}")]
     Invalid(String),
 }

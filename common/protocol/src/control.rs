@@ -17,6 +17,8 @@ pub const MAX_VIEW_NAME: usize = 64;
 pub struct ViewName(String);
 
 impl ViewName {
+    /// The name `name`, checked.
+    ///
     /// # Errors
     /// An empty or over-long name, or one with other characters.
     pub fn new(name: &str) -> Result<ViewName, ControlError> {
@@ -32,6 +34,7 @@ impl ViewName {
         }
     }
 
+    /// The name as text.
     pub fn as_str(&self) -> &str {
         &self.0
     }
@@ -51,8 +54,11 @@ impl<'de> Deserialize<'de> for ViewName {
     }
 }
 
+/// Why a value of the control interface was refused.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum ControlError {
+    /// A view name is empty, longer than [`MAX_VIEW_NAME`], or holds a character other than a
+    /// letter, a digit, `-`, `_` or `.`; carries its first 80 characters.
     #[error("view name {0:?} must be 1 to {MAX_VIEW_NAME} letters, digits, '-', '_' or '.'")]
     BadViewName(String),
 }
@@ -82,7 +88,12 @@ pub enum ControlRequest {
     Snapshot,
     /// The volume's data value and world position under wall pixel `(x, y)` (the virtual wall,
     /// bezels included, row 0 at the top), as the frames starting now show it.
-    Probe { x: u32, y: u32 },
+    Probe {
+        /// Column, in pixels from the wall image's left edge.
+        x: u32,
+        /// Row, in pixels from the wall image's top edge.
+        y: u32,
+    },
 }
 
 /// What a probe found under a pixel.
@@ -103,22 +114,32 @@ pub struct ProbeHit {
 pub enum ControlReply {
     /// Changes queued; they take effect at the next barrier.
     Queued {
+        /// How many changes were queued: all those of the request.
         changes: u32,
     },
+    /// The answer to [`ControlRequest::Clock`].
     Clock {
+        /// The master's clock when it answered, in ns since the Unix epoch.
         master_ns: u64,
     },
+    /// The answer to [`ControlRequest::State`].
     State {
         /// The last frame started.
         frame: u64,
+        /// The id of the state frames render with now.
         id: StateId,
+        /// The state frames render with now.
         current: WallState,
+        /// The state the next barrier applies: `current` with every queued change.
         next: WallState,
     },
+    /// The answer to [`ControlRequest::Figures`].
     Figures(LiveFigures),
+    /// The answer to [`ControlRequest::Views`]: the saved views' names, sorted.
     Views(Vec<ViewName>),
     /// The frame the displays will save.
     Snapshot {
+        /// Its number: the next frame to start.
         frame: u64,
     },
     /// What the probed pixel shows of the volume; None where its ray sees none.
@@ -134,27 +155,43 @@ pub enum ControlReply {
 pub enum Refusal {
     /// The run keeps at most `max` saved views.
     #[error("{max} views are saved already; reuse a name")]
-    ViewsFull { max: u32 },
+    ViewsFull {
+        /// Saved views the run keeps at most.
+        max: u32,
+    },
+    /// [`ControlRequest::GotoView`] named a view that was never saved.
     #[error("there is no view named {}", .0.as_str())]
     NoSuchView(ViewName),
     /// The run keeps at most `max` outstanding snapshots.
     #[error("this run has taken its {max} snapshots")]
-    SnapshotsFull { max: u32 },
+    SnapshotsFull {
+        /// Snapshots the run takes at most.
+        max: u32,
+    },
+    /// A probe, but the scene has no volume (or the master cannot probe it).
     #[error("the scene has no volume to probe")]
     NoVolume,
+    /// A probe of a pixel outside the wall's image.
     #[error("pixel {x},{y} is outside the {width}x{height} wall")]
     OutsideWall {
+        /// Column of the pixel asked for.
         x: u32,
+        /// Row of the pixel asked for.
         y: u32,
+        /// Width of the wall's image, in pixels.
         width: u32,
+        /// Height of the wall's image, in pixels.
         height: u32,
     },
     /// Change `index` (from 1) of `count` would break the state's bounds; `reason` is the
     /// bound's own message.
     #[error("change {index} of {count}: {reason}")]
     BadChange {
+        /// Which change of the request, from 1.
         index: u32,
+        /// Changes in the request.
         count: u32,
+        /// Why, in the bound's own words.
         reason: String,
     },
 }
@@ -162,30 +199,43 @@ pub enum Refusal {
 /// A running wall's figures, as the control interface reports them.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LiveFigures {
+    /// Frames the wall has presented since the run began.
     pub frames_presented: u64,
     /// Frames presented over the last second.
     pub fps: f64,
-    /// The last frame's time between presents, and the mean over the last second.
+    /// Time between the last two presents, in milliseconds (0 before there are two).
     pub frame_ms_last: f64,
+    /// Mean time between presents over the last second, in milliseconds.
     pub frame_ms_mean: f64,
+    /// State changes the frame barriers have applied since the run began.
     pub changes_applied: u64,
+    /// Each render node connected now.
     pub render_nodes: Vec<NodeFigures>,
+    /// Each display connected now, by display id.
     pub displays: Vec<DisplayFigures>,
 }
 
+/// A render node's figures, as [`LiveFigures`] reports them.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct NodeFigures {
+    /// Its render node id.
     pub id: u32,
+    /// Host name it gave in its hello.
     pub host: String,
+    /// Threads it renders with.
     pub cores: u32,
     /// Tiles it reported rendered since it joined.
     pub tiles: u64,
 }
 
+/// A display's figures, as [`LiveFigures`] reports them.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DisplayFigures {
+    /// Its display id.
     pub id: u32,
+    /// Host name it gave in its hello.
     pub host: String,
+    /// Frames it has presented, as it reported them.
     pub frames_presented: u64,
 }
 

@@ -30,6 +30,7 @@ pub enum DataSpec {
 pub struct SharedSpec {
     /// The prepared folder on the master's host; a render node's `--prepared` names its own.
     pub dir: PathBuf,
+    /// Size of one block in bytes: the unit of sharing, fetching and caching.
     pub block_bytes: u32,
     /// Render nodes that hold blocks (the first to join); more render nodes hold none.
     pub ranks: u32,
@@ -45,15 +46,25 @@ pub struct SharedSpec {
 /// Why a shared scene's spread was refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SharedSpecError {
+    /// No render node was to hold blocks, or more than [`MAX_RANKS`].
     #[error("{0} ranks (1 to {MAX_RANKS})")]
     Ranks(u32),
+    /// Each block was to have no holder, or more holders than there are ranks.
     #[error("{replicas} replicas of {ranks} ranks")]
-    Replicas { replicas: u32, ranks: u32 },
+    Replicas {
+        /// Holders each block was to have.
+        replicas: u32,
+        /// Render nodes that hold blocks.
+        ranks: u32,
+    },
+    /// The cache fraction is not above 0 and at most 1 (or is NaN).
     #[error("cache fraction {0} (0 < f <= 1)")]
     CacheFraction(f32),
 }
 
 impl SharedSpec {
+    /// Checks the spread.
+    ///
     /// # Errors
     /// No ranks or more than [`MAX_RANKS`], replicas not within 1..=ranks, a cache fraction
     /// not in (0, 1].
@@ -79,13 +90,17 @@ impl SharedSpec {
 /// A render node that holds blocks, and where it answers requests for them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BlockHolder {
+    /// Its rank, 0 to `ranks - 1`: which share of the blocks it holds.
     pub rank: u32,
+    /// Where it answers block requests.
     pub addr: SocketAddr,
 }
 
 /// Render node → render node: send me these blocks.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BlockRequest {
+    /// The ids of the blocks wanted, at most [`MAX_BLOCKS_PER_REQUEST`]; they are answered in
+    /// this order.
     pub blocks: Vec<u32>,
     /// Asked ahead of need (a prefetch): answered after the blocks render threads wait for.
     pub ahead: bool,
@@ -95,6 +110,7 @@ pub struct BlockRequest {
 /// for a block it does not hold says so, and the asker goes elsewhere).
 pub const BLOCK_HEADER_LEN: usize = 5;
 
+/// The header of block `block`'s answer; `follows` says its bytes come after it.
 pub fn encode_block_header(block: u32, follows: bool) -> [u8; BLOCK_HEADER_LEN] {
     let b = block.to_le_bytes();
     [b[0], b[1], b[2], b[3], follows as u8]
@@ -104,10 +120,14 @@ pub fn encode_block_header(block: u32, follows: bool) -> [u8; BLOCK_HEADER_LEN] 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("block {block}: bad header byte {byte}")]
 pub struct BadBlockHeader {
+    /// The block id the header names.
     pub block: u32,
+    /// The "follows" byte as it arrived.
     pub byte: u8,
 }
 
+/// A block answer's header: the block's id, and whether its bytes follow.
+///
 /// # Errors
 /// A "follows" byte other than 0 or 1.
 pub fn decode_block_header(raw: [u8; BLOCK_HEADER_LEN]) -> Result<(u32, bool), BadBlockHeader> {
@@ -127,31 +147,45 @@ pub struct DsmStats {
     pub rank: Option<u32>,
     /// Bytes of the scene it held for good (the top of the tree and its share).
     pub resident_bytes: u64,
-    /// Bytes of its cache, and its lines.
+    /// Bytes of its cache of other nodes' blocks: `cache_lines` blocks.
     pub cache_bytes: u64,
+    /// Blocks its cache holds at once.
     pub cache_lines: u64,
-    /// Blocks traversals moved into; of those held here; of those fetched (cache misses).
+    /// Blocks a traversal moved into (each block read, however many tree nodes it read there).
     pub block_reads: u64,
+    /// Of those, blocks this node holds for good (the top of the tree, its share).
     pub local_reads: u64,
+    /// Of those, blocks that had to be fetched (cache misses).
     pub fetched: u64,
     /// Render threads' time waiting for fetched blocks, in all.
     pub fetch_wait_s: f64,
+    /// Cache lookups that found their block.
     pub cache_hits: u64,
+    /// Cache lookups that did not: the block was fetched.
     pub cache_misses: u64,
+    /// Cache lines overwritten with another block.
     pub evictions: u64,
-    /// Request messages sent, blocks asked for and arrived, retries after a timeout, blocks
-    /// read from the prepared files because no owner was left, blocks asked ahead of need.
+    /// [`BlockRequest`] messages sent.
     pub requests: u64,
+    /// Blocks asked for in those messages (a block asked again counts again).
     pub blocks_requested: u64,
+    /// Blocks that arrived while wanted, from a peer or from the prepared files.
     pub blocks_arrived: u64,
+    /// Blocks asked for again after a timeout.
     pub retries: u64,
+    /// Blocks read from the prepared files because none of their holders was left.
     pub read_locally: u64,
+    /// Blocks asked for ahead of need (prefetches).
     pub prefetched: u64,
-    /// Remote reads: from the miss to the block's arrival.
+    /// Remote reads timed, from when a block was first wanted to its arrival.
     pub latency_count: u64,
+    /// Fastest remote read, in microseconds.
     pub latency_min_us: f64,
+    /// Mean remote read, in microseconds.
     pub latency_avg_us: f64,
+    /// Slowest remote read, in microseconds.
     pub latency_max_us: f64,
+    /// 99th percentile of remote reads, in microseconds.
     pub latency_p99_us: f64,
     /// Round trip of an empty request to a peer on the same connections (the transport's
     /// floor under a remote read), the fastest seen; 0 when never measured.
@@ -159,8 +193,10 @@ pub struct DsmStats {
 }
 
 impl DsmStats {
+    /// Checks the figures the master divides by or prints as times.
+    ///
     /// # Errors
-    /// A figure that is not finite or is negative.
+    /// A figure that is not finite or is negative, with its field's name.
     pub fn check(&self) -> Result<(), (&'static str, f64)> {
         for (field, v) in [
             ("fetch_wait_s", self.fetch_wait_s),

@@ -10,6 +10,8 @@
 //! malformed input; semantic checks (is this tile mine? is this frame in flight?) are done by the
 //! state machine that consumes the message.
 
+#![warn(missing_docs)]
+
 pub mod codec;
 pub mod control;
 pub mod dsm;
@@ -52,11 +54,14 @@ pub const MAX_HOST_BYTES: usize = 255;
 /// What a connecting node is.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Role {
+    /// A render node: it traces tiles and streams their pixels to the displays.
     Render {
         /// Threads the node renders with, 1 to [`MAX_CORES`].
         cores: u32,
     },
+    /// A display node: it shows one display's pixels.
     Display {
+        /// The display it shows: its place on the wall.
         display: DisplayId,
         /// Where render nodes reach this display. An unspecified IP (0.0.0.0 / ::) means
         /// "the address the master sees me connect from".
@@ -70,7 +75,9 @@ pub enum Role {
 /// arrival ([`Hello::check`]), since the master prints one and sizes work by the other.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Hello {
+    /// The sender's [`PROTOCOL_VERSION`]; the master refuses any other.
     pub version: u32,
+    /// What the sender joins as.
     pub role: Role,
     /// Host name, for log lines and reports.
     pub host: String,
@@ -125,18 +132,42 @@ impl<'de> Deserialize<'de> for Hello {
 /// A message whose fields break an invariant of the protocol.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ProtocolError {
+    /// A hello's host name is longer than [`MAX_HOST_BYTES`] or holds control characters;
+    /// carries its first 64 characters.
     #[error("host name {0:?} is too long or holds control characters")]
     BadHost(String),
+    /// A render node's hello claims no cores or more than [`MAX_CORES`].
     #[error("a render node claims {0} cores; 1 to {MAX_CORES} are allowed")]
     BadCores(u32),
+    /// A tile range ends before it starts.
     #[error("tile range {start}..{end} ends before it starts")]
-    BackwardRange { start: u32, end: u32 },
+    BackwardRange {
+        /// The first tile id.
+        start: u32,
+        /// One past the last tile id.
+        end: u32,
+    },
+    /// A session lists an endpoint or a window for a display the wall does not have.
     #[error("session lists display {display}, but the wall has {count} displays")]
-    UnknownDisplay { display: u32, count: u32 },
+    UnknownDisplay {
+        /// The display listed.
+        display: u32,
+        /// Displays the wall has.
+        count: u32,
+    },
+    /// A session lists two endpoints for one display.
     #[error("session lists display {0} twice")]
     DuplicateDisplay(u32),
+    /// A render node's stats hold a time that is negative or not finite, or more than
+    /// [`MAX_REPORTED_LOADS`] load times.
     #[error("stats field {field} is {value}, not a finite number of seconds")]
-    BadSeconds { field: &'static str, value: f64 },
+    BadSeconds {
+        /// The stats field at fault, as the struct names it.
+        field: &'static str,
+        /// Its value, in seconds (microseconds for the latencies; a count for too many loads).
+        value: f64,
+    },
+    /// A session's shared scene has a spread [`dsm::SharedSpec::check`] refuses.
     #[error("session shares the scene with {0}")]
     BadShared(#[from] dsm::SharedSpecError),
 }
@@ -144,7 +175,9 @@ pub enum ProtocolError {
 /// Where a display node accepts pixels.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DisplayEndpoint {
+    /// The display node it reaches.
     pub display: DisplayId,
+    /// Where render nodes open pixel streams to it.
     pub addr: SocketAddr,
 }
 
@@ -162,11 +195,15 @@ pub struct Session(SessionSpec);
 /// The fields of a [`Session`], unchecked.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SessionSpec {
+    /// The wall: its displays' pixels, what each shows, and its tiles.
     pub wall: WallLayout,
+    /// The scene every render node loads.
     pub scene: SceneSpec,
     /// Content hash of the scene as the master loaded it; a render node that loads different
     /// bytes would render different pixels, so it refuses to join.
     pub scene_hash: [u8; 32],
+    /// Where each display node accepts pixels, as far as known when the session was made (a
+    /// render node's lists every display); later changes come in [`ToNode::DisplayAt`].
     pub displays: Vec<DisplayEndpoint>,
     /// Frame whose pixels the displays save as PNG, if any.
     pub save_frame: Option<FrameId>,
@@ -179,6 +216,8 @@ pub struct SessionSpec {
 }
 
 impl Session {
+    /// The session `spec` describes, checked.
+    ///
     /// # Errors
     /// A display the wall does not have, or one listed twice.
     pub fn new(spec: SessionSpec) -> Result<Self, ProtocolError> {
@@ -204,26 +243,33 @@ impl Session {
         Ok(Session(spec))
     }
 
+    /// The wall: its displays' pixels, what each shows, and its tiles.
     pub fn wall(&self) -> &WallLayout {
         &self.0.wall
     }
 
+    /// The scene every render node loads.
     pub fn scene(&self) -> &SceneSpec {
         &self.0.scene
     }
 
+    /// Content hash of the scene as the master loaded it; a render node that loads other bytes
+    /// refuses to join.
     pub fn scene_hash(&self) -> [u8; 32] {
         self.0.scene_hash
     }
 
+    /// Where each display node accepts pixels, as far as known when the session was made.
     pub fn displays(&self) -> &[DisplayEndpoint] {
         &self.0.displays
     }
 
+    /// Frame whose pixels the displays save as PNG, if any.
     pub fn save_frame(&self) -> Option<FrameId> {
         self.0.save_frame
     }
 
+    /// How render nodes pack tiles' pixels; displays refuse streams packed otherwise.
     pub fn compression(&self) -> pixels::Compression {
         self.0.compression
     }
@@ -262,10 +308,13 @@ impl<'de> Deserialize<'de> for Session {
 /// Broadcast at the frame barrier: the state every node renders frame `frame` with.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FrameStart {
+    /// The frame these settings are for.
     pub frame: FrameId,
     /// The wall state this frame renders; every pixel stream of the frame carries it.
     pub state: StateId,
+    /// The frame's camera (an orbit's already turned to this frame).
     pub camera: Camera,
+    /// The frame's quality knobs.
     pub params: RenderParams,
     /// Lights in place of the scene's own, if a control client set some.
     pub lights: Option<Lights>,
@@ -313,6 +362,8 @@ impl<'de> Deserialize<'de> for TileRange {
 }
 
 impl TileRange {
+    /// Tiles `start..end`.
+    ///
     /// # Errors
     /// `end < start`.
     pub fn new(start: u32, end: u32) -> Result<Self, ProtocolError> {
@@ -330,22 +381,27 @@ impl TileRange {
         }
     }
 
+    /// The first tile id.
     pub fn start(self) -> u32 {
         self.start
     }
 
+    /// One past the last tile id.
     pub fn end(self) -> u32 {
         self.end
     }
 
+    /// The tile ids, in increasing order.
     pub fn tiles(self) -> impl Iterator<Item = TileId> {
         (self.start..self.end).map(TileId)
     }
 
+    /// How many tiles the range holds.
     pub fn len(self) -> usize {
         self.end.saturating_sub(self.start) as usize
     }
 
+    /// Whether the range holds no tile (`start == end`).
     pub fn is_empty(self) -> bool {
         self.len() == 0
     }
@@ -373,27 +429,38 @@ pub enum ToNode {
     /// The peer is in: its render node id (none for a display or a control client) and the
     /// session it takes part in.
     Welcome {
+        /// The render node's id; `None` for a display or a control client.
         node: Option<RenderNodeId>,
+        /// What the run renders and where: the wall, the scene, the displays' addresses.
         session: Session,
     },
+    /// The master turned the peer's hello down (another protocol version, a certificate for
+    /// another role, a display already taken): it cannot join.
     Refused {
+        /// Why, for the peer to print.
         reason: String,
     },
+    /// Starts a frame: broadcast to every node at the frame barrier.
     FrameStart(FrameStart),
     /// Tiles of `frame` for a render node to render; empty means "nothing left for now".
     Assign {
+        /// The frame the tiles are of.
         frame: FrameId,
+        /// The tiles, as ranges of ids.
         tiles: Vec<TileRange>,
     },
     /// The swap barrier: every display shows `frame` now.
     Present {
+        /// The frame to show.
         frame: FrameId,
     },
     /// The swap barrier with a deadline: show `frame` when this display's clock (ns since the
     /// Unix epoch) reads `clock_ns`, or at once if that has passed. Every display waking at
     /// the same instant, rather than whenever the message arrives, is what keeps them in step.
     PresentAt {
+        /// The frame to show.
         frame: FrameId,
+        /// When to show it, on the display's own clock (ns since the Unix epoch).
         clock_ns: u64,
     },
     /// The run is over: send your stats and close.
@@ -401,34 +468,44 @@ pub enum ToNode {
     /// Clock probe: a display answers at once with [`FromNode::Pong`], so the master can map
     /// the display's clock onto its own (NTP-style, keeping the fastest round trip).
     Ping {
+        /// Probe number, echoed in the [`FromNode::Pong`].
         seq: u32,
     },
     /// The answer to the control client's request `id`.
     ControlReply {
+        /// The request's id, as the client numbered it.
         id: u32,
+        /// The master's answer.
         reply: ControlReply,
     },
     /// Show or hide the overlay (displays).
     Overlay {
+        /// `true` shows the overlay, `false` hides it.
         on: bool,
     },
     /// Save `frame` as `display-<id>-frame-<K>.png` once it is presented (displays).
     SaveFrame {
+        /// The frame to save.
         frame: FrameId,
     },
     /// A display (re)joined the running wall: its pixels go to `addr` now (render nodes).
     DisplayAt {
+        /// The display that (re)joined.
         display: DisplayId,
+        /// Where it accepts pixel streams now.
         addr: SocketAddr,
     },
     /// A display that rejoined a running wall shows frames from `frame` on (displays).
     StartAt {
+        /// The first frame the display shows.
         frame: FrameId,
     },
     /// Render nodes of a shared scene: this node's rank (None: it holds no blocks) and where
     /// the nodes holding blocks answer for them; sent again when one is lost.
     BlockHolders {
+        /// This node's rank among those that hold blocks; `None`: it holds none.
         rank: Option<u32>,
+        /// Every holder's rank and address.
         holders: Vec<dsm::BlockHolder>,
     },
 }
@@ -458,44 +535,60 @@ impl ToNode {
 /// Node → master.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum FromNode {
+    /// The first message on a control stream: what the peer is and which protocol it speaks.
     Hello(Hello),
     /// Scene loaded, displays reached: the node can take frames.
     Ready,
     /// These tiles reached their displays. With `want_more` the node asks for another batch.
     TilesDone {
+        /// The frame the tiles are of.
         frame: FrameId,
+        /// The tiles delivered, as ranges of ids.
         tiles: Vec<TileRange>,
+        /// Whether the node asks for another batch.
         want_more: bool,
     },
     /// A display has every tile of `frame`.
     FrameComplete {
+        /// The frame whose tiles are all in.
         frame: FrameId,
     },
     /// A display showed `frame`, at `clock_ns` on its own clock (ns since the Unix epoch).
     Presented {
+        /// The frame shown.
         frame: FrameId,
+        /// When, on the display's clock (ns since the Unix epoch).
         clock_ns: u64,
     },
     /// Answer to [`ToNode::Ping`]: the display's clock when it answered.
     Pong {
+        /// The [`ToNode::Ping`]'s probe number.
         seq: u32,
+        /// The display's clock when it answered, in ns since the Unix epoch.
         clock_ns: u64,
     },
+    /// The node's figures, sent after [`ToNode::Shutdown`] before it closes.
     Stats(NodeStats),
     /// The node cannot go on; the master logs this and treats the node as gone.
     Failed {
+        /// What went wrong, for the master's log.
         message: String,
     },
     /// A control client's request `id`, made at `stamp_ns` (the master's clock as the client
     /// maps it; 0 when unknown).
     Control {
+        /// The request's id, numbered by the client; the reply carries it back.
         id: u32,
+        /// What the client asks.
         request: ControlRequest,
+        /// When it was made, in ns since the Unix epoch on the master's clock; 0 when unknown.
         stamp_ns: u64,
     },
     /// A person's input at a display's window, at `clock_ns` on the display's clock.
     Input {
+        /// What the person did.
         event: InputEvent,
+        /// When, on the display's clock (ns since the Unix epoch).
         clock_ns: u64,
     },
     /// A render node or display is alive (sent every [`HEARTBEAT_INTERVAL`], whatever it is
@@ -504,12 +597,15 @@ pub enum FromNode {
     /// A render node could not deliver these tiles (their display was unreachable): they go
     /// back to the master, to be rendered again, by this node or another.
     TilesReturned {
+        /// The frame the tiles are of.
         frame: FrameId,
+        /// The tiles not delivered, as ranges of ids.
         tiles: Vec<TileRange>,
     },
     /// A render node of a shared scene answers block requests at `addr` (an unspecified IP:
     /// the address the master sees it at).
     BlocksAt {
+        /// Where it answers block requests.
         addr: SocketAddr,
     },
 }
@@ -521,7 +617,9 @@ pub const HEARTBEAT_INTERVAL: std::time::Duration = std::time::Duration::from_mi
 /// Measured by a node, reported at shutdown.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum NodeStats {
+    /// A render node's figures.
     Render(RenderStats),
+    /// A display node's figures.
     Display(DisplayStats),
 }
 
@@ -529,7 +627,9 @@ pub enum NodeStats {
 /// master divides by them for the report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct RenderStats {
+    /// Tiles rendered (a tile rendered again, after a loss or speculatively, counts again).
     pub tiles: u64,
+    /// Rays of every kind traced.
     pub rays: u64,
     /// Seconds spent rendering (wall clock of render calls).
     pub busy_s: f64,
@@ -537,8 +637,9 @@ pub struct RenderStats {
     pub elapsed_s: f64,
     /// A time series' steps this node loaded, and the seconds each took (load and brick).
     pub volume_load_s: Vec<f64>,
-    /// Step changes whose step the readers had ready, and those the node waited for.
+    /// Step changes of a time series whose step the readers had ready.
     pub prefetch_hits: u64,
+    /// Step changes of a time series the node had to wait for.
     pub prefetch_misses: u64,
     /// Seconds the node waited for steps not yet loaded.
     pub volume_stall_s: f64,
@@ -610,8 +711,10 @@ impl<'de> Deserialize<'de> for RenderStats {
     }
 }
 
+/// A display node's figures.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DisplayStats {
+    /// Pixels of its framebuffer.
     pub pixels_owned: u64,
     /// Pixel bytes received, as unpacked (3 per pixel, whatever the compression; tile headers
     /// excluded).
@@ -623,7 +726,9 @@ pub struct DisplayStats {
     /// Application bytes of pixel streams as sent (stream and tile headers included, tiles
     /// compressed if the run compresses).
     pub stream_bytes_received: u64,
+    /// Frames it showed.
     pub frames_presented: u64,
+    /// Tiles that arrived a second time, or after their frame was shown, and were ignored.
     pub duplicate_tiles: u64,
 }
 

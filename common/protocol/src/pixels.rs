@@ -13,18 +13,23 @@ use serde::{Deserialize, Serialize};
 use tessera_model::state::StateId;
 use tessera_model::wall::TileId;
 
+/// The first 4 bytes of every pixel stream: a stream that starts otherwise is not Tessera's.
 pub const STREAM_MAGIC: [u8; 4] = *b"TSPX";
+/// Bytes of a [`StreamHeader`] on the wire.
 pub const STREAM_HEADER_LEN: usize = 40;
+/// Bytes of a [`TileHeader`] on the wire.
 pub const TILE_HEADER_LEN: usize = 8;
 
 /// Pixel formats; only RGB8 so far.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u16)]
 pub enum PixelFormat {
+    /// Three bytes a pixel: red, green, blue, 8 bits each, ready to show.
     Rgb8 = 1,
 }
 
 impl PixelFormat {
+    /// Bytes one pixel takes.
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             PixelFormat::Rgb8 => 3,
@@ -121,38 +126,66 @@ impl Compression {
     }
 }
 
+/// Why a pixel stream or one of its tiles was refused; the display drops the stream.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum PixelStreamError {
+    /// The stream does not start with [`STREAM_MAGIC`].
     #[error("pixel stream does not start with the Tessera magic")]
     BadMagic,
+    /// The stream header gives another protocol version than
+    /// [`PROTOCOL_VERSION`](super::PROTOCOL_VERSION).
     #[error("pixel stream version {0} is not {expected}", expected = super::PROTOCOL_VERSION)]
     BadVersion(u16),
+    /// The stream header names a [`PixelFormat`] this build does not know.
     #[error("unknown pixel format {0}")]
     BadFormat(u16),
+    /// The stream header names a [`Compression`] this build does not know.
     #[error("unknown pixel compression {0}")]
     BadCompression(u16),
+    /// The stream header announces more tiles than the receiving display owns.
     #[error("pixel stream announces {count} tiles, more than the {limit} this display owns")]
-    TooManyTiles { count: u32, limit: u32 },
+    TooManyTiles {
+        /// Tiles the header announces.
+        count: u32,
+        /// Tiles the receiving display owns.
+        limit: u32,
+    },
+    /// The stream header announces no tiles: render nodes never open an empty stream.
     #[error("pixel stream announces no tiles")]
     NoTiles,
+    /// A tile header's length does not fit the tile's geometry: not exactly its pixel bytes in a
+    /// raw stream, 0 or more than them in an LZ4 stream.
     #[error("tile {tile} carries {len} bytes for {pixel_bytes} bytes of pixels")]
     TileLength {
+        /// The tile's id.
         tile: u32,
+        /// Payload length its header gives, in bytes.
         len: u32,
+        /// Bytes of the tile's raw pixels, from its geometry.
         pixel_bytes: usize,
     },
+    /// A tile's payload does not unpack to exactly its pixel bytes.
     #[error("tile {tile} is corrupt: {reason}")]
-    CorruptTile { tile: u32, reason: String },
+    CorruptTile {
+        /// The tile's id.
+        tile: u32,
+        /// What is wrong, for the log (LZ4's message, or the sizes that disagree).
+        reason: String,
+    },
 }
 
 /// The header at the start of each pixel stream.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StreamHeader {
+    /// How the tiles' pixels are laid out.
     pub format: PixelFormat,
+    /// How the tiles' pixels are packed; the session's.
     pub compression: Compression,
+    /// The frame the tiles belong to.
     pub frame: FrameId,
     /// The wall state the tiles were rendered with (the frame start's).
     pub state: StateId,
+    /// Tiles that follow in this stream, 1 to the number the receiving display owns.
     pub tile_count: u32,
     /// Who rendered the batch, and how long its tiles took, in microseconds: what a display
     /// shows in its overlay, and nothing it trusts for anything else.
@@ -162,12 +195,16 @@ pub struct StreamHeader {
 /// Who rendered a batch of tiles, and in how long.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BatchSource {
+    /// The render node that rendered the batch.
     pub node: RenderNodeId,
     /// Rendering time of one tile, averaged over the batch, microseconds.
     pub render_us: u32,
 }
 
 impl StreamHeader {
+    /// The header's [`STREAM_HEADER_LEN`] bytes, little-endian: magic, protocol version (u16),
+    /// format (u16), frame (u64), tile count (u32), compression (u16), 2 zero bytes, state (u64),
+    /// render node (u32), render time (u32).
     pub fn encode(&self) -> [u8; STREAM_HEADER_LEN] {
         let mut out = [0u8; STREAM_HEADER_LEN];
         out[0..4].copy_from_slice(&STREAM_MAGIC);
@@ -184,6 +221,10 @@ impl StreamHeader {
     }
 
     /// Parses and checks a header; `max_tiles` is how many tiles the receiving display owns.
+    ///
+    /// # Errors
+    /// Another magic or protocol version, an unknown format or compression, no tiles or more
+    /// than `max_tiles`.
     pub fn decode(
         bytes: &[u8; STREAM_HEADER_LEN],
         max_tiles: u32,
@@ -239,11 +280,16 @@ impl StreamHeader {
 /// ([`Compression::check_tile_len`]) before any pixel is read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TileHeader {
+    /// The tile the payload is the pixels of.
     pub tile: TileId,
+    /// Length of the payload that follows, in bytes: the raw pixels' length, or less for an LZ4
+    /// block.
     pub byte_len: u32,
 }
 
 impl TileHeader {
+    /// The header's [`TILE_HEADER_LEN`] bytes: tile id, then payload length, each a
+    /// little-endian u32.
     pub fn encode(&self) -> [u8; TILE_HEADER_LEN] {
         let mut out = [0u8; TILE_HEADER_LEN];
         out[0..4].copy_from_slice(&self.tile.0.to_le_bytes());
@@ -251,6 +297,7 @@ impl TileHeader {
         out
     }
 
+    /// Reads a tile header; its length is checked later, against the tile's geometry.
     pub fn decode(bytes: &[u8; TILE_HEADER_LEN]) -> Self {
         TileHeader {
             tile: TileId(u32::from_le_bytes(bytes[0..4].try_into().expect("4 bytes"))),
