@@ -14,21 +14,15 @@
 // clearer as `for i in 0..n` than as zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
-pub mod accel;
-pub mod accel_cache;
-mod accel_coincident;
-pub mod accel_packet;
-pub mod accel_wide;
 pub mod aov;
 pub mod bench;
+pub mod bvh;
 pub mod dsm;
 mod frame;
 pub mod geometry;
 pub mod isa;
 pub mod packet;
-mod packet_leaf;
 mod pixel_rays;
-mod ray_leaf;
 mod reference;
 pub mod sampling;
 pub mod scene;
@@ -37,7 +31,6 @@ mod shadow_packet;
 pub mod slot_materials;
 pub mod spheres;
 mod tracer;
-pub mod tree_memory;
 mod views;
 pub mod volume;
 

@@ -5,7 +5,7 @@
 //! obvhs as one triangle, and its leaf is expanded here afterwards into a balanced subtree of
 //! small leaves, which costs O(n log n) however many copies there are.
 
-use crate::accel::BvhNode;
+use crate::bvh::tree::BvhNode;
 use glam::Vec3;
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
@@ -194,7 +194,7 @@ fn leaf_items(
 
 #[cfg(test)]
 mod tests {
-    use crate::accel::Accel;
+    use crate::bvh::tree::Accel;
     use crate::geometry::Ray;
     use crate::scene::{knot_scene, Scene};
     use glam::Vec3;
@@ -267,7 +267,11 @@ mod tests {
             let got = accel
                 .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
                 .map(|h| h.t);
-            assert_eq!(got, crate::accel::brute_force_t(&accel, &ray), "ray {i}");
+            assert_eq!(
+                got,
+                crate::bvh::tree::brute_force_t(&accel, &ray),
+                "ray {i}"
+            );
         }
     }
 }

@@ -11,7 +11,7 @@
 //! single rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a
 //! frustum built from the box of their origins and stop each ray at its first hit.
 //!
-//! Box tests run on inverse directions made finite (`accel_wide::finite_inverse`), so no slab
+//! Box tests run on inverse directions made finite (`traverse_ray::finite_inverse`), so no slab
 //! distance is a NaN and plain compare-selects stand in for `f32::min`/`max`.
 //!
 //! The SIMD width is chosen at run time (`isa`): an AVX-512 or AVX2 build of the same code runs
@@ -19,13 +19,13 @@
 //! because Rust never fuses a multiply and an add into an FMA on its own, so every node of a
 //! wall renders the same pixels whatever its CPU.
 
-use crate::accel::{Accel, Hit};
-use crate::accel_wide::{self, EMPTY, WIDTH};
+use crate::bvh::leaf_packet::ShearedLanes;
+use crate::bvh::memory::{ChildPrefetch, TreeMemory};
+use crate::bvh::traverse_ray::{self, EMPTY, WIDTH};
+use crate::bvh::tree::{Accel, Hit};
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
-use crate::packet_leaf::ShearedLanes;
-use crate::tree_memory::{ChildPrefetch, TreeMemory};
 use glam::Vec3;
 
 /// The packet's rays in lanes: origins, inverse directions and current hit distances.
@@ -34,7 +34,7 @@ struct Lanes<'a> {
     origin: Vec3,
     /// Per-lane origins, for packets without a common one (shadow rays).
     org: &'a [[f32; PACKET_RAYS]; 3],
-    /// Inverse directions with infinities made finite (see [`accel_wide::finite_inverse`]).
+    /// Inverse directions with infinities made finite (see [`traverse_ray::finite_inverse`]).
     finite_inv: [[f32; PACKET_RAYS]; 3],
     /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
     /// packet's end or with an empty interval, so they never enter a box.
@@ -96,7 +96,7 @@ impl Lanes<'_> {
                 let o = Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i]);
                 (min - o, max - o)
             };
-            // Finite inverses keep NaN out (see `accel_wide::enter_mask`), so compare-selects
+            // Finite inverses keep NaN out (see `traverse_ray::enter_mask`), so compare-selects
             // stand in for `f32::min`/`max`, whose NaN handling costs three instructions each.
             let inv = [
                 self.finite_inv[0][i],
@@ -214,7 +214,7 @@ fn closest_hits_generic<M: TreeMemory>(
         for (i, hit) in hits.iter_mut().enumerate().take(n) {
             let ray = Ray::new(packet.ray_origin(i), packet.direction(i));
             let interval = (packet.t_min[i], packet.t_max[i]);
-            *hit = crate::accel::closest_hit(mem, &ray, interval, stack)
+            *hit = crate::bvh::tree::closest_hit(mem, &ray, interval, stack)
                 .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
         }
         return;
@@ -308,7 +308,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
     let mut lanes = Lanes {
         origin,
         org: &packet.org,
-        finite_inv: inv.map(|axis| axis.map(accel_wide::finite)),
+        finite_inv: inv.map(|axis| axis.map(traverse_ray::finite)),
         t: std::array::from_fn(|i| {
             if i < n && packet.t_min[i] <= packet.t_max[i] {
                 packet.t_max[i]
@@ -360,7 +360,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
             // lanes, the bunny 53.8 against 50.7).
             if let Some(sheared) = sheared.as_ref() {
                 let mut redo = [false; PACKET_RAYS];
-                let groups = crate::packet_leaf::active_groups(&active);
+                let groups = crate::bvh::leaf_packet::active_groups(&active);
                 for slot in child..child + count {
                     let tri = mem.triangle(slot);
                     let again = sheared.hit(
@@ -449,7 +449,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
         // it enters on top, nearest last, in an insertion sort of the few (1-3 typically)
         // it enters.
         let node = mem.node(child);
-        let t = accel_wide::enter_wide(
+        let t = traverse_ray::enter_wide(
             node,
             lanes.origin_of::<COMMON>(active),
             lanes.finite_inv_of(active),
@@ -565,7 +565,7 @@ impl Frustum {
     /// the children's structure-of-arrays boxes, so it runs one child per SIMD lane). Empty
     /// slots count as missed.
     #[inline(always)]
-    fn misses_children(&self, node: &accel_wide::WideNode) -> [bool; WIDTH] {
+    fn misses_children(&self, node: &traverse_ray::WideNode) -> [bool; WIDTH] {
         let empty: [bool; WIDTH] = std::array::from_fn(|k| node.count[k] == EMPTY);
         if !self.usable {
             return empty;

@@ -6,8 +6,8 @@
 //! monomorphized copy: the replicated one indexes its arrays exactly as before the trait
 //! existed, and the shared one keeps the block it is in until it leaves it (Ize et al. §4.1).
 
-use crate::accel::LeafTriangle;
-use crate::accel_wide::WideNode;
+use crate::bvh::traverse_ray::WideNode;
+use crate::bvh::tree::LeafTriangle;
 use std::ops::Range;
 
 /// Read access to a tree and its leaf triangles during one traversal.
@@ -82,9 +82,9 @@ impl TreeMemory for Resident<'_> {
 impl ChildPrefetch for Resident<'_> {
     #[inline(always)]
     fn prefetch_child(&self, node: &WideNode, k: usize) {
-        crate::accel_wide::prefetch_child(
+        crate::bvh::traverse_ray::prefetch_child(
             self.wide,
-            crate::accel_wide::leaf_bytes(self.triangles),
+            crate::bvh::traverse_ray::leaf_bytes(self.triangles),
             node,
             k,
         );

@@ -4,11 +4,11 @@
 //! `accel_wide`, 8×8 packets in `accel_packet`. The binary tree is what obvhs builds and what the
 //! cache stores; a render node frees it once the 8-wide one is made.
 
-use crate::accel_wide::NodeTest;
+use crate::bvh::memory::{Resident, TreeMemory};
+use crate::bvh::traverse_ray::NodeTest;
 use crate::geometry::{Bounds, Ray};
 use crate::isa::Isa;
 use crate::scene::Scene;
-use crate::tree_memory::{Resident, TreeMemory};
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::triangle::Triangle;
@@ -52,7 +52,7 @@ pub struct Hit {
 ///
 /// ```
 /// use glam::Vec3;
-/// use tessera_render::accel::Accel;
+/// use tessera_render::bvh::Accel;
 /// use tessera_render::geometry::Ray;
 /// use tessera_render::scene::knot_scene;
 ///
@@ -77,7 +77,7 @@ pub struct Accel {
     /// The binary tree as built (and cached); empty once slimmed for rendering.
     pub nodes: Vec<BvhNode>,
     /// The same tree collapsed 8-wide, which every traversal walks (see `accel_wide`).
-    pub wide: Vec<crate::accel_wide::WideNode>,
+    pub wide: Vec<crate::bvh::traverse_ray::WideNode>,
     pub triangles: Vec<LeafTriangle>,
     /// Scene triangle index of each leaf slot.
     pub scene_index: Vec<u32>,
@@ -100,7 +100,7 @@ impl Accel {
                 v2: scene.positions[t[2] as usize].into(),
             })
             .collect();
-        let groups = crate::accel_coincident::coincident_groups(&tris);
+        let groups = crate::bvh::coincident::coincident_groups(&tris);
         if !groups.is_empty() {
             return Self::build_with_groups(&tris, &groups);
         }
@@ -135,7 +135,7 @@ impl Accel {
         );
         drop(subset);
         let (nodes, order) =
-            crate::accel_coincident::flatten_expanding(&bvh, tris, &input, &group_of, groups);
+            crate::bvh::coincident::flatten_expanding(&bvh, tris, &input, &group_of, groups);
         let largest = groups.iter().map(Vec::len).max().unwrap_or(1);
         tracing::info!(
             "{} triangles in {} groups with equal boxes: each built as one balanced subtree",
@@ -204,7 +204,7 @@ impl Accel {
         max_depth: usize,
     ) -> Self {
         Accel {
-            wide: crate::accel_wide::collapse(&nodes),
+            wide: crate::bvh::traverse_ray::collapse(&nodes),
             nodes,
             triangles,
             scene_index,
@@ -221,8 +221,8 @@ impl Accel {
     pub fn bounds(&self) -> Bounds {
         let mut bounds = Bounds::EMPTY;
         if let Some(root) = self.wide.first() {
-            for k in
-                (0..crate::accel_wide::WIDTH).filter(|&k| root.count[k] != crate::accel_wide::EMPTY)
+            for k in (0..crate::bvh::traverse_ray::WIDTH)
+                .filter(|&k| root.count[k] != crate::bvh::traverse_ray::EMPTY)
             {
                 bounds.grow(Vec3::new(root.lo[0][k], root.lo[1][k], root.lo[2][k]));
                 bounds.grow(Vec3::new(root.hi[0][k], root.hi[1][k], root.hi[2][k]));
@@ -271,7 +271,7 @@ impl Accel {
             ray,
             (t_min, t_max),
             stack,
-            crate::accel_wide::enter_mask,
+            crate::bvh::traverse_ray::enter_mask,
         )
     }
 
@@ -293,7 +293,7 @@ impl Accel {
             ray,
             (t_min, t_max),
             stack,
-            crate::accel_wide::enter_mask,
+            crate::bvh::traverse_ray::enter_mask,
         )
     }
 }
@@ -311,7 +311,13 @@ pub fn closest_hit<M: TreeMemory>(
         // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
         return unsafe { closest_hit_avx2(mem, ray, interval, stack) };
     }
-    closest_hit_with(mem, ray, interval, stack, crate::accel_wide::enter_mask)
+    closest_hit_with(
+        mem,
+        ray,
+        interval,
+        stack,
+        crate::bvh::traverse_ray::enter_mask,
+    )
 }
 
 /// [`closest_hit`] with the wide node tests 8 lanes wide.
@@ -325,7 +331,7 @@ unsafe fn closest_hit_avx2<M: TreeMemory>(
 ) -> Option<Hit> {
     closest_hit_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
         // SAFETY: this function runs only where the CPU has AVX2.
-        unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
+        unsafe { crate::bvh::traverse_ray::enter_mask_avx2(node, origin, inv, t_far) }
     })
 }
 
@@ -342,7 +348,7 @@ fn closest_hit_with<M: TreeMemory>(
 ) -> Option<Hit> {
     let mut best: Option<Hit> = None;
     let mut t_far = t_max;
-    crate::accel_wide::traverse_wide::<true, M>(
+    crate::bvh::traverse_ray::traverse_wide::<true, M>(
         mem,
         enter,
         ray,
@@ -352,7 +358,7 @@ fn closest_hit_with<M: TreeMemory>(
             let mut at = slots.start;
             while at < slots.end {
                 let tris = mem.triangles(at..slots.end);
-                best = crate::ray_leaf::closest_hit(ray, tris, at, (t_min, t_max), best);
+                best = crate::bvh::leaf_ray::closest_hit(ray, tris, at, (t_min, t_max), best);
                 at += tris.len() as u32;
             }
             if let Some(b) = best {
@@ -377,7 +383,13 @@ pub fn occluded<M: TreeMemory>(
         // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
         return unsafe { occluded_avx2(mem, ray, interval, stack) };
     }
-    occluded_with(mem, ray, interval, stack, crate::accel_wide::enter_mask)
+    occluded_with(
+        mem,
+        ray,
+        interval,
+        stack,
+        crate::bvh::traverse_ray::enter_mask,
+    )
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -390,7 +402,7 @@ unsafe fn occluded_avx2<M: TreeMemory>(
 ) -> bool {
     occluded_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
         // SAFETY: this function runs only where the CPU has AVX2.
-        unsafe { crate::accel_wide::enter_mask_avx2(node, origin, inv, t_far) }
+        unsafe { crate::bvh::traverse_ray::enter_mask_avx2(node, origin, inv, t_far) }
     })
 }
 
@@ -405,7 +417,7 @@ fn occluded_with<M: TreeMemory>(
 ) -> bool {
     let mut t_far = t_max;
     let mut blocked = false;
-    crate::accel_wide::traverse_wide::<ORDERED_OCCLUSION, M>(
+    crate::bvh::traverse_ray::traverse_wide::<ORDERED_OCCLUSION, M>(
         mem,
         enter,
         ray,
@@ -415,7 +427,7 @@ fn occluded_with<M: TreeMemory>(
             let mut at = slots.start;
             while at < slots.end && !blocked {
                 let tris = mem.triangles(at..slots.end);
-                blocked = crate::ray_leaf::any_hit(ray, tris, t_min, t_max);
+                blocked = crate::bvh::leaf_ray::any_hit(ray, tris, t_min, t_max);
                 at += tris.len() as u32;
             }
             blocked

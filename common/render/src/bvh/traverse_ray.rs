@@ -12,9 +12,9 @@
 //! Closest hits are order-independent: of two hits at the same distance the lower slot wins,
 //! so this traversal and the packet traversal agree bit for bit.
 
-use crate::accel::BvhNode;
+use crate::bvh::memory::{ChildPrefetch, TreeMemory};
+use crate::bvh::tree::BvhNode;
 use crate::geometry::Ray;
-use crate::tree_memory::{ChildPrefetch, TreeMemory};
 
 /// Children per node.
 pub const WIDTH: usize = 8;
@@ -262,10 +262,10 @@ pub(crate) fn prefetch_child(
 }
 
 /// The leaf triangles as the prefetcher sees them: where they start and how big one is.
-pub(crate) fn leaf_bytes(triangles: &[crate::accel::LeafTriangle]) -> (*const u8, usize) {
+pub(crate) fn leaf_bytes(triangles: &[crate::bvh::tree::LeafTriangle]) -> (*const u8, usize) {
     (
         triangles.as_ptr() as *const u8,
-        std::mem::size_of::<crate::accel::LeafTriangle>(),
+        std::mem::size_of::<crate::bvh::tree::LeafTriangle>(),
     )
 }
 
@@ -394,7 +394,7 @@ fn traverse_unordered<M: TreeMemory>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::Accel;
+    use crate::bvh::tree::Accel;
     use crate::scene::knot_scene;
     use glam::Vec3;
 
