@@ -5,7 +5,7 @@
 //! (the hits of one primary packet together, as the renderer traces them) and as single rays. Each pass is timed alone so the figures
 //! compare with other tracers' (e.g. Embree's) ray-cast-only numbers.
 
-use crate::bvh::tree::Hit;
+use crate::bvh::node::Hit;
 use crate::geometry::Ray;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
 use crate::sampling::{Hemisphere, SampleStream};

@@ -4,7 +4,7 @@
 //! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
 //! on whichever node renders it and the single-process reference equals the wall.
 
-use crate::bvh::tree::Accel;
+use crate::bvh::Accel;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::pixel_rays::PixelRays;
 use crate::sampling::SampleStream;

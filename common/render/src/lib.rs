@@ -6,6 +6,13 @@
 //! pure function of those and the pixel, so any render node draws a tile byte for byte as the
 //! single-process reference ([`render_wall`]) does.
 //!
+//! The BVH is [`bvh`], laid out by job as Embree's `kernels/bvh`: node formats, tree memory,
+//! node and leaf tests, build, cache, and one traversal each for single rays and for packets,
+//! whose files use one another in one direction only (the layers are in its documentation).
+//! Above it, [`Tracer`] picks the memory a render thread reads the tree from (this process's
+//! arrays or the distributed shared memory, [`dsm`]), and shading (`frame`, `shade`,
+//! `shadow_packet`, [`aov`]) traces through a `Tracer`.
+//!
 //! It depends on `tessera-wire` for the state it renders with (camera, parameters, scene name,
 //! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);
 //! never on an async runtime, socket or command-line crate.

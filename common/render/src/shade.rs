@@ -7,7 +7,7 @@
 //! transmitted-ray counter stays at zero). Reflected and transmitted rays are single rays; their
 //! depth is bounded by [`MAX_DEPTH`].
 
-use crate::bvh::tree::Hit;
+use crate::bvh::node::Hit;
 use crate::geometry::{triangle_normal, Ray};
 use crate::packet::PacketHit;
 use crate::sampling::{Hemisphere, SampleStream};

@@ -4,7 +4,7 @@
 //! Hit points of one 8×8 block lie close together and their rays share a direction
 //! (directional light) or an end (point light), so they traverse the same few BVH nodes; as
 //! single rays they cost five times a primary ray. The answers are the very ones single rays
-//! give (same rays, same intervals, same triangle test; see `accel_packet`'s tests), so pixels
+//! give (same rays, same intervals, same triangle test; see `bvh::traverse_packet`'s tests), so pixels
 //! do not change, only the time.
 
 use crate::geometry::Ray;

@@ -3,7 +3,7 @@
 //! memory, where the thread keeps the blocks it is in (see `dsm::SharedReader`).
 
 use crate::bvh::memory::TreeMemory;
-use crate::bvh::tree::{Hit, LeafTriangle};
+use crate::bvh::node::{Hit, LeafTriangle};
 use crate::dsm::SharedReader;
 use crate::geometry::Ray;
 use crate::isa::Isa;
@@ -38,7 +38,7 @@ impl<'s> Tracer<'s> {
         }
     }
 
-    /// Closest triangle hits of a packet (see `accel_packet`).
+    /// Closest triangle hits of a packet (see `bvh::traverse_packet`).
     pub fn closest_hits(&mut self, packet: &mut RayPacket, hits: &mut [PacketHit; PACKET_RAYS]) {
         use crate::bvh::traverse_packet::closest_hits_on;
         let (stack, isa) = (&mut self.stack, Isa::best());
@@ -48,7 +48,7 @@ impl<'s> Tracer<'s> {
         }
     }
 
-    /// Which rays of a packet are blocked, as bits (see `accel_packet`).
+    /// Which rays of a packet are blocked, as bits (see `bvh::traverse_packet`).
     pub fn occluded_lanes(&mut self, packet: &mut RayPacket) -> u64 {
         use crate::bvh::traverse_packet::occluded_lanes_on;
         let (stack, isa) = (&mut self.stack, Isa::best());
@@ -60,7 +60,7 @@ impl<'s> Tracer<'s> {
 
     /// The nearest triangle hit in `(t_min, t_max)`.
     pub fn closest_hit(&mut self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
-        use crate::bvh::tree::closest_hit;
+        use crate::bvh::traverse_ray::closest_hit;
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => closest_hit(m, ray, (t_min, t_max), stack),
@@ -70,7 +70,7 @@ impl<'s> Tracer<'s> {
 
     /// Whether a triangle blocks the ray in `(t_min, t_max)`.
     pub fn occluded(&mut self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
-        use crate::bvh::tree::occluded;
+        use crate::bvh::traverse_ray::occluded;
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => occluded(m, ray, (t_min, t_max), stack),

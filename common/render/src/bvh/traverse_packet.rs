@@ -5,122 +5,29 @@
 //! one test; a packet whose frustum misses the root's children stops before any per-lane
 //! set-up. Inner nodes then test single rays from the first active one until one enters
 //! (Wald's "first hit" traversal), which orders the eight children; leaves test all 64 lanes'
-//! boxes at once in structure-of-arrays form, and then each triangle against the lanes that
-//! enter, 16 lanes at a time (`packet_leaf`), for packets with one origin. Children are
-//! prefetched as they are pushed. Closest-hit packets without a common origin fall back to
-//! single rays. Shadow packets (`occluded_lanes`) start at many points: they are culled by a
-//! frustum built from the box of their origins and stop each ray at its first hit.
-//!
-//! Box tests run on inverse directions made finite (`traverse_ray::finite_inverse`), so no slab
-//! distance is a NaN and plain compare-selects stand in for `f32::min`/`max`.
+//! boxes at once in structure-of-arrays form (`node_test_packet`), and then each triangle
+//! against the lanes that enter, 16 lanes at a time (`leaf_packet`), for packets with one
+//! origin. Children are prefetched as they are pushed. Closest-hit packets without a common
+//! origin fall back to single rays (`traverse_ray`). Shadow packets (`occluded_lanes`) start at
+//! many points: they are culled by a frustum built from the box of their origins and stop each
+//! ray at its first hit.
 //!
 //! The SIMD width is chosen at run time (`isa`): an AVX-512 or AVX2 build of the same code runs
 //! where the CPU has it, the baseline SSE2 build elsewhere. All give bit-identical results,
 //! because Rust never fuses a multiply and an add into an FMA on its own, so every node of a
 //! wall renders the same pixels whatever its CPU.
 
-use crate::bvh::leaf_packet::ShearedLanes;
+use crate::bvh::leaf_packet::{self, ShearedLanes};
 use crate::bvh::memory::{ChildPrefetch, TreeMemory};
-use crate::bvh::traverse_ray::{self, EMPTY, WIDTH};
-use crate::bvh::tree::{Accel, Hit};
+use crate::bvh::node::{Hit, WIDTH};
+use crate::bvh::node_test_packet::{Frustum, Lanes};
+use crate::bvh::node_test_ray::{enter_wide, finite};
+use crate::bvh::traverse_ray;
+use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
-
-/// The packet's rays in lanes: origins, inverse directions and current hit distances.
-struct Lanes<'a> {
-    /// The shared origin, when there is one.
-    origin: Vec3,
-    /// Per-lane origins, for packets without a common one (shadow rays).
-    org: &'a [[f32; PACKET_RAYS]; 3],
-    /// Inverse directions with infinities made finite (see [`traverse_ray::finite_inverse`]).
-    finite_inv: [[f32; PACKET_RAYS]; 3],
-    /// Closest hit so far (at first the end of the ray's interval); -inf for lanes past the
-    /// packet's end or with an empty interval, so they never enter a box.
-    t: [f32; PACKET_RAYS],
-    /// Start of each ray's interval (0 unless cutting planes clip it).
-    t_min: [f32; PACKET_RAYS],
-}
-
-impl Lanes<'_> {
-    #[inline(always)]
-    fn origin_of<const COMMON: bool>(&self, i: usize) -> [f32; 3] {
-        if COMMON {
-            self.origin.to_array()
-        } else {
-            [self.org[0][i], self.org[1][i], self.org[2][i]]
-        }
-    }
-
-    #[inline(always)]
-    fn finite_inv_of(&self, i: usize) -> [f32; 3] {
-        [
-            self.finite_inv[0][i],
-            self.finite_inv[1][i],
-            self.finite_inv[2][i],
-        ]
-    }
-
-    /// Whether lane `i` enters the box within its interval.
-    #[inline(always)]
-    fn enters<const COMMON: bool>(&self, i: usize, min: Vec3, max: Vec3) -> bool {
-        let (o, inv) = (self.origin_of::<COMMON>(i), self.finite_inv_of(i));
-        let mut near = self.t_min[i];
-        let mut far = self.t[i];
-        for axis in 0..3 {
-            let t0 = (min[axis] - o[axis]) * inv[axis];
-            let t1 = (max[axis] - o[axis]) * inv[axis];
-            near = fmax(near, fmin(t0, t1));
-            far = fmin(far, fmax(t0, t1));
-        }
-        near <= far
-    }
-
-    /// Entry distance of every lane into the box, +inf where the lane misses it. `COMMON`:
-    /// all lanes start at `origin` (the box offsets are then shared).
-    #[inline(always)]
-    fn enter<const COMMON: bool>(
-        &self,
-        min: Vec3,
-        max: Vec3,
-        out: &mut [f32; PACKET_RAYS],
-    ) -> bool {
-        let shared_lo = min - self.origin;
-        let shared_hi = max - self.origin;
-        let mut any = false;
-        for i in 0..PACKET_RAYS {
-            let (lo, hi) = if COMMON {
-                (shared_lo, shared_hi)
-            } else {
-                let o = Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i]);
-                (min - o, max - o)
-            };
-            // Finite inverses keep NaN out (see `traverse_ray::enter_mask`), so compare-selects
-            // stand in for `f32::min`/`max`, whose NaN handling costs three instructions each.
-            let inv = [
-                self.finite_inv[0][i],
-                self.finite_inv[1][i],
-                self.finite_inv[2][i],
-            ];
-            let (x0, x1) = (lo.x * inv[0], hi.x * inv[0]);
-            let (y0, y1) = (lo.y * inv[1], hi.y * inv[1]);
-            let (z0, z1) = (lo.z * inv[2], hi.z * inv[2]);
-            let near = fmax(
-                fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmin(z0, z1)),
-                self.t_min[i],
-            );
-            let far = fmin(
-                fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmax(z0, z1)),
-                self.t[i],
-            );
-            let hit = near <= far;
-            out[i] = if hit { near } else { f32::INFINITY };
-            any |= hit;
-        }
-        any
-    }
-}
 
 impl Accel {
     /// Closest hits of a whole packet (see the module documentation), on the widest SIMD
@@ -214,7 +121,7 @@ fn closest_hits_generic<M: TreeMemory>(
         for (i, hit) in hits.iter_mut().enumerate().take(n) {
             let ray = Ray::new(packet.ray_origin(i), packet.direction(i));
             let interval = (packet.t_min[i], packet.t_max[i]);
-            *hit = crate::bvh::tree::closest_hit(mem, &ray, interval, stack)
+            *hit = traverse_ray::closest_hit(mem, &ray, interval, stack)
                 .map_or(PacketHit::MISS, |h| PacketHit::new(h.t, h.slot));
         }
         return;
@@ -308,7 +215,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
     let mut lanes = Lanes {
         origin,
         org: &packet.org,
-        finite_inv: inv.map(|axis| axis.map(traverse_ray::finite)),
+        finite_inv: inv.map(|axis| axis.map(finite)),
         t: std::array::from_fn(|i| {
             if i < n && packet.t_min[i] <= packet.t_max[i] {
                 packet.t_max[i]
@@ -323,7 +230,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
     let mut entry = [0f32; PACKET_RAYS];
     // The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
     let mut best_slot = [u32::MAX; PACKET_RAYS];
-    // Only closest-hit packets with one origin test leaves lane-wide (`packet_leaf`).
+    // Only closest-hit packets with one origin test leaves lane-wide (`leaf_packet`).
     let sheared = if COMMON && !ANY {
         ShearedLanes::of_directions(&packet.dir, n)
     } else {
@@ -360,7 +267,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
             // lanes, the bunny 53.8 against 50.7).
             if let Some(sheared) = sheared.as_ref() {
                 let mut redo = [false; PACKET_RAYS];
-                let groups = crate::bvh::leaf_packet::active_groups(&active);
+                let groups = leaf_packet::active_groups(&active);
                 for slot in child..child + count {
                     let tri = mem.triangle(slot);
                     let again = sheared.hit(
@@ -449,7 +356,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
         // it enters on top, nearest last, in an insertion sort of the few (1-3 typically)
         // it enters.
         let node = mem.node(child);
-        let t = traverse_ray::enter_wide(
+        let t = enter_wide(
             node,
             lanes.origin_of::<COMMON>(active),
             lanes.finite_inv_of(active),
@@ -530,115 +437,6 @@ impl LazyRays {
         // by an earlier call.
         unsafe { self.rays[i].assume_init_ref() }
     }
-}
-
-/// Bounds on the origins and inverse directions of a packet, for culling boxes no ray of it
-/// can enter.
-struct Frustum {
-    /// Per axis: smallest and largest inverse direction, when all rays agree in sign.
-    inv: [(f32, f32); 3],
-    /// Per axis: smallest and largest origin (one point for a common origin).
-    org: [(f32, f32); 3],
-    usable: bool,
-}
-
-impl Frustum {
-    fn of(packet: &mut RayPacket) -> Self {
-        let n = packet.len();
-        let common = packet.has(COMMON_ORIGIN).then_some(packet.origin);
-        let org = std::array::from_fn(|axis| match common {
-            Some(origin) => (origin[axis], origin[axis]),
-            None => span(&packet.org[axis][..n]),
-        });
-        let inv = packet.inverse_directions();
-        let mut usable = n > 0;
-        let inv = std::array::from_fn(|axis| {
-            let (lo, hi) = span(&inv[axis][..n]);
-            // Mixed signs (or an axis-parallel ray) make the interval bounds meaningless.
-            usable &= lo.is_finite() && hi.is_finite() && (lo > 0.0 || hi < 0.0);
-            (lo, hi)
-        });
-        Frustum { inv, org, usable }
-    }
-
-    /// [`Frustum::misses`] for every child of a wide node at once (the same arithmetic, over
-    /// the children's structure-of-arrays boxes, so it runs one child per SIMD lane). Empty
-    /// slots count as missed.
-    #[inline(always)]
-    fn misses_children(&self, node: &traverse_ray::WideNode) -> [bool; WIDTH] {
-        let empty: [bool; WIDTH] = std::array::from_fn(|k| node.count[k] == EMPTY);
-        if !self.usable {
-            return empty;
-        }
-        let mut near = [0.0f32; WIDTH];
-        let mut far = [f32::INFINITY; WIDTH];
-        for axis in 0..3 {
-            let (lo, hi) = self.inv[axis];
-            let (o_lo, o_hi) = self.org[axis];
-            // Rays going + enter through the min slab, rays going - through the max slab.
-            let (enter, exit) = if lo > 0.0 {
-                (&node.lo[axis], &node.hi[axis])
-            } else {
-                (&node.hi[axis], &node.lo[axis])
-            };
-            // No NaN here (finite origins and inverse bounds, box corners finite or, in empty
-            // slots, infinite), so compare-selects do what `f32::min`/`max` would.
-            for k in 0..WIDTH {
-                let (e0, e1) = (enter[k] - o_hi, enter[k] - o_lo);
-                let (x0, x1) = (exit[k] - o_hi, exit[k] - o_lo);
-                let entered = fmin(fmin(fmin(e0 * lo, e0 * hi), e1 * lo), e1 * hi);
-                let exited = fmax(fmax(fmax(x0 * lo, x0 * hi), x1 * lo), x1 * hi);
-                near[k] = fmax(near[k], entered);
-                far[k] = fmin(far[k], exited);
-            }
-        }
-        std::array::from_fn(|k| empty[k] | (near[k] > far[k]))
-    }
-}
-
-/// The smaller of two floats that are not NaN, as one instruction.
-#[inline(always)]
-fn fmin(a: f32, b: f32) -> f32 {
-    if a < b {
-        a
-    } else {
-        b
-    }
-}
-
-/// The larger of two floats that are not NaN, as one instruction.
-#[inline(always)]
-fn fmax(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
-/// Smallest and largest of `values`.
-fn span(values: &[f32]) -> (f32, f32) {
-    // Sixteen running bounds, lane by lane, then folded: a compare-select per element
-    // vectorizes where a fold through `f32::min` (a NaN-aware reduction) stays scalar.
-    // NaNs are skipped either way.
-    const LANES: usize = 16;
-    let mut lo = [f32::INFINITY; LANES];
-    let mut hi = [f32::NEG_INFINITY; LANES];
-    let mut chunks = values.chunks_exact(LANES);
-    for chunk in &mut chunks {
-        for k in 0..LANES {
-            lo[k] = if chunk[k] < lo[k] { chunk[k] } else { lo[k] };
-            hi[k] = if chunk[k] > hi[k] { chunk[k] } else { hi[k] };
-        }
-    }
-    for (k, &v) in chunks.remainder().iter().enumerate() {
-        lo[k] = if v < lo[k] { v } else { lo[k] };
-        hi[k] = if v > hi[k] { v } else { hi[k] };
-    }
-    (
-        lo.iter().fold(f32::INFINITY, |a, &b| a.min(b)),
-        hi.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)),
-    )
 }
 
 #[cfg(test)]

@@ -1,295 +1,218 @@
-//! An 8-wide BVH, collapsed from the binary one, that every ray walks (single rays here, packets
-//! in `accel_packet`): each node holds up to eight children's boxes in structure-of-arrays
-//! form, so one ray tests all of them with a few 8-lane instructions (AVX2, chosen at run time;
-//! two 4-lane halves on baseline SSE). A binary tree costs a dependent memory load per level;
-//! this one has about a third as many levels. Leaves are the binary tree's own: the same
-//! triangle slots.
-//!
-//! Measured against a 4-wide collapse (1 thread, AVX2/AVX-512 builds; bunny and the 4.2M
-//! knot): single shadow and AO rays 15-20 % faster, packets the same within noise, 3.9 bytes a
-//! triangle more (its nodes are fuller at 4).
+//! Single rays through the 8-wide tree (shadow, ambient-occlusion, reflected rays, and packets
+//! without a common origin): each node's children tested at once (`node_test_ray`), entered
+//! ones pushed nearest last and prefetched, leaves tested 8 triangles at a time (`leaf_ray`).
+//! Also the walk of any binary tree of ours, which the particles' spheres use.
 //!
 //! Closest hits are order-independent: of two hits at the same distance the lower slot wins,
 //! so this traversal and the packet traversal agree bit for bit.
 
+use crate::bvh::leaf_ray;
 use crate::bvh::memory::{ChildPrefetch, TreeMemory};
-use crate::bvh::tree::BvhNode;
+use crate::bvh::node::{BvhNode, Hit, WIDTH};
+use crate::bvh::node_test_ray::{enter_mask, finite_inverse, NodeTest};
+use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
+use crate::isa::Isa;
 
-/// Children per node.
-pub const WIDTH: usize = 8;
-
-/// One node: up to [`WIDTH`] children, each an inner node (`count == 0`, `child` its index), a leaf
-/// (`count` triangles from slot `child`) or empty (`count == EMPTY`).
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-#[repr(C, align(64))]
-pub struct WideNode {
-    /// Per axis, the children's box minima.
-    pub lo: [[f32; WIDTH]; 3],
-    pub hi: [[f32; WIDTH]; 3],
-    pub child: [u32; WIDTH],
-    pub count: [u32; WIDTH],
-}
-
-/// `count` of a child slot that holds nothing.
-pub const EMPTY: u32 = u32::MAX;
-
-const BLANK: WideNode = WideNode {
-    lo: [[f32::INFINITY; WIDTH]; 3],
-    hi: [[f32::NEG_INFINITY; WIDTH]; 3],
-    child: [0; WIDTH],
-    count: [EMPTY; WIDTH],
-};
-
-fn area(n: &BvhNode) -> f32 {
-    let d = (n.max - n.min).max(glam::Vec3::ZERO);
-    d.x * d.y + d.y * d.z + d.z * d.x
-}
-
-/// Collapses a binary BVH (children of inner node `i` at `first` and `first + 1`) into a
-/// wide one: each wide node takes its binary node's children and keeps opening the largest
-/// inner one among them until it has [`WIDTH`]. Deterministic, linear in the node count.
-pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
-    let Some(root) = nodes.first() else {
-        return Vec::new();
-    };
-    // Every 8-wide node opens at least one binary inner node, so this never grows: growing by
-    // doubling copied the array and left the old copies resident (83 MB for a 49 MB tree).
-    // The untouched rest of the reservation is never resident, and is given back below.
-    let inner = nodes.iter().filter(|n| n.count == 0).count();
-    let mut out = Vec::with_capacity(inner.max(1));
-    out.push(BLANK);
-    let mut stack: Vec<(u32, usize)> = Vec::new();
-    if root.count > 0 {
-        set_child(&mut out[0], 0, root, 0);
-        return out;
+impl Accel {
+    /// The nearest triangle hit in `(t_min, t_max)`. Of hits at the same distance the lowest
+    /// slot wins, so the answer depends on the tree, never on the order it is walked in.
+    pub fn closest_hit(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> Option<Hit> {
+        closest_hit(&mut self.resident(), ray, (t_min, t_max), stack)
     }
-    stack.push((0, 0));
-    while let Some((index, at)) = stack.pop() {
-        let node = &nodes[index as usize];
-        // The children so far, in a fixed array (no allocation per wide node).
-        let mut children = [0u32; WIDTH];
-        (children[0], children[1]) = (node.first, node.first + 1);
-        let mut len = 2;
-        while len < WIDTH {
-            let widest = children[..len]
-                .iter()
-                .enumerate()
-                .filter(|(_, &c)| nodes[c as usize].count == 0)
-                .max_by(|a, b| area(&nodes[*a.1 as usize]).total_cmp(&area(&nodes[*b.1 as usize])))
-                .map(|(k, _)| k);
-            let Some(k) = widest else { break };
-            // Child k opens into its two children, in its place.
-            let first = nodes[children[k] as usize].first;
-            children.copy_within(k + 1..len, k + 2);
-            (children[k], children[k + 1]) = (first, first + 1);
-            len += 1;
-        }
-        for (k, &c) in children[..len].iter().enumerate() {
-            let child = &nodes[c as usize];
-            if child.count > 0 {
-                set_child(&mut out[at], k, child, child.first);
-            } else {
-                let next = out.len();
-                out.push(BLANK);
-                set_child(&mut out[at], k, child, next as u32);
-                stack.push((c, next));
-            }
-        }
+
+    /// The portable build of [`Accel::closest_hit`], also what the SIMD builds are tested
+    /// against.
+    pub fn closest_hit_generic(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> Option<Hit> {
+        closest_hit_with(&mut self.resident(), ray, (t_min, t_max), stack, enter_mask)
     }
-    out.shrink_to_fit();
-    out
+
+    /// Whether anything blocks the ray in `(t_min, t_max)`; stops at the first blocker.
+    pub fn occluded(&self, ray: &Ray, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> bool {
+        occluded(&mut self.resident(), ray, (t_min, t_max), stack)
+    }
+
+    /// The portable build of [`Accel::occluded`].
+    pub fn occluded_generic(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        stack: &mut Vec<u32>,
+    ) -> bool {
+        occluded_with(&mut self.resident(), ray, (t_min, t_max), stack, enter_mask)
+    }
 }
 
-fn set_child(node: &mut WideNode, k: usize, child: &BvhNode, target: u32) {
-    for axis in 0..3 {
-        node.lo[axis][k] = child.min[axis];
-        node.hi[axis][k] = child.max[axis];
+/// The nearest triangle hit in `interval` of a tree in `mem`, on the widest SIMD build this CPU
+/// runs (see [`Accel::closest_hit`]).
+pub fn closest_hit<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> Option<Hit> {
+    #[cfg(target_arch = "x86_64")]
+    if Isa::best() != Isa::Portable {
+        // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
+        return unsafe { closest_hit_avx2(mem, ray, interval, stack) };
     }
-    node.child[k] = target;
-    node.count[k] = child.count;
+    closest_hit_with(mem, ray, interval, stack, enter_mask)
 }
 
-/// Entry distances into the children's boxes before `t_far`; +inf where the ray misses
-/// (or the slot is empty). `inv` must be finite (see [`finite_inverse`]), so that no slab
-/// distance is a NaN.
-#[inline(always)]
-pub(crate) fn enter_wide(
-    node: &WideNode,
-    origin: [f32; 3],
-    inv: [f32; 3],
-    t_far: f32,
-) -> [f32; WIDTH] {
-    let (near, entered) = enter_mask(node, origin, inv, t_far);
-    std::array::from_fn(|k| {
-        if entered >> k & 1 == 1 {
-            near[k]
-        } else {
-            f32::INFINITY
-        }
+/// [`closest_hit`] with the wide node tests 8 lanes wide.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn closest_hit_avx2<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> Option<Hit> {
+    closest_hit_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
+        // SAFETY: this function runs only where the CPU has AVX2.
+        unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, origin, inv, t_far) }
     })
 }
 
-/// A test of one ray against a wide node's children: (node, origin, finite inverse
-/// direction, `t_far`) to the children's entry distances and, as bits, which of them it
-/// enters ([`enter_mask`], or its AVX2 build [`enter_mask_avx2`]). Traversals take it as a
-/// parameter so that one traversal serves every SIMD build.
-pub(crate) trait NodeTest:
-    Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32)
-{
-}
-
-impl<F: Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32)> NodeTest for F {}
-
-/// The children's entry distances, and as bits (child k is bit k) which of them the ray
-/// enters before `t_far`. `inv` must be finite (see [`finite_inverse`]): then no slab
-/// distance is a NaN (box corners are finite or, in empty slots, infinite, and `inv` is
-/// never 0), so plain compare-selects do what `f32::min`/`max` would, without their NaN
-/// handling, which tripled the instructions of this loop.
+/// [`closest_hit`] with `enter` testing the ray against a wide node's children. A leaf is
+/// tested in the pieces the memory holds it in (one, unless it straddles two shared blocks):
+/// hits compare by distance and then slot, so the pieces give the whole leaf's answer.
 #[inline(always)]
-pub(crate) fn enter_mask(
-    node: &WideNode,
-    origin: [f32; 3],
-    inv: [f32; 3],
-    t_far: f32,
-) -> ([f32; WIDTH], u32) {
-    let mut near = [0f32; WIDTH];
-    let mut far = [t_far; WIDTH];
-    for axis in 0..3 {
-        for k in 0..WIDTH {
-            let t0 = (node.lo[axis][k] - origin[axis]) * inv[axis];
-            let t1 = (node.hi[axis][k] - origin[axis]) * inv[axis];
-            let (lo, hi) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
-            near[k] = if lo > near[k] { lo } else { near[k] };
-            far[k] = if hi < far[k] { hi } else { far[k] };
+fn closest_hit_with<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    (t_min, t_max): (f32, f32),
+    stack: &mut Vec<u32>,
+    enter: impl NodeTest,
+) -> Option<Hit> {
+    let mut best: Option<Hit> = None;
+    let mut t_far = t_max;
+    traverse_wide::<true, M>(mem, enter, ray, stack, &mut t_far, |mem, slots, t_far| {
+        let mut at = slots.start;
+        while at < slots.end {
+            let tris = mem.triangles(at..slots.end);
+            best = leaf_ray::closest_hit(ray, tris, at, (t_min, t_max), best);
+            at += tris.len() as u32;
         }
-    }
-    let mut entered = 0u32;
-    for k in 0..WIDTH {
-        entered |= (((near[k] <= far[k]) & (node.count[k] != EMPTY)) as u32) << k;
-    }
-    (near, entered)
+        if let Some(b) = best {
+            *t_far = b.t;
+        }
+        false
+    });
+    best
 }
 
-/// [`enter_mask`] in AVX2 intrinsics, the same operations (`vminps`/`vmaxps` are the
-/// compare-selects there, with no NaN about): the compiler, left to itself, packed that loop
-/// into 4-lane halves for single rays, and AO rays ran 15 % slower than with `f32::min`.
-///
-/// # Safety
-/// The CPU must have AVX2.
+/// Whether anything in `mem`'s tree blocks the ray in `interval`; stops at the first blocker
+/// (see [`Accel::occluded`]).
+pub fn occluded<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if Isa::best() != Isa::Portable {
+        // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
+        return unsafe { occluded_avx2(mem, ray, interval, stack) };
+    }
+    occluded_with(mem, ray, interval, stack, enter_mask)
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[inline]
-pub(crate) unsafe fn enter_mask_avx2(
-    node: &WideNode,
-    origin: [f32; 3],
-    inv: [f32; 3],
-    t_far: f32,
-) -> ([f32; WIDTH], u32) {
-    use std::arch::x86_64::*;
-    let mut near = _mm256_setzero_ps();
-    let mut far = _mm256_set1_ps(t_far);
-    for axis in 0..3 {
-        let o = _mm256_set1_ps(origin[axis]);
-        let iv = _mm256_set1_ps(inv[axis]);
-        // SAFETY: each array holds WIDTH = 8 floats; unaligned loads need no alignment.
-        let (lo, hi) = unsafe {
-            (
-                _mm256_loadu_ps(node.lo[axis].as_ptr()),
-                _mm256_loadu_ps(node.hi[axis].as_ptr()),
-            )
-        };
-        let t0 = _mm256_mul_ps(_mm256_sub_ps(lo, o), iv);
-        let t1 = _mm256_mul_ps(_mm256_sub_ps(hi, o), iv);
-        near = _mm256_max_ps(_mm256_min_ps(t0, t1), near);
-        far = _mm256_min_ps(_mm256_max_ps(t0, t1), far);
-    }
-    let entered = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32;
-    // SAFETY: `count` holds 8 u32s.
-    let count = unsafe { _mm256_loadu_si256(node.count.as_ptr() as *const __m256i) };
-    let empty = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
-        count,
-        _mm256_set1_epi32(EMPTY as i32),
-    ))) as u32;
-    let mut out = [0f32; WIDTH];
-    // SAFETY: `out` holds 8 floats.
-    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), near) };
-    (out, entered & !empty)
+unsafe fn occluded_avx2<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    interval: (f32, f32),
+    stack: &mut Vec<u32>,
+) -> bool {
+    occluded_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
+        // SAFETY: this function runs only where the CPU has AVX2.
+        unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, origin, inv, t_far) }
+    })
 }
 
-/// The ray's inverse direction with an infinite component (a direction parallel to an axis)
-/// made the largest finite value of its sign: then an origin exactly on a slab plane gives
-/// 0 · MAX = 0 where 0 · inf would give NaN, and the box is entered, as it should be.
-pub(crate) fn finite_inverse(ray: &Ray) -> [f32; 3] {
-    ray.inv_dir.to_array().map(finite)
-}
-
-/// An inverse direction component with an infinity made the largest finite value of its sign.
+/// [`occluded`] with `enter` testing the ray against a wide node's children.
 #[inline(always)]
-pub(crate) fn finite(v: f32) -> f32 {
-    if v.is_infinite() {
-        f32::MAX.copysign(v)
-    } else {
-        v
-    }
+fn occluded_with<M: TreeMemory>(
+    mem: &mut M,
+    ray: &Ray,
+    (t_min, t_max): (f32, f32),
+    stack: &mut Vec<u32>,
+    enter: impl NodeTest,
+) -> bool {
+    let mut t_far = t_max;
+    let mut blocked = false;
+    traverse_wide::<ORDERED_OCCLUSION, M>(mem, enter, ray, stack, &mut t_far, |mem, slots, _| {
+        let mut at = slots.start;
+        while at < slots.end && !blocked {
+            let tris = mem.triangles(at..slots.end);
+            blocked = leaf_ray::any_hit(ray, tris, t_min, t_max);
+            at += tris.len() as u32;
+        }
+        blocked
+    });
+    blocked
 }
 
-/// Asks the CPU to start loading what child `k` of `node` points to: its 8-wide node in
-/// `nodes`, or its leaf's first items (`leaves`: where the leaf items start and the bytes of
-/// one). On a mesh of millions of triangles these loads miss every cache; issued while the
-/// nearer siblings are traversed, they took the 4.2M knot's primary rays from 13.1 to 14.6
-/// Mrays/s (1 thread, AVX-512).
+/// Whether occlusion rays visit nearer children first (see `traverse_wide`).
+const ORDERED_OCCLUSION: bool = false;
+
+/// Single-ray traversal of any of our binary BVHs (triangles or spheres): visits the leaf slots
+/// whose boxes the ray enters before `t_far`, nearer child first. `visit` may shrink `t_far`
+/// and returns `true` to stop.
 #[inline(always)]
-pub(crate) fn prefetch_child(
-    nodes: &[WideNode],
-    (leaves, item_bytes): (*const u8, usize),
-    node: &WideNode,
-    k: usize,
+pub(crate) fn traverse_nodes(
+    nodes: &[BvhNode],
+    ray: &Ray,
+    stack: &mut Vec<u32>,
+    t_far: &mut f32,
+    mut visit: impl FnMut(u32, &mut f32) -> bool,
 ) {
-    let (child, count) = (node.child[k] as usize, node.count[k]);
-    let (start, bytes) = if count == 0 {
-        (
-            nodes.as_ptr().wrapping_add(child) as *const u8,
-            std::mem::size_of::<WideNode>(),
-        )
-    } else {
-        (
-            leaves.wrapping_add(child * item_bytes),
-            count as usize * item_bytes,
-        )
+    stack.clear();
+    let Some(root) = nodes.first() else {
+        return;
     };
-    prefetch(start, bytes.min(PREFETCH_BYTES));
-}
-
-/// The leaf triangles as the prefetcher sees them: where they start and how big one is.
-pub(crate) fn leaf_bytes(triangles: &[crate::bvh::tree::LeafTriangle]) -> (*const u8, usize) {
-    (
-        triangles.as_ptr() as *const u8,
-        std::mem::size_of::<crate::bvh::tree::LeafTriangle>(),
-    )
-}
-
-/// At most this much of a child is prefetched: a node's boxes, or a leaf's first seven
-/// triangles (prefetching whole 16-triangle leaves was no faster).
-const PREFETCH_BYTES: usize = 256;
-
-/// Prefetches the cache lines of `bytes` bytes from `start` (a hint: it never faults, so
-/// the range need not be valid).
-#[inline(always)]
-fn prefetch(start: *const u8, bytes: usize) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        let mut offset = 0;
-        while offset < bytes {
-            // SAFETY: a prefetch is only a hint: it reads nothing the program sees and never
-            // faults, whatever the address.
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(start.wrapping_add(offset) as *const i8) };
-            offset += 64;
+    if ray.box_entry(root.min, root.max, *t_far).is_infinite() {
+        return;
+    }
+    stack.push(0);
+    while let Some(index) = stack.pop() {
+        let node = &nodes[index as usize];
+        if node.count > 0 {
+            for slot in node.first..node.first + node.count {
+                if visit(slot, t_far) {
+                    return;
+                }
+            }
+            continue;
+        }
+        let (l, r) = (node.first, node.first + 1);
+        let (ln, rn) = (&nodes[l as usize], &nodes[r as usize]);
+        let tl = ray.box_entry(ln.min, ln.max, *t_far);
+        let tr = ray.box_entry(rn.min, rn.max, *t_far);
+        // Push the farther child first so the nearer one is popped next.
+        match (tl.is_finite(), tr.is_finite()) {
+            (true, true) if tl <= tr => stack.extend([r, l]),
+            (true, true) => stack.extend([l, r]),
+            (true, false) => stack.push(l),
+            (false, true) => stack.push(r),
+            (false, false) => {}
         }
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (start, bytes);
 }
 
 /// Visits the leaves whose boxes `ray` enters before `t_far` (nearer children first when
@@ -391,36 +314,75 @@ fn traverse_unordered<M: TreeMemory>(
     }
 }
 
+/// The nearest hit distance over every leaf triangle, one by one: what the tests check the
+/// traversals against.
+#[cfg(test)]
+pub(crate) fn brute_force_t(accel: &Accel, ray: &Ray) -> Option<f32> {
+    accel
+        .triangles
+        .iter()
+        .filter_map(|t| ray.hit_triangle(t.a, t.b, t.c, 0.0, f32::INFINITY))
+        .min_by(f32::total_cmp)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bvh::tree::Accel;
-    use crate::scene::knot_scene;
+    use crate::scene::{knot_scene, Scene};
     use glam::Vec3;
+    use std::time::Duration;
 
     #[test]
-    fn every_leaf_appears_once_in_the_collapsed_tree() {
-        let accel = Accel::build(&knot_scene(120, 16));
-        let wide = collapse(&accel.nodes);
-        let mut slots: Vec<u32> = wide
-            .iter()
-            .flat_map(|n| {
-                (0..WIDTH)
-                    .filter(|&k| n.count[k] != EMPTY && n.count[k] > 0)
-                    .flat_map(move |k| n.child[k]..n.child[k] + n.count[k])
-            })
-            .collect();
-        slots.sort_unstable();
-        assert_eq!(slots, (0..accel.triangles.len() as u32).collect::<Vec<_>>());
-        // About a third as many nodes as the binary tree has inner nodes, or fewer.
-        let inner = accel.nodes.iter().filter(|n| n.count == 0).count();
-        assert!(
-            wide.len() * 2 < inner,
-            "{} wide nodes for {inner} inner ones",
-            wide.len()
-        );
+    fn bvh_closest_hit_matches_brute_force() {
+        let scene = knot_scene(64, 12);
+        let accel = Accel::build(&scene);
+        let mut stack = accel.new_stack();
+        let center = scene.bounds().center();
+        for i in 0..400 {
+            let a = i as f32 * 0.37;
+            let origin =
+                center + Vec3::new(a.cos() * 9.0, 1.5 + (a * 0.7).sin() * 2.0, a.sin() * 9.0);
+            let ray = Ray::new(
+                origin,
+                center - origin + Vec3::new((a * 3.1).sin(), 0.0, 0.0),
+            );
+            let got = accel
+                .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
+                .map(|h| h.t);
+            let brute = brute_force_t(&accel, &ray);
+            assert_eq!(got, brute, "ray {i}");
+            assert_eq!(
+                accel.occluded(&ray, 0.0, f32::INFINITY, &mut stack),
+                brute.is_some()
+            );
+        }
     }
 
+    #[test]
+    fn single_rays_give_the_portable_answers_on_the_simd_build() {
+        let scene = knot_scene(96, 12);
+        let accel = Accel::build(&scene);
+        let mut stack = accel.new_stack();
+        let center = scene.bounds().center();
+        for i in 0..500 {
+            let a = i as f32 * 0.53;
+            let origin = center + Vec3::new(a.cos() * 7.0, 2.0 + a.sin(), (a * 1.3).sin() * 7.0);
+            let ray = Ray::new(origin, center - origin + Vec3::new(a.sin(), 0.0, a.cos()));
+            let t_max = if i % 2 == 0 { f32::INFINITY } else { 9.0 };
+            assert_eq!(
+                accel.closest_hit(&ray, 0.0, t_max, &mut stack),
+                accel.closest_hit_generic(&ray, 0.0, t_max, &mut stack),
+                "ray {i}"
+            );
+            assert_eq!(
+                accel.occluded(&ray, 0.0, t_max, &mut stack),
+                accel.occluded_generic(&ray, 0.0, t_max, &mut stack),
+                "ray {i}"
+            );
+        }
+    }
+
+    /// Render nodes with different core counts must build the same tree: the leaf order
     /// The AVX2 node test gives the portable one's mask and entry distances, on a collapsed
     /// tree's real nodes (with empty slots) and rays from inside and outside, some parallel
     /// to an axis.
@@ -444,7 +406,7 @@ mod tests {
                 ) * 0.5;
                 let dir = match r % 4 {
                     0 => Vec3::X,
-                    1 if node.count[k] != EMPTY => centre - origin,
+                    1 if node.count[k] != crate::bvh::node::EMPTY => centre - origin,
                     _ => Vec3::new((f * 0.7).cos(), (f * 1.3).sin(), (f * 0.3).cos() - 0.2),
                 };
                 let ray = Ray::new(origin, dir);
@@ -452,7 +414,8 @@ mod tests {
                 let t_far = if r % 3 == 0 { f32::INFINITY } else { 1.5 };
                 let portable = enter_mask(node, o, inv, t_far);
                 // SAFETY: the CPU has AVX2, checked above.
-                let avx2 = unsafe { enter_mask_avx2(node, o, inv, t_far) };
+                let avx2 =
+                    unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, o, inv, t_far) };
                 assert_eq!(avx2.1, portable.1, "node {n} ray {r}");
                 for k in (0..WIDTH).filter(|k| portable.1 >> k & 1 == 1) {
                     assert_eq!(avx2.0[k], portable.0[k], "node {n} ray {r} child {k}");
@@ -463,29 +426,74 @@ mod tests {
         assert!(seen > 100, "the rays must enter some boxes ({seen})");
     }
 
+    /// Builds on another thread and fails if it does not finish within `limit`: a hang guard,
+    /// the build itself takes well under a second.
+    fn build_within(scene: Scene, limit: Duration) -> (Scene, Accel) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let accel = Accel::build(&scene);
+            let _ = tx.send((scene, accel));
+        });
+        rx.recv_timeout(limit)
+            .expect("the BVH build did not finish: PLOC stuck among equal boxes?")
+    }
+
+    fn assert_each_triangle_once(scene: &Scene, accel: &Accel) {
+        let mut seen = accel.scene_index.clone();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..scene.triangles.len() as u32).collect::<Vec<_>>());
+    }
+
     #[test]
-    fn a_ray_on_a_slab_plane_parallel_to_it_still_enters() {
-        let mut node = BLANK;
-        set_child(
-            &mut node,
-            0,
-            &BvhNode {
-                min: Vec3::ZERO,
-                max: Vec3::ONE,
-                first: 0,
-                count: 1,
-            },
-            0,
-        );
-        // Origin on the x = 0 plane, moving along y: (0 - 0) * inf is NaN on x.
-        let ray = Ray::new(Vec3::new(0.0, -1.0, 0.5), Vec3::Y);
-        let t = enter_wide(
-            &node,
-            ray.origin.to_array(),
-            finite_inverse(&ray),
-            f32::INFINITY,
-        );
-        assert_eq!(t[0], 1.0);
-        assert!(t[1..].iter().all(|t| *t == f32::INFINITY));
+    fn a_million_copies_of_one_triangle_build_and_are_hit() {
+        let n = 1_000_000;
+        let scene = Scene {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+            triangles: vec![[0, 1, 2]; n],
+            triangle_material: vec![0; n],
+            materials: vec![crate::scene::NEUTRAL],
+            ..Scene::default()
+        };
+        let (scene, accel) = build_within(scene, Duration::from_secs(120));
+        assert_each_triangle_once(&scene, &accel);
+        let mut stack = accel.new_stack();
+        let down = Ray::new(Vec3::new(0.25, 0.25, 2.0), Vec3::NEG_Z);
+        let hit = accel
+            .closest_hit(&down, 0.0, f32::INFINITY, &mut stack)
+            .unwrap();
+        assert_eq!(hit.t, 2.0);
+        let beside = Ray::new(Vec3::new(0.75, 0.75, 2.0), Vec3::NEG_Z);
+        assert!(accel
+            .closest_hit(&beside, 0.0, f32::INFINITY, &mut stack)
+            .is_none());
+    }
+
+    #[test]
+    fn a_mesh_with_a_stack_of_copies_traces_as_brute_force_does() {
+        let mut scene = knot_scene(64, 12);
+        let base = scene.positions.len() as u32;
+        let centre = scene.bounds().center();
+        scene
+            .positions
+            .extend([centre, centre + Vec3::X, centre + Vec3::Z]);
+        for _ in 0..5000 {
+            scene.triangles.push([base, base + 1, base + 2]);
+            scene.triangle_material.push(0);
+        }
+        let (scene, accel) = build_within(scene, Duration::from_secs(120));
+        assert_each_triangle_once(&scene, &accel);
+        let mut stack = accel.new_stack();
+        for i in 0..300 {
+            let a = i as f32 * 0.41;
+            let origin = centre + Vec3::new(a.cos() * 9.0, 3.0 + a.sin(), a.sin() * 9.0);
+            let ray = Ray::new(
+                origin,
+                centre + Vec3::new(0.3, 0.0, 0.3) * (a * 1.7).sin() - origin,
+            );
+            let got = accel
+                .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
+                .map(|h| h.t);
+            assert_eq!(got, brute_force_t(&accel, &ray), "ray {i}");
+        }
     }
 }

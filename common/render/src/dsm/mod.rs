@@ -34,7 +34,7 @@ pub use prepare::{Manifest, PrepareError};
 pub use reader::SharedReader;
 pub use shared::{BlockFetch, SharedStats, SharedTree};
 
-use crate::bvh::tree::Accel;
+use crate::bvh::Accel;
 use crate::PreparedScene;
 
 impl PreparedScene {

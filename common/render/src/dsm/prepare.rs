@@ -9,8 +9,8 @@
 
 use super::layout::{Block, BlockLayout, Chunk, LayoutError};
 use super::reorder::reorder_for_blocks;
-use crate::bvh::traverse_ray::WideNode;
-use crate::bvh::tree::{Accel, LeafTriangle};
+use crate::bvh::node::{LeafTriangle, WideNode};
+use crate::bvh::Accel;
 use crate::scene::{Light, Material, Scene};
 use crate::slot_materials::SlotMaterials;
 use serde::{Deserialize, Serialize};

@@ -14,8 +14,7 @@
 use super::layout::{nodes_of, Chunk, FastDiv};
 use super::shared::{Hold, SharedTree};
 use crate::bvh::memory::{NoPrefetch, TreeMemory};
-use crate::bvh::traverse_ray::WideNode;
-use crate::bvh::tree::LeafTriangle;
+use crate::bvh::node::{LeafTriangle, WideNode};
 use std::ops::Range;
 use tessera_core::dsm::BlockId;
 
