@@ -11,7 +11,8 @@
 //! whose files use one another in one direction only (the layers are in its documentation).
 //! Above it, [`Tracer`] picks the memory a render thread reads the tree from (this process's
 //! arrays or the distributed shared memory, [`dsm`]), and shading (`frame`, `shade`,
-//! `shadow_packet`, [`aov`]) traces through a `Tracer`.
+//! `shadow_packet`, [`aov`]) traces through a `Tracer`. The SIMD build of the traversals is
+//! chosen at run time, the same way for every entry point (`isa_builds!` in [`isa`]).
 //!
 //! It depends on `tessera-wire` for the state it renders with (camera, parameters, scene name,
 //! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);

@@ -43,8 +43,8 @@ impl<'s> Tracer<'s> {
         use crate::bvh::traverse_packet::closest_hits_on;
         let (stack, isa) = (&mut self.stack, Isa::best());
         match &mut self.memory {
-            Memory::Resident(m) => closest_hits_on(m, isa, packet, hits, stack),
-            Memory::Shared(m) => closest_hits_on(m, isa, packet, hits, stack),
+            Memory::Resident(m) => closest_hits_on(isa, m, packet, hits, stack),
+            Memory::Shared(m) => closest_hits_on(isa, m, packet, hits, stack),
         }
     }
 
@@ -53,8 +53,8 @@ impl<'s> Tracer<'s> {
         use crate::bvh::traverse_packet::occluded_lanes_on;
         let (stack, isa) = (&mut self.stack, Isa::best());
         match &mut self.memory {
-            Memory::Resident(m) => occluded_lanes_on(m, isa, packet, stack),
-            Memory::Shared(m) => occluded_lanes_on(m, isa, packet, stack),
+            Memory::Resident(m) => occluded_lanes_on(isa, m, packet, stack),
+            Memory::Shared(m) => occluded_lanes_on(isa, m, packet, stack),
         }
     }
 

@@ -25,7 +25,7 @@ use crate::bvh::node_test_ray::{enter_wide, finite};
 use crate::bvh::traverse_ray;
 use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
-use crate::isa::Isa;
+use crate::isa::{isa_builds, Isa, Runnable};
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
 
@@ -38,7 +38,7 @@ impl Accel {
         hits: &mut [PacketHit; PACKET_RAYS],
         stack: &mut Vec<u32>,
     ) {
-        closest_hits_on(&mut self.resident(), Isa::best(), packet, hits, stack);
+        closest_hits_on(Isa::best(), &mut self.resident(), packet, hits, stack);
     }
 
     /// [`Accel::closest_hits`] on the build `isa` (the portable one if the CPU lacks it).
@@ -49,67 +49,38 @@ impl Accel {
         hits: &mut [PacketHit; PACKET_RAYS],
         stack: &mut Vec<u32>,
     ) {
-        closest_hits_on(&mut self.resident(), isa, packet, hits, stack);
+        closest_hits_on(isa, &mut self.resident(), packet, hits, stack);
     }
 
     /// Which rays of the packet hit a triangle within their interval, as bits (ray i is bit
     /// i): shadow rays, which stop at the first hit. Rays need no common origin; the answer is
     /// the same as [`Accel::occluded`] ray by ray.
     pub fn occluded_lanes(&self, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
-        occluded_lanes_on(&mut self.resident(), Isa::best(), packet, stack)
+        occluded_lanes_on(Isa::best(), &mut self.resident(), packet, stack)
     }
 
     /// [`Accel::occluded_lanes`] on the build `isa` (the portable one if the CPU lacks it).
     pub fn occluded_lanes_on(&self, isa: Isa, packet: &mut RayPacket, stack: &mut Vec<u32>) -> u64 {
-        occluded_lanes_on(&mut self.resident(), isa, packet, stack)
+        occluded_lanes_on(isa, &mut self.resident(), packet, stack)
     }
 }
 
-/// [`Accel::closest_hits`] of the tree in `mem`, on the build `isa` (the portable one if the
-/// CPU lacks it).
-pub fn closest_hits_on<M: TreeMemory>(
-    mem: &mut M,
-    isa: Isa,
-    packet: &mut RayPacket,
-    hits: &mut [PacketHit; PACKET_RAYS],
-    stack: &mut Vec<u32>,
-) {
-    #[cfg(target_arch = "x86_64")]
-    if isa.is_available() {
-        match isa {
-            // SAFETY: the CPU has the features, checked just above.
-            Isa::Avx512 => return unsafe { closest_hits_avx512(mem, packet, hits, stack) },
-            Isa::Avx2 => return unsafe { closest_hits_avx2(mem, packet, hits, stack) },
-            Isa::Portable => {}
-        }
-    }
-    closest_hits_generic(mem, packet, hits, stack);
+isa_builds! {
+    /// [`Accel::closest_hits`] of the tree in `mem`, on the build `isa` (the portable one if
+    /// the CPU lacks it).
+    pub fn closest_hits_on<M: TreeMemory>(
+        mem: &mut M,
+        packet: &mut RayPacket,
+        hits: &mut [PacketHit; PACKET_RAYS],
+        stack: &mut Vec<u32>,
+    ) = closest_hits_kernel on [Avx2, Avx512];
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn closest_hits_avx2<M: TreeMemory>(
-    mem: &mut M,
-    packet: &mut RayPacket,
-    hits: &mut [PacketHit; PACKET_RAYS],
-    stack: &mut Vec<u32>,
-) {
-    closest_hits_generic(mem, packet, hits, stack);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
-unsafe fn closest_hits_avx512<M: TreeMemory>(
-    mem: &mut M,
-    packet: &mut RayPacket,
-    hits: &mut [PacketHit; PACKET_RAYS],
-    stack: &mut Vec<u32>,
-) {
-    closest_hits_generic(mem, packet, hits, stack);
-}
-
+/// [`closest_hits_on`] on one build: the same code in each, which the build's target features
+/// let the compiler run 8 or 16 lanes wide.
 #[inline(always)]
-fn closest_hits_generic<M: TreeMemory>(
+fn closest_hits_kernel<M: TreeMemory>(
+    _: Runnable,
     mem: &mut M,
     packet: &mut RayPacket,
     hits: &mut [PacketHit; PACKET_RAYS],
@@ -129,47 +100,20 @@ fn closest_hits_generic<M: TreeMemory>(
     traverse_packet::<M, true, false>(mem, packet, hits, stack);
 }
 
-/// [`Accel::occluded_lanes`] of the tree in `mem`, on the build `isa`.
-pub fn occluded_lanes_on<M: TreeMemory>(
-    mem: &mut M,
-    isa: Isa,
-    packet: &mut RayPacket,
-    stack: &mut Vec<u32>,
-) -> u64 {
-    #[cfg(target_arch = "x86_64")]
-    if isa.is_available() {
-        match isa {
-            // SAFETY: the CPU has the features, checked just above.
-            Isa::Avx512 => return unsafe { occluded_lanes_avx512(mem, packet, stack) },
-            Isa::Avx2 => return unsafe { occluded_lanes_avx2(mem, packet, stack) },
-            Isa::Portable => {}
-        }
-    }
-    occluded_lanes_generic(mem, packet, stack)
+isa_builds! {
+    /// [`Accel::occluded_lanes`] of the tree in `mem`, on the build `isa` (the portable one if
+    /// the CPU lacks it).
+    pub fn occluded_lanes_on<M: TreeMemory>(
+        mem: &mut M,
+        packet: &mut RayPacket,
+        stack: &mut Vec<u32>,
+    ) -> u64 = occluded_lanes_kernel on [Avx2, Avx512];
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn occluded_lanes_avx2<M: TreeMemory>(
-    mem: &mut M,
-    packet: &mut RayPacket,
-    stack: &mut Vec<u32>,
-) -> u64 {
-    occluded_lanes_generic(mem, packet, stack)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
-unsafe fn occluded_lanes_avx512<M: TreeMemory>(
-    mem: &mut M,
-    packet: &mut RayPacket,
-    stack: &mut Vec<u32>,
-) -> u64 {
-    occluded_lanes_generic(mem, packet, stack)
-}
-
+/// [`occluded_lanes_on`] on one build.
 #[inline(always)]
-fn occluded_lanes_generic<M: TreeMemory>(
+fn occluded_lanes_kernel<M: TreeMemory>(
+    _: Runnable,
     mem: &mut M,
     packet: &mut RayPacket,
     stack: &mut Vec<u32>,

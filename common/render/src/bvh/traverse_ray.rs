@@ -8,11 +8,13 @@
 
 use crate::bvh::leaf_ray;
 use crate::bvh::memory::{ChildPrefetch, TreeMemory};
-use crate::bvh::node::{BvhNode, Hit, WIDTH};
+use crate::bvh::node::{BvhNode, Hit, WideNode, WIDTH};
+#[cfg(target_arch = "x86_64")]
+use crate::bvh::node_test_ray::enter_mask_avx2;
 use crate::bvh::node_test_ray::{enter_mask, finite_inverse, NodeTest};
 use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
-use crate::isa::Isa;
+use crate::isa::{isa_builds, Isa, Runnable};
 
 impl Accel {
     /// The nearest triangle hit in `(t_min, t_max)`. Of hits at the same distance the lowest
@@ -36,7 +38,8 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> Option<Hit> {
-        closest_hit_with(&mut self.resident(), ray, (t_min, t_max), stack, enter_mask)
+        let interval = (t_min, t_max);
+        closest_hit_on(Isa::Portable, &mut self.resident(), ray, interval, stack)
     }
 
     /// Whether anything blocks the ray in `(t_min, t_max)`; stops at the first blocker.
@@ -52,7 +55,13 @@ impl Accel {
         t_max: f32,
         stack: &mut Vec<u32>,
     ) -> bool {
-        occluded_with(&mut self.resident(), ray, (t_min, t_max), stack, enter_mask)
+        occluded_on(
+            Isa::Portable,
+            &mut self.resident(),
+            ray,
+            (t_min, t_max),
+            stack,
+        )
     }
 }
 
@@ -64,42 +73,34 @@ pub fn closest_hit<M: TreeMemory>(
     interval: (f32, f32),
     stack: &mut Vec<u32>,
 ) -> Option<Hit> {
-    #[cfg(target_arch = "x86_64")]
-    if Isa::best() != Isa::Portable {
-        // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
-        return unsafe { closest_hit_avx2(mem, ray, interval, stack) };
-    }
-    closest_hit_with(mem, ray, interval, stack, enter_mask)
+    closest_hit_on(Isa::best(), mem, ray, interval, stack)
 }
 
-/// [`closest_hit`] with the wide node tests 8 lanes wide.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn closest_hit_avx2<M: TreeMemory>(
-    mem: &mut M,
-    ray: &Ray,
-    interval: (f32, f32),
-    stack: &mut Vec<u32>,
-) -> Option<Hit> {
-    closest_hit_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
-        // SAFETY: this function runs only where the CPU has AVX2.
-        unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, origin, inv, t_far) }
-    })
+isa_builds! {
+    /// [`closest_hit`] on the build `isa`. Single rays have an AVX2 build and no wider one: the
+    /// node test is AVX2 intrinsics ([`enter_mask_avx2`]), and AVX-512 CPUs run that build.
+    pub fn closest_hit_on<M: TreeMemory>(
+        mem: &mut M,
+        ray: &Ray,
+        interval: (f32, f32),
+        stack: &mut Vec<u32>,
+    ) -> Option<Hit> = closest_hit_kernel on [Avx2];
 }
 
-/// [`closest_hit`] with `enter` testing the ray against a wide node's children. A leaf is
-/// tested in the pieces the memory holds it in (one, unless it straddles two shared blocks):
-/// hits compare by distance and then slot, so the pieces give the whole leaf's answer.
+/// [`closest_hit`] on `build`. A leaf is tested in the pieces the memory holds it in (one,
+/// unless it straddles two shared blocks): hits compare by distance and then slot, so the
+/// pieces give the whole leaf's answer.
 #[inline(always)]
-fn closest_hit_with<M: TreeMemory>(
+fn closest_hit_kernel<M: TreeMemory>(
+    build: Runnable,
     mem: &mut M,
     ray: &Ray,
     (t_min, t_max): (f32, f32),
     stack: &mut Vec<u32>,
-    enter: impl NodeTest,
 ) -> Option<Hit> {
     let mut best: Option<Hit> = None;
     let mut t_far = t_max;
+    let enter = node_test(build);
     traverse_wide::<true, M>(mem, enter, ray, stack, &mut t_far, |mem, slots, t_far| {
         let mut at = slots.start;
         while at < slots.end {
@@ -123,39 +124,31 @@ pub fn occluded<M: TreeMemory>(
     interval: (f32, f32),
     stack: &mut Vec<u32>,
 ) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    if Isa::best() != Isa::Portable {
-        // SAFETY: best() is a build this CPU runs, and every one above portable has AVX2.
-        return unsafe { occluded_avx2(mem, ray, interval, stack) };
-    }
-    occluded_with(mem, ray, interval, stack, enter_mask)
+    occluded_on(Isa::best(), mem, ray, interval, stack)
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn occluded_avx2<M: TreeMemory>(
-    mem: &mut M,
-    ray: &Ray,
-    interval: (f32, f32),
-    stack: &mut Vec<u32>,
-) -> bool {
-    occluded_with(mem, ray, interval, stack, |node, origin, inv, t_far| {
-        // SAFETY: this function runs only where the CPU has AVX2.
-        unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, origin, inv, t_far) }
-    })
+isa_builds! {
+    /// [`occluded`] on the build `isa` (an AVX2 build and no wider, as [`closest_hit_on`]).
+    pub fn occluded_on<M: TreeMemory>(
+        mem: &mut M,
+        ray: &Ray,
+        interval: (f32, f32),
+        stack: &mut Vec<u32>,
+    ) -> bool = occluded_kernel on [Avx2];
 }
 
-/// [`occluded`] with `enter` testing the ray against a wide node's children.
+/// [`occluded`] on `build`.
 #[inline(always)]
-fn occluded_with<M: TreeMemory>(
+fn occluded_kernel<M: TreeMemory>(
+    build: Runnable,
     mem: &mut M,
     ray: &Ray,
     (t_min, t_max): (f32, f32),
     stack: &mut Vec<u32>,
-    enter: impl NodeTest,
 ) -> bool {
     let mut t_far = t_max;
     let mut blocked = false;
+    let enter = node_test(build);
     traverse_wide::<ORDERED_OCCLUSION, M>(mem, enter, ray, stack, &mut t_far, |mem, slots, _| {
         let mut at = slots.start;
         while at < slots.end && !blocked {
@@ -166,6 +159,21 @@ fn occluded_with<M: TreeMemory>(
         blocked
     });
     blocked
+}
+
+/// The wide node test of `build`: AVX2 intrinsics on every build above portable. `build` is a
+/// constant in each build of a kernel, so the choice is made at compile time.
+#[inline(always)]
+fn node_test(build: Runnable) -> impl NodeTest {
+    move |node: &WideNode, origin: [f32; 3], inv: [f32; 3], t_far: f32| {
+        #[cfg(target_arch = "x86_64")]
+        if build.isa() != Isa::Portable {
+            // SAFETY: the CPU runs `build` (that is what a `Runnable` is), and every build above
+            // portable has AVX2.
+            return unsafe { enter_mask_avx2(node, origin, inv, t_far) };
+        }
+        enter_mask(node, origin, inv, t_far)
+    }
 }
 
 /// Whether occlusion rays visit nearer children first (see `traverse_wide`).
