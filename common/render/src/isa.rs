@@ -134,7 +134,7 @@ impl Runnable {
 /// Each listed build is the kernel compiled with that ISA's target features (the kernel must
 /// be `#[inline(always)]` so that it is compiled into each); portable is always there.
 ///
-/// ```ignore
+/// ```text
 /// isa_builds! {
 ///     /// Which rays of a packet are blocked, on the build `isa`.
 ///     pub fn occluded_lanes_on<M: TreeMemory>(mem: &mut M, packet: &mut RayPacket) -> u64

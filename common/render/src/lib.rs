@@ -10,9 +10,11 @@
 //! node and leaf tests, build, cache, and one traversal each for single rays and for packets,
 //! whose files use one another in one direction only (the layers are in its documentation).
 //! Above it, [`Tracer`] picks the memory a render thread reads the tree from (this process's
-//! arrays or the distributed shared memory, [`dsm`]), and shading (`frame`, `shade`,
-//! `shadow_packet`, [`aov`]) traces through a `Tracer`. The SIMD build of the traversals is
-//! chosen at run time, the same way for every entry point (`isa_builds!` in [`isa`]).
+//! arrays or the distributed shared memory, [`dsm`]), and shading traces through a `Tracer`:
+//! `frame` renders tiles, `shade` and `shadow_packet` both work from `surface_hit` (what a ray
+//! hit, and the geometry there) and not from each other, and [`aov`] draws the AOVs. The SIMD
+//! build of the traversals is chosen at run time, the same way for every entry point
+//! (`isa_builds!` in [`isa`]).
 //!
 //! It depends on `tessera-wire` for the state it renders with (camera, parameters, scene name,
 //! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);
@@ -38,6 +40,7 @@ mod shade;
 mod shadow_packet;
 pub mod slot_materials;
 pub mod spheres;
+mod surface_hit;
 mod tracer;
 mod views;
 pub mod volume;
@@ -51,8 +54,6 @@ pub use frame::{
 };
 pub use pixel_rays::{orbit_of, PixelRays};
 pub use reference::{render_wall, render_wall_linear};
-pub use shade::{
-    background, encode_srgb_ish, nearest_surface, offset_origin, surface, Shader, SurfaceHit,
-    MAX_DEPTH,
-};
+pub use shade::{background, encode_srgb_ish, Shader, MAX_DEPTH};
+pub use surface_hit::{nearest_surface, offset_origin, surface, SurfaceHit};
 pub use tracer::Tracer;

@@ -4,35 +4,20 @@
 //! Hit points of one 8×8 block lie close together and their rays share a direction
 //! (directional light) or an end (point light), so they traverse the same few BVH nodes; as
 //! single rays they cost five times a primary ray. The answers are the very ones single rays
-//! give (same rays, same intervals, same triangle test; see `bvh::traverse_packet`'s tests), so pixels
-//! do not change, only the time.
+//! give (same rays, same intervals, same triangle test; see `bvh::traverse_packet`'s tests), so
+//! pixels do not change, only the time. What a primary hit is, and the way to each light, are
+//! `surface_hit`'s, which shading reads too.
 
 use crate::geometry::Ray;
 use crate::packet::{RayPacket, PACKET_RAYS};
-use crate::shade::{
-    faces_light, hit_frame, iso_occludes, leaving_point, towards_light, SurfaceHit,
+use crate::surface_hit::{
+    faces_light, hit_frame, iso_occludes, leaving_point, towards_light, PrimaryHit, SurfaceHit,
+    PACKET_LIGHTS,
 };
 use crate::tracer::Tracer;
 use crate::{FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_wire::cut::CutPlanes;
-
-/// Lights whose shadows are traced as packets; further lights use single rays.
-pub const PACKET_LIGHTS: usize = 64;
-
-/// A primary hit as the shadow packets saw it, handed on to shading so it is not worked out
-/// twice.
-#[derive(Clone, Copy, Debug)]
-pub struct PrimaryHit {
-    pub point: Vec3,
-    /// Facing the viewer.
-    pub normal: Vec3,
-    /// Where rays leaving the surface start (see [`offset_origin`]).
-    pub start: Vec3,
-    /// Bit k set when light k (of the first [`PACKET_LIGHTS`]) is blocked. A light the surface
-    /// faces away from has no shadow ray, and its bit is unused.
-    pub blocked: u64,
-}
 
 /// For each lane with a surface: its hit, with the lights that are blocked.
 pub fn primary_shadows(
