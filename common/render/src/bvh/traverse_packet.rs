@@ -28,6 +28,7 @@ use crate::geometry::Ray;
 use crate::isa::{isa_builds, Isa, Runnable};
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
+use std::ops::Range;
 
 impl Accel {
     /// Closest hits of a whole packet (see the module documentation), on the widest SIMD
@@ -140,13 +141,6 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
     if mem.is_empty() || n == 0 {
         return 0;
     }
-    let all: u64 = if n == PACKET_RAYS {
-        u64::MAX
-    } else {
-        (1 << n) - 1
-    };
-    let mut blocked = 0u64;
-    let origin = packet.origin;
     let frustum = Frustum::of(packet);
     // Most packets of a view miss the whole scene (the sky around an object): they stop
     // here, before any per-lane set-up.
@@ -156,30 +150,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
         return 0;
     }
     let inv = *packet.inverse_directions();
-    let mut lanes = Lanes {
-        origin,
-        org: &packet.org,
-        finite_inv: inv.map(|axis| axis.map(finite)),
-        t: std::array::from_fn(|i| {
-            if i < n && packet.t_min[i] <= packet.t_max[i] {
-                packet.t_max[i]
-            } else {
-                f32::NEG_INFINITY
-            }
-        }),
-        t_min: packet.t_min,
-    };
-    // Rays for the scalar triangle test, made for the lanes that need one.
-    let mut rays = LazyRays::new(n);
-    let mut entry = [0f32; PACKET_RAYS];
-    // The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
-    let mut best_slot = [u32::MAX; PACKET_RAYS];
-    // Only closest-hit packets with one origin test leaves lane-wide (`leaf_packet`).
-    let sheared = if COMMON && !ANY {
-        ShearedLanes::of_directions(&packet.dir, n)
-    } else {
-        None
-    };
+    let mut walk = PacketWalk::new::<COMMON, ANY>(packet, inv);
     // Stack entries are triples (first active lane, 8-wide node, child slot): lanes before
     // the first active one missed an ancestor's box, so they miss every box below it. The
     // child's box and kind are read from its parent, where the 8-wide tree keeps them.
@@ -199,101 +170,231 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
         // (The frustum culled it before it was pushed.)
         let (child, count) = (parent.child[k], parent.count[k]);
         if count > 0 {
-            if !lanes.enter::<COMMON>(min, max, &mut entry) {
-                continue;
-            }
-            let active: [bool; PACKET_RAYS] = std::array::from_fn(|i| {
-                (i >= first as usize) & (i < n) & (entry[i] != f32::INFINITY)
-            });
-            // Lane-wide even for one lane: only the groups of 16 lanes that hold an active
-            // one are computed, and that beat the scalar test from 1 lane on (1 thread,
-            // AVX-512; the 4.2M knot 12.3 against 11.2 Mrays/s when it took over from 4
-            // lanes, the bunny 53.8 against 50.7).
-            if let Some(sheared) = sheared.as_ref() {
-                let mut redo = [false; PACKET_RAYS];
-                let groups = leaf_packet::active_groups(&active);
-                for slot in child..child + count {
-                    let tri = mem.triangle(slot);
-                    let again = sheared.hit(
-                        origin,
-                        tri,
-                        slot,
-                        (&active, groups),
-                        (&lanes.t_min, &packet.t_max),
-                        &mut lanes.t,
-                        &mut best_slot,
-                        &mut redo,
-                    );
-                    if !again {
-                        continue;
-                    }
-                    for i in (0..n).filter(|&i| redo[i]) {
-                        let hit = rays.get(i, origin, packet).hit_triangle(
-                            tri.a,
-                            tri.b,
-                            tri.c,
-                            lanes.t_min[i],
-                            packet.t_max[i],
-                        );
-                        let best = Some(Hit {
-                            t: lanes.t[i],
-                            slot: best_slot[i],
-                        });
-                        if let Some(t) = hit.filter(|&t| Hit::closer(t, slot, best)) {
-                            lanes.t[i] = t;
-                            best_slot[i] = slot;
-                        }
-                    }
-                }
-                continue;
-            }
-            for i in first as usize..n {
-                if entry[i] == f32::INFINITY {
-                    continue;
-                }
-                let ray = rays.get(i, origin, packet);
-                for slot in child..child + count {
-                    let tri = mem.triangle(slot);
-                    // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
-                    // so they agree with the single-ray traversal of the 8-wide tree.
-                    let t_max = if ANY { lanes.t[i] } else { packet.t_max[i] };
-                    if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], t_max) {
-                        if ANY {
-                            // Done with this ray: it enters no box from now on.
-                            blocked |= 1 << i;
-                            lanes.t[i] = f32::NEG_INFINITY;
-                            break;
-                        }
-                        let best = Some(Hit {
-                            t: lanes.t[i],
-                            slot: best_slot[i],
-                        });
-                        if Hit::closer(t, slot, best) {
-                            lanes.t[i] = t;
-                            best_slot[i] = slot;
-                        }
-                    }
-                }
-            }
-            if ANY && blocked == all {
+            if walk.leaf::<M, COMMON, ANY>(mem, first as usize, (min, max), child..child + count) {
                 break;
             }
             continue;
         }
+        walk.inner::<M, COMMON>(
+            mem,
+            (&frustum, hints),
+            stack,
+            first as usize,
+            (min, max),
+            child,
+        );
+    }
+    if !ANY {
+        walk.write_hits(hits);
+    }
+    walk.blocked
+}
+
+/// One packet's walk down the tree: its lanes, and what they have found so far.
+struct PacketWalk<'a> {
+    packet: &'a RayPacket,
+    n: usize,
+    lanes: Lanes<'a>,
+    /// Rays for the scalar triangle test, made for the lanes that need one.
+    rays: LazyRays,
+    /// Each lane's entry distance into the box last tested.
+    entry: [f32; PACKET_RAYS],
+    /// The closest hit's slot per lane (u32::MAX: none yet), written to `hits` at the end.
+    best_slot: [u32; PACKET_RAYS],
+    /// Only closest-hit packets with one origin test leaves lane-wide (`leaf_packet`).
+    sheared: Option<ShearedLanes>,
+    /// Rays with a hit, as bits, for shadow packets.
+    blocked: u64,
+    /// Every ray of the packet, as bits.
+    all: u64,
+}
+
+impl<'a> PacketWalk<'a> {
+    /// The walk of `packet`, whose inverse directions are `inv`.
+    #[inline(always)]
+    fn new<const COMMON: bool, const ANY: bool>(
+        packet: &'a RayPacket,
+        inv: [[f32; PACKET_RAYS]; 3],
+    ) -> Self {
+        let n = packet.len();
+        let lanes = Lanes {
+            origin: packet.origin,
+            org: &packet.org,
+            finite_inv: inv.map(|axis| axis.map(finite)),
+            t: std::array::from_fn(|i| {
+                if i < n && packet.t_min[i] <= packet.t_max[i] {
+                    packet.t_max[i]
+                } else {
+                    f32::NEG_INFINITY
+                }
+            }),
+            t_min: packet.t_min,
+        };
+        PacketWalk {
+            packet,
+            n,
+            lanes,
+            rays: LazyRays::new(n),
+            entry: [0f32; PACKET_RAYS],
+            best_slot: [u32::MAX; PACKET_RAYS],
+            sheared: if COMMON && !ANY {
+                ShearedLanes::of_directions(&packet.dir, n)
+            } else {
+                None
+            },
+            blocked: 0,
+            all: if n == PACKET_RAYS {
+                u64::MAX
+            } else {
+                (1 << n) - 1
+            },
+        }
+    }
+
+    /// Tests the leaf of triangles `slots`, in the box `(min, max)`, against the lanes from
+    /// `first` on; true when every ray of a shadow packet is blocked, and the walk is done.
+    #[inline(always)]
+    fn leaf<M: TreeMemory, const COMMON: bool, const ANY: bool>(
+        &mut self,
+        mem: &mut M,
+        first: usize,
+        (min, max): (Vec3, Vec3),
+        slots: Range<u32>,
+    ) -> bool {
+        if !self.lanes.enter::<COMMON>(min, max, &mut self.entry) {
+            return false;
+        }
+        // Lane-wide even for one lane: only the groups of 16 lanes that hold an active
+        // one are computed, and that beat the scalar test from 1 lane on (1 thread,
+        // AVX-512; the 4.2M knot 12.3 against 11.2 Mrays/s when it took over from 4
+        // lanes, the bunny 53.8 against 50.7).
+        if self.sheared.is_some() {
+            self.leaf_lane_wide(mem, first, slots);
+            return false;
+        }
+        self.leaf_ray_by_ray::<M, ANY>(mem, first, slots);
+        ANY && self.blocked == self.all
+    }
+
+    /// [`PacketWalk::leaf`] one triangle at a time across the lanes (`leaf_packet`), the scalar
+    /// test redoing the lanes it hands back.
+    #[inline(always)]
+    fn leaf_lane_wide<M: TreeMemory>(&mut self, mem: &mut M, first: usize, slots: Range<u32>) {
+        let Some(sheared) = self.sheared.as_ref() else {
+            return;
+        };
+        let (n, entry) = (self.n, &self.entry);
+        let active: [bool; PACKET_RAYS] =
+            std::array::from_fn(|i| (i >= first) & (i < n) & (entry[i] != f32::INFINITY));
+        let (packet, origin) = (self.packet, self.lanes.origin);
+        let mut redo = [false; PACKET_RAYS];
+        let groups = leaf_packet::active_groups(&active);
+        for slot in slots {
+            let tri = mem.triangle(slot);
+            let again = sheared.hit(
+                origin,
+                tri,
+                slot,
+                (&active, groups),
+                (&self.lanes.t_min, &packet.t_max),
+                &mut self.lanes.t,
+                &mut self.best_slot,
+                &mut redo,
+            );
+            if !again {
+                continue;
+            }
+            for i in (0..n).filter(|&i| redo[i]) {
+                let hit = self.rays.get(i, origin, packet).hit_triangle(
+                    tri.a,
+                    tri.b,
+                    tri.c,
+                    self.lanes.t_min[i],
+                    packet.t_max[i],
+                );
+                let best = Some(Hit {
+                    t: self.lanes.t[i],
+                    slot: self.best_slot[i],
+                });
+                if let Some(t) = hit.filter(|&t| Hit::closer(t, slot, best)) {
+                    self.lanes.t[i] = t;
+                    self.best_slot[i] = slot;
+                }
+            }
+        }
+    }
+
+    /// [`PacketWalk::leaf`] ray by ray, each entering lane against every triangle; a shadow
+    /// ray stops at its first hit.
+    #[inline(always)]
+    fn leaf_ray_by_ray<M: TreeMemory, const ANY: bool>(
+        &mut self,
+        mem: &mut M,
+        first: usize,
+        slots: Range<u32>,
+    ) {
+        let (packet, origin) = (self.packet, self.lanes.origin);
+        for i in first..self.n {
+            if self.entry[i] == f32::INFINITY {
+                continue;
+            }
+            let ray = self.rays.get(i, origin, packet);
+            for slot in slots.clone() {
+                let tri = mem.triangle(slot);
+                // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
+                // so they agree with the single-ray traversal of the 8-wide tree.
+                let t_max = if ANY {
+                    self.lanes.t[i]
+                } else {
+                    packet.t_max[i]
+                };
+                let lanes = &mut self.lanes;
+                if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, lanes.t_min[i], t_max) {
+                    if ANY {
+                        // Done with this ray: it enters no box from now on.
+                        self.blocked |= 1 << i;
+                        lanes.t[i] = f32::NEG_INFINITY;
+                        break;
+                    }
+                    let best = Some(Hit {
+                        t: lanes.t[i],
+                        slot: self.best_slot[i],
+                    });
+                    if Hit::closer(t, slot, best) {
+                        lanes.t[i] = t;
+                        self.best_slot[i] = slot;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Pushes the children of inner node `child` (in the box `(min, max)`) that the frustum
+    /// keeps, if a lane from `first` on enters the box.
+    #[inline(always)]
+    fn inner<M: TreeMemory, const COMMON: bool>(
+        &mut self,
+        mem: &mut M,
+        (frustum, hints): (&Frustum, M::Prefetch),
+        stack: &mut Vec<u32>,
+        first: usize,
+        (min, max): (Vec3, Vec3),
+        child: u32,
+    ) {
         // Inner nodes test the first active ray alone (Wald's "first hit" packet
         // traversal): for coherent rays it usually enters, and the node costs one ray's
         // box test. If it misses, all lanes are tested at once, which is cheaper than
         // trying them one by one when none enters (a frequent case for 8-wide siblings).
-        let first = first as usize;
+        let lanes = &self.lanes;
         let active = if lanes.enters::<COMMON>(first, min, max) {
             first
-        } else if lanes.enter::<COMMON>(min, max, &mut entry) {
-            match (first + 1..n).find(|&i| entry[i] < f32::INFINITY) {
+        } else if lanes.enter::<COMMON>(min, max, &mut self.entry) {
+            match (first + 1..self.n).find(|&i| self.entry[i] < f32::INFINITY) {
                 Some(i) => i,
-                None => continue,
+                None => return,
             }
         } else {
-            continue;
+            return;
         };
         // Every child the frustum keeps is pushed: other lanes may enter what the active
         // ray misses. Those it misses (or enters beyond its closest hit) go deepest; those
@@ -332,14 +433,16 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
             stack.extend([active as u32, child, k as u32]);
         }
     }
-    if !ANY {
-        for i in 0..n {
-            if best_slot[i] != u32::MAX {
-                hits[i] = PacketHit::new(lanes.t[i], best_slot[i]);
+
+    /// The closest hits found, into `hits` (which the caller has filled with misses).
+    #[inline(always)]
+    fn write_hits(&self, hits: &mut [PacketHit; PACKET_RAYS]) {
+        for i in 0..self.n {
+            if self.best_slot[i] != u32::MAX {
+                hits[i] = PacketHit::new(self.lanes.t[i], self.best_slot[i]);
             }
         }
     }
-    blocked
 }
 
 /// The packet's rays as [`Ray`]s for the scalar triangle test, each made on first use: most
