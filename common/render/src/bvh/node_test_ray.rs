@@ -102,14 +102,15 @@ pub(crate) unsafe fn enter_mask_avx2(
         far = _mm256_min_ps(_mm256_max_ps(t0, t1), far);
     }
     let entered = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32;
-    // SAFETY: `count` holds 8 u32s.
+    // SAFETY: `count` holds 8 u32s, the 32 bytes the load reads, and an unaligned load
+    // needs no alignment.
     let count = unsafe { _mm256_loadu_si256(node.count.as_ptr() as *const __m256i) };
     let empty = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
         count,
         _mm256_set1_epi32(EMPTY as i32),
     ))) as u32;
     let mut out = [0f32; WIDTH];
-    // SAFETY: `out` holds 8 floats.
+    // SAFETY: `out` holds 8 floats, the 32 bytes the store writes, unaligned.
     unsafe { _mm256_storeu_ps(out.as_mut_ptr(), near) };
     (out, entered & !empty)
 }
