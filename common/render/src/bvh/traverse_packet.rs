@@ -25,7 +25,7 @@ use crate::bvh::node_test_ray::{enter_wide, finite};
 use crate::bvh::traverse_ray;
 use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
-use crate::isa::{isa_builds, Isa, Runnable};
+use crate::isa::{isa_builds, Build, Isa};
 use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
 use std::ops::Range;
@@ -81,7 +81,7 @@ isa_builds! {
 /// let the compiler run 8 or 16 lanes wide.
 #[inline(always)]
 fn closest_hits_kernel<M: TreeMemory>(
-    _: Runnable,
+    _: impl Build,
     mem: &mut M,
     packet: &mut RayPacket,
     hits: &mut [PacketHit; PACKET_RAYS],
@@ -114,7 +114,7 @@ isa_builds! {
 /// [`occluded_lanes_on`] on one build.
 #[inline(always)]
 fn occluded_lanes_kernel<M: TreeMemory>(
-    _: Runnable,
+    _: impl Build,
     mem: &mut M,
     packet: &mut RayPacket,
     stack: &mut Vec<u32>,
