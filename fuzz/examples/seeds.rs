@@ -121,7 +121,7 @@ fn check(root: &Path) {
     for seed in seeds(root, "bvh_cache") {
         let bytes = std::fs::read(&seed).unwrap();
         let triangles = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
-        tessera_render::accel_cache::decode_bytes(&bytes, triangles).unwrap();
+        tessera_render::bvh::cache::decode_bytes(&bytes, triangles).unwrap();
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -282,7 +282,7 @@ fn shared(root: &Path) {
         put(root, "dsm_wire", &format!("request{i}"), codec::encode(&request).unwrap());
     }
     let scene = tessera_render::scene::knot_scene(24, 4);
-    let accel = tessera_render::accel::Accel::build(&scene);
+    let accel = tessera_render::bvh::Accel::build(&scene);
     let (manifest, _) = tessera_render::dsm::prepare::blocks_of(&scene, &accel, 2048).unwrap();
     let text = serde_json::to_string_pretty(&manifest).unwrap();
     put(root, "dsm_manifest", "knot", text);
@@ -315,7 +315,7 @@ fn pixels(root: &Path) {
 fn bvh(root: &Path) {
     let dir = std::env::temp_dir().join(format!("tessera-seeds-{}", std::process::id()));
     let scene = tessera_render::scene::knot_scene(6, 3);
-    tessera_render::accel_cache::load_or_build(&scene, Some(&dir));
+    tessera_render::bvh::cache::load_or_build(&scene, Some(&dir));
     for entry in std::fs::read_dir(&dir).unwrap() {
         put(
             root,

@@ -20,7 +20,7 @@ fuzz_target!(|data: &[u8]| {
     let triangles = file.get(16..24).map_or(0, |b| {
         u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize
     });
-    if let Ok(accel) = tessera_render::accel_cache::decode_bytes(&file, triangles) {
+    if let Ok(accel) = tessera_render::bvh::cache::decode_bytes(&file, triangles) {
         assert_eq!(accel.triangles.len(), triangles);
         assert_eq!(accel.scene_index.len(), triangles);
     }

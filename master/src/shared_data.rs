@@ -64,7 +64,7 @@ pub struct PrepareArgs {
 
 /// Where a scene prepared in blocks of `block_bytes` goes unless told otherwise.
 pub fn default_dir(scene_hash: &[u8; 32], block_bytes: u32) -> Result<PathBuf> {
-    let base = tessera_render::accel_cache::default_cache_dir()
+    let base = tessera_render::bvh::cache::default_cache_dir()
         .and_then(|bvh| bvh.parent().map(Path::to_path_buf))
         .context("no home or cache directory to prepare the scene in: give --prepared DIR")?;
     let hash = prepare::hash_hex(scene_hash);
@@ -95,9 +95,9 @@ pub fn ensure_prepared(
         Err(why) => tracing::info!("preparing the scene again: {why}"),
     }
     let t0 = std::time::Instant::now();
-    let (accel, _) = tessera_render::accel_cache::load_or_build(
+    let (accel, _) = tessera_render::bvh::cache::load_or_build(
         scene,
-        tessera_render::accel_cache::default_cache_dir().as_deref(),
+        tessera_render::bvh::cache::default_cache_dir().as_deref(),
     );
     let bar = show_progress.then(|| {
         let bar = indicatif::ProgressBar::new(0);

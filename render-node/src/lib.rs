@@ -145,7 +145,7 @@ fn cache_dir(dir: Option<PathBuf>, disabled: bool) -> Option<PathBuf> {
     if disabled {
         None
     } else {
-        dir.or_else(tessera_render::accel_cache::default_cache_dir)
+        dir.or_else(tessera_render::bvh::cache::default_cache_dir)
     }
 }
 

@@ -166,7 +166,7 @@ async fn prepare(
             bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
         }
         let t0 = Instant::now();
-        let (accel, source) = pool.install(|| tessera_render::accel_cache::load_or_build(&scene, bvh_cache.as_deref()));
+        let (accel, source) = pool.install(|| tessera_render::bvh::cache::load_or_build(&scene, bvh_cache.as_deref()));
         tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
         let mut prepared = PreparedScene::from_accel(&scene, accel);
         prepared.slim_for_rendering();

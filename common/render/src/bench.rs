@@ -5,7 +5,7 @@
 //! (the hits of one primary packet together, as the renderer traces them) and as single rays. Each pass is timed alone so the figures
 //! compare with other tracers' (e.g. Embree's) ray-cast-only numbers.
 
-use crate::accel::Hit;
+use crate::bvh::node::Hit;
 use crate::geometry::Ray;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
 use crate::sampling::{Hemisphere, SampleStream};
@@ -65,6 +65,41 @@ pub fn time_passes(
     let blocks: Vec<(u32, u32)> = (0..height.div_ceil(PACKET))
         .flat_map(|by| (0..width.div_ceil(PACKET)).map(move |bx| (bx * PACKET, by * PACKET)))
         .collect();
+    let (primary, block_hits) = time_primary(scene, view, &blocks, (width, height));
+    let traced: Vec<(RayPacket, [PacketHit; PACKET_RAYS])> = blocks
+        .iter()
+        .zip(block_hits)
+        .map(|(&(x0, y0), hits)| {
+            let (w, h) = (PACKET.min(width - x0), PACKET.min(height - y0));
+            (RayPacket::primary(&view.rays, x0, y0, w, h), hits)
+        })
+        .collect();
+    let starts = ray_starts(scene, view, &traced);
+    let towards = scene.lights().first().map(|l| match *l {
+        Light::Directional { towards, .. } => towards,
+        Light::Point { position, .. } => position.normalize_or_zero(),
+    });
+    let reach = match ao_reach {
+        AoReach::Renderer => scene.diagonal * view.params.ao_range(),
+        AoReach::Unbounded => f32::INFINITY,
+    };
+    PassTimes {
+        hits: starts.len() as u64,
+        primary,
+        shadow: time_shadow_packets(scene, view, &traced, towards),
+        shadow_single: time_shadow_rays(scene, &starts, towards),
+        ambient: time_ambient(scene, view, &starts, (ao_samples, reach)),
+    }
+}
+
+/// Times the primary rays of `blocks` (8×8 packets of the `width × height` image), and returns
+/// each block's hits.
+fn time_primary(
+    scene: &PreparedScene,
+    view: &FrameView,
+    blocks: &[(u32, u32)],
+    (width, height): (u32, u32),
+) -> (Pass, Vec<[PacketHit; PACKET_RAYS]>) {
     // Only the traversal is timed: the hits go to a buffer allocated and touched before the
     // clock starts (collecting packets inside the timed loop cost page faults and copies of
     // ~110 MB a frame at 1920x1080, which no tracer's ray rate includes), and the packets are
@@ -82,18 +117,19 @@ pub fn time_passes(
                 tracer.closest_hits(&mut packet, hits);
             },
         );
-    let primary_pass = Pass {
+    let pass = Pass {
         rays: (width * height) as u64,
         seconds: t0.elapsed().as_secs_f64(),
     };
-    let traced: Vec<(RayPacket, [PacketHit; PACKET_RAYS])> = blocks
-        .iter()
-        .zip(block_hits)
-        .map(|(&(x0, y0), hits)| {
-            let (w, h) = (PACKET.min(width - x0), PACKET.min(height - y0));
-            (RayPacket::primary(&view.rays, x0, y0, w, h), hits)
-        })
-        .collect();
+    (pass, block_hits)
+}
+
+/// Where the secondary rays of each primary hit start, and the surface normal there.
+fn ray_starts(
+    scene: &PreparedScene,
+    view: &FrameView,
+    traced: &[(RayPacket, [PacketHit; PACKET_RAYS])],
+) -> Vec<(Vec3, Vec3)> {
     let primary: Vec<(Vec3, Vec3, Option<Hit>)> = traced
         .iter()
         .flat_map(|(packet, hits)| {
@@ -106,7 +142,7 @@ pub fn time_passes(
             })
         })
         .collect();
-    let starts: Vec<(Vec3, Vec3)> = primary
+    primary
         .par_iter()
         .map_init(
             || scene.tracer(),
@@ -114,12 +150,17 @@ pub fn time_passes(
         )
         .flatten()
         .map(|(p, n)| (offset_origin(p, n, scene.diagonal), n))
-        .collect();
-    let towards = scene.lights().first().map(|l| match *l {
-        Light::Directional { towards, .. } => towards,
-        Light::Point { position, .. } => position.normalize_or_zero(),
-    });
-    // Shadow packets: the hit points of one primary packet, in order.
+        .collect()
+}
+
+/// Times shadow rays towards the light as packets: the hit points of one primary packet, in
+/// order, as the renderer traces them.
+fn time_shadow_packets(
+    scene: &PreparedScene,
+    view: &FrameView,
+    traced: &[(RayPacket, [PacketHit; PACKET_RAYS])],
+    towards: Option<Vec3>,
+) -> Pass {
     let packets: Vec<Vec<Vec3>> = traced
         .par_iter()
         .map_init(
@@ -150,10 +191,14 @@ pub fn time_passes(
             .sum(),
         None => 0,
     };
-    let shadow = Pass {
+    Pass {
         rays: shadow_packets,
         seconds: t_packets.elapsed().as_secs_f64(),
-    };
+    }
+}
+
+/// Times the same shadow rays one by one.
+fn time_shadow_rays(scene: &PreparedScene, starts: &[(Vec3, Vec3)], towards: Option<Vec3>) -> Pass {
     let t1 = Instant::now();
     let shadow_rays: u64 = match towards {
         Some(l) => starts
@@ -168,14 +213,19 @@ pub fn time_passes(
             .sum(),
         None => 0,
     };
-    let shadow_single = Pass {
+    Pass {
         rays: shadow_rays,
         seconds: t1.elapsed().as_secs_f64(),
-    };
-    let reach = match ao_reach {
-        AoReach::Renderer => scene.diagonal * view.params.ao_range(),
-        AoReach::Unbounded => f32::INFINITY,
-    };
+    }
+}
+
+/// Times `ao_samples` ambient-occlusion rays from each start, reaching `reach`.
+fn time_ambient(
+    scene: &PreparedScene,
+    view: &FrameView,
+    starts: &[(Vec3, Vec3)],
+    (ao_samples, reach): (u32, f32),
+) -> Pass {
     let t2 = Instant::now();
     let ao_rays: u64 = starts
         .par_iter()
@@ -193,14 +243,8 @@ pub fn time_passes(
             },
         )
         .sum();
-    PassTimes {
-        hits: starts.len() as u64,
-        primary: primary_pass,
-        shadow,
-        shadow_single,
-        ambient: Pass {
-            rays: ao_rays,
-            seconds: t2.elapsed().as_secs_f64(),
-        },
+    Pass {
+        rays: ao_rays,
+        seconds: t2.elapsed().as_secs_f64(),
     }
 }

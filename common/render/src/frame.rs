@@ -4,15 +4,16 @@
 //! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
 //! on whichever node renders it and the single-process reference equals the wall.
 
-use crate::accel::Accel;
+use crate::bvh::Accel;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::pixel_rays::PixelRays;
 use crate::sampling::SampleStream;
 use crate::scene::{Light, Material, Scene};
-use crate::shade::{self, background, encode_srgb_ish, nearest_surface, Shader, SurfaceHit};
+use crate::shade::{self, background, encode_srgb_ish, Shader};
 use crate::shadow_packet;
 use crate::slot_materials::SlotMaterials;
 use crate::spheres::SphereAccel;
+use crate::surface_hit::{nearest_surface, SurfaceHit};
 use crate::tracer::Tracer;
 use crate::volume::PreparedVolume;
 use glam::Vec3;
@@ -452,6 +453,31 @@ fn packet_sum(
     (sum, counts)
 }
 
+/// What each ray of `packet` (clipped, from its viewport's eye) hits first: a triangle, a
+/// particle or an iso-surface.
+fn first_surfaces(
+    scene: &PreparedScene,
+    view: &FrameView,
+    packet: &mut RayPacket,
+    tracer: &mut Tracer<'_>,
+) -> [Option<SurfaceHit>; 64] {
+    let eye = packet.origin;
+    let mut hits = [PacketHit::MISS; 64];
+    tracer.closest_hits(packet, &mut hits);
+    if scene.spheres.is_none() && scene.volume.is_none() {
+        // Triangles only: the packet's hits are the surfaces (a seventh of an eyelight
+        // frame went into asking each ray about particles there are none of).
+        return std::array::from_fn(|i| SurfaceHit::of_triangle(hits[i]));
+    }
+    std::array::from_fn(|i| {
+        (i < packet.len()).then(|| {
+            let ray = (eye, packet.direction(i));
+            let interval = (packet.t_min[i], packet.t_max[i]);
+            nearest_surface(scene, view, ray, interval, hits[i], tracer)
+        })?
+    })
+}
+
 /// Traces `packet` (the rays of the block at `x0, y0`, `w` wide) and adds each ray's colour to
 /// `sum`.
 fn shade_packet(
@@ -466,21 +492,7 @@ fn shade_packet(
     // The eye of the packet's viewport (each eye of a stereo wall has its own).
     let eye = packet.origin;
     packet.clip(view.params.cuts());
-    let mut hits = [PacketHit::MISS; 64];
-    tracer.closest_hits(packet, &mut hits);
-    let surfaces: [Option<SurfaceHit>; 64] = if scene.spheres.is_none() && scene.volume.is_none() {
-        // Triangles only: the packet's hits are the surfaces (a seventh of an eyelight
-        // frame went into asking each ray about particles there are none of).
-        std::array::from_fn(|i| SurfaceHit::of_triangle(hits[i]))
-    } else {
-        std::array::from_fn(|i| {
-            (i < packet.len()).then(|| {
-                let ray = (eye, packet.direction(i));
-                let interval = (packet.t_min[i], packet.t_max[i]);
-                nearest_surface(scene, view, ray, interval, hits[i], tracer)
-            })?
-        })
-    };
+    let surfaces = first_surfaces(scene, view, packet, tracer);
     let mut shader = Shader {
         scene,
         view,

@@ -50,7 +50,7 @@ impl Ray {
     }
 
     /// The axes the watertight test works in (x, y, then the dominant z) and its shear
-    /// constants, for testing many rays against one triangle at once (`packet_leaf`).
+    /// constants, for testing many rays against one triangle at once (`bvh::leaf_packet`).
     pub(crate) fn shear_frame(&self) -> ([usize; 3], Vec3) {
         ([self.kx, self.ky, self.kz], self.shear)
     }

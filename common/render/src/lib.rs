@@ -6,7 +6,17 @@
 //! pure function of those and the pixel, so any render node draws a tile byte for byte as the
 //! single-process reference ([`render_wall`]) does.
 //!
-//! It depends on `tessera-wire` for the state it renders with (camera, parameters, scene name,
+//! The BVH is [`bvh`], laid out by job as Embree's `kernels/bvh`: node formats, tree memory,
+//! node and leaf tests, build, cache, and one traversal each for single rays and for packets,
+//! whose files use one another in one direction only (the layers are in its documentation).
+//! Above it, [`Tracer`] picks the memory a render thread reads the tree from (this process's
+//! arrays or the distributed shared memory, [`dsm`]), and shading traces through a `Tracer`:
+//! `frame` renders tiles, `shade` and `shadow_packet` both work from `surface_hit` (what a ray
+//! hit, and the geometry there) and not from each other, and [`aov`] draws the AOVs. The SIMD
+//! build of the traversals is chosen at run time, the same way for every entry point
+//! (`isa_builds!` in [`isa`]).
+//!
+//! It depends on `tessera-model` for the state it renders with (camera, parameters, scene name,
 //! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);
 //! never on an async runtime, socket or command-line crate.
 
@@ -14,21 +24,15 @@
 // clearer as `for i in 0..n` than as zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
-pub mod accel;
-pub mod accel_cache;
-mod accel_coincident;
-pub mod accel_packet;
-pub mod accel_wide;
 pub mod aov;
 pub mod bench;
+pub mod bvh;
 pub mod dsm;
 mod frame;
 pub mod geometry;
 pub mod isa;
 pub mod packet;
-mod packet_leaf;
 mod pixel_rays;
-mod ray_leaf;
 mod reference;
 pub mod sampling;
 pub mod scene;
@@ -36,8 +40,8 @@ mod shade;
 mod shadow_packet;
 pub mod slot_materials;
 pub mod spheres;
+mod surface_hit;
 mod tracer;
-pub mod tree_memory;
 mod views;
 pub mod volume;
 
@@ -50,8 +54,6 @@ pub use frame::{
 };
 pub use pixel_rays::{orbit_of, PixelRays};
 pub use reference::{render_wall, render_wall_linear};
-pub use shade::{
-    background, encode_srgb_ish, nearest_surface, offset_origin, surface, Shader, SurfaceHit,
-    MAX_DEPTH,
-};
+pub use shade::{background, encode_srgb_ish, Shader, MAX_DEPTH};
+pub use surface_hit::{nearest_surface, offset_origin, surface, SurfaceHit};
 pub use tracer::Tracer;

@@ -7,13 +7,15 @@
 //! transmitted-ray counter stays at zero). Reflected and transmitted rays are single rays; their
 //! depth is bounded by [`MAX_DEPTH`].
 
-use crate::accel::Hit;
-use crate::geometry::{triangle_normal, Ray};
+use crate::geometry::Ray;
 use crate::packet::PacketHit;
 use crate::sampling::{Hemisphere, SampleStream};
-use crate::scene::{Light, Material};
-use crate::shadow_packet::PrimaryHit;
+use crate::scene::Material;
 use crate::spheres::colormap;
+use crate::surface_hit::{
+    faces_light, hit_frame, iso_occludes, leaving_point, nearest_surface, offset_origin,
+    towards_light, PrimaryHit, SurfaceHit,
+};
 use crate::tracer::Tracer;
 use crate::volume::FrameTables;
 use crate::{FrameView, PreparedScene, RayCounts};
@@ -24,46 +26,6 @@ use tessera_model::cut::CutPlanes;
 /// Bounces of reflection and transmission (together) after the primary hit.
 pub const MAX_DEPTH: u32 = 6;
 
-/// Surface point and the normal facing the viewer for a hit.
-#[inline]
-pub fn surface(tracer: &mut Tracer<'_>, origin: Vec3, dir: Vec3, hit: Hit) -> (Vec3, Vec3) {
-    let tri = tracer.triangle(hit.slot);
-    let mut normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
-    if normal.dot(dir) > 0.0 {
-        normal = -normal;
-    }
-    (origin + dir * hit.t, normal)
-}
-
-/// Where secondary rays start: the hit point pushed off the surface along the normal, by a few
-/// hundred ULPs of each coordinate (Wächter and Binder, Ray Tracing Gems ch. 6). An ULP offset
-/// grows with the coordinates, so it neither causes acne far from the origin nor leaves a gap
-/// near it; close to the origin, where ULPs vanish, a step proportional to the scene's size
-/// takes over so that scenes at 1e-6 scale work too.
-pub fn offset_origin(point: Vec3, normal: Vec3, scene_diagonal: f32) -> Vec3 {
-    const INT_SCALE: f32 = 256.0;
-    let near_origin = scene_diagonal * (1.0 / 32.0);
-    let float_step = scene_diagonal * (1.0 / 65536.0);
-    let mut out = [0f32; 3];
-    for axis in 0..3 {
-        let p = point[axis];
-        let n = normal[axis];
-        out[axis] = if p.abs() < near_origin {
-            p + float_step * n
-        } else {
-            let ulps = (INT_SCALE * n) as i32;
-            let ulps = if p < 0.0 { -ulps } else { ulps };
-            f32::from_bits((p.to_bits() as i32).wrapping_add(ulps) as u32)
-        };
-    }
-    Vec3::from_array(out)
-}
-
-/// The shading key of particles: no scene has this many materials (loaders stop at 65535).
-pub const PARTICLE_KEY: u16 = u16::MAX;
-/// The shading key of a volume's first iso-surface; the others count down from it.
-pub const ISO_KEY: u16 = u16::MAX - 1;
-
 /// The colours of iso-surfaces, by their place in the list of iso-values: bone, skin, and two
 /// that tell further surfaces apart.
 const ISO_ALBEDO: [Vec3; 4] = [
@@ -72,105 +34,6 @@ const ISO_ALBEDO: [Vec3; 4] = [
     Vec3::new(0.35, 0.55, 0.9),
     Vec3::new(0.45, 0.8, 0.45),
 ];
-
-/// What a ray hit first.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum SurfaceHit {
-    Triangle(Hit),
-    Sphere {
-        t: f32,
-        slot: u32,
-    },
-    /// A volume's direct iso-surface: `surface` indexes the frame's iso-values.
-    Iso {
-        t: f32,
-        surface: u8,
-    },
-}
-
-impl SurfaceHit {
-    /// The surface a packet's triangle hit is, if it hit one.
-    #[inline]
-    pub fn of_triangle(hit: PacketHit) -> Option<SurfaceHit> {
-        hit.slot()
-            .map(|slot| SurfaceHit::Triangle(Hit { t: hit.t, slot }))
-    }
-
-    pub fn t(&self) -> f32 {
-        match *self {
-            SurfaceHit::Triangle(h) => h.t,
-            SurfaceHit::Sphere { t, .. } | SurfaceHit::Iso { t, .. } => t,
-        }
-    }
-
-    /// Index of the primitive in the scene: triangles first, then particles.
-    ///
-    /// # Panics
-    /// On a scene slimmed for rendering ([`PreparedScene::slim_for_rendering`]).
-    pub fn scene_primitive(&self, scene: &PreparedScene) -> u64 {
-        match *self {
-            SurfaceHit::Triangle(h) => *scene
-                .accel
-                .scene_index
-                .get(h.slot as usize)
-                .expect("AOVs need the scene index, which render nodes drop")
-                as u64,
-            SurfaceHit::Sphere { slot, .. } => {
-                scene.accel.triangles.len() as u64
-                    + scene.spheres().scene_index[slot as usize] as u64
-            }
-            // After the triangles and particles, one index per iso-value.
-            SurfaceHit::Iso { surface, .. } => {
-                let spheres = scene.spheres.as_ref().map_or(0, |s| s.spheres.len());
-                (scene.accel.triangles.len() + spheres) as u64 + surface as u64
-            }
-        }
-    }
-
-    /// The material index that shading groups rays by: a triangle's own, or one past the
-    /// scene's materials for particles (whose colour comes from their attribute).
-    pub fn material_key(&self, scene: &PreparedScene) -> u16 {
-        match *self {
-            SurfaceHit::Triangle(h) => scene.slot_material.of(h.slot),
-            SurfaceHit::Sphere { .. } => PARTICLE_KEY,
-            SurfaceHit::Iso { surface, .. } => ISO_KEY - surface as u16,
-        }
-    }
-}
-
-/// Combines a packet's triangle hit with the particles, when the scene has any; `interval` is
-/// the part of the ray the cutting planes keep. The sphere test's ray (a division per axis) is
-/// only set up when there are spheres.
-pub fn nearest_surface(
-    scene: &PreparedScene,
-    view: &FrameView,
-    (origin, dir): (Vec3, Vec3),
-    interval: (f32, f32),
-    triangle: PacketHit,
-    tracer: &mut Tracer<'_>,
-) -> Option<SurfaceHit> {
-    let mut nearest = SurfaceHit::of_triangle(triangle);
-    if let Some(spheres) = &scene.spheres {
-        let t_max = triangle.t.min(interval.1);
-        if let Some((t, slot)) = spheres.closest_hit(
-            &Ray::new(origin, dir),
-            interval.0,
-            t_max,
-            view.params.crop(),
-            &mut tracer.stack,
-        ) {
-            nearest = Some(SurfaceHit::Sphere { t, slot });
-        }
-    }
-    if let Some(volume) = &scene.volume {
-        let t_max = nearest.map_or(interval.1, |h| h.t().min(interval.1));
-        let iso = view.params.volume().iso.as_slice();
-        if let Some((t, surface)) = volume.iso_hit(iso, origin, dir, (interval.0, t_max)) {
-            nearest = Some(SurfaceHit::Iso { t, surface });
-        }
-    }
-    nearest
-}
 
 /// Shading of one pixel's rays: borrows the scene and the frame, counts the rays it traces.
 pub struct Shader<'a, 't> {
@@ -185,56 +48,6 @@ pub struct Shader<'a, 't> {
     /// The next primary hit to shade, as its shadow packet found it (which of the first 64
     /// lights are blocked). Taken by that hit; other hits trace single shadow rays.
     pub primary: Option<PrimaryHit>,
-}
-
-/// Surface point and the normal facing the viewer, for a triangle or particle hit.
-#[inline]
-pub fn hit_frame(
-    scene: &PreparedScene,
-    tracer: &mut Tracer<'_>,
-    origin: Vec3,
-    dir: Vec3,
-    hit: SurfaceHit,
-) -> (Vec3, Vec3) {
-    match hit {
-        SurfaceHit::Triangle(h) => surface(tracer, origin, dir, h),
-        SurfaceHit::Sphere { t, slot } => {
-            let s = &scene.spheres().spheres[slot as usize];
-            let p = origin + dir * t;
-            let mut n = ((p - s.center) / s.radius).normalize_or_zero();
-            if n.dot(dir) > 0.0 {
-                n = -n;
-            }
-            (p, n)
-        }
-        SurfaceHit::Iso { t, .. } => {
-            let p = origin + dir * t;
-            let volume = scene.volume.as_ref().expect("an iso hit implies a volume");
-            let mut n = volume.normal_at(p, -dir);
-            if n.dot(dir) > 0.0 {
-                n = -n;
-            }
-            (p, n)
-        }
-    }
-}
-
-/// Where rays leaving `hit` at `point` start. An iso-surface is found again from the volume's
-/// index space, whose rounding is larger than a few ULPs of the render coordinates: its rays
-/// start a thousandth of a voxel off the surface.
-pub fn leaving_point(scene: &PreparedScene, hit: SurfaceHit, point: Vec3, normal: Vec3) -> Vec3 {
-    let start = offset_origin(point, normal, scene.diagonal);
-    match (hit, &scene.volume) {
-        (SurfaceHit::Iso { .. }, Some(volume)) => {
-            let off = point + normal * (volume.reference_step() * 1e-3);
-            if (off - point).length_squared() > (start - point).length_squared() {
-                off
-            } else {
-                start
-            }
-        }
-        _ => start,
-    }
 }
 
 /// The frame's transfer-function tables, if the scene's volume is drawn through one (it has a
@@ -259,42 +72,6 @@ pub fn through_volume(
     };
     let [r, g, b, a] = volume.composite(tables, origin, dir, interval);
     Vec3::new(r, g, b) + behind * (1.0 - a)
-}
-
-/// Whether a volume's iso-surface blocks `ray` within `interval` (never, in a frame without
-/// iso-values).
-pub fn iso_occludes(
-    scene: &PreparedScene,
-    view: &FrameView,
-    ray: &Ray,
-    interval: (f32, f32),
-) -> bool {
-    let iso = view.params.volume().iso.as_slice();
-    scene
-        .volume
-        .as_ref()
-        .is_some_and(|v| !iso.is_empty() && v.iso_hit(iso, ray.origin, ray.dir, interval).is_some())
-}
-
-/// Direction towards `light` from `point`, how far the light is, and its intensity there.
-pub fn towards_light(light: &Light, point: Vec3) -> (Vec3, f32, f32) {
-    match *light {
-        Light::Directional { towards, intensity } => (towards, f32::INFINITY, intensity),
-        Light::Point {
-            position,
-            intensity,
-        } => {
-            let d = position - point;
-            let dist2 = d.length_squared();
-            (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2.max(1e-30))
-        }
-    }
-}
-
-/// Whether a shadow ray leaves towards the light at all: the light is in front of the surface.
-pub fn faces_light(normal: Vec3, towards: Vec3) -> Option<f32> {
-    let cos = normal.dot(towards);
-    (cos > 0.0 && cos.is_finite()).then_some(cos)
 }
 
 impl Shader<'_, '_> {

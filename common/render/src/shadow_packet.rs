@@ -4,35 +4,20 @@
 //! Hit points of one 8×8 block lie close together and their rays share a direction
 //! (directional light) or an end (point light), so they traverse the same few BVH nodes; as
 //! single rays they cost five times a primary ray. The answers are the very ones single rays
-//! give (same rays, same intervals, same triangle test; see `accel_packet`'s tests), so pixels
-//! do not change, only the time.
+//! give (same rays, same intervals, same triangle test; see `bvh::traverse_packet`'s tests), so
+//! pixels do not change, only the time. What a primary hit is, and the way to each light, are
+//! `surface_hit`'s, which shading reads too.
 
 use crate::geometry::Ray;
 use crate::packet::{RayPacket, PACKET_RAYS};
-use crate::shade::{
-    faces_light, hit_frame, iso_occludes, leaving_point, towards_light, SurfaceHit,
+use crate::surface_hit::{
+    faces_light, hit_frame, iso_occludes, leaving_point, towards_light, PrimaryHit, SurfaceHit,
+    PACKET_LIGHTS,
 };
 use crate::tracer::Tracer;
 use crate::{FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_model::cut::CutPlanes;
-
-/// Lights whose shadows are traced as packets; further lights use single rays.
-pub const PACKET_LIGHTS: usize = 64;
-
-/// A primary hit as the shadow packets saw it, handed on to shading so it is not worked out
-/// twice.
-#[derive(Clone, Copy, Debug)]
-pub struct PrimaryHit {
-    pub point: Vec3,
-    /// Facing the viewer.
-    pub normal: Vec3,
-    /// Where rays leaving the surface start (see [`offset_origin`]).
-    pub start: Vec3,
-    /// Bit k set when light k (of the first [`PACKET_LIGHTS`]) is blocked. A light the surface
-    /// faces away from has no shadow ray, and its bit is unused.
-    pub blocked: u64,
-}
 
 /// For each lane with a surface: its hit, with the lights that are blocked.
 pub fn primary_shadows(
@@ -53,7 +38,6 @@ pub fn primary_shadows(
             blocked: 0,
         })
     });
-    let cuts: &CutPlanes = view.params.cuts();
     let mut lanes = [0usize; PACKET_RAYS];
     for (k, light) in view.lights(scene).iter().enumerate().take(PACKET_LIGHTS) {
         let mut count = 0;
@@ -73,41 +57,7 @@ pub fn primary_shadows(
         if count == 0 {
             continue;
         }
-        let mut packet = RayPacket::from_rays(rays[..count].iter().map(|&(o, d, _)| (o, d)));
-        for (j, &(start, towards, reach)) in rays[..count].iter().enumerate() {
-            let (t_min, t_cut) = cuts.interval(start, towards);
-            packet.t_min[j] = t_min;
-            packet.t_max[j] = reach.min(t_cut);
-        }
-        let mut occluded = tracer.occluded_lanes(&mut packet);
-        if let Some(spheres) = scene.spheres.as_ref() {
-            for (j, &(start, towards, _)) in rays[..count].iter().enumerate() {
-                let (t_min, t_max) = (packet.t_min[j], packet.t_max[j]);
-                if occluded >> j & 1 == 0
-                    && t_min <= t_max
-                    && spheres.occluded(
-                        &Ray::new(start, towards),
-                        t_min,
-                        t_max,
-                        view.params.crop(),
-                        &mut tracer.stack,
-                    )
-                {
-                    occluded |= 1 << j;
-                }
-            }
-        }
-        if scene.volume.is_some() {
-            for (j, &(start, towards, _)) in rays[..count].iter().enumerate() {
-                let interval = (packet.t_min[j], packet.t_max[j]);
-                if occluded >> j & 1 == 0
-                    && interval.0 <= interval.1
-                    && iso_occludes(scene, view, &Ray::new(start, towards), interval)
-                {
-                    occluded |= 1 << j;
-                }
-            }
-        }
+        let occluded = blocked(scene, view, &rays[..count], tracer);
         for (j, &lane) in lanes[..count].iter().enumerate() {
             if let (Some(hit), true) = (hits[lane].as_mut(), occluded >> j & 1 == 1) {
                 hit.blocked |= 1 << k;
@@ -115,4 +65,52 @@ pub fn primary_shadows(
         }
     }
     hits
+}
+
+/// Which of `rays` (start, direction towards a light, distance to it) are blocked before the
+/// light, as bits: by triangles, traced as one packet; then, ray by ray for those still
+/// free, by particles and iso-surfaces.
+fn blocked(
+    scene: &PreparedScene,
+    view: &FrameView,
+    rays: &[(Vec3, Vec3, f32)],
+    tracer: &mut Tracer<'_>,
+) -> u64 {
+    let cuts: &CutPlanes = view.params.cuts();
+    let mut packet = RayPacket::from_rays(rays.iter().map(|&(o, d, _)| (o, d)));
+    for (j, &(start, towards, reach)) in rays.iter().enumerate() {
+        let (t_min, t_cut) = cuts.interval(start, towards);
+        packet.t_min[j] = t_min;
+        packet.t_max[j] = reach.min(t_cut);
+    }
+    let mut occluded = tracer.occluded_lanes(&mut packet);
+    if let Some(spheres) = scene.spheres.as_ref() {
+        for (j, &(start, towards, _)) in rays.iter().enumerate() {
+            let (t_min, t_max) = (packet.t_min[j], packet.t_max[j]);
+            if occluded >> j & 1 == 0
+                && t_min <= t_max
+                && spheres.occluded(
+                    &Ray::new(start, towards),
+                    t_min,
+                    t_max,
+                    view.params.crop(),
+                    &mut tracer.stack,
+                )
+            {
+                occluded |= 1 << j;
+            }
+        }
+    }
+    if scene.volume.is_some() {
+        for (j, &(start, towards, _)) in rays.iter().enumerate() {
+            let interval = (packet.t_min[j], packet.t_max[j]);
+            if occluded >> j & 1 == 0
+                && interval.0 <= interval.1
+                && iso_occludes(scene, view, &Ray::new(start, towards), interval)
+            {
+                occluded |= 1 << j;
+            }
+        }
+    }
+    occluded
 }

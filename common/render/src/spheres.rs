@@ -1,7 +1,8 @@
 //! Spheres (particles): their own BVH, built only when a scene has any, a numerically careful
 //! ray–sphere test, and the colour map and crop range that their scalar attribute drives.
 
-use crate::accel::{traverse_nodes, BvhNode};
+use crate::bvh::node::BvhNode;
+use crate::bvh::traverse_ray::traverse_nodes;
 use crate::geometry::Ray;
 use crate::scene::particles::Particle;
 use glam::{Vec3, Vec3A};

@@ -2,12 +2,12 @@
 //! memory holds them: the scene's own arrays (replicated data) or the distributed shared
 //! memory, where the thread keeps the blocks it is in (see `dsm::SharedReader`).
 
-use crate::accel::{Hit, LeafTriangle};
+use crate::bvh::memory::TreeMemory;
+use crate::bvh::node::{Hit, LeafTriangle};
 use crate::dsm::SharedReader;
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
-use crate::tree_memory::TreeMemory;
 use crate::PreparedScene;
 
 /// One thread's traversal state: a stack, and for a scene in shared memory the blocks it holds.
@@ -22,7 +22,7 @@ pub struct Tracer<'s> {
 // every node a traversal reads.
 #[allow(clippy::large_enum_variant)]
 enum Memory<'s> {
-    Resident(crate::tree_memory::Resident<'s>),
+    Resident(crate::bvh::memory::Resident<'s>),
     Shared(SharedReader<'s>),
 }
 
@@ -38,29 +38,29 @@ impl<'s> Tracer<'s> {
         }
     }
 
-    /// Closest triangle hits of a packet (see `accel_packet`).
+    /// Closest triangle hits of a packet (see `bvh::traverse_packet`).
     pub fn closest_hits(&mut self, packet: &mut RayPacket, hits: &mut [PacketHit; PACKET_RAYS]) {
-        use crate::accel_packet::closest_hits_on;
+        use crate::bvh::traverse_packet::closest_hits_on;
         let (stack, isa) = (&mut self.stack, Isa::best());
         match &mut self.memory {
-            Memory::Resident(m) => closest_hits_on(m, isa, packet, hits, stack),
-            Memory::Shared(m) => closest_hits_on(m, isa, packet, hits, stack),
+            Memory::Resident(m) => closest_hits_on(isa, m, packet, hits, stack),
+            Memory::Shared(m) => closest_hits_on(isa, m, packet, hits, stack),
         }
     }
 
-    /// Which rays of a packet are blocked, as bits (see `accel_packet`).
+    /// Which rays of a packet are blocked, as bits (see `bvh::traverse_packet`).
     pub fn occluded_lanes(&mut self, packet: &mut RayPacket) -> u64 {
-        use crate::accel_packet::occluded_lanes_on;
+        use crate::bvh::traverse_packet::occluded_lanes_on;
         let (stack, isa) = (&mut self.stack, Isa::best());
         match &mut self.memory {
-            Memory::Resident(m) => occluded_lanes_on(m, isa, packet, stack),
-            Memory::Shared(m) => occluded_lanes_on(m, isa, packet, stack),
+            Memory::Resident(m) => occluded_lanes_on(isa, m, packet, stack),
+            Memory::Shared(m) => occluded_lanes_on(isa, m, packet, stack),
         }
     }
 
     /// The nearest triangle hit in `(t_min, t_max)`.
     pub fn closest_hit(&mut self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
-        use crate::accel::closest_hit;
+        use crate::bvh::traverse_ray::closest_hit;
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => closest_hit(m, ray, (t_min, t_max), stack),
@@ -70,7 +70,7 @@ impl<'s> Tracer<'s> {
 
     /// Whether a triangle blocks the ray in `(t_min, t_max)`.
     pub fn occluded(&mut self, ray: &Ray, t_min: f32, t_max: f32) -> bool {
-        use crate::accel::occluded;
+        use crate::bvh::traverse_ray::occluded;
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => occluded(m, ray, (t_min, t_max), stack),

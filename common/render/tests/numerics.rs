@@ -6,7 +6,7 @@ mod real_mesh;
 use glam::{DVec3, Vec3};
 use proptest::prelude::*;
 use tessera_model::scene_spec::SceneSpec;
-use tessera_render::accel::Accel;
+use tessera_render::bvh::Accel;
 use tessera_render::geometry::Ray;
 use tessera_render::offset_origin;
 use tessera_render::scene::{knot_scene, Material, Scene};

@@ -1,8 +1,7 @@
 //! Block geometry: blocks of a fixed size hold either 8-wide tree nodes or leaf triangles,
 //! node blocks first; a block's bytes are 64-byte aligned so that nodes are read in place.
 
-use crate::accel::LeafTriangle;
-use crate::accel_wide::WideNode;
+use crate::bvh::node::{LeafTriangle, WideNode};
 use serde::{Deserialize, Serialize};
 use tessera_core::dsm::BlockId;
 

@@ -11,7 +11,7 @@
 //!   share, the direct-mapped cache of `tessera_core::dsm`, and a blocking fetch of what is
 //!   in neither.
 //! * `reader`: [`SharedReader`], one thread's view of it, the
-//!   [`crate::tree_memory::TreeMemory`] a traversal reads.
+//!   [`crate::bvh::memory::TreeMemory`] a traversal reads.
 //!
 //! Volume bricks and particles are not shared: a scene with either is rendered replicated.
 
@@ -34,7 +34,7 @@ pub use prepare::{Manifest, PrepareError};
 pub use reader::SharedReader;
 pub use shared::{BlockFetch, SharedStats, SharedTree};
 
-use crate::accel::Accel;
+use crate::bvh::Accel;
 use crate::PreparedScene;
 
 impl PreparedScene {

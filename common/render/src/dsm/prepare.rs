@@ -9,8 +9,8 @@
 
 use super::layout::{Block, BlockLayout, Chunk, LayoutError};
 use super::reorder::reorder_for_blocks;
-use crate::accel::{Accel, LeafTriangle};
-use crate::accel_wide::WideNode;
+use crate::bvh::node::{LeafTriangle, WideNode};
+use crate::bvh::Accel;
 use crate::scene::{Light, Material, Scene};
 use crate::slot_materials::SlotMaterials;
 use serde::{Deserialize, Serialize};

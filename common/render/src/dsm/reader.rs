@@ -13,9 +13,8 @@
 
 use super::layout::{nodes_of, Chunk, FastDiv};
 use super::shared::{Hold, SharedTree};
-use crate::accel::LeafTriangle;
-use crate::accel_wide::WideNode;
-use crate::tree_memory::{NoPrefetch, TreeMemory};
+use crate::bvh::memory::{NoPrefetch, TreeMemory};
+use crate::bvh::node::{LeafTriangle, WideNode};
 use std::ops::Range;
 use tessera_core::dsm::BlockId;
 

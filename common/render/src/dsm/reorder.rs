@@ -7,7 +7,7 @@
 //! Only where nodes sit changes, never the tree: the same boxes, children and leaves, so a
 //! traversal visits the same leaves in the same order and returns the same hits.
 
-use crate::accel_wide::{WideNode, WIDTH};
+use crate::bvh::node::{WideNode, WIDTH};
 use std::collections::VecDeque;
 
 /// The inner children of `node`, in child order.
@@ -91,7 +91,7 @@ fn same_tree(a: &[WideNode], b: &[WideNode]) -> bool {
         }
         for k in 0..WIDTH {
             match p.count[k] {
-                crate::accel_wide::EMPTY => {}
+                crate::bvh::node::EMPTY => {}
                 0 => stack.push((p.child[k], q.child[k])),
                 _ if p.child[k] != q.child[k] => return false,
                 _ => {}
@@ -104,7 +104,7 @@ fn same_tree(a: &[WideNode], b: &[WideNode]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::Accel;
+    use crate::bvh::Accel;
     use crate::scene::knot_scene;
 
     #[test]
@@ -132,7 +132,7 @@ mod tests {
             let node = &wide[n as usize];
             for k in 0..WIDTH {
                 match node.count[k] {
-                    crate::accel_wide::EMPTY => {}
+                    crate::bvh::node::EMPTY => {}
                     0 => {
                         let c = node.child[k];
                         let crossed = (c as usize / per_block != n as usize / per_block) as usize;

@@ -30,7 +30,7 @@ fn shared(
     (rank, ranks): (u32, u32),
     lines: usize,
 ) -> (PreparedScene, Arc<AllBlocks>) {
-    let accel = crate::accel::Accel::build(scene);
+    let accel = crate::bvh::Accel::build(scene);
     let (manifest, blocks) = prepare::blocks_of(scene, &accel, block_bytes).unwrap();
     let all = Arc::new(AllBlocks {
         blocks: blocks.map(Arc::new).collect(),
@@ -154,8 +154,8 @@ fn reader_overhead_against_replicated() {
     };
     let view = view_of(&scene, params.build().unwrap(), (w, h));
     let replicated = crate::PreparedScene::new(&scene);
-    let mut accel = crate::accel::Accel::build(&scene);
-    let per_block = 8192 / std::mem::size_of::<crate::accel_wide::WideNode>();
+    let mut accel = crate::bvh::Accel::build(&scene);
+    let per_block = 8192 / std::mem::size_of::<crate::bvh::node::WideNode>();
     accel.wide = super::reorder::reorder_for_blocks(&accel.wide, per_block);
     let reordered = crate::PreparedScene::from_accel(&scene, accel);
     let (all_local, _) = shared(&scene, 8192, (0, 1), 0);

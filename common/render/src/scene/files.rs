@@ -315,6 +315,41 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
             one_line(&e.to_string())
         ))
     })?;
+    check_ply_header(path, &header)?;
+    let rows = PlyRows {
+        path,
+        ascii: header.encoding == Encoding::Ascii,
+    };
+    let (mut vertices, mut faces) = (None, None);
+    for (name, def) in &header.elements {
+        // The crate counts one "line" per element row in binary files too, so this gives the
+        // row index whatever the encoding.
+        let first_line = reader.line().max(1);
+        let read = parser
+            .read_payload_for_element(&mut reader, def, &header)
+            .map_err(|e| rows.error(name, first_line, e))?;
+        match name.as_str() {
+            "vertex" => vertices = Some((read, first_line)),
+            "face" => faces = Some((read, first_line)),
+            _ => {}
+        }
+    }
+    let mut mesh = Mesh::default();
+    rows.vertices(
+        vertices.ok_or_else(|| err("has no `vertex` element".into()))?,
+        &mut mesh,
+    )?;
+    rows.faces(
+        faces.ok_or_else(|| err("has no `face` element".into()))?,
+        &mut mesh,
+    )?;
+    Ok(mesh)
+}
+
+/// Refuses a PLY header whose element counts the file cannot hold, or that lacks the vertex
+/// and face properties a mesh needs: a header fault, said once rather than for every row.
+fn check_ply_header(path: &Path, header: &ply_rs_bw::ply::Header) -> Result<(), SceneError> {
+    let err = |message: String| file_error(path, message);
     // Every row takes at least a byte (a property, or an ascii line's end), so a count beyond
     // the file's length is a lie, and the crate would allocate for it before reading a row
     // (found by fuzzing: an element of no properties and 10^16 rows).
@@ -327,7 +362,6 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
             )));
         }
     }
-    // A missing property is a header fault: say so once rather than for every row.
     for element in ["vertex", "face"] {
         let Some(def) = header.elements.get(element) else {
             return Err(err(format!("has no `{element}` element")));
@@ -343,86 +377,104 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
             )));
         }
     }
-    let ascii = header.encoding == Encoding::Ascii;
-    // Where an element row is: its index, and for ascii files its line too.
-    let row = |name: &str, index: usize, first_line: usize| {
-        if ascii {
+    Ok(())
+}
+
+/// A PLY file's element rows, read into a mesh with errors that say where a row is: its
+/// index, and for ascii files its line too.
+struct PlyRows<'a> {
+    path: &'a Path,
+    ascii: bool,
+}
+
+impl PlyRows<'_> {
+    fn err(&self, message: String) -> SceneError {
+        file_error(self.path, message)
+    }
+
+    /// Where row `index` of element `name`, which starts at `first_line`, is.
+    fn row(&self, name: &str, index: usize, first_line: usize) -> String {
+        if self.ascii {
             format!("{name} {index} (line {})", first_line + index)
         } else {
             format!("{name} {index}")
         }
-    };
-    let (mut vertices, mut faces) = (None, None);
-    for (name, def) in &header.elements {
-        // The crate counts one "line" per element row in binary files too, so this gives the
-        // row index whatever the encoding.
-        let first_line = reader.line().max(1);
-        let rows = parser
-            .read_payload_for_element(&mut reader, def, &header)
-            .map_err(|e| {
-                let text = e.to_string();
-                match e.line() {
-                    Some(line) if line >= first_line => {
-                        let prefix = format!("Line {line}: ");
-                        let text = text.strip_prefix(&prefix).unwrap_or(&text);
-                        let at = row(name, line - first_line, first_line);
-                        err(format!("{at}: {}", one_line(text)))
-                    }
-                    _ => err(format!("element `{name}`: {}", one_line(&text))),
-                }
-            })?;
-        match name.as_str() {
-            "vertex" => vertices = Some((rows, first_line)),
-            "face" => faces = Some((rows, first_line)),
-            _ => {}
+    }
+
+    /// The crate's error reading element `name` (from `first_line`), naming the row at fault.
+    fn error(&self, name: &str, first_line: usize, e: ply_rs_bw::parser::ParseError) -> SceneError {
+        let text = e.to_string();
+        match e.line() {
+            Some(line) if line >= first_line => {
+                let prefix = format!("Line {line}: ");
+                let text = text.strip_prefix(&prefix).unwrap_or(&text);
+                let at = self.row(name, line - first_line, first_line);
+                self.err(format!("{at}: {}", one_line(text)))
+            }
+            _ => self.err(format!("element `{name}`: {}", one_line(&text))),
         }
     }
-    let (vertices, vertex_line) = vertices.ok_or_else(|| err("has no `vertex` element".into()))?;
-    let mut mesh = Mesh::default();
-    for (index, vertex) in vertices.iter().enumerate() {
-        let at = || row("vertex", index, vertex_line);
-        let [Some(x), Some(y), Some(z)] = vertex.xyz else {
-            return Err(err(format!("{} lacks one of x, y, z", at())));
-        };
-        let p = DVec3::new(x, y, z);
-        if !in_range(p) {
-            return Err(err(format!("{} has a non-finite coordinate {p}", at())));
+
+    /// The vertex rows (from `vertex_line`) as the mesh's positions.
+    fn vertices(
+        &self,
+        (vertices, vertex_line): (Vec<PlyRow>, usize),
+        mesh: &mut Mesh,
+    ) -> Result<(), SceneError> {
+        for (index, vertex) in vertices.iter().enumerate() {
+            let at = || self.row("vertex", index, vertex_line);
+            let [Some(x), Some(y), Some(z)] = vertex.xyz else {
+                return Err(self.err(format!("{} lacks one of x, y, z", at())));
+            };
+            let p = DVec3::new(x, y, z);
+            if !in_range(p) {
+                return Err(self.err(format!("{} has a non-finite coordinate {p}", at())));
+            }
+            mesh.positions.push(p);
         }
-        mesh.positions.push(p);
-    }
-    let count = mesh.positions.len();
-    if u32::try_from(count).is_err() {
-        return Err(err(format!(
-            "{count} vertices is more than 32-bit indices reach"
-        )));
-    }
-    let (faces, face_line) = faces.ok_or_else(|| err("has no `face` element".into()))?;
-    for (index, face) in faces.iter().enumerate() {
-        let at = || row("face", index, face_line);
-        let list = face
-            .indices
-            .as_deref()
-            .ok_or_else(|| err(format!("{} has no `vertex_indices` list", at())))?;
-        if list.len() < 3 {
-            return Err(err(format!(
-                "{} has {} vertices, fewer than 3",
-                at(),
-                list.len()
+        let count = mesh.positions.len();
+        if u32::try_from(count).is_err() {
+            return Err(self.err(format!(
+                "{count} vertices is more than 32-bit indices reach"
             )));
         }
-        if let Some(&bad) = list.iter().find(|&&v| v < 0 || v as usize >= count) {
-            return Err(err(format!(
-                "{} uses vertex {bad}, but there are only {count} vertices",
-                at()
-            )));
-        }
-        // In range of a u32-indexed vertex list, checked just above.
-        let v = |k: usize| list[k] as u32;
-        for k in 1..list.len() - 1 {
-            mesh.triangles.push([v(0), v(k), v(k + 1)]);
-        }
+        Ok(())
     }
-    Ok(mesh)
+
+    /// The face rows (from `face_line`) as the mesh's triangles, each polygon a fan.
+    fn faces(
+        &self,
+        (faces, face_line): (Vec<PlyRow>, usize),
+        mesh: &mut Mesh,
+    ) -> Result<(), SceneError> {
+        let count = mesh.positions.len();
+        for (index, face) in faces.iter().enumerate() {
+            let at = || self.row("face", index, face_line);
+            let list = face
+                .indices
+                .as_deref()
+                .ok_or_else(|| self.err(format!("{} has no `vertex_indices` list", at())))?;
+            if list.len() < 3 {
+                return Err(self.err(format!(
+                    "{} has {} vertices, fewer than 3",
+                    at(),
+                    list.len()
+                )));
+            }
+            if let Some(&bad) = list.iter().find(|&&v| v < 0 || v as usize >= count) {
+                return Err(self.err(format!(
+                    "{} uses vertex {bad}, but there are only {count} vertices",
+                    at()
+                )));
+            }
+            // In range of a u32-indexed vertex list, checked just above.
+            let v = |k: usize| list[k] as u32;
+            for k in 1..list.len() - 1 {
+                mesh.triangles.push([v(0), v(k), v(k + 1)]);
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The crate's messages nest, `what\n\tString: '<text>'\n\tError: <cause>`, sometimes twice

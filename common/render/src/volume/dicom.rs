@@ -9,7 +9,7 @@
 
 use super::{Volume, VolumeError, VoxelType};
 use dicom_dictionary_std::tags;
-use dicom_object::{open_file, DefaultDicomObject};
+use dicom_object::{open_file, DefaultDicomObject, Tag};
 use std::path::{Path, PathBuf};
 
 /// Transfer syntaxes whose pixel data are stored as plain little-endian samples.
@@ -135,109 +135,148 @@ fn read_slice(path: &Path, object: &DefaultDicomObject) -> Result<Slice, VolumeE
             format!("{syntax} is compressed or big-endian; only uncompressed little-endian slices are read"),
         ));
     }
-    let floats = |tag, name: &str, count: usize| -> Result<Vec<f64>, VolumeError> {
-        let values = object
-            .element(tag)
-            .map_err(|_| VolumeError::field(path, name, "missing"))?
-            .to_multi_float64()
-            .map_err(|e| VolumeError::field(path, name, e.to_string()))?;
-        if values.len() != count || !values.iter().all(|v| v.is_finite()) {
-            return Err(VolumeError::field(
-                path,
-                name,
-                format!("{values:?}: {count} finite numbers expected"),
-            ));
-        }
-        Ok(values)
-    };
-    let int = |tag, name: &str| -> Result<u32, VolumeError> {
-        object
-            .element(tag)
-            .map_err(|_| VolumeError::field(path, name, "missing"))?
-            .to_int::<u32>()
-            .map_err(|e| VolumeError::field(path, name, e.to_string()))
-    };
-    let optional = |tag, default: f64| {
-        object
-            .element(tag)
-            .ok()
-            .and_then(|e| e.to_float64().ok())
-            .unwrap_or(default)
-    };
-    let position = floats(tags::IMAGE_POSITION_PATIENT, "ImagePositionPatient", 3)?;
-    let orientation = floats(
+    let fields = Fields { path, object };
+    let position = fields.floats(tags::IMAGE_POSITION_PATIENT, "ImagePositionPatient", 3)?;
+    let orientation = fields.floats(
         tags::IMAGE_ORIENTATION_PATIENT,
         "ImageOrientationPatient",
         6,
     )?;
-    let spacing = floats(tags::PIXEL_SPACING, "PixelSpacing", 2)?;
-    let (rows, cols) = (
-        int(tags::ROWS, "Rows")? as usize,
-        int(tags::COLUMNS, "Columns")? as usize,
-    );
-    // An empty slice made the series' depth a division by zero (found by fuzzing).
-    if rows == 0 || cols == 0 {
-        return Err(VolumeError::field(
-            path,
-            "Rows/Columns",
-            format!("{rows}×{cols}: a slice needs at least one pixel"),
-        ));
-    }
-    if int(tags::SAMPLES_PER_PIXEL, "SamplesPerPixel").unwrap_or(1) != 1 {
-        return Err(VolumeError::field(
-            path,
-            "SamplesPerPixel",
-            "only one sample per pixel (grey) is read",
-        ));
-    }
-    let signed = int(tags::PIXEL_REPRESENTATION, "PixelRepresentation")? == 1;
-    let voxel_type = match (int(tags::BITS_ALLOCATED, "BitsAllocated")?, signed) {
-        (8, false) => VoxelType::U8,
-        (16, false) => VoxelType::U16,
-        (16, true) => VoxelType::I16,
-        (bits, _) => {
-            return Err(VolumeError::field(
-                path,
-                "BitsAllocated",
-                format!("{bits} (8 or 16 expected)"),
-            ))
-        }
-    };
-    let pixels = object
-        .element(tags::PIXEL_DATA)
-        .map_err(|_| VolumeError::field(path, "PixelData", "missing"))?
-        .to_bytes()
-        .map_err(|e| VolumeError::field(path, "PixelData", e.to_string()))?;
-    // Checked: Rows and Columns may arrive as 32-bit values, whose product overflows.
-    let expected = rows
-        .checked_mul(cols)
-        .and_then(|n| n.checked_mul(voxel_type.bytes()))
-        .ok_or_else(|| VolumeError::field(path, "Rows/Columns", "the slice's size overflows"))?;
-    if pixels.len() < expected {
-        return Err(VolumeError::Truncated {
-            path: path.display().to_string(),
-            expected,
-            found: pixels.len(),
-        });
-    }
-    let (slope, intercept) = (
-        optional(tags::RESCALE_SLOPE, 1.0),
-        optional(tags::RESCALE_INTERCEPT, 0.0),
-    );
-    let values = voxel_type
-        .decode(&pixels[..expected], true)
-        .into_iter()
-        .map(|v| (v as f64 * slope + intercept) as f32)
-        .collect();
+    let spacing = fields.floats(tags::PIXEL_SPACING, "PixelSpacing", 2)?;
+    let (size, voxel_type) = fields.pixel_format()?;
+    let values = fields.values(size, voxel_type)?;
     Ok(Slice {
         path: path.to_path_buf(),
         position: [position[0], position[1], position[2]],
         orientation: std::array::from_fn(|i| orientation[i]),
         spacing: [spacing[0], spacing[1]],
-        size: (rows, cols),
+        size,
         voxel_type,
         values,
     })
+}
+
+/// A slice file's elements, read with errors that name the field at fault.
+struct Fields<'a> {
+    path: &'a Path,
+    object: &'a DefaultDicomObject,
+}
+
+impl Fields<'_> {
+    /// Exactly `count` finite numbers.
+    fn floats(&self, tag: Tag, name: &str, count: usize) -> Result<Vec<f64>, VolumeError> {
+        let values = self
+            .object
+            .element(tag)
+            .map_err(|_| VolumeError::field(self.path, name, "missing"))?
+            .to_multi_float64()
+            .map_err(|e| VolumeError::field(self.path, name, e.to_string()))?;
+        if values.len() != count || !values.iter().all(|v| v.is_finite()) {
+            return Err(VolumeError::field(
+                self.path,
+                name,
+                format!("{values:?}: {count} finite numbers expected"),
+            ));
+        }
+        Ok(values)
+    }
+
+    fn int(&self, tag: Tag, name: &str) -> Result<u32, VolumeError> {
+        self.object
+            .element(tag)
+            .map_err(|_| VolumeError::field(self.path, name, "missing"))?
+            .to_int::<u32>()
+            .map_err(|e| VolumeError::field(self.path, name, e.to_string()))
+    }
+
+    fn optional(&self, tag: Tag, default: f64) -> f64 {
+        self.object
+            .element(tag)
+            .ok()
+            .and_then(|e| e.to_float64().ok())
+            .unwrap_or(default)
+    }
+
+    /// The slice's rows and columns and how a pixel is stored: one grey sample of 8 or 16
+    /// bits.
+    fn pixel_format(&self) -> Result<((usize, usize), VoxelType), VolumeError> {
+        let path = self.path;
+        let (rows, cols) = (
+            self.int(tags::ROWS, "Rows")? as usize,
+            self.int(tags::COLUMNS, "Columns")? as usize,
+        );
+        // An empty slice made the series' depth a division by zero (found by fuzzing).
+        if rows == 0 || cols == 0 {
+            return Err(VolumeError::field(
+                path,
+                "Rows/Columns",
+                format!("{rows}×{cols}: a slice needs at least one pixel"),
+            ));
+        }
+        if self
+            .int(tags::SAMPLES_PER_PIXEL, "SamplesPerPixel")
+            .unwrap_or(1)
+            != 1
+        {
+            return Err(VolumeError::field(
+                path,
+                "SamplesPerPixel",
+                "only one sample per pixel (grey) is read",
+            ));
+        }
+        let signed = self.int(tags::PIXEL_REPRESENTATION, "PixelRepresentation")? == 1;
+        let voxel_type = match (self.int(tags::BITS_ALLOCATED, "BitsAllocated")?, signed) {
+            (8, false) => VoxelType::U8,
+            (16, false) => VoxelType::U16,
+            (16, true) => VoxelType::I16,
+            (bits, _) => {
+                return Err(VolumeError::field(
+                    path,
+                    "BitsAllocated",
+                    format!("{bits} (8 or 16 expected)"),
+                ))
+            }
+        };
+        Ok(((rows, cols), voxel_type))
+    }
+
+    /// The pixels of a `rows × cols` slice of `voxel_type`, rescaled to the modality's values.
+    fn values(
+        &self,
+        (rows, cols): (usize, usize),
+        voxel_type: VoxelType,
+    ) -> Result<Vec<f32>, VolumeError> {
+        let path = self.path;
+        let pixels = self
+            .object
+            .element(tags::PIXEL_DATA)
+            .map_err(|_| VolumeError::field(path, "PixelData", "missing"))?
+            .to_bytes()
+            .map_err(|e| VolumeError::field(path, "PixelData", e.to_string()))?;
+        // Checked: Rows and Columns may arrive as 32-bit values, whose product overflows.
+        let expected = rows
+            .checked_mul(cols)
+            .and_then(|n| n.checked_mul(voxel_type.bytes()))
+            .ok_or_else(|| {
+                VolumeError::field(path, "Rows/Columns", "the slice's size overflows")
+            })?;
+        if pixels.len() < expected {
+            return Err(VolumeError::Truncated {
+                path: path.display().to_string(),
+                expected,
+                found: pixels.len(),
+            });
+        }
+        let (slope, intercept) = (
+            self.optional(tags::RESCALE_SLOPE, 1.0),
+            self.optional(tags::RESCALE_INTERCEPT, 0.0),
+        );
+        Ok(voxel_type
+            .decode(&pixels[..expected], true)
+            .into_iter()
+            .map(|v| (v as f64 * slope + intercept) as f32)
+            .collect())
+    }
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

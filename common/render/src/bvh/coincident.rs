@@ -5,7 +5,7 @@
 //! obvhs as one triangle, and its leaf is expanded here afterwards into a balanced subtree of
 //! small leaves, which costs O(n log n) however many copies there are.
 
-use crate::accel::BvhNode;
+use crate::bvh::node::BvhNode;
 use glam::Vec3;
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
@@ -190,84 +190,4 @@ fn leaf_items(
         items.insert(0, item(plain));
     }
     items
-}
-
-#[cfg(test)]
-mod tests {
-    use crate::accel::Accel;
-    use crate::geometry::Ray;
-    use crate::scene::{knot_scene, Scene};
-    use glam::Vec3;
-    use std::time::Duration;
-
-    /// Builds on another thread and fails if it does not finish within `limit`: a hang guard,
-    /// the build itself takes well under a second.
-    fn build_within(scene: Scene, limit: Duration) -> (Scene, Accel) {
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let accel = Accel::build(&scene);
-            let _ = tx.send((scene, accel));
-        });
-        rx.recv_timeout(limit)
-            .expect("the BVH build did not finish: PLOC stuck among equal boxes?")
-    }
-
-    fn assert_each_triangle_once(scene: &Scene, accel: &Accel) {
-        let mut seen = accel.scene_index.clone();
-        seen.sort_unstable();
-        assert_eq!(seen, (0..scene.triangles.len() as u32).collect::<Vec<_>>());
-    }
-
-    #[test]
-    fn a_million_copies_of_one_triangle_build_and_are_hit() {
-        let n = 1_000_000;
-        let scene = Scene {
-            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
-            triangles: vec![[0, 1, 2]; n],
-            triangle_material: vec![0; n],
-            materials: vec![crate::scene::NEUTRAL],
-            ..Scene::default()
-        };
-        let (scene, accel) = build_within(scene, Duration::from_secs(120));
-        assert_each_triangle_once(&scene, &accel);
-        let mut stack = accel.new_stack();
-        let down = Ray::new(Vec3::new(0.25, 0.25, 2.0), Vec3::NEG_Z);
-        let hit = accel
-            .closest_hit(&down, 0.0, f32::INFINITY, &mut stack)
-            .unwrap();
-        assert_eq!(hit.t, 2.0);
-        let beside = Ray::new(Vec3::new(0.75, 0.75, 2.0), Vec3::NEG_Z);
-        assert!(accel
-            .closest_hit(&beside, 0.0, f32::INFINITY, &mut stack)
-            .is_none());
-    }
-
-    #[test]
-    fn a_mesh_with_a_stack_of_copies_traces_as_brute_force_does() {
-        let mut scene = knot_scene(64, 12);
-        let base = scene.positions.len() as u32;
-        let centre = scene.bounds().center();
-        scene
-            .positions
-            .extend([centre, centre + Vec3::X, centre + Vec3::Z]);
-        for _ in 0..5000 {
-            scene.triangles.push([base, base + 1, base + 2]);
-            scene.triangle_material.push(0);
-        }
-        let (scene, accel) = build_within(scene, Duration::from_secs(120));
-        assert_each_triangle_once(&scene, &accel);
-        let mut stack = accel.new_stack();
-        for i in 0..300 {
-            let a = i as f32 * 0.41;
-            let origin = centre + Vec3::new(a.cos() * 9.0, 3.0 + a.sin(), a.sin() * 9.0);
-            let ray = Ray::new(
-                origin,
-                centre + Vec3::new(0.3, 0.0, 0.3) * (a * 1.7).sin() - origin,
-            );
-            let got = accel
-                .closest_hit(&ray, 0.0, f32::INFINITY, &mut stack)
-                .map(|h| h.t);
-            assert_eq!(got, crate::accel::brute_force_t(&accel, &ray), "ray {i}");
-        }
-    }
 }

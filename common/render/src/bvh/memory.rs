@@ -6,8 +6,7 @@
 //! monomorphized copy: the replicated one indexes its arrays exactly as before the trait
 //! existed, and the shared one keeps the block it is in until it leaves it (Ize et al. §4.1).
 
-use crate::accel::LeafTriangle;
-use crate::accel_wide::WideNode;
+use crate::bvh::node::{LeafTriangle, WideNode};
 use std::ops::Range;
 
 /// Read access to a tree and its leaf triangles during one traversal.
@@ -82,12 +81,7 @@ impl TreeMemory for Resident<'_> {
 impl ChildPrefetch for Resident<'_> {
     #[inline(always)]
     fn prefetch_child(&self, node: &WideNode, k: usize) {
-        crate::accel_wide::prefetch_child(
-            self.wide,
-            crate::accel_wide::leaf_bytes(self.triangles),
-            node,
-            k,
-        );
+        prefetch_child(self.wide, leaf_bytes(self.triangles), node, k);
     }
 }
 
@@ -99,4 +93,62 @@ pub struct NoPrefetch;
 impl ChildPrefetch for NoPrefetch {
     #[inline(always)]
     fn prefetch_child(&self, _: &WideNode, _: usize) {}
+}
+
+/// Asks the CPU to start loading what child `k` of `node` points to: its 8-wide node in
+/// `nodes`, or its leaf's first items (`leaves`: where the leaf items start and the bytes of
+/// one). On a mesh of millions of triangles these loads miss every cache; issued while the
+/// nearer siblings are traversed, they took the 4.2M knot's primary rays from 13.1 to 14.6
+/// Mrays/s (1 thread, AVX-512).
+#[inline(always)]
+pub(crate) fn prefetch_child(
+    nodes: &[WideNode],
+    (leaves, item_bytes): (*const u8, usize),
+    node: &WideNode,
+    k: usize,
+) {
+    let (child, count) = (node.child[k] as usize, node.count[k]);
+    let (start, bytes) = if count == 0 {
+        (
+            nodes.as_ptr().wrapping_add(child) as *const u8,
+            std::mem::size_of::<WideNode>(),
+        )
+    } else {
+        (
+            leaves.wrapping_add(child * item_bytes),
+            count as usize * item_bytes,
+        )
+    };
+    prefetch(start, bytes.min(PREFETCH_BYTES));
+}
+
+/// The leaf triangles as the prefetcher sees them: where they start and how big one is.
+pub(crate) fn leaf_bytes(triangles: &[LeafTriangle]) -> (*const u8, usize) {
+    (
+        triangles.as_ptr() as *const u8,
+        std::mem::size_of::<LeafTriangle>(),
+    )
+}
+
+/// At most this much of a child is prefetched: a node's boxes, or a leaf's first seven
+/// triangles (prefetching whole 16-triangle leaves was no faster).
+const PREFETCH_BYTES: usize = 256;
+
+/// Prefetches the cache lines of `bytes` bytes from `start` (a hint: it never faults, so
+/// the range need not be valid).
+#[inline(always)]
+fn prefetch(start: *const u8, bytes: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let mut offset = 0;
+        while offset < bytes {
+            // SAFETY: a prefetch is only a hint: it reads nothing the program sees and never
+            // faults, whatever the address.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(start.wrapping_add(offset) as *const i8) };
+            offset += 64;
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (start, bytes);
 }

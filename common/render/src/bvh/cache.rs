@@ -7,7 +7,8 @@
 //! other checks cannot: a flipped bit in a bounding box or a vertex is still a well-formed
 //! file, and trusting it would render wrong pixels on one node only.
 
-use crate::accel::{Accel, BvhNode, LeafTriangle};
+use crate::bvh::node::{BvhNode, LeafTriangle};
+use crate::bvh::tree::Accel;
 use crate::scene::Scene;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};

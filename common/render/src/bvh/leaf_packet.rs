@@ -7,7 +7,7 @@
 //! answer; the rare lane where an edge function is exactly zero (which the scalar test redoes
 //! in f64) is handed back to it.
 
-use crate::accel::LeafTriangle;
+use crate::bvh::node::LeafTriangle;
 use crate::geometry::Ray;
 use crate::packet::PACKET_RAYS;
 use glam::Vec3;

@@ -4,9 +4,9 @@
 //! operations and their order are the scalar test's, so every lane gets exactly the scalar
 //! answer; a lane where an edge function is exactly zero (which the scalar test redoes in f64)
 //! is handed back to it. Single rays (shadow, ambient-occlusion, reflected) use this; packets
-//! test one triangle across their rays instead (`packet_leaf`).
+//! test one triangle across their rays instead (`leaf_packet`).
 
-use crate::accel::LeafTriangle;
+use crate::bvh::node::LeafTriangle;
 use crate::geometry::Ray;
 
 /// Triangles tested together: one AVX2 vector.
@@ -100,16 +100,16 @@ pub(crate) fn any_hit(ray: &Ray, tris: &[LeafTriangle], t_min: f32, t_max: f32) 
 
 /// The nearest hit among `tris` (leaf slots from `first`) that beats `best` (nearer, or as
 /// near on a lower slot), within `(t_min, t_max)`: what testing them one by one with
-/// [`Ray::hit_triangle`] and [`crate::accel::Hit::closer`] keeps.
+/// [`Ray::hit_triangle`] and [`crate::bvh::node::Hit::closer`] keeps.
 #[inline(always)]
 pub(crate) fn closest_hit(
     ray: &Ray,
     tris: &[LeafTriangle],
     first: u32,
     (t_min, t_max): (f32, f32),
-    mut best: Option<crate::accel::Hit>,
-) -> Option<crate::accel::Hit> {
-    use crate::accel::Hit;
+    mut best: Option<crate::bvh::node::Hit>,
+) -> Option<crate::bvh::node::Hit> {
+    use crate::bvh::node::Hit;
     if tris.len() < WIDE_FROM {
         for (j, tri) in tris.iter().enumerate() {
             let slot = first + j as u32;
@@ -141,7 +141,7 @@ pub(crate) fn closest_hit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::Hit;
+    use crate::bvh::node::Hit;
     use glam::Vec3;
 
     /// Rays through a fan of triangles, including their shared edges and corners (where an
