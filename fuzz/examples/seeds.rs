@@ -15,7 +15,7 @@ use tessera_model::params::RenderParams;
 use tessera_protocol::pixels::{encode_batch, BatchSource, Compression};
 use tessera_protocol::*;
 use tessera_model::state::StateId;
-use tessera_protocol::dsm::{BlockHolder, BlockRequest, DataSpec, DsmStats, SharedSpec};
+use tessera_protocol::dsm::{BlockHolder, BlockRequest, DataSpec, DsmStats, DsmSpec};
 use tessera_model::wall::{DisplayId, TileGrid, TileId, WallSpec};
 
 fn main() {
@@ -157,7 +157,7 @@ fn codec(root: &Path) {
                 save_frame: Some(FrameId(3)),
                 compression: Compression::Lz4,
                 windows: Default::default(),
-                data: DataSpec::Shared(SharedSpec {
+                data: DataSpec::Dsm(DsmSpec {
                     dir: "/var/tessera/prepared".into(),
                     block_bytes: 8192,
                     ranks: 4,

@@ -33,7 +33,7 @@ pub struct RunArgs {
     #[command(flatten)]
     pub quality: QualityArgs,
     #[command(flatten)]
-    pub data: crate::shared_data::DataArgs,
+    pub data: crate::dsm_data::DataArgs,
     /// How long to wait for all nodes to join, in seconds (1 to 86400).
     #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub join_timeout: u64,
@@ -271,7 +271,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     let spec = run.scene.spec()?;
     // Checked here; the cutting planes are moved into the scene's frame once it is loaded.
     run.quality
-        .params(&tessera_model::local_frame::RenderFromWorld::IDENTITY)?;
+        .params(&tessera_model::local_origin::RenderFromWorld::IDENTITY)?;
     let refinement = run.refinement()?;
     let scene = Scene::load(&spec)?;
     let params = run.quality.params(&scene.render_from_world)?;
@@ -316,7 +316,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
             orbit_of(&scene.bounds(), fov)
         })?,
         scene_hash: scene.content_hash(),
-        data: crate::shared_data::data_spec(&run.data, &scene, render_nodes, show_progress)?,
+        data: crate::dsm_data::data_spec(&run.data, &scene, render_nodes, show_progress)?,
         scene: spec,
         params,
         frames: (run.frames > 0).then_some(run.frames),

@@ -13,6 +13,7 @@
 mod args;
 mod bench;
 mod control;
+mod dsm_data;
 mod launch;
 mod launcher;
 mod peers;
@@ -21,7 +22,6 @@ mod record;
 mod reference;
 mod relay;
 mod server;
-mod shared_data;
 mod simulate;
 mod validate;
 mod wall_run;
@@ -60,7 +60,7 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Prepare a scene for distributed shared memory (`--data dsm`): its BVH and triangles in
     /// checksummed blocks, reused while the scene is the same.
-    Prepare(shared_data::PrepareArgs),
+    Prepare(dsm_data::PrepareArgs),
     /// Check a wall file (fields, sizes, overlapping screens, screens facing away from the
     /// viewer) and draw it as an SVG: screens, bezels, tiles, which display owns what.
     Validate(validate::ValidateArgs),
@@ -127,7 +127,7 @@ fn run(command: Command) -> Result<ExitCode> {
         Command::Launch(args) => runtime()?.block_on(launch::launch(args)),
         Command::Simulate(args) => simulate::simulate(args),
         Command::Validate(args) => validate::validate(args).map(|()| ExitCode::SUCCESS),
-        Command::Prepare(args) => shared_data::prepare_command(args).map(|()| ExitCode::SUCCESS),
+        Command::Prepare(args) => dsm_data::prepare_command(args).map(|()| ExitCode::SUCCESS),
         Command::Bench(args) => runtime()?.block_on(bench::bench(args)),
         Command::Control(args) => runtime()?.block_on(control::control(args)),
         Command::Relay(args) => runtime()?.block_on(relay::relay(args)),

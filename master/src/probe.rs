@@ -5,7 +5,7 @@
 use std::sync::Arc;
 use tessera_core::master::VolumeProbe;
 use tessera_model::camera::Camera;
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::params::RenderParams;
 use tessera_model::wall::WallLayout;
 use tessera_protocol::control::{ProbeHit, Refusal};

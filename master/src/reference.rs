@@ -16,7 +16,7 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
     let wall = args.wall.layout()?;
     // Checked before the (long) load; the cutting planes are then moved into the scene's frame.
     args.quality
-        .params(&tessera_model::local_frame::RenderFromWorld::IDENTITY)?;
+        .params(&tessera_model::local_origin::RenderFromWorld::IDENTITY)?;
     let replayed = args
         .replay
         .as_deref()

@@ -4,7 +4,7 @@
 //! wait; the master's news of holders tells it who is gone; and an empty request now and then
 //! measures the transport's round trip on the same connections, the floor under a remote read.
 
-use crate::shared::FetchHub;
+use crate::dsm::FetchHub;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};

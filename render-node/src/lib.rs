@@ -15,12 +15,12 @@
 mod batch;
 mod bench;
 mod block_server;
+mod dsm;
 mod fetch_driver;
 mod loading;
 pub mod memory;
 mod node;
 mod pixels_out;
-mod shared;
 
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
@@ -128,7 +128,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 bvh_cache: cache_dir(cli.bvh_cache, cli.no_bvh_cache),
                 volume_cache_bytes: cli.volume_cache_mb.saturating_mul(1 << 20),
                 reconnect: cli.reconnect.wait(),
-                shared: shared::SharedOptions {
+                dsm: dsm::DsmOptions {
                     prepared: cli.prepared,
                     memory_budget: cli.memory_budget,
                     // Set once the node knows its thread count.

@@ -2,8 +2,8 @@
 //! later session of the same scene), or its share of a shared scene read from the prepared
 //! files, with the block server and fetch loop that go with it.
 
+use crate::dsm::DsmScene;
 use crate::node::NodeSide;
-use crate::shared::Shared;
 use anyhow::{bail, Result};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicUsize;
@@ -44,7 +44,7 @@ pub struct SceneHere {
     pub series: Option<Arc<SeriesCache>>,
     pub shown_step: Arc<AtomicUsize>,
     /// For a shared scene: its fetching, and the server of this node's blocks.
-    pub shared: Option<Shared>,
+    pub shared: Option<DsmScene>,
     _server: Option<AbortOnDrop>,
 }
 
@@ -56,7 +56,7 @@ pub async fn scene_here(
     session: &Session,
     loaded: &mut Option<Loaded>,
 ) -> Result<SceneHere> {
-    if let DataSpec::Shared(spec) = session.data() {
+    if let DataSpec::Dsm(spec) = session.data() {
         // Its share depends on its rank in this session: nothing carries over.
         *loaded = None;
         return shared_here(side, link, node, session, spec).await;
@@ -102,7 +102,7 @@ async fn shared_here(
     link: &mut MasterLink,
     node: RenderNodeId,
     session: &Session,
-    spec: &tessera_protocol::dsm::SharedSpec,
+    spec: &tessera_protocol::dsm::DsmSpec,
 ) -> Result<SceneHere> {
     // The master says the node's rank right after the welcome.
     let (rank, holders) = match link.recv().await? {
@@ -120,12 +120,12 @@ async fn shared_here(
     let endpoint = side.endpoint.clone();
     // Only other render nodes connect to a render node: for blocks, with windows of their own.
     endpoint.set_server_config(Some(quic::block_server_config(&side.identity)?));
-    let (prepared, shared) = crate::shared::start(
+    let (prepared, shared) = crate::dsm::start(
         spec,
         session.scene_hash(),
         rank,
         holders,
-        &side.shared,
+        &side.dsm,
         (endpoint.clone(), quic::block_client_config(&side.identity)?),
     )
     .await?;

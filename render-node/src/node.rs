@@ -38,7 +38,7 @@ pub struct Options {
     /// With `--reconnect`: how long to wait for a lost master to come back and rejoin it.
     pub reconnect: Option<Duration>,
     /// This host's copy of a shared scene, and its own memory budget.
-    pub shared: crate::shared::SharedOptions,
+    pub dsm: crate::dsm::DsmOptions,
 }
 
 /// What every session of a node shares: its cores, its identity, its socket.
@@ -49,7 +49,7 @@ pub(crate) struct NodeSide {
     pub identity: NodeIdentity,
     pub bvh_cache: Option<PathBuf>,
     pub volume_cache_bytes: usize,
-    pub shared: crate::shared::SharedOptions,
+    pub dsm: crate::dsm::DsmOptions,
 }
 
 /// Joins the master and renders until it shuts the wall down; with `--reconnect`, a lost
@@ -92,9 +92,9 @@ pub async fn run(options: Options) -> Result<()> {
         identity,
         bvh_cache: options.bvh_cache,
         volume_cache_bytes: options.volume_cache_bytes,
-        shared: crate::shared::SharedOptions {
+        dsm: crate::dsm::DsmOptions {
             threads,
-            ..options.shared
+            ..options.dsm
         },
     };
     let mut loaded = None;

@@ -22,7 +22,7 @@ use glam::{DVec3, Vec3};
 use std::path::PathBuf;
 use tessera_model::camera::{check_fov, Camera, CameraError, CameraMode, DEFAULT_FOV_DEG};
 use tessera_model::cut::{CutError, CutPlanes};
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
 use tessera_model::scene_spec::{SceneSpec, SceneSpecError};
 use tessera_model::stereo::{Stereo, StereoMode};

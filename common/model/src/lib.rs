@@ -4,7 +4,7 @@
 //! [`screens`] in millimetres, each with its own frustum; [`stereo`]: what each display shows,
 //! one viewport an eye), where displays put their windows ([`window`]: wall files parsed and
 //! checked from their text), and the state a frame is rendered with ([`state`], [`camera`],
-//! [`params`], [`cut`], [`light`], [`scene_spec`], [`volume_params`], and [`local_frame`]:
+//! [`params`], [`cut`], [`light`], [`scene_spec`], [`volume_params`], and [`local_origin`]:
 //! where render coordinates sit in the world, for scenes far from the origin), window
 //! [`input`], and whole-wall RGB [`image`]s. The messages that carry these between the master
 //! and the nodes are `tessera-protocol`'s.
@@ -25,7 +25,7 @@ pub mod cut;
 pub mod image;
 pub mod input;
 pub mod light;
-pub mod local_frame;
+pub mod local_origin;
 pub mod params;
 pub mod scene_spec;
 pub mod screens;

@@ -16,7 +16,7 @@ pub enum Light {
     },
     /// A point light; falls off with the square of the distance.
     Point {
-        /// Where the light is, in render coordinates (see [`crate::local_frame`]).
+        /// Where the light is, in render coordinates (see [`crate::local_origin`]).
         position: Vec3,
         /// Linear multiplier of the diffuse term at distance 1, divided by the squared distance
         /// elsewhere; 0 or more.

@@ -177,7 +177,7 @@ mod tests {
                         },
                     )]
                     .into(),
-                    data: crate::dsm::DataSpec::Shared(crate::dsm::SharedSpec {
+                    data: crate::dsm::DataSpec::Dsm(crate::dsm::DsmSpec {
                         dir: "/var/tessera/prepared".into(),
                         block_bytes: 8192,
                         ranks: 4,

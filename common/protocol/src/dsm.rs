@@ -21,13 +21,13 @@ pub const MAX_RANKS: u32 = 4096;
 pub enum DataSpec {
     /// Every render node loads the whole scene.
     Replicated,
-    /// The scene is prepared in blocks, each render node holds a share (see [`SharedSpec`]).
-    Shared(SharedSpec),
+    /// The scene is prepared in blocks, each render node holds a share (see [`DsmSpec`]).
+    Dsm(DsmSpec),
 }
 
 /// A scene shared in blocks: where they are prepared, how they are spread.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SharedSpec {
+pub struct DsmSpec {
     /// The prepared folder on the master's host; a render node's `--prepared` names its own.
     pub dir: PathBuf,
     /// Size of one block in bytes: the unit of sharing, fetching and caching.
@@ -45,7 +45,7 @@ pub struct SharedSpec {
 
 /// Why a shared scene's spread was refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
-pub enum SharedSpecError {
+pub enum DsmSpecError {
     /// No render node was to hold blocks, or more than [`MAX_RANKS`].
     #[error("{0} ranks (1 to {MAX_RANKS})")]
     Ranks(u32),
@@ -62,25 +62,25 @@ pub enum SharedSpecError {
     CacheFraction(f32),
 }
 
-impl SharedSpec {
+impl DsmSpec {
     /// Checks the spread.
     ///
     /// # Errors
     /// No ranks or more than [`MAX_RANKS`], replicas not within 1..=ranks, a cache fraction
     /// not in (0, 1].
-    pub fn check(&self) -> Result<(), SharedSpecError> {
+    pub fn check(&self) -> Result<(), DsmSpecError> {
         if !(1..=MAX_RANKS).contains(&self.ranks) {
-            return Err(SharedSpecError::Ranks(self.ranks));
+            return Err(DsmSpecError::Ranks(self.ranks));
         }
         if !(1..=self.ranks).contains(&self.replicas) {
-            return Err(SharedSpecError::Replicas {
+            return Err(DsmSpecError::Replicas {
                 replicas: self.replicas,
                 ranks: self.ranks,
             });
         }
         if let Some(f) = self.cache_fraction {
             if !(f > 0.0 && f <= 1.0) {
-                return Err(SharedSpecError::CacheFraction(f));
+                return Err(DsmSpecError::CacheFraction(f));
             }
         }
         Ok(())
@@ -232,7 +232,7 @@ mod tests {
 
     #[test]
     fn a_shared_spec_out_of_bounds_is_refused() {
-        let ok = SharedSpec {
+        let ok = DsmSpec {
             dir: "/tmp/x".into(),
             block_bytes: 8192,
             ranks: 4,
@@ -242,19 +242,19 @@ mod tests {
         };
         assert!(ok.check().is_ok());
         for bad in [
-            SharedSpec {
+            DsmSpec {
                 ranks: 0,
                 ..ok.clone()
             },
-            SharedSpec {
+            DsmSpec {
                 replicas: 5,
                 ..ok.clone()
             },
-            SharedSpec {
+            DsmSpec {
                 cache_fraction: Some(0.0),
                 ..ok.clone()
             },
-            SharedSpec {
+            DsmSpec {
                 cache_fraction: Some(f32::NAN),
                 ..ok.clone()
             },

@@ -167,9 +167,9 @@ pub enum ProtocolError {
         /// Its value, in seconds (microseconds for the latencies; a count for too many loads).
         value: f64,
     },
-    /// A session's shared scene has a spread [`dsm::SharedSpec::check`] refuses.
+    /// A session's shared scene has a spread [`dsm::DsmSpec::check`] refuses.
     #[error("session shares the scene with {0}")]
-    BadShared(#[from] dsm::SharedSpecError),
+    BadShared(#[from] dsm::DsmSpecError),
 }
 
 /// Where a display node accepts pixels.
@@ -237,7 +237,7 @@ impl Session {
         if let Some(&display) = spec.windows.keys().find(|&&d| d >= count) {
             return Err(ProtocolError::UnknownDisplay { display, count });
         }
-        if let dsm::DataSpec::Shared(shared) = &spec.data {
+        if let dsm::DataSpec::Dsm(shared) = &spec.data {
             shared.check()?;
         }
         Ok(Session(spec))

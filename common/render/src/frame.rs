@@ -36,7 +36,7 @@ pub struct PreparedScene {
     pub accel: Accel,
     /// The triangles and their tree in distributed shared memory, when the scene is shared
     /// rather than replicated on every render node.
-    pub shared: Option<crate::dsm::SharedTree>,
+    pub shared: Option<crate::dsm::DsmTree>,
     /// Material index of each leaf slot.
     pub(crate) slot_material: SlotMaterials,
     pub(crate) materials: Vec<Material>,

@@ -1,10 +1,10 @@
 //! A render thread's means of tracing rays through a prepared scene's triangles, whichever
 //! memory holds them: the scene's own arrays (replicated data) or the distributed shared
-//! memory, where the thread keeps the blocks it is in (see `dsm::SharedReader`).
+//! memory, where the thread keeps the blocks it is in (see `dsm::DsmReader`).
 
 use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, LeafTriangle};
-use crate::dsm::SharedReader;
+use crate::dsm::DsmReader;
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
@@ -23,13 +23,13 @@ pub struct Tracer<'s> {
 #[allow(clippy::large_enum_variant)]
 enum Memory<'s> {
     Resident(crate::bvh::memory::Resident<'s>),
-    Shared(SharedReader<'s>),
+    Dsm(DsmReader<'s>),
 }
 
 impl<'s> Tracer<'s> {
     pub(crate) fn new(scene: &'s PreparedScene) -> Self {
         let memory = match &scene.shared {
-            Some(tree) => Memory::Shared(tree.reader()),
+            Some(tree) => Memory::Dsm(tree.reader()),
             None => Memory::Resident(scene.accel.resident()),
         };
         Tracer {
@@ -44,7 +44,7 @@ impl<'s> Tracer<'s> {
         let (stack, isa) = (&mut self.stack, Isa::best());
         match &mut self.memory {
             Memory::Resident(m) => closest_hits_on(isa, m, packet, hits, stack),
-            Memory::Shared(m) => closest_hits_on(isa, m, packet, hits, stack),
+            Memory::Dsm(m) => closest_hits_on(isa, m, packet, hits, stack),
         }
     }
 
@@ -54,7 +54,7 @@ impl<'s> Tracer<'s> {
         let (stack, isa) = (&mut self.stack, Isa::best());
         match &mut self.memory {
             Memory::Resident(m) => occluded_lanes_on(isa, m, packet, stack),
-            Memory::Shared(m) => occluded_lanes_on(isa, m, packet, stack),
+            Memory::Dsm(m) => occluded_lanes_on(isa, m, packet, stack),
         }
     }
 
@@ -64,7 +64,7 @@ impl<'s> Tracer<'s> {
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => closest_hit(m, ray, (t_min, t_max), stack),
-            Memory::Shared(m) => closest_hit(m, ray, (t_min, t_max), stack),
+            Memory::Dsm(m) => closest_hit(m, ray, (t_min, t_max), stack),
         }
     }
 
@@ -74,7 +74,7 @@ impl<'s> Tracer<'s> {
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => occluded(m, ray, (t_min, t_max), stack),
-            Memory::Shared(m) => occluded(m, ray, (t_min, t_max), stack),
+            Memory::Dsm(m) => occluded(m, ray, (t_min, t_max), stack),
         }
     }
 
@@ -83,7 +83,7 @@ impl<'s> Tracer<'s> {
     pub fn take_footprint(&mut self) -> Vec<tessera_core::dsm::BlockId> {
         match &mut self.memory {
             Memory::Resident(_) => Vec::new(),
-            Memory::Shared(m) => m.take_footprint(),
+            Memory::Dsm(m) => m.take_footprint(),
         }
     }
 
@@ -91,7 +91,7 @@ impl<'s> Tracer<'s> {
     pub fn triangle(&mut self, slot: u32) -> LeafTriangle {
         match &mut self.memory {
             Memory::Resident(m) => *m.triangle(slot),
-            Memory::Shared(m) => *m.triangle(slot),
+            Memory::Dsm(m) => *m.triangle(slot),
         }
     }
 }

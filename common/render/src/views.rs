@@ -15,19 +15,19 @@ pub const DEFAULT_EYE_SEPARATION: f64 = 0.065;
 /// Eye separation of a wall of screens when none is given, in millimetres.
 pub const DEFAULT_EYE_SEPARATION_MM: f64 = 64.0;
 
-/// The camera's frame, in f64: where every viewport is placed from.
-struct Frame {
+/// The camera's basis, in f64: where every viewport is placed from.
+struct CameraBasis {
     eye: DVec3,
     forward: DVec3,
     right: DVec3,
     up: DVec3,
 }
 
-impl Frame {
-    fn of(camera: &Camera) -> Frame {
+impl CameraBasis {
+    fn of(camera: &Camera) -> CameraBasis {
         let forward = (camera.target() - camera.eye()).as_dvec3().normalize();
         let right = forward.cross(camera.up().as_dvec3()).normalize();
-        Frame {
+        CameraBasis {
             eye: camera.eye().as_dvec3(),
             forward,
             right,
@@ -47,7 +47,7 @@ pub fn viewport_rays(camera: &Camera, wall: &WallLayout) -> Option<Arc<[PixelRay
     if wall.is_one_image() {
         return None;
     }
-    let frame = Frame::of(camera);
+    let frame = CameraBasis::of(camera);
     let stereo = wall.stereo();
     Some(
         wall.viewports()
@@ -80,7 +80,7 @@ fn nonzero(v: f64, default: f64) -> f64 {
 /// the image lies on the plane through the camera's target, where the eyes' views meet.
 fn image_rays(
     camera: &Camera,
-    frame: &Frame,
+    frame: &CameraBasis,
     (width, height): (u32, u32),
     [x, y, w, h]: [f64; 4],
     (v, separation): (&Viewport, f64),
@@ -103,7 +103,7 @@ fn image_rays(
 
 /// Rays of a physical screen seen by the viewport's eye.
 fn screen_rays(
-    frame: &Frame,
+    frame: &CameraBasis,
     viewer: Viewer,
     screen: &ScreenGeometry,
     (v, separation_mm): (&Viewport, f64),

@@ -7,8 +7,8 @@
 
 use super::plot::Series;
 use super::{wall_run, wrote, BenchArgs, Outputs, Plot};
+use crate::dsm_data::DataMode;
 use crate::report::Report;
-use crate::shared_data::DataMode;
 use anyhow::{bail, Result};
 use serde_json::json;
 use std::path::Path;

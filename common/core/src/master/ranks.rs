@@ -31,7 +31,7 @@ pub(super) struct NoRank;
 impl Master {
     fn rank_count(&self) -> Option<u32> {
         match &self.cfg.data {
-            DataSpec::Shared(spec) => Some(spec.ranks),
+            DataSpec::Dsm(spec) => Some(spec.ranks),
             DataSpec::Replicated => None,
         }
     }
@@ -101,7 +101,7 @@ impl Master {
         };
         self.ranks.addr.remove(&rank);
         let replicas = match &self.cfg.data {
-            DataSpec::Shared(spec) => spec.replicas,
+            DataSpec::Dsm(spec) => spec.replicas,
             DataSpec::Replicated => 1,
         };
         if replicas > 1 {

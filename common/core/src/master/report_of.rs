@@ -6,7 +6,7 @@ use super::*;
 impl Master {
     /// The render nodes' reads of a shared scene, together.
     fn dsm_summary(&self, nodes: &[RenderNodeReport], frames: u64) -> Option<DsmSummary> {
-        let DataSpec::Shared(spec) = &self.cfg.data else {
+        let DataSpec::Dsm(spec) = &self.cfg.data else {
             return None;
         };
         let mut s = DsmSummary {
@@ -127,7 +127,7 @@ impl Master {
             snapshots: self.live.snapshots.iter().map(|f| f.0).collect(),
             data: match self.cfg.data {
                 DataSpec::Replicated => "replicated",
-                DataSpec::Shared(_) => "dsm",
+                DataSpec::Dsm(_) => "dsm",
             },
             dsm,
         }

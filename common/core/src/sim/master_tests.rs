@@ -7,7 +7,7 @@ use crate::master::RunError;
 use glam::Vec3;
 use tessera_model::camera::{Camera, CameraMode};
 use tessera_protocol::control::Refusal;
-use tessera_protocol::dsm::SharedSpec;
+use tessera_protocol::dsm::DsmSpec;
 
 fn two_displays() -> WallLayout {
     WallSpec::grid(2, 1, 256, 144)
@@ -152,7 +152,7 @@ fn a_change_with_a_bad_value_is_refused_without_touching_the_state() {
 
 #[test]
 fn a_dead_holders_rank_goes_to_the_next_render_node_to_join() {
-    let shared = SharedSpec {
+    let shared = DsmSpec {
         dir: "prepared".into(),
         block_bytes: 8192,
         ranks: 2,
@@ -161,7 +161,7 @@ fn a_dead_holders_rank_goes_to_the_next_render_node_to_join() {
         cache_fraction: None,
     };
     let config = SimConfig {
-        data: DataSpec::Shared(shared),
+        data: DataSpec::Dsm(shared),
         ..SimConfig::new(3)
     };
     let mut sim = SimWall::with_config(9, two_displays(), &config);

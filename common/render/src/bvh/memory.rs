@@ -1,6 +1,6 @@
 //! Where a traversal reads the 8-wide tree's nodes and the leaf triangles: this process's own
 //! arrays ([`Resident`], replicated data), or blocks of the distributed shared memory
-//! (`crate::dsm::SharedReader`), which a render node holds only a share of.
+//! (`crate::dsm::DsmReader`), which a render node holds only a share of.
 //!
 //! Traversals are generic over [`TreeMemory`], so each kind of memory gets its own
 //! monomorphized copy: the replicated one indexes its arrays exactly as before the trait

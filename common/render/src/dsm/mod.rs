@@ -7,10 +7,10 @@
 //!   adjacent (§4.1); triangles stay in BVH leaf order with their own corners (§4.2).
 //! * [`prepare`]: a scene prepared once into block files with a checksum per block and a
 //!   manifest, reused while the scene's content is the same.
-//! * [`shared`]: what a render node renders from: the replicated top of the tree, its resident
+//! * [`tree`]: [`tree::DsmTree`], what a render node renders from: the replicated top of the tree, its resident
 //!   share, the direct-mapped cache of `tessera_core::dsm`, and a blocking fetch of what is
 //!   in neither.
-//! * `reader`: [`SharedReader`], one thread's view of it, the
+//! * `reader`: [`DsmReader`], one thread's view of it, the
 //!   [`crate::bvh::memory::TreeMemory`] a traversal reads.
 //!
 //! Volume bricks and particles are not shared: a scene with either is rendered replicated.
@@ -20,7 +20,7 @@ pub mod pool;
 pub mod prepare;
 mod reader;
 pub mod reorder;
-pub mod shared;
+pub mod tree;
 
 pub use layout::{Block, BlockLayout, Chunk, LayoutError};
 
@@ -31,8 +31,8 @@ pub use layout::{Block, BlockLayout, Chunk, LayoutError};
 /// builds alike), rounded up.
 pub const NODE_OVERHEAD_BYTES: u64 = 32 << 20;
 pub use prepare::{Manifest, PrepareError};
-pub use reader::SharedReader;
-pub use shared::{BlockFetch, SharedStats, SharedTree};
+pub use reader::DsmReader;
+pub use tree::{BlockFetch, DsmTree, DsmTreeStats};
 
 use crate::bvh::Accel;
 use crate::PreparedScene;
@@ -40,7 +40,7 @@ use crate::PreparedScene;
 impl PreparedScene {
     /// A scene whose triangles and tree are in shared memory: what its manifest holds whole
     /// (materials, lights, the slots' materials), and its tree as this node holds it.
-    pub fn from_shared(manifest: &Manifest, tree: SharedTree) -> PreparedScene {
+    pub fn from_shared(manifest: &Manifest, tree: DsmTree) -> PreparedScene {
         PreparedScene {
             // Only its depth is used: it sizes the traversal stacks.
             accel: Accel::from_parts(

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use tessera_core::dsm::{BlockId, Residency};
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 
 /// Bumped whenever the block contents or the files change.
 pub const FORMAT: u32 = 1;

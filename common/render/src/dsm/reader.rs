@@ -1,4 +1,4 @@
-//! One render thread's reads of a [`SharedTree`], as a [`TreeMemory`] the traversals read.
+//! One render thread's reads of a [`DsmTree`], as a [`TreeMemory`] the traversals read.
 //!
 //! Ize et al. keep the block a thread is in until it leaves it (§4.1). A packet traversal
 //! leaves and comes back often: the entries on its stack name their parents, which lie in the
@@ -12,7 +12,7 @@
 //! reference count, or a fetch).
 
 use super::layout::{nodes_of, Chunk, FastDiv};
-use super::shared::{Hold, SharedTree};
+use super::tree::{DsmTree, Hold};
 use crate::bvh::memory::{NoPrefetch, TreeMemory};
 use crate::bvh::node::{LeafTriangle, WideNode};
 use std::ops::Range;
@@ -47,10 +47,10 @@ impl<const N: usize> Holds<'_, N> {
     }
 }
 
-/// One thread's reads of a [`SharedTree`] (see the module doc). Make one per thread with
-/// [`SharedTree::reader`] and keep it across rays.
-pub struct SharedReader<'s> {
-    tree: &'s SharedTree,
+/// One thread's reads of a [`DsmTree`] (see the module doc). Make one per thread with
+/// [`DsmTree::reader`] and keep it across rays.
+pub struct DsmReader<'s> {
+    tree: &'s DsmTree,
     /// Division by the nodes and the triangles a block holds.
     per_node_block: FastDiv,
     per_triangle_block: FastDiv,
@@ -67,18 +67,18 @@ struct Tally {
     /// Lookups of blocks it held none of, and of those, blocks this node holds itself.
     reads: u64,
     local: u64,
-    /// The other nodes' blocks read since [`SharedReader::take_footprint`]: what the same
+    /// The other nodes' blocks read since [`DsmReader::take_footprint`]: what the same
     /// pixels will read again next frame, to be fetched ahead of them.
     footprint: Vec<BlockId>,
 }
 
-impl<'s> SharedReader<'s> {
+impl<'s> DsmReader<'s> {
     /// Blocks a reader keeps at most (they stay alive while it does, whatever the cache).
     pub const HOLDS: usize = NODE_HOLDS + TRIANGLE_HOLDS;
 
-    pub(super) fn new(tree: &'s SharedTree) -> Self {
+    pub(super) fn new(tree: &'s DsmTree) -> Self {
         let layout = tree.layout();
-        SharedReader {
+        DsmReader {
             tree,
             per_node_block: FastDiv::new(layout.nodes_per_block()),
             per_triangle_block: FastDiv::new(layout.triangles_per_block()),
@@ -99,7 +99,7 @@ impl<'s> SharedReader<'s> {
     /// looked up in that one's place.
     #[inline(always)]
     fn base_of<const N: usize>(
-        tree: &'s SharedTree,
+        tree: &'s DsmTree,
         holds: &mut Holds<'s, N>,
         k: BlockId,
         tally: &mut Tally,
@@ -114,7 +114,7 @@ impl<'s> SharedReader<'s> {
     #[cold]
     #[inline(never)]
     fn enter<const N: usize>(
-        tree: &'s SharedTree,
+        tree: &'s DsmTree,
         holds: &mut Holds<'s, N>,
         i: usize,
         k: BlockId,
@@ -135,13 +135,13 @@ impl<'s> SharedReader<'s> {
     }
 }
 
-impl Drop for SharedReader<'_> {
+impl Drop for DsmReader<'_> {
     fn drop(&mut self) {
         self.tree.count_reads(self.tally.reads, self.tally.local);
     }
 }
 
-impl TreeMemory for SharedReader<'_> {
+impl TreeMemory for DsmReader<'_> {
     type Prefetch = NoPrefetch;
 
     fn is_empty(&self) -> bool {

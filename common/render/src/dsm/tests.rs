@@ -47,7 +47,7 @@ fn shared(
     for (slot, k) in residency.resident_blocks() {
         share[slot * per..(slot + 1) * per].copy_from_slice(all.blocks[k as usize].chunks());
     }
-    let tree = SharedTree::new(
+    let tree = DsmTree::new(
         layout,
         residency,
         top.into_boxed_slice(),

@@ -18,7 +18,7 @@ use crate::volume::{self, Volume};
 use glam::DVec3;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -17,7 +17,7 @@ use crate::volume::{self, Volume, VolumeError};
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::scene_spec::SceneSpec;
 
 pub use files::load_mesh_file;

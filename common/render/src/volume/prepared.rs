@@ -12,7 +12,7 @@ use super::transfer::TransferTable;
 use super::Volume;
 use glam::{DMat3, DVec3, Mat3, Vec3, Vec4};
 use std::sync::{Arc, Mutex};
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::volume_params::{TransferFunction, VolumeParams};
 
 /// Composited opacity past which a ray stops: what lies behind shows by less than this.
@@ -41,7 +41,7 @@ pub struct FrameTables {
 ///
 /// ```
 /// use tessera_render::volume::{PreparedVolume, Volume, VoxelType};
-/// use tessera_model::local_frame::RenderFromWorld;
+/// use tessera_model::local_origin::RenderFromWorld;
 /// use tessera_model::volume_params::VolumeParams;
 /// use glam::Vec3;
 ///

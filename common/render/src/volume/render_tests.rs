@@ -9,7 +9,7 @@ use crate::shade::background;
 use crate::{orbit_of, render_tiles, FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_model::camera::Camera;
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::params::{RenderParams, RenderParamsSpec};
 use tessera_model::volume_params::{
     IsoValues, TransferDomain, TransferFunction, TransferPoint, VolumeParams,

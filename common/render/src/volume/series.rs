@@ -12,7 +12,7 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::PathBuf;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Instant;
-use tessera_model::local_frame::RenderFromWorld;
+use tessera_model::local_origin::RenderFromWorld;
 
 /// What the cache has done, for reports.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -51,7 +51,7 @@ struct Shared {
 ///
 /// ```no_run
 /// use tessera_render::volume::SeriesCache;
-/// use tessera_model::local_frame::RenderFromWorld;
+/// use tessera_model::local_origin::RenderFromWorld;
 /// let series = SeriesCache::new(vec!["t0.nrrd".into(), "t1.nrrd".into()],
 ///     RenderFromWorld::IDENTITY, 1 << 30, 2);
 /// let step0 = series.get(0)?; // and the readers start on step 1

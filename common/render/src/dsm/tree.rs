@@ -1,10 +1,10 @@
 //! What a render node traces a shared scene from: the top of the tree (held by every node),
 //! its own share of the blocks, the direct-mapped cache of the others, and a fetch for what is
-//! in neither; and [`SharedReader`], one thread's view of it, which a traversal reads through
+//! in neither; and [`DsmReader`], one thread's view of it, which a traversal reads through
 //! [`TreeMemory`].
 
 use super::layout::{Block, BlockLayout, Chunk};
-use super::SharedReader;
+use super::DsmReader;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -24,7 +24,7 @@ pub trait BlockFetch: Send + Sync {
 
 /// Counters of one node's reads, over its run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct SharedStats {
+pub struct DsmTreeStats {
     /// Blocks a traversal moved into (each block read, however many nodes it read there).
     pub block_reads: u64,
     /// Of those, blocks this node holds (the top of the tree, its share).
@@ -36,7 +36,7 @@ pub struct SharedStats {
 }
 
 /// A scene's tree and triangles in distributed shared memory, as one render node holds them.
-pub struct SharedTree {
+pub struct DsmTree {
     layout: BlockLayout,
     residency: Residency,
     chunks_per_block: usize,
@@ -61,7 +61,7 @@ pub struct SizeMismatch {
     want: usize,
 }
 
-impl SharedTree {
+impl DsmTree {
     /// The tree from its parts: `top` holds blocks `0..layout.top_blocks`, `resident` the
     /// blocks `residency` gives this node at their slots; the rest is read through `cache`,
     /// and fetched by `fetch` when the cache does not have it.
@@ -75,7 +75,7 @@ impl SharedTree {
         resident: Box<[Chunk]>,
         cache: Arc<BlockCache<Block>>,
         fetch: Arc<dyn BlockFetch>,
-    ) -> Result<SharedTree, SizeMismatch> {
+    ) -> Result<DsmTree, SizeMismatch> {
         let chunks_per_block = (layout.block_bytes / 64) as usize;
         let check = |what, got: usize, blocks: usize| {
             let want = blocks * chunks_per_block;
@@ -95,7 +95,7 @@ impl SharedTree {
             resident.len(),
             residency.resident_len(),
         )?;
-        Ok(SharedTree {
+        Ok(DsmTree {
             layout,
             residency,
             chunks_per_block,
@@ -128,8 +128,8 @@ impl SharedTree {
     }
 
     /// One thread's reader; make one per thread and keep it across rays.
-    pub fn reader(&self) -> SharedReader<'_> {
-        SharedReader::new(self)
+    pub fn reader(&self) -> DsmReader<'_> {
+        DsmReader::new(self)
     }
 
     /// Adds one reader's counts (when it is done).
@@ -138,8 +138,8 @@ impl SharedTree {
         self.local_reads.fetch_add(local, Ordering::Relaxed);
     }
 
-    pub fn stats(&self) -> SharedStats {
-        SharedStats {
+    pub fn stats(&self) -> DsmTreeStats {
+        DsmTreeStats {
             block_reads: self.block_reads.load(Ordering::Relaxed),
             local_reads: self.local_reads.load(Ordering::Relaxed),
             fetched: self.fetched.load(Ordering::Relaxed),

@@ -13,16 +13,16 @@ use std::time::Duration;
 use tessera_cli::bytes::show_bytes;
 use tessera_core::dsm::{BlockCache, BlockId, Residency};
 use tessera_model::wall::TileId;
-use tessera_protocol::dsm::{BlockHolder, DsmStats, SharedSpec};
+use tessera_protocol::dsm::{BlockHolder, DsmSpec, DsmStats};
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
-use tessera_render::dsm::{Block, BlockFetch, SharedTree, NODE_OVERHEAD_BYTES};
+use tessera_render::dsm::{Block, BlockFetch, DsmTree, NODE_OVERHEAD_BYTES};
 use tessera_render::PreparedScene;
 use tokio::sync::mpsc;
 
 /// What the node was told, by its own flags, about shared scenes.
 #[derive(Clone, Debug, Default)]
-pub struct SharedOptions {
+pub struct DsmOptions {
     /// Its own copy of the prepared folder, in place of the master's path.
     pub prepared: Option<PathBuf>,
     /// Its own memory budget, in place of the session's.
@@ -130,8 +130,8 @@ impl BlockFetch for FetchHub {
     }
 }
 
-/// A shared scene on this node, and what keeps its fetching going.
-pub struct Shared {
+/// A scene in distributed shared memory on this node, and what keeps its fetching going.
+pub struct DsmScene {
     pub manifest: Manifest,
     pub rank: Option<u32>,
     pub cache_lines: usize,
@@ -141,7 +141,7 @@ pub struct Shared {
     footprints: HashMap<TileId, Vec<BlockId>>,
 }
 
-impl Shared {
+impl DsmScene {
     /// Remembers what each of `tiles` read (`footprints`, in the same order).
     pub fn note_footprints(&mut self, tiles: &[TileId], footprints: Vec<Vec<BlockId>>) {
         for (&tile, footprint) in tiles.iter().zip(footprints) {
@@ -208,7 +208,7 @@ impl Shared {
     }
 }
 
-impl Drop for Shared {
+impl Drop for DsmScene {
     fn drop(&mut self) {
         self.hub.close();
     }
@@ -218,7 +218,7 @@ impl Drop for Shared {
 /// experiment asks for, or what the budget leaves, or an eighth of the scene.
 fn cache_lines(
     manifest: &Manifest,
-    spec: &SharedSpec,
+    spec: &DsmSpec,
     budget: Option<u64>,
     (resident, spare): (u64, u64),
 ) -> Result<usize> {
@@ -244,23 +244,23 @@ fn cache_lines(
 }
 
 /// Blocks a node may hold besides its cache's: those its render threads keep
-/// ([`SharedReader::HOLDS`] each, some evicted from the cache meanwhile), those they wait for,
+/// ([`DsmReader::HOLDS`] each, some evicted from the cache meanwhile), those they wait for,
 /// and those fetched ahead.
 fn spare_blocks(threads: usize) -> u64 {
-    let per_thread = tessera_render::dsm::SharedReader::HOLDS as u64 + 1;
+    let per_thread = tessera_render::dsm::DsmReader::HOLDS as u64 + 1;
     threads as u64 * per_thread + crate::fetch_driver::PREFETCH_IN_FLIGHT as u64 + 64
 }
 
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
 /// and starts fetching: the scene to render, and the handle that keeps it fed.
 pub async fn start(
-    spec: &SharedSpec,
+    spec: &DsmSpec,
     scene_hash: [u8; 32],
     rank: Option<u32>,
     holders: Vec<BlockHolder>,
-    options: &SharedOptions,
+    options: &DsmOptions,
     (endpoint, client): (quinn::Endpoint, quinn::ClientConfig),
-) -> Result<(PreparedScene, Shared)> {
+) -> Result<(PreparedScene, DsmScene)> {
     let dir = options.prepared.clone().unwrap_or_else(|| spec.dir.clone());
     let hash = prepare::hash_hex(&scene_hash);
     let manifest =
@@ -298,7 +298,7 @@ pub async fn start(
     let (miss_tx, miss_rx) = mpsc::unbounded_channel();
     let hub = Arc::new(FetchHub::new(miss_tx, fallback));
     let cache = Arc::new(BlockCache::new(lines));
-    let tree = SharedTree::new(
+    let tree = DsmTree::new(
         layout,
         residency.clone(),
         share.0,
@@ -320,7 +320,7 @@ pub async fn start(
     });
     Ok((
         prepared,
-        Shared {
+        DsmScene {
             manifest,
             rank,
             cache_lines: lines,

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 ///
 /// ```
 /// use glam::{DVec3, Vec3};
-/// use tessera_model::local_frame::RenderFromWorld;
+/// use tessera_model::local_origin::RenderFromWorld;
 ///
 /// let frame = RenderFromWorld::new(DVec3::splat(1e6));
 /// // 1e6 + 0.3 has no f32 of its own (its neighbours are 0.0625 apart), but 0.3 does.

@@ -8,7 +8,7 @@ use tessera_tests::*;
 
 /// A local wall of 2x1 screens of 160x90 with `render_nodes` one-thread render nodes sharing
 /// `scene` (prepared into `dir/prepared`), the extra flags `rest`, its report in `dir/out`.
-fn shared_wall(dir: &Path, scene: &str, render_nodes: u32, rest: &[&str]) -> Proc {
+fn dsm_wall(dir: &Path, scene: &str, render_nodes: u32, rest: &[&str]) -> Proc {
     let (out, prepared) = (dir.join("out"), dir.join("prepared"));
     let nodes = render_nodes.to_string();
     let mut args = vec![
@@ -50,7 +50,7 @@ fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
         "0.0625",
     ];
     rest.extend(quality);
-    let o = shared_wall(dir.path(), "gallery", 3, &rest).wait(Duration::from_secs(180));
+    let o = dsm_wall(dir.path(), "gallery", 3, &rest).wait(Duration::from_secs(180));
     o.assert_success("the shared wall");
     let mut reference = vec![
         "render", "--wall", "2x1", "--screen", "160x90", "--scene", "gallery", "--frame", "2",
@@ -96,7 +96,7 @@ fn every_render_node_stays_within_its_memory_budget() {
     // overhead and cache.
     let budget_mib = 48;
     let budget = format!("{budget_mib}MiB");
-    let o = shared_wall(
+    let o = dsm_wall(
         dir.path(),
         "knot:1200:160",
         4,
@@ -145,7 +145,7 @@ fn kill_a_holder(dir: &Path, replicas: &str) -> (serde_json::Value, String) {
         "--target",
         "0,0,0",
     ];
-    let master = shared_wall(dir, "knot:600:40", 3, &rest);
+    let master = dsm_wall(dir, "knot:600:40", 3, &rest);
     let saved = dir.join("out/display-1.png");
     assert!(
         wait_for(Duration::from_secs(120), || saved.exists()

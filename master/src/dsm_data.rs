@@ -5,7 +5,7 @@
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use tessera_cli::bytes::{parse_bytes, show_bytes};
-use tessera_protocol::dsm::{DataSpec, SharedSpec};
+use tessera_protocol::dsm::{DataSpec, DsmSpec};
 use tessera_render::dsm::prepare::{self, Manifest, PrepareError};
 use tessera_render::scene::Scene;
 
@@ -204,7 +204,7 @@ pub fn data_spec(
             show_bytes(budget)
         );
     }
-    let spec = SharedSpec {
+    let spec = DsmSpec {
         dir,
         block_bytes: bytes,
         ranks: render_nodes,
@@ -214,5 +214,5 @@ pub fn data_spec(
     };
     spec.check()
         .map_err(|e| anyhow::anyhow!("--data dsm: {e}"))?;
-    Ok(DataSpec::Shared(spec))
+    Ok(DataSpec::Dsm(spec))
 }
