@@ -8,7 +8,9 @@ use tessera_model::wall::{Tile, TileGrid};
 
 /// Per-pixel AOVs of the whole virtual image, row-major, row 0 at the top.
 pub struct Aovs {
+    /// Width of the virtual image, in pixels.
     pub width: u32,
+    /// Height of the virtual image, in pixels.
     pub height: u32,
     /// Distance from the eye along the normalized ray; +inf where nothing is hit (and behind
     /// bezels, where nothing is rendered).
@@ -17,6 +19,12 @@ pub struct Aovs {
     pub prim: Vec<f32>,
 }
 
+/// The AOVs of every tile of `grid`, from the same primary packets (cutting planes included)
+/// as the colour image.
+///
+/// # Panics
+/// On a scene slimmed for rendering ([`PreparedScene::slim_for_rendering`]), which has no
+/// scene index to name primitives by.
 pub fn primary_aovs(scene: &PreparedScene, view: &FrameView, grid: &TileGrid) -> Aovs {
     let layout = grid.layout();
     let (width, height) = (layout.width(), layout.height());

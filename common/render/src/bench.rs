@@ -18,11 +18,14 @@ use std::time::Instant;
 /// Rays traced and seconds taken by one pass.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Pass {
+    /// Rays traced.
     pub rays: u64,
+    /// Wall-clock seconds the pass took, its rays traced on every thread of the pool.
     pub seconds: f64,
 }
 
 impl Pass {
+    /// Millions of rays a second; 0 for a pass that took no time.
     pub fn mrays_per_s(&self) -> f64 {
         if self.seconds > 0.0 {
             self.rays as f64 / self.seconds / 1e6
@@ -32,15 +35,18 @@ impl Pass {
     }
 }
 
+/// What [`time_passes`] measured: each pass, and the hits the secondary rays start from.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PassTimes {
     /// Primary rays that hit something (each starts the shadow and AO rays).
     pub hits: u64,
+    /// Primary rays, in 8×8 packets.
     pub primary: Pass,
     /// Shadow rays in packets, as the renderer traces them.
     pub shadow: Pass,
     /// The same shadow rays one by one.
     pub shadow_single: Pass,
+    /// Ambient-occlusion rays, `ao_samples` per hit.
     pub ambient: Pass,
 }
 

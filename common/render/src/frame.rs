@@ -55,6 +55,7 @@ pub struct PreparedScene {
 }
 
 impl PreparedScene {
+    /// Builds the BVH of `scene` and takes its materials, lights, particles and volume.
     pub fn new(scene: &Scene) -> Self {
         Self::from_accel(scene, Accel::build(scene))
     }
@@ -126,6 +127,8 @@ impl PreparedScene {
             && self.volume.is_none()
     }
 
+    /// The scene's own lights, in render coordinates (a frame may light it with others: see
+    /// [`FrameView::lights`]).
     pub fn lights(&self) -> &[Light] {
         &self.lights
     }
@@ -140,12 +143,14 @@ impl PreparedScene {
 /// What one frame is rendered with.
 #[derive(Clone, Debug)]
 pub struct FrameView {
+    /// The frame's number: it seeds the frame's random samples (jitter, AO directions).
     pub frame: u64,
     /// The rays of the camera's one image (a grid wall's virtual image).
     pub rays: PixelRays,
     /// Each viewport's own rays, for a wall that is not one image (physical screens, stereo);
     /// `None`: every tile takes `rays`.
     pub viewports: Option<Arc<[PixelRays]>>,
+    /// The frame's render parameters (shading, samples, cutting planes, volume settings).
     pub params: RenderParams,
     /// Lights in place of the scene's own, if the frame's state has some.
     pub lights: Option<Lights>,
@@ -209,8 +214,11 @@ impl FrameView {
 /// Rays traced, by kind.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RayCounts {
+    /// Camera rays, one per pixel sample.
     pub primary: u64,
+    /// Rays towards a light, testing whether a surface point is in its shadow.
     pub shadow: u64,
+    /// Ambient-occlusion rays.
     pub ambient: u64,
     /// Rays reflected by mirrors.
     pub reflected: u64,
@@ -219,6 +227,7 @@ pub struct RayCounts {
 }
 
 impl RayCounts {
+    /// Rays of every kind together.
     pub fn total(&self) -> u64 {
         self.primary + self.shadow + self.ambient + self.reflected + self.transmitted
     }

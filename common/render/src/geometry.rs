@@ -10,8 +10,11 @@ use glam::Vec3;
 /// A ray with the per-ray values the triangle and box tests need, computed once.
 #[derive(Clone, Copy, Debug)]
 pub struct Ray {
+    /// Where the ray starts, in render coordinates.
     pub origin: Vec3,
+    /// The direction, not necessarily of unit length: distances along the ray are in its units.
     pub dir: Vec3,
+    /// `1 / dir` per axis (infinite for a zero component), for the box test.
     pub inv_dir: Vec3,
     /// Index of the dominant axis of `dir` (the one the ray is sheared onto).
     kz: usize,
@@ -55,6 +58,7 @@ impl Ray {
         ([self.kx, self.ky, self.kz], self.shear)
     }
 
+    /// The point at distance `t` along the ray (in units of `dir`).
     pub fn at(&self, t: f32) -> Vec3 {
         self.origin + self.dir * t
     }
@@ -121,29 +125,36 @@ impl Ray {
 /// Axis-aligned bounding box.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {
+    /// The lower corner.
     pub min: Vec3,
+    /// The upper corner; below `min` on some axis for an empty box.
     pub max: Vec3,
 }
 
 impl Bounds {
+    /// The box around nothing (inverted, infinite): growing it by a point gives that point.
     pub const EMPTY: Bounds = Bounds {
         min: Vec3::splat(f32::INFINITY),
         max: Vec3::splat(f32::NEG_INFINITY),
     };
 
+    /// Grows the box to hold `p`.
     pub fn grow(&mut self, p: Vec3) {
         self.min = self.min.min(p);
         self.max = self.max.max(p);
     }
 
+    /// Whether the box holds no point (as [`Bounds::EMPTY`] does).
     pub fn is_empty(&self) -> bool {
         self.min.cmpgt(self.max).any()
     }
 
+    /// The middle of the box.
     pub fn center(&self) -> Vec3 {
         (self.min + self.max) * 0.5
     }
 
+    /// The vector from `min` to `max`: the box's extent along each axis.
     pub fn diagonal(&self) -> Vec3 {
         self.max - self.min
     }

@@ -87,6 +87,7 @@ impl Isa {
         widest.unwrap_or(Isa::Portable)
     }
 
+    /// The ISA [`Isa::name`] calls `name` (`portable`, `avx2`, `avx512`), if any.
     pub fn from_name(name: &str) -> Option<Isa> {
         match name {
             "portable" => Some(Isa::Portable),
@@ -96,6 +97,7 @@ impl Isa {
         }
     }
 
+    /// The lower-case name `TESSERA_ISA` and reports give it.
     pub fn name(self) -> &'static str {
         match self {
             Isa::Portable => "portable",
@@ -162,6 +164,8 @@ pub(crate) mod build {
     pub(crate) struct Avx512(());
 
     impl Avx2 {
+        /// The AVX2 build, without checking the CPU.
+        ///
         /// # Safety
         /// The CPU must have AVX2.
         #[inline(always)]
@@ -171,6 +175,8 @@ pub(crate) mod build {
     }
 
     impl Avx512 {
+        /// The AVX-512 build, without checking the CPU.
+        ///
         /// # Safety
         /// The CPU must have the AVX-512 features of [`Isa::Avx512`].
         #[inline(always)]

@@ -20,6 +20,7 @@
 //! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);
 //! never on an async runtime, socket or command-line crate.
 
+#![warn(missing_docs)]
 // Packets are structures of arrays: a lane index addresses several arrays at once, which is
 // clearer as `for i in 0..n` than as zipped iterators.
 #![allow(clippy::needless_range_loop)]

@@ -10,6 +10,7 @@ use glam::Vec3;
 use std::ops::Range;
 use tessera_model::cut::CutPlanes;
 
+/// Rays in a packet: the most it holds (a packet of fewer uses lanes `0..len`).
 pub const PACKET_RAYS: usize = 64;
 
 /// All rays start at [`RayPacket::origin`].
@@ -21,6 +22,8 @@ pub const HAVE_INVERSE: u32 = 1 << 2;
 /// Some rays are limited to an interval other than `[0, ∞)` (cutting planes).
 pub const CLIPPED: u32 = 1 << 3;
 
+/// Up to [`PACKET_RAYS`] rays in render coordinates, one array per axis, with the flags
+/// ([`COMMON_ORIGIN`], [`NORMALIZED`], ...) of what they share.
 pub struct RayPacket {
     len: usize,
     flags: u32,
@@ -28,10 +31,13 @@ pub struct RayPacket {
     pub origin: Vec3,
     /// Per-ray origins (each equal to `origin` when `COMMON_ORIGIN` is set).
     pub org: [[f32; PACKET_RAYS]; 3],
+    /// Per-ray directions, one array per axis; unit length when [`NORMALIZED`] is set.
     pub dir: [[f32; PACKET_RAYS]; 3],
     inv: [[f32; PACKET_RAYS]; 3],
     /// Per-ray interval searched for hits; `t_min > t_max` for a ray that can hit nothing.
     pub t_min: [f32; PACKET_RAYS],
+    /// Per-ray end of the interval searched for hits (infinity unless clipped), in units of the
+    /// ray's direction length.
     pub t_max: [f32; PACKET_RAYS],
 }
 
@@ -124,22 +130,27 @@ impl RayPacket {
         self.flags |= CLIPPED;
     }
 
+    /// How many lanes hold rays (`0..len`); the rest are unused.
     pub fn len(&self) -> usize {
         self.len
     }
 
+    /// Whether the packet holds no ray.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
 
+    /// Whether `flag` (one of [`COMMON_ORIGIN`], [`NORMALIZED`], ...) is set.
     pub fn has(&self, flag: u32) -> bool {
         self.flags & flag != 0
     }
 
+    /// The direction of ray `i`.
     pub fn direction(&self, i: usize) -> Vec3 {
         Vec3::new(self.dir[0][i], self.dir[1][i], self.dir[2][i])
     }
 
+    /// The origin of ray `i`.
     pub fn ray_origin(&self, i: usize) -> Vec3 {
         Vec3::new(self.org[0][i], self.org[1][i], self.org[2][i])
     }
@@ -161,16 +172,19 @@ impl RayPacket {
 /// The closest hit of one ray of a packet.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PacketHit {
+    /// Distance along the ray to the hit, in units of its direction's length; infinity for a miss.
     pub t: f32,
     slot: u32,
 }
 
 impl PacketHit {
+    /// No hit: `t` infinite and no slot.
     pub const MISS: PacketHit = PacketHit {
         t: f32::INFINITY,
         slot: u32::MAX,
     };
 
+    /// A hit at `t` of the triangle in leaf slot `slot` (`u32::MAX` is read as no triangle).
     pub fn new(t: f32, slot: u32) -> Self {
         PacketHit { t, slot }
     }

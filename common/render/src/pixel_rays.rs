@@ -26,6 +26,7 @@ pub fn orbit_of(bounds: &Bounds, fov_y_deg: f32) -> Result<CameraMode, CameraErr
 /// its pixels, which start at `(x0, y0)`.
 #[derive(Clone, Copy, Debug)]
 pub struct PixelRays {
+    /// Where every ray starts: the camera's eye, in render coordinates.
     pub eye: Vec3,
     forward: Vec3,
     right: Vec3,

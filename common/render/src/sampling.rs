@@ -18,6 +18,8 @@ fn mix(mut z: u64) -> u64 {
 pub struct SampleStream(u64);
 
 impl SampleStream {
+    /// The stream keyed on frame `frame`, pixel `(x, y)` and sample key `sample`: the same numbers
+    /// wherever it is drawn.
     pub fn new(frame: u64, x: u32, y: u32, sample: u32) -> Self {
         let pixel = ((y as u64) << 32) | x as u64;
         SampleStream(mix(mix(frame ^ 0x7e55_e7a0) ^ pixel).wrapping_add(mix(sample as u64 + 1)))

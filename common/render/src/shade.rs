@@ -37,9 +37,13 @@ const ISO_ALBEDO: [Vec3; 4] = [
 
 /// Shading of one pixel's rays: borrows the scene and the frame, counts the rays it traces.
 pub struct Shader<'a, 't> {
+    /// The scene being shaded: materials, lights, particles, volume.
     pub scene: &'a PreparedScene,
+    /// The frame: its parameters, its lights and the seed of its samples.
     pub view: &'a FrameView,
+    /// What shadow, AO, reflected and transmitted rays are traced with.
     pub tracer: &'a mut Tracer<'t>,
+    /// Rays traced so far, by kind; the caller adds them up.
     pub counts: RayCounts,
     /// The pixel whose samples (ambient occlusion) are drawn.
     pub pixel: (u32, u32),
@@ -303,6 +307,8 @@ fn phong_lobe(cos: f32, shininess: f32) -> f32 {
     cos.powi(shininess.round().clamp(1.0, 10_000.0) as i32)
 }
 
+/// The linear colour of a ray that hits nothing: a vertical gradient by the direction's y (unit
+/// length), dark blue below, light blue above.
 #[inline]
 pub fn background(dir: Vec3) -> Vec3 {
     let t = 0.5 + 0.5 * dir.y;

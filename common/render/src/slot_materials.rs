@@ -7,10 +7,13 @@ use serde::{Deserialize, Serialize};
 /// array: the leaf order keeps a mesh's materials together, so runs are few).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum SlotMaterials {
+    /// The material index of every slot, by slot.
     PerSlot(Vec<u16>),
+    /// Runs of slots with the same material.
     Runs {
         /// First slot of each run, ascending, the first 0.
         starts: Vec<u32>,
+        /// The material index of each run.
         materials: Vec<u16>,
     },
 }

@@ -14,6 +14,7 @@ use std::time::Duration;
 /// Spheres in leaf order with a binary BVH over them.
 pub struct SphereAccel {
     nodes: Vec<BvhNode>,
+    /// The particles in leaf order (render coordinates): leaf slots index this.
     pub spheres: Vec<Particle>,
     /// Scene particle index of each leaf slot.
     pub scene_index: Vec<u32>,
@@ -72,6 +73,8 @@ impl SphereAccel {
         best
     }
 
+    /// Whether any sphere whose attribute is in `crop` is hit in `(t_min, t_max)`: a shadow ray's
+    /// test, which stops at the first.
     pub fn occluded(
         &self,
         ray: &Ray,

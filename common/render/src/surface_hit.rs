@@ -54,14 +54,21 @@ pub const ISO_KEY: u16 = u16::MAX - 1;
 /// What a ray hit first.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SurfaceHit {
+    /// A triangle of the BVH, by leaf slot.
     Triangle(Hit),
+    /// A particle.
     Sphere {
+        /// Distance along the ray, in units of its direction.
         t: f32,
+        /// Index of the sphere in the sphere BVH's order
+        /// ([`crate::spheres::SphereAccel::spheres`]).
         slot: u32,
     },
     /// A volume's direct iso-surface: `surface` indexes the frame's iso-values.
     Iso {
+        /// Distance along the ray, in units of its direction.
         t: f32,
+        /// Which iso-value: its index in the frame's volume parameters (`VolumeParams::iso`).
         surface: u8,
     },
 }
@@ -74,6 +81,7 @@ impl SurfaceHit {
             .map(|slot| SurfaceHit::Triangle(Hit { t: hit.t, slot }))
     }
 
+    /// Distance along the ray to the hit, in units of its direction, whatever was hit.
     pub fn t(&self) -> f32 {
         match *self {
             SurfaceHit::Triangle(h) => h.t,

@@ -115,6 +115,8 @@ impl Accel {
         }
     }
 
+    /// A short name of [`Accel::preset`] for a scene of `triangles`, for benchmark output and the
+    /// cache key.
     pub fn preset_name(triangles: usize) -> &'static str {
         match triangles {
             0..1_000_000 => "medium-leaf4",

@@ -40,7 +40,9 @@ fn cache_path(dir: &Path, scene: &Scene) -> PathBuf {
 /// How the BVH was obtained.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Source {
+    /// Built now (no cache folder, no cached file for this scene, or one that could not be read).
     Built,
+    /// Read from the cache folder.
     Cached,
 }
 

@@ -38,6 +38,7 @@ pub trait TreeMemory {
 
 /// Asks the CPU to start loading a child while its nearer siblings are traversed.
 pub trait ChildPrefetch: Copy {
+    /// Hints that child `k` of `node` (an inner node or a leaf's triangles) will be read soon.
     fn prefetch_child(&self, node: &WideNode, k: usize);
 }
 
@@ -45,7 +46,9 @@ pub trait ChildPrefetch: Copy {
 /// reference render.
 #[derive(Clone, Copy)]
 pub struct Resident<'a> {
+    /// The 8-wide nodes, the root first ([`crate::bvh::Accel::wide`]).
     pub wide: &'a [WideNode],
+    /// The leaf triangles, by slot ([`crate::bvh::Accel::triangles`]).
     pub triangles: &'a [LeafTriangle],
 }
 

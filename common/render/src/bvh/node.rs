@@ -9,9 +9,13 @@ use glam::Vec3;
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct BvhNode {
+    /// Lower corner of the node's box, in render coordinates.
     pub min: Vec3,
+    /// Upper corner of the node's box.
     pub max: Vec3,
+    /// An inner node's first child (its index in the node array), or a leaf's first triangle slot.
     pub first: u32,
+    /// Triangles in a leaf; 0 for an inner node.
     pub count: u32,
 }
 
@@ -30,14 +34,18 @@ impl From<&obvhs::bvh2::node::Bvh2Node> for BvhNode {
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct LeafTriangle {
+    /// First corner, in render coordinates.
     pub a: Vec3,
+    /// Second corner.
     pub b: Vec3,
+    /// Third corner.
     pub c: Vec3,
 }
 
 /// The closest hit found by [`crate::bvh::Accel::closest_hit`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
+    /// Distance along the ray to the hit, in units of the ray's direction.
     pub t: f32,
     /// Index into [`crate::bvh::Accel::triangles`] (leaf order).
     pub slot: u32,
@@ -61,8 +69,11 @@ pub const WIDTH: usize = 8;
 pub struct WideNode {
     /// Per axis, the children's box minima.
     pub lo: [[f32; WIDTH]; 3],
+    /// Per axis, the children's box maxima (minus infinity for an empty slot).
     pub hi: [[f32; WIDTH]; 3],
+    /// Per child, the index of an inner child's wide node, or a leaf's first triangle slot.
     pub child: [u32; WIDTH],
+    /// Per child, its leaf's triangle count; 0 for an inner child, [`EMPTY`] for no child.
     pub count: [u32; WIDTH],
 }
 

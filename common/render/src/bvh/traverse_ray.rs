@@ -78,7 +78,7 @@ pub fn closest_hit<M: TreeMemory>(
 
 isa_builds! {
     /// [`closest_hit`] on the build `isa`. Single rays have an AVX2 build and no wider one: the
-    /// node test is AVX2 intrinsics ([`enter_mask_avx2`]), and AVX-512 CPUs run that build.
+    /// node test is AVX2 intrinsics (`enter_mask_avx2`), and AVX-512 CPUs run that build.
     pub fn closest_hit_on<M: TreeMemory>(
         mem: &mut M,
         ray: &Ray,

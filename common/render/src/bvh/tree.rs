@@ -47,6 +47,7 @@ pub struct Accel {
     pub nodes: Vec<BvhNode>,
     /// The same tree collapsed 8-wide, which every traversal walks (see `collapse`).
     pub wide: Vec<WideNode>,
+    /// The triangles' corners in leaf order (render coordinates): leaf slots index this.
     pub triangles: Vec<LeafTriangle>,
     /// Scene triangle index of each leaf slot.
     pub scene_index: Vec<u32>,
@@ -70,6 +71,7 @@ impl Accel {
         }
     }
 
+    /// Depth of the binary tree, at least 64: what traversal stacks are sized for.
     pub fn max_depth(&self) -> usize {
         self.max_depth
     }

@@ -57,18 +57,22 @@ impl Block {
         }
     }
 
+    /// The block's bytes as 64-byte aligned chunks (nodes are read from these in place).
     pub fn chunks(&self) -> &[Chunk] {
         &self.chunks
     }
 
+    /// The block's chunks, to be filled (a read from the block file writes into these).
     pub fn chunks_mut(&mut self) -> &mut [Chunk] {
         &mut self.chunks
     }
 
+    /// The block's bytes, `block_bytes` of them.
     pub fn bytes(&self) -> &[u8] {
         bytemuck::cast_slice(&self.chunks)
     }
 
+    /// The block's bytes, to be filled.
     pub fn bytes_mut(&mut self) -> &mut [u8] {
         bytemuck::cast_slice_mut(&mut self.chunks)
     }
@@ -85,10 +89,13 @@ impl Drop for Block {
 /// A block size that cannot be used.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum LayoutError {
+    /// The block size (in bytes) is not from [`MIN_BLOCK_BYTES`] to [`MAX_BLOCK_BYTES`] or not a
+    /// multiple of 256.
     #[error(
         "block size {0} bytes is not a multiple of 256 from {MIN_BLOCK_BYTES} to {MAX_BLOCK_BYTES}"
     )]
     BlockSize(u32),
+    /// The scene needs this many blocks: more than 32-bit block ids can number.
     #[error("the scene needs {0} blocks; block ids are 32-bit")]
     TooManyBlocks(u64),
 }
@@ -99,11 +106,18 @@ pub enum LayoutError {
 /// every ray walks) are held by every node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BlockLayout {
+    /// Size of every block, in bytes: a multiple of 256 from [`MIN_BLOCK_BYTES`] to
+    /// [`MAX_BLOCK_BYTES`].
     pub block_bytes: u32,
+    /// 8-wide tree nodes in all.
     pub node_count: u32,
+    /// Leaf triangles in all.
     pub triangle_count: u32,
+    /// Blocks holding nodes: block ids `0..node_blocks`.
     pub node_blocks: u32,
+    /// Blocks holding triangles, following the node blocks.
     pub triangle_blocks: u32,
+    /// Node blocks every render node holds (the top of the tree), at most `node_blocks`.
     pub top_blocks: u32,
 }
 
@@ -141,10 +155,12 @@ impl BlockLayout {
         })
     }
 
+    /// How many 8-wide nodes a block holds.
     pub fn nodes_per_block(&self) -> u32 {
         self.block_bytes / std::mem::size_of::<WideNode>() as u32
     }
 
+    /// How many leaf triangles a block holds.
     pub fn triangles_per_block(&self) -> u32 {
         self.block_bytes / std::mem::size_of::<LeafTriangle>() as u32
     }
@@ -182,6 +198,8 @@ pub struct FastDiv {
 }
 
 impl FastDiv {
+    /// Division by `d`.
+    ///
     /// # Panics
     /// For a divisor of 0.
     pub fn new(d: u32) -> FastDiv {

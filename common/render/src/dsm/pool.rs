@@ -57,6 +57,7 @@ impl BlockPool {
             .push(chunks);
     }
 
+    /// How many slots the pool was made with.
     pub fn slots(&self) -> u32 {
         self.slots
     }

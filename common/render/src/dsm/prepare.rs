@@ -29,44 +29,76 @@ pub const TOP_BLOCKS: u32 = 1;
 /// What every render node of a shared scene holds whole, and where the blocks are.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
+    /// The format the folder was written in: [`FORMAT`] when it was prepared by this build.
     pub format: u32,
     /// The scene's content hash (hex), as [`Scene::content_hash`] gives it.
     pub scene_hash: String,
+    /// Block size and how many blocks hold the tree's nodes and the leaf triangles.
     pub layout: BlockLayout,
     /// Depth of the binary tree the 8-wide one was collapsed from (sizes traversal stacks).
     pub max_depth: u32,
+    /// Lower corner of the scene's bounding box, in render coordinates.
     pub bounds_min: [f32; 3],
+    /// Upper corner of the scene's bounding box, in render coordinates.
     pub bounds_max: [f32; 3],
+    /// Length of the bounding box's diagonal: the scale of ray offsets and AO reach.
     pub diagonal: f32,
+    /// Where the render coordinates sit in the world, as [`Scene::render_from_world`].
     pub render_from_world: RenderFromWorld,
+    /// The scene's materials, which `slot_materials` indexes.
     pub materials: Vec<Material>,
+    /// The scene's lights, in render coordinates.
     pub lights: Vec<Light>,
+    /// The material of each leaf slot, as runs (the render nodes hold no per-triangle array).
     pub slot_materials: SlotMaterials,
+    /// Whether any material is transparent, as [`Scene::has_transparency`].
     pub blends: bool,
 }
 
 /// Why a scene could not be prepared, or a prepared one not read.
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
+    /// The scene has particles or a volume (named by the text), which are never shared.
     #[error("distributed shared memory holds triangle meshes; this scene has {0}, render it replicated (--data replicated)")]
     NotAMesh(&'static str),
+    /// The block size is out of range, or the scene needs too many blocks.
     #[error(transparent)]
     Layout(#[from] LayoutError),
+    /// A file of the prepared folder could not be created, written, opened or read.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The operating system's error.
         source: std::io::Error,
     },
+    /// The manifest does not parse, is of another format or describes what cannot exist, or the
+    /// block files are not as long as it says.
     #[error("{path}: not a manifest of a prepared scene: {reason}")]
-    BadManifest { path: PathBuf, reason: String },
+    BadManifest {
+        /// The manifest file.
+        path: PathBuf,
+        /// What is wrong, in words.
+        reason: String,
+    },
+    /// The folder was prepared for another scene content or another block size.
     #[error("{path} is for scene {found}, not {expected}: prepare the scene again")]
     OtherScene {
+        /// The manifest file.
         path: PathBuf,
+        /// The manifest's scene hash and block size.
         found: String,
+        /// The scene hash and block size asked for.
         expected: String,
     },
+    /// A block read from the file does not match its checksum.
     #[error("block {block} of {path} does not match its checksum: the file is damaged; prepare the scene again")]
-    Damaged { path: PathBuf, block: BlockId },
+    Damaged {
+        /// The blocks file.
+        path: PathBuf,
+        /// Which block.
+        block: BlockId,
+    },
 }
 
 fn io(path: &Path) -> impl Fn(std::io::Error) -> PrepareError + '_ {
@@ -328,6 +360,8 @@ pub struct BlockFile {
 }
 
 impl BlockFile {
+    /// Opens the blocks and checksums of the scene prepared in `dir` that `manifest` describes.
+    ///
     /// # Errors
     /// The files cannot be opened or read.
     pub fn open(dir: &Path, manifest: &Manifest) -> Result<BlockFile, PrepareError> {

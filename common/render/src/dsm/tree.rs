@@ -1,7 +1,7 @@
 //! What a render node traces a shared scene from: the top of the tree (held by every node),
 //! its own share of the blocks, the direct-mapped cache of the others, and a fetch for what is
 //! in neither; and [`DsmReader`], one thread's view of it, which a traversal reads through
-//! [`TreeMemory`].
+//! [`TreeMemory`](crate::bvh::memory::TreeMemory).
 
 use super::layout::{Block, BlockLayout, Chunk};
 use super::DsmReader;
@@ -110,14 +110,17 @@ impl DsmTree {
         })
     }
 
+    /// Where the nodes and triangles sit in blocks.
     pub fn layout(&self) -> &BlockLayout {
         &self.layout
     }
 
+    /// Which blocks this node holds for good, and where in its share.
     pub fn residency(&self) -> &Residency {
         &self.residency
     }
 
+    /// The cache of blocks this node does not hold, shared by its render threads.
     pub fn cache(&self) -> &BlockCache<Block> {
         &self.cache
     }
@@ -138,6 +141,7 @@ impl DsmTree {
         self.local_reads.fetch_add(local, Ordering::Relaxed);
     }
 
+    /// The read and fetch counters so far (readers add theirs when they are dropped).
     pub fn stats(&self) -> DsmTreeStats {
         DsmTreeStats {
             block_reads: self.block_reads.load(Ordering::Relaxed),

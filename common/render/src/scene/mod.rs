@@ -42,6 +42,7 @@ pub struct Material {
 }
 
 impl Material {
+    /// A purely diffuse surface of colour `albedo`: no highlight, no mirror, opaque.
     pub const fn lambert(albedo: Vec3) -> Self {
         Material {
             albedo,
@@ -52,6 +53,7 @@ impl Material {
         }
     }
 
+    /// A diffuse surface with a Phong highlight of colour `specular` and exponent `shininess`.
     pub const fn phong(albedo: Vec3, specular: Vec3, shininess: f32) -> Self {
         Material {
             specular,
@@ -60,6 +62,7 @@ impl Material {
         }
     }
 
+    /// A diffuse surface that also mirrors the fraction `reflectance` (0..=1) of the light.
     pub const fn mirror(albedo: Vec3, reflectance: f32) -> Self {
         Material {
             mirror: reflectance,
@@ -67,6 +70,7 @@ impl Material {
         }
     }
 
+    /// A diffuse surface blended with what lies behind it; `opacity` 1 is opaque, 0 invisible.
     pub const fn transparent(albedo: Vec3, opacity: f32) -> Self {
         Material {
             opacity,
@@ -74,14 +78,17 @@ impl Material {
         }
     }
 
+    /// Whether the shader must trace on through the surface and blend (opacity below 1).
     pub fn is_transparent(&self) -> bool {
         self.opacity < 1.0
     }
 
+    /// Whether the shader traces a reflection ray (mirror above 0).
     pub fn is_mirror(&self) -> bool {
         self.mirror > 0.0
     }
 
+    /// Whether the shader adds a Phong highlight (a specular colour other than black).
     pub fn has_specular(&self) -> bool {
         self.specular != Vec3::ZERO
     }
@@ -117,9 +124,11 @@ impl Material {
 pub struct Scene {
     /// Vertices in render coordinates: the world's moved by [`Scene::render_from_world`].
     pub positions: Vec<Vec3>,
+    /// Three indices into `positions` for each triangle.
     pub triangles: Vec<[u32; 3]>,
     /// Material index of each triangle.
     pub triangle_material: Vec<u16>,
+    /// The materials `triangle_material` indexes.
     pub materials: Vec<Material>,
     /// Names of the materials as the file gave them, for error messages (may be empty).
     pub material_names: Vec<String>,
@@ -142,47 +151,86 @@ pub use tessera_model::light::Light;
 /// Why a scene could not be loaded; every variant names the file and what is wrong.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
+    /// A mesh or scene file could not be read or parsed, or its data is inconsistent (for example
+    /// a triangle count that differs from its material count).
     #[error("scene file {path}: {message}")]
-    File { path: String, message: String },
+    File {
+        /// The file (or, from [`Scene::validate`], the scene's origin) as the user named it.
+        path: String,
+        /// What is wrong, as the parser or the check put it.
+        message: String,
+    },
+    /// The file's extension is none of the formats a scene is loaded from.
     #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf, .glb, .csv, .tpart, .nrrd, .nhdr, .nii, .nii.gz, .vol.toml or .scene.toml)")]
-    UnknownFormat { path: String },
+    UnknownFormat {
+        /// The file as the user named it.
+        path: String,
+    },
+    /// A vertex has a NaN or infinite coordinate (in render coordinates).
     #[error("scene {origin}: vertex {index} has a non-finite coordinate {value:?}")]
     NonFinite {
+        /// Where the scene came from: its file, or the built-in scene's name.
         origin: String,
+        /// The vertex's index in [`Scene::positions`].
         index: usize,
+        /// The vertex as it was, in render coordinates.
         value: [f32; 3],
     },
+    /// A triangle names a vertex past the end of the vertex list.
     #[error("scene {origin}: triangle {index} uses vertex {vertex}, but there are only {count}")]
     IndexOutOfRange {
+        /// Where the scene came from: its file, or the built-in scene's name.
         origin: String,
+        /// The triangle's index in [`Scene::triangles`].
         index: usize,
+        /// The vertex index it uses.
         vertex: u32,
+        /// How many vertices there are.
         count: usize,
     },
+    /// A triangle names a material past the end of the material list.
     #[error(
         "scene {origin}: triangle {index} uses material {material}, but there are only {count}"
     )]
     MaterialOutOfRange {
+        /// Where the scene came from: its file, or the built-in scene's name.
         origin: String,
+        /// The triangle's index in [`Scene::triangles`].
         index: usize,
+        /// The material index it uses.
         material: u16,
+        /// How many materials there are.
         count: usize,
     },
+    /// A material has a non-finite, negative or out-of-range value (see [`Material`]).
     #[error("scene {origin}: material {index} ({name}) {why}")]
     BadMaterial {
+        /// Where the scene came from: its file, or the built-in scene's name.
         origin: String,
+        /// The material's index in [`Scene::materials`].
         index: usize,
+        /// Its name in the file, or `#index` when the file gave none.
         name: String,
+        /// Which value is wrong, as a phrase ("has a negative colour").
         why: String,
     },
+    /// The scene has nothing to draw: no triangles, no particles and no volume.
     #[error("scene {origin}: contains no triangles")]
-    Empty { origin: String },
+    Empty {
+        /// Where the scene came from: its file, or the built-in scene's name.
+        origin: String,
+    },
+    /// The scene's volume could not be loaded.
     #[error(transparent)]
     Volume(#[from] VolumeError),
+    /// The scene has more triangles than [`MAX_TRIANGLES`].
     #[error("scene {origin}: {count} triangles is over the limit of {limit}")]
     TooLarge {
+        /// Where the scene came from: its file, or the built-in scene's name.
         origin: String,
+        /// How many triangles the scene has.
         count: usize,
+        /// The limit: [`MAX_TRIANGLES`].
         limit: usize,
     },
 }
@@ -313,6 +361,8 @@ impl Scene {
         w.flush()
     }
 
+    /// The box, in render coordinates, around the triangles, the particles and the volume; empty
+    /// for an empty scene.
     pub fn bounds(&self) -> Bounds {
         let mut bounds = Bounds::EMPTY;
         for tri in &self.triangles {
@@ -398,10 +448,13 @@ fn spec_origin(spec: &SceneSpec) -> String {
 pub struct Mesh {
     /// World coordinates, as read (f64, so that a mesh far from the origin keeps its shape).
     pub positions: Vec<DVec3>,
+    /// Three indices into `positions` for each triangle, as the file gave them.
     pub triangles: Vec<[u32; 3]>,
     /// Material of each triangle; empty when the file has none (all get the neutral one).
     pub triangle_material: Vec<u16>,
+    /// The file's materials, which `triangle_material` indexes; empty when it has none.
     pub materials: Vec<Material>,
+    /// Names of `materials` as the file gave them, for error messages.
     pub material_names: Vec<String>,
 }
 

@@ -10,8 +10,12 @@ use std::path::Path;
 /// One sphere and its scalar attribute.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Particle {
+    /// The centre: world coordinates as the file gives it, render coordinates in a
+    /// [`Scene`](super::Scene).
     pub center: Vec3,
+    /// The radius, in the same units; positive.
     pub radius: f32,
+    /// The scalar the sphere is coloured by, through a colour map over the scene's range of it.
     pub attribute: f32,
 }
 

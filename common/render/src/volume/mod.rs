@@ -39,13 +39,18 @@ use std::path::Path;
 /// The voxel type a file stores.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VoxelType {
+    /// Unsigned 8-bit integers.
     U8,
+    /// Signed 16-bit integers.
     I16,
+    /// Unsigned 16-bit integers.
     U16,
+    /// 32-bit floats.
     F32,
 }
 
 impl VoxelType {
+    /// Size of one voxel in the file, in bytes.
     pub fn bytes(self) -> usize {
         match self {
             VoxelType::U8 => 1,
@@ -76,27 +81,45 @@ impl VoxelType {
 /// at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum VolumeError {
+    /// The file (or a detached data file or slice it names) could not be read, or a time-series
+    /// step failed to load.
     #[error("volume {path}: {source}")]
     Io {
+        /// The file as the user named it, or the one it refers to.
         path: String,
+        /// The underlying error (for a time-series step that failed in the background, its
+        /// message).
         source: std::io::Error,
     },
+    /// A header field is missing, malformed or out of range, or the data has a non-finite voxel
+    /// (field `data`).
     #[error("volume {path}: field `{field}`: {message}")]
     Field {
+        /// The file at fault.
         path: String,
+        /// The header field at fault, by its name in the format (or `sizes`, `spacing`, `data`).
         field: String,
+        /// What is wrong with it.
         message: String,
     },
+    /// The voxel data is not as long as the header's sizes and type make it: cut short, or longer.
     #[error("volume {path}: {expected} bytes of voxel data expected, {found} found")]
     Truncated {
+        /// The file at fault.
         path: String,
+        /// Bytes of voxel data the header calls for.
         expected: usize,
+        /// Bytes there are.
         found: usize,
     },
+    /// The name is none of the volume formats and not a folder (a DICOM series).
     #[error(
         "volume {path}: unsupported extension (expected .nrrd, .nhdr, .nii, .nii.gz or .vol.toml)"
     )]
-    UnknownFormat { path: String },
+    UnknownFormat {
+        /// The file as the user named it.
+        path: String,
+    },
 }
 
 impl VolumeError {
@@ -130,6 +153,9 @@ pub struct Volume {
 }
 
 impl Volume {
+    /// A grid aligned with the world's axes, `spacing` apart (world units), its voxel (0, 0, 0)
+    /// at `origin`; `values` x fastest, `voxel_type` the type they were stored as.
+    ///
     /// # Errors
     /// A dimension of 0, a spacing that is not finite and positive, an origin that is not
     /// finite, a value count other than the product of `dims`, or a non-finite value.
@@ -208,6 +234,7 @@ impl Volume {
         })
     }
 
+    /// Samples along each index axis, x first.
     pub fn dims(&self) -> [usize; 3] {
         self.dims
     }
@@ -223,10 +250,12 @@ impl Volume {
         self.axes
     }
 
+    /// World position of voxel (0, 0, 0).
     pub fn origin(&self) -> [f64; 3] {
         self.origin
     }
 
+    /// The type the file stored the samples as (they are held as f32 whatever it is).
     pub fn voxel_type(&self) -> VoxelType {
         self.voxel_type
     }

@@ -26,7 +26,10 @@ const MAX_SAMPLES_PER_RAY: u32 = 1 << 22;
 #[derive(Debug)]
 pub struct FrameTables {
     key: (TransferFunction, f32),
+    /// The distance between samples along a ray, in render units ([`PreparedVolume::step`]).
     pub step: f32,
+    /// The transfer function as a table over the volume's range, its opacities corrected for
+    /// `step`.
     pub table: TransferTable,
     /// Per macro-cell: how far (in macro-cells, L∞) the nearest one with a visible value is;
     /// 0 where it has one itself.
@@ -74,6 +77,8 @@ pub struct PreparedVolume {
 }
 
 impl PreparedVolume {
+    /// Bricks `volume` and its min/max grid, placed in the render coordinates of `frame` (the
+    /// scene's [`crate::scene::Scene::render_from_world`]).
     pub fn new(volume: &Volume, frame: &RenderFromWorld) -> Self {
         let (dims, values, origin) = padded(volume);
         let bricks = Bricks::new(dims, &values);
@@ -113,10 +118,13 @@ impl PreparedVolume {
         self.corners
     }
 
+    /// The samples, in bricks.
     pub fn bricks(&self) -> &Bricks {
         &self.bricks
     }
 
+    /// The smallest voxel spacing, in render units: the step transfer-function opacities are given
+    /// for, and half of it the default marching step.
     pub fn reference_step(&self) -> f32 {
         self.reference_step
     }

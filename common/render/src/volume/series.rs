@@ -21,8 +21,9 @@ pub struct SeriesStats {
     pub load_seconds: Vec<f64>,
     /// `get`s that found their step ready.
     pub hits: u64,
-    /// `get`s that had to wait for their step, and for how long in all.
+    /// `get`s that had to wait for their step.
     pub misses: u64,
+    /// Seconds those `get`s waited, in all.
     pub stall_seconds: f64,
 }
 
@@ -100,6 +101,7 @@ impl SeriesCache {
         self.shared.paths.len()
     }
 
+    /// Always false: a series has at least one step.
     pub fn is_empty(&self) -> bool {
         false
     }
@@ -146,6 +148,7 @@ impl SeriesCache {
         Ok(volume)
     }
 
+    /// What the cache has done so far.
     pub fn stats(&self) -> SeriesStats {
         self.shared.lock().stats.clone()
     }

@@ -22,7 +22,7 @@ pub fn corrected_opacity(alpha: f64, step_over_ref: f64) -> f64 {
     -(step_over_ref * (-alpha).ln_1p()).exp_m1()
 }
 
-/// Premultiplied colour and corrected opacity at [`TABLE_ENTRIES`] values over the range.
+/// Premultiplied colour and corrected opacity at `TABLE_ENTRIES` (4096) values over the range.
 #[derive(Clone, Debug)]
 pub struct TransferTable {
     lo: f32,
