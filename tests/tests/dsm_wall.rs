@@ -155,6 +155,8 @@ fn kill_a_holder(dir: &Path, replicas: &str) -> (serde_json::Value, String) {
     let nodes = children(master.pid(), "render-node");
     assert_eq!(nodes.len(), 3, "{nodes:?}");
     // SIGKILL mid-frame: no goodbye; its rank's blocks are wanted by the others at once.
+    // SAFETY: kill only sends a signal and touches no memory; the pid is a node
+    // process of the wall this test started, still running.
     unsafe { libc::kill(nodes[1] as i32, libc::SIGKILL) };
     let o = master.wait(Duration::from_secs(240));
     // A local wall ends saying which of its children died.

@@ -350,6 +350,8 @@ fn with_display_loss_stop_a_dead_display_stops_the_wall_with_an_error_and_no_orp
     let out_s = out.to_str().unwrap().to_string();
     let master = flowing_wall(&out, &["--display-loss", "stop"]);
     let victim = process_with(&[&out_s, "--display 1 "]).expect("display 1 is running");
+    // SAFETY: kill only sends a signal and touches no memory; the pid is a node
+    // process of the wall this test started, still running.
     unsafe { libc::kill(victim as i32, libc::SIGKILL) };
     let o = master.wait(Duration::from_secs(60));
     o.assert_refused("a wall that lost a display", &["display"]);

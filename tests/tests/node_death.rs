@@ -64,6 +64,8 @@ fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_deadline() {
         master.pid()
     );
     // SIGKILL: no goodbye on the connection, so only the master's own clock can notice.
+    // SAFETY: kill only sends a signal and touches no memory; the pid is a node
+    // process of the wall this test started, still running.
     unsafe { libc::kill(nodes[1] as i32, libc::SIGKILL) };
     master.wait_for_stderr(
         "its tiles go to the other render nodes",
@@ -300,6 +302,8 @@ fn a_killed_display_leaves_the_others_presenting_every_frame() {
             })
         })
         .expect("display 1 runs");
+    // SAFETY: kill only sends a signal and touches no memory; the pid is a node
+    // process of the wall this test started, still running.
     unsafe { libc::kill(victim as i32, libc::SIGKILL) };
     let o = master.wait(Duration::from_secs(120));
     assert!(
