@@ -12,7 +12,8 @@
 //! Above it, [`Tracer`] picks the memory a render thread reads the tree from (this process's
 //! arrays or the distributed shared memory, [`dsm`]), and shading traces through a `Tracer`:
 //! `frame` renders tiles, `shade` and `shadow_packet` both work from `surface_hit` (what a ray
-//! hit, and the geometry there) and not from each other, and [`aov`] draws the AOVs. The SIMD
+//! hit, and the geometry there) and not from each other, all of them from `prepared` (the
+//! scene and the frame they trace with, which uses none of them), and [`aov`] draws the AOVs. The SIMD
 //! build of the traversals is chosen at run time, the same way for every entry point
 //! (`isa_builds!` in [`isa`]).
 //!
@@ -34,6 +35,7 @@ pub mod geometry;
 pub mod isa;
 pub mod packet;
 mod pixel_rays;
+mod prepared;
 mod reference;
 pub mod sampling;
 pub mod scene;
@@ -49,11 +51,9 @@ pub mod volume;
 #[cfg(test)]
 mod render_tests;
 
-pub use frame::{
-    render_tiles, render_tiles_footprints, render_tiles_linear, FrameView, PreparedScene,
-    RayCounts, PACKET,
-};
+pub use frame::{render_tiles, render_tiles_footprints, render_tiles_linear, PACKET};
 pub use pixel_rays::{orbit_of, PixelRays};
+pub use prepared::{FrameView, PreparedScene, RayCounts};
 pub use reference::{render_wall, render_wall_linear};
 pub use shade::{background, encode_srgb_ish, Shader, MAX_DEPTH};
 pub use surface_hit::{nearest_surface, offset_origin, surface, SurfaceHit};

@@ -1,6 +1,7 @@
 //! The single-process reference image that the wall must equal pixel for pixel.
 
-use crate::frame::{render_tiles, render_tiles_linear, FrameView, PreparedScene};
+use crate::frame::{render_tiles, render_tiles_linear};
+use crate::prepared::{FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_model::image::RgbImage;
 use tessera_model::wall::TileGrid;

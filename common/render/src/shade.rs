@@ -9,6 +9,7 @@
 
 use crate::geometry::Ray;
 use crate::packet::PacketHit;
+use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::Material;
 use crate::spheres::colormap;
@@ -18,7 +19,6 @@ use crate::surface_hit::{
 };
 use crate::tracer::Tracer;
 use crate::volume::FrameTables;
-use crate::{FrameView, PreparedScene, RayCounts};
 use glam::Vec3;
 use std::sync::Arc;
 use tessera_model::cut::CutPlanes;

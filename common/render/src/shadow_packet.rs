@@ -10,12 +10,12 @@
 
 use crate::geometry::Ray;
 use crate::packet::{RayPacket, PACKET_RAYS};
+use crate::prepared::{FrameView, PreparedScene};
 use crate::surface_hit::{
     faces_light, hit_frame, iso_occludes, leaving_point, towards_light, PrimaryHit, SurfaceHit,
     PACKET_LIGHTS,
 };
 use crate::tracer::Tracer;
-use crate::{FrameView, PreparedScene};
 use glam::Vec3;
 use tessera_model::cut::CutPlanes;
 

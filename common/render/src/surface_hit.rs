@@ -6,9 +6,9 @@
 use crate::bvh::node::Hit;
 use crate::geometry::{triangle_normal, Ray};
 use crate::packet::PacketHit;
+use crate::prepared::{FrameView, PreparedScene};
 use crate::scene::Light;
 use crate::tracer::Tracer;
-use crate::{FrameView, PreparedScene};
 use glam::Vec3;
 
 /// Surface point and the normal facing the viewer for a hit.
