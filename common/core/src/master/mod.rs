@@ -656,11 +656,6 @@ impl Master {
         }
     }
 
-    /// Every peer, for the driver to close at the end of the run.
-    pub fn peers(&self) -> impl Iterator<Item = PeerId> + '_ {
-        self.peers.keys().copied()
-    }
-
     fn send(&mut self, peer: PeerId, msg: ToNode) {
         self.transmits.push_back(Transmit { peer, msg });
     }

@@ -36,11 +36,6 @@ impl Master {
         }
     }
 
-    /// The rank render node `node` holds, if it holds one.
-    pub fn rank_of(&self, node: RenderNodeId) -> Option<u32> {
-        self.ranks.rank_of.get(&node).copied()
-    }
-
     /// The lowest rank nobody holds, for a render node that just joined (none when the
     /// scene is replicated or every rank is held).
     pub(super) fn take_rank(&mut self, node: RenderNodeId) -> Option<u32> {
