@@ -41,6 +41,13 @@ struct Link {
     conn: quinn::Connection,
 }
 
+impl Link {
+    /// Closes the connection with `reason`'s code and phrase.
+    fn close(&self, reason: CloseReason) {
+        self.conn.close(reason.code().into(), reason.phrase());
+    }
+}
+
 /// The driver's side of a run: the links, the tools around the master, and the master.
 struct Driver {
     /// The sans-IO master, which makes every decision.
@@ -106,8 +113,7 @@ pub async fn run_wall(
         bar.finish_and_clear();
     }
     for link in driver.links.values() {
-        let reason = CloseReason::RunOver;
-        link.conn.close(reason.code().into(), reason.phrase());
+        link.close(CloseReason::RunOver);
     }
     acceptor.abort();
     endpoint.close(0u32.into(), b"run over");
@@ -198,7 +204,7 @@ impl Driver {
                 self.send(t.peer, t.msg);
             } else if let Some((peer, reason)) = self.master.poll_close() {
                 if let Some(link) = self.links.get(&peer) {
-                    link.conn.close(reason.code().into(), reason.phrase());
+                    link.close(reason);
                 }
             } else if let Some(event) = self.master.poll_event() {
                 self.note(event)?;
@@ -249,7 +255,7 @@ impl Driver {
                     peer.0,
                     crate::peers::PEER_QUEUE
                 );
-                link.conn.close(4u32.into(), b"not reading");
+                link.close(CloseReason::NotReading);
             }
         }
     }

@@ -178,6 +178,8 @@ pub enum CloseReason {
     ProtocolViolation,
     /// It was silent past the node deadline.
     SilentPastDeadline,
+    /// It left its bounded queue of messages unread (the driver finds this, not the master).
+    NotReading,
     /// The run is over.
     RunOver,
 }
@@ -187,6 +189,7 @@ impl CloseReason {
     pub fn code(self) -> u32 {
         match self {
             CloseReason::ProtocolViolation => 2,
+            CloseReason::NotReading => 4,
             CloseReason::SilentPastDeadline => 5,
             CloseReason::RunOver => 0,
         }
@@ -196,6 +199,7 @@ impl CloseReason {
     pub fn phrase(self) -> &'static [u8] {
         match self {
             CloseReason::ProtocolViolation => b"protocol violation",
+            CloseReason::NotReading => b"not reading",
             CloseReason::SilentPastDeadline => b"silent past the deadline",
             CloseReason::RunOver => b"run over",
         }
