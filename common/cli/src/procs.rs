@@ -11,7 +11,9 @@ pub struct Process {
     pub parent: Option<u32>,
     /// Exited, not yet reaped.
     pub zombie: bool,
-    /// Its command line, word by word.
+    /// Its command line, word by word. Empty for a moment after the process execs: the
+    /// parent of a vfork-style spawn resumes once the new image is mapped, before the kernel
+    /// has set its arguments, so one just started may be listed without them.
     pub args: Vec<String>,
 }
 
@@ -69,12 +71,22 @@ mod tests {
             .spawn()
             .expect("sleep");
         let me = std::process::id();
-        let found = children_of(me);
-        let it = found.iter().find(|c| c.pid == child.id()).expect("listed");
-        assert!(it.runs("30") && !it.zombie, "{it:?}");
+        // Listed with its arguments once the kernel has set them (see `Process::args`), within
+        // a bounded wait; never as anything but a live child.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        loop {
+            let found = children_of(me);
+            let it = found.iter().find(|c| c.pid == child.id()).expect("listed");
+            assert!(!it.zombie, "{it:?}");
+            if it.runs("30") {
+                break;
+            }
+            assert!(it.args.is_empty(), "{it:?}");
+            assert!(std::time::Instant::now() < deadline, "never its arguments");
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
         child.kill().unwrap();
         // Killed but not reaped: a zombie, within a bounded wait for the kernel to say so.
-        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
         while !children_of(me)
             .iter()
             .any(|c| c.pid == child.id() && c.zombie)
