@@ -6,7 +6,7 @@
 //! shutdown). Losing the master and joining it again is `tessera_net::reconnect`'s loop.
 
 use crate::batch::{read, Rendered, Renderer};
-use crate::pixels_out::{send_pixels, Batch, Delivery};
+use crate::pixels_out::{send_pixels, Batch, Delivery, DisplayConn};
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -15,7 +15,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_core::node::render::{
-    BatchOrder, RenderEvent, RenderSession, RenderSetup, VolumeSteps,
+    BatchOrder, LinkId, RenderEvent, RenderSession, RenderSetup, VolumeSteps,
 };
 use tessera_model::wall::{DisplayId, TileGrid};
 use tessera_net::cluster::NodeIdentity;
@@ -160,6 +160,15 @@ async fn session(
         compression: session.compression(),
     };
     let started = RenderSession::new(setup, Instant::now());
+    let displays = displays
+        .into_iter()
+        .map(|(display, conn)| {
+            let link = started
+                .link(display)
+                .expect("the setup numbered every display");
+            (display, DisplayConn { link, conn })
+        })
+        .collect();
     let mut driver = Driver::new(started, renderer, here, displays);
     match driver.drive(&side.endpoint, &mut link).await? {
         End::Shutdown => {
@@ -192,7 +201,7 @@ enum Input {
     Master(Result<ToNode, LinkError>),
     Rendered(Result<Rendered, VolumeError>),
     Beat,
-    Reached(DisplayId, quinn::Connection),
+    Reached(DisplayId, DisplayConn),
     Delivered(Delivery),
 }
 
@@ -201,11 +210,11 @@ struct Driver {
     session: RenderSession,
     renderer: Renderer,
     here: crate::loading::SceneHere,
-    displays: BTreeMap<DisplayId, quinn::Connection>,
+    displays: BTreeMap<DisplayId, DisplayConn>,
     done: Channel<Result<Rendered, VolumeError>>,
     delivered: Channel<Delivery>,
     /// Displays reached at the new address the master gave.
-    reached: Channel<(DisplayId, quinn::Connection)>,
+    reached: Channel<(DisplayId, DisplayConn)>,
 }
 
 /// Both ends of an unbounded channel.
@@ -226,7 +235,7 @@ impl Driver {
         session: RenderSession,
         renderer: Renderer,
         here: crate::loading::SceneHere,
-        displays: BTreeMap<DisplayId, quinn::Connection>,
+        displays: BTreeMap<DisplayId, DisplayConn>,
     ) -> Self {
         Driver {
             session,
@@ -278,15 +287,7 @@ impl Driver {
                 ))))
             }
             Input::Beat => self.session.handle_timeout(Instant::now()),
-            Input::Reached(moved, conn) => {
-                let node = self.session.node().0;
-                tracing::info!(
-                    "render node {node}: display {} reached at its new address",
-                    moved.0
-                );
-                self.displays.insert(moved, conn);
-                self.session.handle_display_reached(moved);
-            }
+            Input::Reached(moved, reached) => self.reached(moved, reached),
             Input::Delivered(d) => {
                 self.session.handle_delivery(
                     d.frame,
@@ -298,6 +299,26 @@ impl Driver {
             }
         }
         Ok(None)
+    }
+
+    /// A display was reached at an address the master gave: its link from now on, unless a
+    /// newer address came meanwhile.
+    fn reached(&mut self, moved: DisplayId, reached: DisplayConn) {
+        let node = self.session.node().0;
+        if !self.session.handle_display_reached(moved, reached.link) {
+            reached
+                .conn
+                .close(0u32.into(), b"a newer address was given");
+            return;
+        }
+        tracing::info!(
+            "render node {node}: display {} reached at its new address",
+            moved.0
+        );
+        if let Some(old) = self.displays.insert(moved, reached) {
+            old.conn
+                .close(0u32.into(), b"the display was reached again");
+        }
     }
 
     /// Hands a batch to the render threads.
@@ -358,14 +379,21 @@ impl Driver {
         while let Some(event) = self.session.poll_event() {
             match event {
                 RenderEvent::Shutdown => return Some(End::Shutdown),
-                RenderEvent::ConnectDisplay { display, addr } => {
-                    self.connect(endpoint, display, addr)
-                }
+                RenderEvent::ConnectDisplay {
+                    display,
+                    addr,
+                    link,
+                } => self.connect(endpoint, display, addr, link),
                 RenderEvent::ForgetDisplay {
                     display: gone,
+                    link,
                     reason,
                 } => {
-                    self.displays.remove(&gone);
+                    // The session forgets only the display's current link; matched again
+                    // here so the map can never lose a newer connection.
+                    if self.displays.get(&gone).is_some_and(|c| c.link == link) {
+                        self.displays.remove(&gone);
+                    }
                     tracing::warn!(
                         "render node {node}: display {} unreachable ({reason}); its tiles go back undelivered",
                         gone.0
@@ -382,13 +410,19 @@ impl Driver {
     }
 
     /// Connects to a display off the loop: one that does not answer holds up nothing.
-    fn connect(&self, endpoint: &quinn::Endpoint, display: DisplayId, addr: SocketAddr) {
+    fn connect(
+        &self,
+        endpoint: &quinn::Endpoint,
+        display: DisplayId,
+        addr: SocketAddr,
+        link: LinkId,
+    ) {
         let (endpoint, reached) = (endpoint.clone(), self.reached.tx.clone());
         tokio::spawn(async move {
             let id = display.0;
             match quic::connect(&endpoint, addr, &format!("display {id}")).await {
                 Ok(conn) => {
-                    let _ = reached.send((display, conn));
+                    let _ = reached.send((display, DisplayConn { link, conn }));
                 }
                 Err(e) => tracing::warn!("cannot reach display {id} at {addr}: {e:#}"),
             }

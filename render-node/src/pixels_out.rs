@@ -3,6 +3,7 @@
 //! stream, so tiles lost with a display connection are never counted as done.
 
 use std::collections::BTreeMap;
+use tessera_core::node::render::LinkId;
 use tessera_model::state::StateId;
 use tessera_model::wall::{DisplayId, TileGrid, TileId};
 use tessera_protocol::pixels::{encode_batch, BatchSource, Compression};
@@ -18,8 +19,17 @@ pub struct Batch {
     pub payloads: Vec<Vec<u8>>,
 }
 
-/// How a batch's delivery ended: the tiles that reached their displays, and the displays that
-/// could not be reached. Tiles of an unreachable display are not reported done, so the master
+/// The connection to a display, and which of the display's links it is: a failure on it is
+/// reported with the link, so that one on a display's old connection is never taken for one on
+/// its new.
+#[derive(Clone)]
+pub struct DisplayConn {
+    pub link: LinkId,
+    pub conn: quinn::Connection,
+}
+
+/// How a batch's delivery ended: the tiles that reached their displays, and the links that
+/// failed. Tiles of an unreachable display are not reported done, so the master
 /// still holds them against this node: it copies them to another, or settles them once it
 /// knows the display is gone.
 pub struct Delivery {
@@ -27,11 +37,11 @@ pub struct Delivery {
     pub delivered: Vec<TileId>,
     /// The tiles of the unreachable displays.
     pub undelivered: Vec<TileId>,
-    pub lost: Vec<(DisplayId, String)>,
+    pub lost: Vec<(DisplayId, LinkId, String)>,
 }
 
 pub fn send_pixels(
-    displays: &BTreeMap<DisplayId, quinn::Connection>,
+    displays: &BTreeMap<DisplayId, DisplayConn>,
     grid: &TileGrid,
     compression: Compression,
     batch: Batch,
@@ -53,12 +63,13 @@ pub fn send_pixels(
     }
     // One task per display, all at once: a display that stalls holds back only its own tiles.
     let mut sends = tokio::task::JoinSet::new();
-    let mut lost = Vec::new();
+    let mut lost: Vec<(DisplayId, LinkId, String)> = Vec::new();
     let mut undelivered = Vec::new();
     for (display, indices) in by_display {
         let ids: Vec<TileId> = indices.iter().map(|&i| tiles[i]).collect();
-        let Some(conn) = displays.get(&display).cloned() else {
-            lost.push((display, "no connection to it".to_string()));
+        // Without a connection the session has forgotten the display already: nothing to
+        // report lost, the tiles just go back.
+        let Some(DisplayConn { link, conn }) = displays.get(&display).cloned() else {
             undelivered.extend(ids);
             continue;
         };
@@ -76,20 +87,20 @@ pub fn send_pixels(
                 stream.stopped().await?;
                 anyhow::Ok(())
             };
-            (display, ids, sent.await)
+            (display, link, ids, sent.await)
         });
     }
     tokio::spawn(async move {
         let mut delivered = Vec::new();
         while let Some(joined) = sends.join_next().await {
             match joined {
-                Ok((_, ids, Ok(()))) => delivered.extend(ids),
-                Ok((display, ids, Err(e))) => {
-                    lost.push((display, format!("{e:#}")));
+                Ok((_, _, ids, Ok(()))) => delivered.extend(ids),
+                Ok((display, link, ids, Err(e))) => {
+                    lost.push((display, link, format!("{e:#}")));
                     undelivered.extend(ids);
                 }
                 // A send task cannot panic short of a bug; its tiles stay with the master.
-                Err(e) => lost.push((DisplayId(u32::MAX), format!("the send task failed: {e}"))),
+                Err(e) => tracing::warn!("a pixel send task failed: {e}"),
             }
         }
         delivered.sort();

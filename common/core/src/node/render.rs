@@ -9,7 +9,7 @@
 
 use super::Heartbeat;
 use crate::worker::{BatchSizer, RenderWorker, WorkerError};
-use std::collections::{BTreeSet, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 use tessera_model::wall::{DisplayId, TileId};
@@ -45,9 +45,19 @@ pub struct RenderSetup {
     pub shared: bool,
     /// For a volume that plays a time series: its steps, and the one loaded now.
     pub volume: Option<VolumeSteps>,
-    /// The displays reached before the session began.
+    /// The displays reached before the session began: their links are numbered from
+    /// [`LinkId`] 0 in this order (see [`RenderSession::link`]).
     pub displays: Vec<DisplayId>,
 }
+
+/// One connection to a display, numbered by the session.
+///
+/// A display that restarts is reached again on a new connection while news of the old one (a
+/// delivery that failed on it, a connection attempt to its old address) may still be on its
+/// way. Keyed by display alone, that late news would drop the new connection and freeze the
+/// wall; keyed by link, it is recognised as stale and ignored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct LinkId(pub u64);
 
 /// A time series of volumes: how many steps it has and which one the scene holds.
 ///
@@ -111,12 +121,17 @@ pub enum RenderEvent {
         display: DisplayId,
         /// Where it takes tiles.
         addr: SocketAddr,
+        /// The link the connection will be, once reached.
+        link: LinkId,
     },
-    /// A delivery to `display` failed: drop its connection, once. Later batches skip it, and
-    /// the master, which hears from every display, decides whether it is gone.
+    /// A delivery to `display` failed on its current link: drop that connection, once. Later
+    /// batches skip the display, and the master, which hears from every display, decides
+    /// whether it is gone.
     ForgetDisplay {
         /// The display whose connection to drop.
         display: DisplayId,
+        /// The connection to drop: only if it is still the display's.
+        link: LinkId,
         /// Why the delivery failed, for the log.
         reason: String,
     },
@@ -184,8 +199,13 @@ pub struct RenderSession {
     volume: Option<VolumeSteps>,
     /// A batch is on the render threads: the next waits for it.
     rendering: bool,
-    /// The displays with a connection worth sending to.
-    displays: BTreeSet<DisplayId>,
+    /// The displays with a connection worth sending to, and that connection.
+    displays: BTreeMap<DisplayId, LinkId>,
+    /// The newest connection asked for to each display not reached on it yet: an older one
+    /// that answers late is not taken.
+    asked: BTreeMap<DisplayId, LinkId>,
+    /// The number of the next link.
+    next_link: u64,
     /// Tiles, rays and busy seconds so far.
     stats: RenderStats,
     started: Instant,
@@ -198,6 +218,12 @@ impl RenderSession {
     /// A session that starts at `now`, the node having just told the master it is ready.
     pub fn new(setup: RenderSetup, now: Instant) -> Self {
         let sizer = BatchSizer::new(setup.threads);
+        let displays: BTreeMap<_, _> = setup
+            .displays
+            .iter()
+            .zip(0..)
+            .map(|(&d, i)| (d, LinkId(i)))
+            .collect();
         let mut session = RenderSession {
             node: setup.node,
             worker: RenderWorker::new(setup.tile_count, sizer.low_water(None)),
@@ -205,7 +231,9 @@ impl RenderSession {
             shared: setup.shared,
             volume: setup.volume,
             rendering: false,
-            displays: setup.displays.into_iter().collect(),
+            next_link: setup.displays.len() as u64,
+            displays,
+            asked: BTreeMap::new(),
             stats: RenderStats::default(),
             started: now,
             heartbeat: Heartbeat::new(now),
@@ -219,6 +247,11 @@ impl RenderSession {
     /// The id the master gave this node.
     pub fn node(&self) -> RenderNodeId {
         self.node
+    }
+
+    /// The link a display is reached on now, if it is.
+    pub fn link(&self, display: DisplayId) -> Option<LinkId> {
+        self.displays.get(&display).copied()
     }
 
     /// Whether a batch is on the render threads.
@@ -239,9 +272,16 @@ impl RenderSession {
     pub fn handle_message(&mut self, msg: ToNode, now: Instant) -> Result<(), RenderSessionError> {
         match msg {
             ToNode::Shutdown => self.events.push_back(RenderEvent::Shutdown),
-            ToNode::DisplayAt { display, addr } => self
-                .events
-                .push_back(RenderEvent::ConnectDisplay { display, addr }),
+            ToNode::DisplayAt { display, addr } => {
+                let link = LinkId(self.next_link);
+                self.next_link += 1;
+                self.asked.insert(display, link);
+                self.events.push_back(RenderEvent::ConnectDisplay {
+                    display,
+                    addr,
+                    link,
+                });
+            }
             ToNode::BlockHolders { holders, .. } if self.shared => {
                 self.events.push_back(RenderEvent::BlockHolders(holders));
             }
@@ -272,27 +312,39 @@ impl RenderSession {
         }
     }
 
-    /// A display asked for by [`RenderEvent::ConnectDisplay`] was reached.
-    pub fn handle_display_reached(&mut self, display: DisplayId) {
-        self.displays.insert(display);
+    /// A connection asked for by [`RenderEvent::ConnectDisplay`] was made. Returns whether
+    /// it is the display's link from now on (replacing any older one); `false` when a newer
+    /// address was given meanwhile, and the driver closes this connection.
+    pub fn handle_display_reached(&mut self, display: DisplayId, link: LinkId) -> bool {
+        if self.asked.get(&display) != Some(&link) {
+            return false;
+        }
+        self.asked.remove(&display);
+        self.displays.insert(display, link);
+        true
     }
 
     /// A batch's delivery ended: `delivered` reached their displays; `undelivered` did not,
-    /// since the displays in `lost` could not be reached. The undelivered tiles go back to
-    /// the master, to be rendered again by this node or another; the delivered ones are
-    /// reported done, asking for more if the queue is low.
+    /// since the links in `lost` failed (with why). The undelivered tiles go back to the
+    /// master, to be rendered again by this node or another; the delivered ones are reported
+    /// done, asking for more if the queue is low. A failed link that is no longer its
+    /// display's (the display was reached again since) changes nothing.
     pub fn handle_delivery(
         &mut self,
         frame: FrameId,
         delivered: &[TileId],
         undelivered: Vec<TileId>,
-        lost: Vec<(DisplayId, String)>,
+        lost: Vec<(DisplayId, LinkId, String)>,
         now: Instant,
     ) {
-        for (display, reason) in lost {
-            if self.displays.remove(&display) {
-                self.events
-                    .push_back(RenderEvent::ForgetDisplay { display, reason });
+        for (display, link, reason) in lost {
+            if self.displays.get(&display) == Some(&link) {
+                self.displays.remove(&display);
+                self.events.push_back(RenderEvent::ForgetDisplay {
+                    display,
+                    link,
+                    reason,
+                });
             }
         }
         if !undelivered.is_empty() {

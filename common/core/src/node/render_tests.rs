@@ -11,7 +11,7 @@ use tessera_model::state::StateId;
 use tessera_model::volume_params::VolumeParams;
 use tessera_model::wall::{DisplayId, TileId};
 use tessera_protocol::{
-    FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode, HEARTBEAT_INTERVAL,
+    to_ranges, FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode, HEARTBEAT_INTERVAL,
 };
 
 /// The virtual clock's zero.
@@ -194,7 +194,7 @@ fn a_lost_display_is_forgotten_once_and_its_tiles_go_back_before_the_report() {
     let order = s.poll_batch(t0()).unwrap();
     assert_eq!(drain(&mut s), vec![], "the queue is long");
     s.handle_rendered(done(order.tiles.len(), 1));
-    let lost = vec![(DisplayId(1), "reset".to_string())];
+    let lost = vec![(DisplayId(1), LinkId(1), "reset".to_string())];
     s.handle_delivery(
         FrameId(0),
         &[TileId(0)],
@@ -206,6 +206,7 @@ fn a_lost_display_is_forgotten_once_and_its_tiles_go_back_before_the_report() {
         s.poll_event(),
         Some(RenderEvent::ForgetDisplay {
             display: DisplayId(1),
+            link: LinkId(1),
             reason: "reset".into()
         })
     );
@@ -227,7 +228,7 @@ fn a_lost_display_is_forgotten_once_and_its_tiles_go_back_before_the_report() {
     // Batches sent since still fail on it: nothing more to forget, the tiles still go back.
     s.handle_delivery(FrameId(0), &[], vec![TileId(2)], lost.clone(), at_ms(3));
     assert_eq!(s.poll_event(), None);
-    // It rejoined and was reached: lost again, it is forgotten again.
+    // It rejoined and was reached on a new link: lost again, it is forgotten again.
     let addr = "127.0.0.1:9".parse().unwrap();
     let moved = ToNode::DisplayAt {
         display: DisplayId(1),
@@ -238,10 +239,12 @@ fn a_lost_display_is_forgotten_once_and_its_tiles_go_back_before_the_report() {
         s.poll_event(),
         Some(RenderEvent::ConnectDisplay {
             display: DisplayId(1),
-            addr
+            addr,
+            link: LinkId(2)
         })
     );
-    s.handle_display_reached(DisplayId(1));
+    assert!(s.handle_display_reached(DisplayId(1), LinkId(2)));
+    let lost = vec![(DisplayId(1), LinkId(2), "reset".to_string())];
     s.handle_delivery(FrameId(0), &[], vec![TileId(3)], lost, at_ms(5));
     assert!(matches!(
         s.poll_event(),
@@ -279,4 +282,154 @@ fn the_shutdown_reports_the_sessions_tiles_rays_and_seconds() {
     let stats = s.stats(at_ms(2000));
     assert_eq!((stats.tiles, stats.rays), (2, 200));
     assert_eq!((stats.busy_s, stats.elapsed_s), (0.25, 2.0));
+}
+
+/// What reaches a render node while displays restart: each display's old link fails (a
+/// delivery on it ends in error), the master gives its new address, and the new link is up.
+#[derive(Clone, Copy, Debug)]
+enum Rejoin {
+    OldFails(u32),
+    NewAddr(u32),
+    NewUp(u32),
+}
+
+/// Every order of `events` in which a display's new link comes up only after its address.
+fn causal_orders(events: &[Rejoin]) -> Vec<Vec<Rejoin>> {
+    if events.is_empty() {
+        return vec![vec![]];
+    }
+    let mut orders = Vec::new();
+    for (i, &first) in events.iter().enumerate() {
+        let waits =
+            |e: &Rejoin| matches!((first, *e), (Rejoin::NewUp(a), Rejoin::NewAddr(b)) if a == b);
+        if events.iter().any(waits) {
+            continue;
+        }
+        let mut rest = events.to_vec();
+        rest.remove(i);
+        for mut tail in causal_orders(&rest) {
+            tail.insert(0, first);
+            orders.push(tail);
+        }
+    }
+    orders
+}
+
+/// A driver's map of connections, kept as the real one keeps it from the session's events.
+#[derive(Default)]
+struct Links {
+    up: std::collections::BTreeMap<DisplayId, LinkId>,
+    connecting: std::collections::BTreeMap<DisplayId, LinkId>,
+}
+
+impl Links {
+    fn apply_events(&mut self, s: &mut RenderSession) {
+        while let Some(event) = s.poll_event() {
+            match event {
+                RenderEvent::ConnectDisplay { display, link, .. } => {
+                    self.connecting.insert(display, link);
+                }
+                RenderEvent::ForgetDisplay { display, link, .. } => {
+                    if self.up.get(&display) == Some(&link) {
+                        self.up.remove(&display);
+                    }
+                }
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+    }
+}
+
+#[test]
+fn a_quick_display_restart_keeps_its_new_link_in_every_order_of_events() {
+    // Display 0 restarts within a second; display 1 rejoins too, its old link's failure
+    // late. Old links are 0 and 1, as the setup numbers them.
+    let events = [
+        Rejoin::OldFails(0),
+        Rejoin::NewAddr(0),
+        Rejoin::NewUp(0),
+        Rejoin::NewAddr(1),
+        Rejoin::NewUp(1),
+        Rejoin::OldFails(1),
+    ];
+    let orders = causal_orders(&events);
+    assert_eq!(
+        orders.len(),
+        180,
+        "6! orders, each new link after its address"
+    );
+    for order in orders {
+        let mut s = session(setup());
+        let mut links = Links {
+            up: [(DisplayId(0), LinkId(0)), (DisplayId(1), LinkId(1))].into(),
+            ..Links::default()
+        };
+        s.handle_message(start(0), t0()).unwrap();
+        s.handle_message(assign(0, 0, 40), t0()).unwrap();
+        for (ms, &event) in (1..).zip(&order) {
+            match event {
+                Rejoin::OldFails(d) => {
+                    let lost = vec![(DisplayId(d), LinkId(d.into()), "timed out".into())];
+                    s.handle_delivery(FrameId(0), &[], vec![], lost, at_ms(ms));
+                }
+                Rejoin::NewAddr(d) => {
+                    let addr = format!("127.0.0.1:{}", 9000 + d).parse().unwrap();
+                    let moved = ToNode::DisplayAt {
+                        display: DisplayId(d),
+                        addr,
+                    };
+                    s.handle_message(moved, at_ms(ms)).unwrap();
+                }
+                Rejoin::NewUp(d) => {
+                    let link = links.connecting[&DisplayId(d)];
+                    assert!(s.handle_display_reached(DisplayId(d), link), "{order:?}");
+                    links.up.insert(DisplayId(d), link);
+                }
+            }
+            links.apply_events(&mut s);
+        }
+        let new = links.connecting.clone();
+        assert_eq!(links.up, new, "the new links survive {order:?}");
+        for (&display, &link) in &new {
+            assert_eq!(s.link(display), Some(link), "{order:?}");
+        }
+        // A batch of tiles on both displays is delivered over the new links and reported.
+        drain(&mut s);
+        let order_tiles = s.poll_batch(at_ms(10)).unwrap().tiles;
+        s.handle_rendered(done(order_tiles.len(), 1));
+        s.handle_delivery(FrameId(0), &order_tiles, vec![], vec![], at_ms(11));
+        links.apply_events(&mut s);
+        let reported = drain(&mut s).into_iter().any(|m| {
+            matches!(m, FromNode::TilesDone { tiles, .. } if tiles == to_ranges(order_tiles.clone()))
+        });
+        assert!(reported, "{order:?}");
+    }
+}
+
+#[test]
+fn a_late_connection_to_an_older_address_is_refused() {
+    let mut s = session(setup());
+    let mut links = Links::default();
+    for port in [9001, 9002] {
+        let addr = format!("127.0.0.1:{port}").parse().unwrap();
+        s.handle_message(
+            ToNode::DisplayAt {
+                display: DisplayId(1),
+                addr,
+            },
+            t0(),
+        )
+        .unwrap();
+    }
+    links.apply_events(&mut s);
+    let newest = links.connecting[&DisplayId(1)];
+    assert_eq!(newest, LinkId(3));
+    assert!(s.handle_display_reached(DisplayId(1), newest));
+    assert!(!s.handle_display_reached(DisplayId(1), LinkId(2)), "stale");
+    assert_eq!(s.link(DisplayId(1)), Some(newest));
+    // The old link's failure, however late, leaves the new one alone.
+    let lost = vec![(DisplayId(1), LinkId(1), "timed out".into())];
+    s.handle_delivery(FrameId(0), &[], vec![TileId(1)], lost, at_ms(1));
+    assert_eq!(s.poll_event(), None);
+    assert_eq!(s.link(DisplayId(1)), Some(newest));
 }
