@@ -11,7 +11,7 @@ use tessera_model::wall::{TileGrid, TileId};
 use tessera_protocol::pixels::Compression;
 use tessera_protocol::FrameId;
 use tessera_render::volume::{SeriesCache, VolumeError};
-use tessera_render::{render_tiles_footprints, FrameView, PreparedScene, RayCounts};
+use tessera_render::{render_tiles_footprints, Cancel, FrameView, PreparedScene, RayCounts};
 
 pub(crate) fn read(scene: &RwLock<PreparedScene>) -> RwLockReadGuard<'_, PreparedScene> {
     scene.read().unwrap_or_else(|e| e.into_inner())
@@ -64,11 +64,16 @@ impl Rendered {
 }
 
 impl Renderer {
-    /// Renders `order`; blocks for as long as that takes.
+    /// Renders `order`; blocks for as long as that takes, or until `cancel` is cancelled:
+    /// then within a sample of a packet, returning `None` (a cancelled batch did nothing).
     ///
     /// # Errors
     /// The volume step the batch needs cannot be loaded.
-    pub fn render(&self, order: BatchOrder) -> Result<Rendered, VolumeError> {
+    pub fn render(
+        &self,
+        order: BatchOrder,
+        cancel: &Cancel,
+    ) -> Result<Option<Rendered>, VolumeError> {
         let BatchOrder {
             start,
             tiles,
@@ -92,9 +97,12 @@ impl Renderer {
                     .expect("the worker checked every assigned tile")
             })
             .collect();
-        let (pixels, rays, footprints) = self
+        let traced = self
             .pool
-            .install(|| render_tiles_footprints(&prepared, &view, &geometry));
+            .install(|| render_tiles_footprints(&prepared, &view, &geometry, cancel));
+        let Some((pixels, rays, footprints)) = traced else {
+            return Ok(None);
+        };
         // Rendering time alone, so rays/s does not depend on the compression.
         let took = t0.elapsed();
         let compression = self.compression;
@@ -104,7 +112,7 @@ impl Renderer {
                 .map(|rgb| compression.encode_tile(rgb))
                 .collect()
         });
-        Ok(Rendered {
+        Ok(Some(Rendered {
             frame: start.frame,
             state: start.state,
             tiles,
@@ -113,6 +121,6 @@ impl Renderer {
             took,
             batch_took: t0.elapsed(),
             footprints,
-        })
+        }))
     }
 }

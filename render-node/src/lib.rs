@@ -135,7 +135,13 @@ pub fn run(cli: Cli) -> Result<()> {
                     threads: 0,
                 },
             };
-            tessera_net::link::node_runtime()?.block_on(node::run(options))
+            let runtime = tessera_net::link::node_runtime()?;
+            let outcome = runtime.block_on(node::run(options));
+            // Dropping a runtime waits for its blocking tasks: a scene still loading, or a
+            // BVH building, for a master that is gone would hold the exit for as long as it
+            // takes. Rendering is cancelled already; nothing else there is worth waiting for.
+            runtime.shutdown_background();
+            outcome
         }
     }
 }

@@ -25,6 +25,7 @@ use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
 use tessera_protocol::{FromNode, NodeStats, Role, ToNode};
 use tessera_render::volume::VolumeError;
+use tessera_render::Cancel;
 use tokio::sync::mpsc;
 
 /// What the node was started with.
@@ -199,7 +200,7 @@ enum End {
 #[allow(clippy::large_enum_variant)]
 enum Input {
     Master(Result<ToNode, LinkError>),
-    Rendered(Result<Rendered, VolumeError>),
+    Rendered(Result<Option<Rendered>, VolumeError>),
     Beat,
     Reached(DisplayId, DisplayConn),
     Delivered(Delivery),
@@ -211,10 +212,20 @@ struct Driver {
     renderer: Renderer,
     here: crate::loading::SceneHere,
     displays: BTreeMap<DisplayId, DisplayConn>,
-    done: Channel<Result<Rendered, VolumeError>>,
+    /// Cancelled when the session ends, however it ends (see `Drop`): a batch still on the
+    /// render threads stops within a sample of a packet instead of tracing on for a master
+    /// that is gone.
+    cancel: Cancel,
+    done: Channel<Result<Option<Rendered>, VolumeError>>,
     delivered: Channel<Delivery>,
     /// Displays reached at the new address the master gave.
     reached: Channel<(DisplayId, DisplayConn)>,
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        self.cancel.cancel();
+    }
 }
 
 /// Both ends of an unbounded channel.
@@ -242,6 +253,7 @@ impl Driver {
             renderer,
             here,
             displays,
+            cancel: Cancel::new(),
             done: Channel::new(),
             delivered: Channel::new(),
             reached: Channel::new(),
@@ -280,7 +292,8 @@ impl Driver {
                 .session
                 .handle_message(msg?, Instant::now())
                 .context("the master broke the protocol")?,
-            Input::Rendered(Ok(rendered)) => self.rendered(rendered),
+            Input::Rendered(Ok(Some(rendered))) => self.rendered(rendered),
+            Input::Rendered(Ok(None)) => self.session.handle_cancelled(),
             Input::Rendered(Err(e)) => {
                 return Ok(Some(End::Failed(format!(
                     "cannot load the volume's time step: {e}"
@@ -330,8 +343,10 @@ impl Driver {
             );
         }
         let (renderer, done) = (self.renderer.clone(), self.done.tx.clone());
+        // A token of its own, so that one frame can be stopped without the session.
+        let cancel = self.cancel.child();
         tokio::task::spawn_blocking(move || {
-            let _ = done.send(renderer.render(order));
+            let _ = done.send(renderer.render(order, &cancel));
         });
     }
 

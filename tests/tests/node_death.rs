@@ -506,3 +506,56 @@ fn waiting_for_a_lost_display_holds_the_wall_until_it_rejoins() {
     );
     assert!(short <= 2, "{report}");
 }
+
+/// CPU seconds process `pid` has used so far (user and system), from `/proc/PID/stat`.
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // The fields after the command name, which may hold spaces, closed by the last ')'.
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map_or("", |(_, rest)| rest)
+        .split_whitespace()
+        .collect();
+    let ticks: u64 = [11, 12]
+        .iter()
+        .filter_map(|&i| fields.get(i)?.parse::<u64>().ok())
+        .sum();
+    // SAFETY: sysconf reads a constant of the system and touches no memory of ours.
+    let per_second = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1);
+    ticks as f64 / per_second as f64
+}
+
+#[test]
+fn a_render_node_tracing_a_runaway_frame_stops_when_its_master_is_killed() {
+    let dir = tempfile::tempdir().unwrap();
+    // 2^18 rays per pixel, the most a control client may ask for: hours of one thread for a
+    // frame of this wall, seconds for each 8x8 packet.
+    let wall = Served::start_with(dir.path(), &["--spp", "4096", "--ao", "63"]);
+    let (_d0, _d1) = (wall.display(0), wall.display(1));
+    let render = wall.render();
+    render.wait_for_stderr("ready", Duration::from_secs(60));
+    // Tracing: its CPU time grows past what it had when ready (loading counted too).
+    let at_ready = cpu_seconds(render.pid());
+    assert!(
+        wait_for(Duration::from_secs(30), || cpu_seconds(render.pid())
+            > at_ready + 0.3),
+        "the render node never started tracing"
+    );
+    let killed = std::time::Instant::now();
+    wall.master.signal(libc::SIGKILL);
+    // The transport notices a silent master after its idle timeout; stopping the render
+    // threads and exiting must add next to nothing (it used to trace on for minutes).
+    let bound = tessera_net::quic::IDLE_TIMEOUT + Duration::from_millis(500);
+    wait_for(bound + Duration::from_secs(5), || render.has_exited());
+    let exited = killed.elapsed();
+    let o = render.wait(Duration::from_secs(5));
+    eprintln!("render node exited {exited:?} after its master was killed mid-frame");
+    assert_eq!(o.status.code(), Some(1), "{}", o.stderr);
+    assert!(o.stderr.contains("lost the master"), "{}", o.stderr);
+    assert!(
+        exited < bound,
+        "exited {exited:?} after the kill\n{}",
+        o.stderr
+    );
+    let _ = wall.master.wait(Duration::from_secs(10));
+}

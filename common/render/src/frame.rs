@@ -4,6 +4,7 @@
 //! Every pixel is a pure function of (scene, camera, params, pixel), so a tile is byte-identical
 //! on whichever node renders it and the single-process reference equals the wall.
 
+use crate::cancel::Cancel;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::SampleStream;
@@ -27,22 +28,32 @@ pub fn render_tiles(
     view: &FrameView,
     tiles: &[Tile],
 ) -> (Vec<Vec<u8>>, RayCounts) {
-    let (images, counts, _) = render_tiles_with(scene, view, tiles, ShadowRays::Packets);
+    let (images, counts, _) =
+        render_tiles_with(scene, view, tiles, ShadowRays::Packets, &Cancel::new())
+            .expect("a token nobody holds is never cancelled");
     (images, counts)
 }
 
+/// The tiles' pixels, the rays traced and, per tile, the other nodes' blocks it read.
+pub type Traced = (
+    Vec<Vec<u8>>,
+    RayCounts,
+    Vec<Vec<tessera_core::dsm::BlockId>>,
+);
+
 /// [`render_tiles`], and for a scene in shared memory the other nodes' blocks each tile read
 /// (sorted, once each): what the same tile will read next frame, to be fetched ahead of it.
+///
+/// `cancel` is checked before each sample of each packet; `None` if it was cancelled before
+/// the last packet was done (the pixels traced so far are dropped: a display must never show
+/// part of a tile).
 pub fn render_tiles_footprints(
     scene: &PreparedScene,
     view: &FrameView,
     tiles: &[Tile],
-) -> (
-    Vec<Vec<u8>>,
-    RayCounts,
-    Vec<Vec<tessera_core::dsm::BlockId>>,
-) {
-    render_tiles_with(scene, view, tiles, ShadowRays::Packets)
+    cancel: &Cancel,
+) -> Option<Traced> {
+    render_tiles_with(scene, view, tiles, ShadowRays::Packets, cancel)
 }
 
 /// How primary hits trace their shadow rays; both give the same pixels.
@@ -58,32 +69,38 @@ pub(crate) fn render_tiles_with(
     view: &FrameView,
     tiles: &[Tile],
     shadow_rays: ShadowRays,
-) -> (
-    Vec<Vec<u8>>,
-    RayCounts,
-    Vec<Vec<tessera_core::dsm::BlockId>>,
-) {
+    cancel: &Cancel,
+) -> Option<Traced> {
     let mut footprints = vec![Vec::new(); tiles.len()];
     if scene.is_empty() {
         // Nothing to hit: every pixel is the one backdrop colour and no ray is traced. Encoding
         // it per pixel cost the empty-scene wall (max-fps) a sixth of its CPU.
         let rgb = encode_srgb_ish(background(Vec3::Z));
         let images = tiles.iter().map(|t| rgb.repeat(t.pixel_count())).collect();
-        return (images, RayCounts::default(), footprints);
+        return Some((images, RayCounts::default(), footprints));
     }
     let packets = packets_of(tiles);
-    type Traced = ([u8; (PACKET * PACKET * 3) as usize], RayCounts, Vec<u32>);
-    let traced: Vec<Traced> = packets
+    type Packet = ([u8; (PACKET * PACKET * 3) as usize], RayCounts, Vec<u32>);
+    let traced: Vec<Packet> = packets
         .par_iter()
         .map_init(
             || scene.tracer(),
             |tracer, &(i, px, py)| {
-                let (pixels, counts) =
-                    trace_packet(scene, view, &tiles[i], (px, py), shadow_rays, tracer);
+                let (pixels, counts) = trace_packet(
+                    scene,
+                    view,
+                    &tiles[i],
+                    (px, py),
+                    (shadow_rays, cancel),
+                    tracer,
+                );
                 (pixels, counts, tracer.take_footprint())
             },
         )
         .collect();
+    if cancel.is_cancelled() {
+        return None;
+    }
     let mut images: Vec<Vec<u8>> = tiles.iter().map(|t| vec![0; t.pixel_count() * 3]).collect();
     let mut counts = RayCounts::default();
     for (&(i, px, py), (pixels, c, footprint)) in packets.iter().zip(&traced) {
@@ -102,7 +119,7 @@ pub(crate) fn render_tiles_with(
         f.sort_unstable();
         f.dedup();
     }
-    (images, counts, footprints)
+    Some((images, counts, footprints))
 }
 
 /// Renders `tiles` as linear colour (what [`render_tiles`] encodes to 8 bits, before encoding),
@@ -114,6 +131,7 @@ pub fn render_tiles_linear(
 ) -> (Vec<Vec<Vec3>>, RayCounts) {
     let packets = packets_of(tiles);
     let spp = view.params.spp().max(1) as f32;
+    let never = Cancel::new();
     let traced: Vec<([Vec3; 64], RayCounts)> = packets
         .par_iter()
         .map_init(
@@ -124,7 +142,7 @@ pub fn render_tiles_linear(
                     view,
                     &tiles[i],
                     (px, py),
-                    ShadowRays::Packets,
+                    (ShadowRays::Packets, &never),
                     tracer,
                 )
             },
@@ -173,7 +191,7 @@ fn trace_packet(
     view: &FrameView,
     tile: &Tile,
     (px, py): (u32, u32),
-    shadow_rays: ShadowRays,
+    shadow_rays: (ShadowRays, &Cancel),
     tracer: &mut Tracer<'_>,
 ) -> ([u8; (PACKET * PACKET * 3) as usize], RayCounts) {
     let mut out = [0u8; (PACKET * PACKET * 3) as usize];
@@ -198,14 +216,16 @@ fn trace_packet(
 }
 
 /// The colours of the packet at `(px, py)` in `tile`, summed over the frame's samples (lane i
-/// is pixel (i % 8, i / 8) of the block), and the rays traced.
+/// is pixel (i % 8, i / 8) of the block), and the rays traced. Stops short, with a partial
+/// sum, once `cancel` is cancelled: one sample of a packet at the largest ambient-occlusion
+/// count is about a millisecond of a core, the whole packet at the largest quality seconds.
 #[inline(always)]
 fn packet_sum(
     scene: &PreparedScene,
     view: &FrameView,
     tile: &Tile,
     (px, py): (u32, u32),
-    shadow_rays: ShadowRays,
+    (shadow_rays, cancel): (ShadowRays, &Cancel),
     tracer: &mut Tracer<'_>,
 ) -> ([Vec3; 64], RayCounts) {
     let (x0, y0) = (tile.x + px, tile.y + py);
@@ -214,6 +234,9 @@ fn packet_sum(
     let mut sum = [Vec3::ZERO; 64];
     let spp = view.params.spp().max(1);
     for s in 0..spp {
+        if cancel.is_cancelled() {
+            break;
+        }
         let sample = view.params.first_sample() + s;
         let mut packet = if spp == 1 && view.params.first_sample() == 0 {
             RayPacket::primary(view.rays_for(tile), x0, y0, w, h)

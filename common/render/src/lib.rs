@@ -29,6 +29,7 @@
 pub mod aov;
 pub mod bench;
 pub mod bvh;
+mod cancel;
 pub mod dsm;
 mod frame;
 pub mod geometry;
@@ -51,6 +52,7 @@ pub mod volume;
 #[cfg(test)]
 mod render_tests;
 
+pub use cancel::Cancel;
 pub use frame::{render_tiles, render_tiles_footprints, render_tiles_linear, PACKET};
 pub use pixel_rays::{orbit_of, PixelRays};
 pub use prepared::{FrameView, PreparedScene, RayCounts};

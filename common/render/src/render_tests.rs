@@ -380,10 +380,11 @@ fn shadow_packets_give_the_pixels_of_single_shadow_rays() {
         .build()
         .unwrap();
         let view = FrameView::new(0, &gallery_camera(), params, 96, 64);
+        let never = Cancel::new();
         let (packets, packet_counts, _) =
-            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Packets);
+            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Packets, &never).unwrap();
         let (single, single_counts, _) =
-            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Single);
+            render_tiles_with(&prepared, &view, grid.tiles(), ShadowRays::Single, &never).unwrap();
         assert!(packet_counts.shadow > 1000, "{packet_counts:?}");
         assert_eq!(packet_counts, single_counts);
         assert_eq!(packets, single);
@@ -411,4 +412,61 @@ fn the_linear_image_is_what_the_8_bit_image_encodes() {
     for (c, px) in linear.iter().zip(rgb8.rgb.chunks(3)) {
         assert_eq!(&encode_srgb_ish(*c)[..], px);
     }
+}
+
+#[test]
+fn a_cancelled_render_of_a_runaway_quality_stops_within_a_sample_and_returns_nothing() {
+    let scene = knot_scene(64, 8);
+    let prepared = PreparedScene::new(&scene);
+    let wall = WallSpec::grid(1, 1, 64, 32).tile_size(32).build().unwrap();
+    let grid = TileGrid::new(wall.clone());
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(0);
+    // 2^18 rays per pixel, the most a control client may ask: minutes for these two tiles.
+    let params = RenderParamsSpec {
+        spp: 4096,
+        ao_samples: 63,
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .unwrap();
+    let view = FrameView::new(0, &camera, params, wall.width(), wall.height());
+    let session = Cancel::new();
+    let batch = session.child();
+    let traced = std::thread::scope(|s| {
+        let render = s.spawn(|| render_tiles_footprints(&prepared, &view, grid.tiles(), &batch));
+        // Not a wait for readiness: cancelled before it starts, the render returns nothing
+        // all the same; the pause only makes a cancel in mid-packet the likely case.
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        let cancelled = std::time::Instant::now();
+        session.cancel();
+        let traced = render.join().unwrap();
+        (traced, cancelled.elapsed())
+    });
+    assert!(traced.0.is_none(), "a cancelled batch returns no pixels");
+    // A sample of a packet is some 4,000 rays: milliseconds even in a debug build.
+    assert!(
+        traced.1 < std::time::Duration::from_millis(500),
+        "{:?}",
+        traced.1
+    );
+}
+
+#[test]
+fn a_render_nobody_cancels_is_the_plain_render() {
+    let scene = knot_scene(64, 8);
+    let prepared = PreparedScene::new(&scene);
+    let wall = WallSpec::grid(1, 1, 40, 28).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall.clone());
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(2);
+    let view = FrameView::new(2, &camera, RenderParams::interactive(), 40, 28);
+    let (plain, plain_counts) = render_tiles(&prepared, &view, grid.tiles());
+    let sibling = Cancel::new();
+    let (tiles, counts, _) =
+        render_tiles_footprints(&prepared, &view, grid.tiles(), &sibling.child()).unwrap();
+    assert_eq!((tiles, counts), (plain, plain_counts));
+    sibling.child().cancel();
+    assert!(
+        !sibling.is_cancelled(),
+        "a child does not cancel its parent"
+    );
 }

@@ -312,6 +312,14 @@ impl RenderSession {
         }
     }
 
+    /// The batch [`RenderSession::poll_batch`] handed out was cancelled on the render
+    /// threads (its frame is no longer wanted): the threads are free, and nothing is
+    /// reported: its tiles are neither done nor sized by, and the master, which cancelled
+    /// the frame or is gone, does not wait for them.
+    pub fn handle_cancelled(&mut self) {
+        self.rendering = false;
+    }
+
     /// A connection asked for by [`RenderEvent::ConnectDisplay`] was made. Returns whether
     /// it is the display's link from now on (replacing any older one); `false` when a newer
     /// address was given meanwhile, and the driver closes this connection.
