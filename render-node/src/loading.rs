@@ -4,16 +4,17 @@
 
 use crate::dsm::DsmScene;
 use crate::node::NodeSide;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicUsize;
 use std::sync::{Arc, RwLock};
 use std::time::Instant;
+use tessera_model::scene_spec::SceneSpec;
 use tessera_net::link::MasterLink;
 use tessera_net::quic;
 use tessera_protocol::dsm::DataSpec;
 use tessera_protocol::{FromNode, RenderNodeId, Session, ToNode};
-use tessera_render::scene::Scene;
+use tessera_render::scene::{footprint, Scene};
 use tessera_render::volume::SeriesCache;
 use tessera_render::PreparedScene;
 
@@ -73,6 +74,7 @@ pub async fn scene_here(
         tracing::info!("render node {}: joined, loading the scene", node.0);
         // The old scene goes first: two at once may not fit.
         *loaded = None;
+        fits_in_memory(session.scene(), side.dsm.memory_budget)?;
         let (prepared, series) = prepare(
             session,
             side.pool.clone(),
@@ -147,6 +149,33 @@ async fn shared_here(
         shared: Some(shared),
         _server: Some(server),
     })
+}
+
+/// Refuses, before anything is allocated, a replicated scene whose estimated footprint (see
+/// [`footprint`]) exceeds this node's `--memory-budget`, or the memory the host has
+/// available when none is given. A scene that cannot be estimated is let through.
+///
+/// # Errors
+/// The scene does not fit: the message names both sizes and the flag, and travels to the
+/// master as any load failure does.
+pub(crate) fn fits_in_memory(spec: &SceneSpec, budget: Option<u64>) -> Result<()> {
+    let Some(needed) = footprint::estimate(spec) else {
+        return Ok(());
+    };
+    let hint = "raise --memory-budget, render a smaller scene, or share it across the render nodes (tessera-master prepare, then --data dsm)";
+    let (budget, name) = match budget {
+        Some(b) => (b, "this node's --memory-budget".to_string()),
+        None => match crate::memory::available_bytes() {
+            Some(b) => (
+                b,
+                "the memory available on this host (MemAvailable; --memory-budget sets a budget)"
+                    .to_string(),
+            ),
+            None => return Ok(()),
+        },
+    };
+    footprint::check_fits(needed, budget, &name, hint)
+        .with_context(|| format!("refusing the replicated scene {spec:?}"))
 }
 
 /// The scene, prepared, and for a time series the cache its steps are read through.

@@ -11,6 +11,15 @@ pub fn resident_bytes() -> Option<u64> {
     Some(pages * u64::try_from(page).ok()?)
 }
 
+/// Memory the system could give this process now without swapping (`MemAvailable` of
+/// `/proc/meminfo`), or `None` where `/proc` has no answer.
+pub fn available_bytes() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 /// The most resident bytes this process has had (`VmHWM`), or `None` where `/proc` has no
 /// answer.
 pub fn peak_resident_bytes() -> Option<u64> {

@@ -8,6 +8,7 @@
 
 pub mod composite;
 mod files;
+pub mod footprint;
 pub mod gltf;
 pub mod particles;
 mod procedural;

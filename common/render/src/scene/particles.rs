@@ -220,7 +220,16 @@ fn read_tpart(mut reader: impl Read, size: Option<u64>) -> Result<Vec<Particle>,
     }
     let count = usize::try_from(count).map_err(|_| format!("{count} records is too many"))?;
     // Without a known size (a pipe), capacity grows with what actually arrives.
-    let mut particles = Vec::with_capacity(if size.is_some() { count } else { 0 });
+    let mut particles = Vec::new();
+    // The count is the file's word: a failed reservation is an error, not an abort.
+    if size.is_some() {
+        particles.try_reserve_exact(count).map_err(|_| {
+            format!(
+                "cannot allocate {count} particles ({} bytes): not enough memory",
+                count.saturating_mul(std::mem::size_of::<Particle>())
+            )
+        })?;
+    }
     let mut record = [0u8; RECORD_BYTES as usize];
     for index in 0..count {
         read_full(&mut reader, &mut record)

@@ -272,7 +272,7 @@ impl Fields<'_> {
             self.optional(tags::RESCALE_INTERCEPT, 0.0),
         );
         Ok(voxel_type
-            .decode(&pixels[..expected], true)
+            .decode(path, &pixels[..expected], true)?
             .into_iter()
             .map(|v| (v as f64 * slope + intercept) as f32)
             .collect())

@@ -60,20 +60,35 @@ impl VoxelType {
     }
 
     /// Decodes `bytes` (a whole number of voxels) in the given byte order.
-    fn decode(self, bytes: &[u8], little_endian: bool) -> Vec<f32> {
+    /// The samples of `bytes` (of the volume at `path`).
+    ///
+    /// # Errors
+    /// Not the memory for them: the size is the file's word, so a failed reservation is
+    /// refused, never an abort.
+    fn decode(
+        self,
+        path: &Path,
+        bytes: &[u8],
+        little_endian: bool,
+    ) -> Result<Vec<f32>, VolumeError> {
         let n = self.bytes();
-        bytes
-            .chunks_exact(n)
-            .map(|b| match (self, little_endian) {
-                (VoxelType::U8, _) => b[0] as f32,
-                (VoxelType::I16, true) => i16::from_le_bytes([b[0], b[1]]) as f32,
-                (VoxelType::I16, false) => i16::from_be_bytes([b[0], b[1]]) as f32,
-                (VoxelType::U16, true) => u16::from_le_bytes([b[0], b[1]]) as f32,
-                (VoxelType::U16, false) => u16::from_be_bytes([b[0], b[1]]) as f32,
-                (VoxelType::F32, true) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-                (VoxelType::F32, false) => f32::from_be_bytes([b[0], b[1], b[2], b[3]]),
-            })
-            .collect()
+        let count = bytes.len() / n;
+        let mut values = Vec::new();
+        values.try_reserve_exact(count).map_err(|_| {
+            let message = format!("cannot allocate {count} samples as f32: not enough memory");
+            VolumeError::field(path, "sizes", message)
+        })?;
+        let decoded = bytes.chunks_exact(n).map(|b| match (self, little_endian) {
+            (VoxelType::U8, _) => b[0] as f32,
+            (VoxelType::I16, true) => i16::from_le_bytes([b[0], b[1]]) as f32,
+            (VoxelType::I16, false) => i16::from_be_bytes([b[0], b[1]]) as f32,
+            (VoxelType::U16, true) => u16::from_le_bytes([b[0], b[1]]) as f32,
+            (VoxelType::U16, false) => u16::from_be_bytes([b[0], b[1]]) as f32,
+            (VoxelType::F32, true) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            (VoxelType::F32, false) => f32::from_be_bytes([b[0], b[1], b[2], b[3]]),
+        });
+        values.extend(decoded);
+        Ok(values)
     }
 }
 
@@ -374,6 +389,17 @@ pub fn is_volume_path(path: &Path) -> bool {
     format_of(path).is_some()
 }
 
+/// The voxels the volume at `path` declares, from its header alone (NRRD, a raw sidecar);
+/// `None` for the formats whose count is not read ahead (NIfTI, DICOM) or an unreadable
+/// header, which [`load`] will report.
+pub fn declared_voxels(path: &Path) -> Option<u64> {
+    match format_of(path)? {
+        Format::Nrrd => nrrd::declared_voxels(path),
+        Format::RawWithSidecar => raw::declared_voxels(path),
+        Format::Nifti | Format::DicomSeries => None,
+    }
+}
+
 /// Loads the volume at `path`, choosing the reader by extension: `.nrrd` / `.nhdr` (NRRD,
 /// raw or gzip encoding, data attached or in a detached file), `.nii` / `.nii.gz` / `.hdr`
 /// (NIfTI-1, placed by its sform or qform), `.vol.toml` (raw voxels described by a small TOML
@@ -412,7 +438,7 @@ fn decode_exact(
             found: bytes.len(),
         });
     }
-    Ok(voxel_type.decode(bytes, little_endian))
+    voxel_type.decode(path, bytes, little_endian)
 }
 
 #[cfg(test)]

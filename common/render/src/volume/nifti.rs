@@ -59,7 +59,7 @@ fn decode(
         _ => None,
     };
     if let Some(t) = native {
-        return Ok((t, t.decode(raw, little)));
+        return Ok((t, t.decode(path, raw, little)?));
     }
     let word = |b: &[u8]| -> [u8; 8] {
         let mut w = [0u8; 8];

@@ -59,6 +59,22 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
     Volume::checked(path, dims, axes, origin, voxel_type, values)
 }
 
+/// The voxel count an NRRD header declares, read from the start of the file only (the
+/// header ends within its first 64 KiB or it is not read): what a load will hold, known
+/// before it allocates.
+pub(super) fn declared_voxels(path: &Path) -> Option<u64> {
+    use std::io::Read as _;
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .ok()?
+        .take(64 << 10)
+        .read_to_end(&mut head)
+        .ok()?;
+    let (fields, _) = split_header(path, &head).ok()?;
+    let sizes = parse_numbers::<u64>(path, "sizes", fields.get("sizes")?).ok()?;
+    sizes.iter().try_fold(1u64, |n, &s| n.checked_mul(s))
+}
+
 /// The header's fields (names lower-cased) and the bytes after the blank line that ends it.
 fn split_header<'a>(
     path: &Path,

@@ -26,6 +26,16 @@ struct Sidecar {
     endian: Option<String>,
 }
 
+/// The voxel count a sidecar declares, before its data is read.
+pub(super) fn declared_voxels(path: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let sidecar: Sidecar = toml::from_str(&text).ok()?;
+    sidecar
+        .dims
+        .iter()
+        .try_fold(1u64, |n, &d| n.checked_mul(d as u64))
+}
+
 /// Loads the volume a `.vol.toml` sidecar describes.
 pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
     let text = std::fs::read_to_string(path).map_err(|e| VolumeError::io(path, e))?;
