@@ -559,3 +559,28 @@ fn a_render_node_tracing_a_runaway_frame_stops_when_its_master_is_killed() {
     );
     let _ = wall.master.wait(Duration::from_secs(10));
 }
+
+#[test]
+fn a_render_node_refuses_a_replicated_scene_over_its_memory_budget_naming_the_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    // 131,072 triangles: some 22 MiB at the load's peak, cheap for the master to hash.
+    let wall = Served::start_with(dir.path(), &["--scene", "knot:512:128"]);
+    let (_d0, _d1) = (wall.display(0), wall.display(1));
+    let render = wall.render_with(&["--memory-budget", "16MiB"]);
+    let o = render.wait(Duration::from_secs(60));
+    assert_eq!(o.status.code(), Some(1), "{}", o.stderr);
+    for words in [
+        "22.0 MiB",
+        "16.0 MiB",
+        "--memory-budget",
+        "131072 triangles",
+    ] {
+        assert!(o.stderr.contains(words), "{words:?} in:\n{}", o.stderr);
+    }
+    let line = wall
+        .master
+        .wait_for_stderr("refusing the replicated scene", Duration::from_secs(30));
+    eprintln!("the master logged: {line}");
+    wall.master.signal(libc::SIGKILL);
+    let _ = wall.master.wait(Duration::from_secs(10));
+}
