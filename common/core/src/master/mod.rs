@@ -398,6 +398,8 @@ struct Peer {
     role: PeerRole,
     host: String,
     remote: SocketAddr,
+    /// Sent its welcome: a render node gets one, however many displays rejoin meanwhile.
+    welcomed: bool,
     ready: bool,
     stats: Option<NodeStats>,
 }
