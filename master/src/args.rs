@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 use tessera_cli::{CompressArg, QualityArgs, SceneArgs, WallArgs};
-use tessera_core::balance::BalanceConfig;
+use tessera_core::balance::{BalanceConfig, DeathDetector, DEFAULT_ACCEPTABLE_PAUSE};
 use tessera_core::master::MasterConfig;
 use tessera_protocol::FrameId;
 use tessera_render::orbit_of;
@@ -37,11 +37,18 @@ pub struct RunArgs {
     /// How long to wait for all nodes to join, in seconds (1 to 86400).
     #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub join_timeout: u64,
-    /// A render node silent this many ms (no heartbeat, no report) is treated as dead and its
-    /// tiles go to the others, without waiting for the network's 10 s timeout. Render nodes
-    /// beat every 50 ms; 150 to 60000.
+    /// A node silent this many ms (no heartbeat, no report) is suspected: a render node's
+    /// tiles are copied to the others so the frame still completes, but it stays in the run
+    /// and is back when it speaks again. Nodes beat every 50 ms; 150 to 60000.
     #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(150..=60_000))]
     pub node_deadline_ms: u64,
+    /// Silence a node may show, on top of its usual heartbeat rhythm, before it is dead and
+    /// its connection closed (a phi-accrual detector learns each node's rhythm): a stopped
+    /// process, a starved machine or a network blip shorter than this costs nobody their
+    /// place. Silence while the master itself did not run counts against nobody. 0 to 8000;
+    /// default 3000 for a served wall, 6000 for `local` (every process shares the cores).
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(0..=8_000))]
+    pub acceptable_pause_ms: Option<u64>,
     /// Never give an idle render node copies of a late node's tiles: a late node then holds
     /// its tiles until it reports them or its deadline passes, and no tile is sent twice.
     #[arg(long)]
@@ -326,6 +333,12 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         join_timeout: Duration::from_secs(run.join_timeout),
         balance: BalanceConfig {
             node_deadline: Duration::from_millis(run.node_deadline_ms),
+            death: DeathDetector {
+                acceptable_pause: run
+                    .acceptable_pause_ms
+                    .map_or(DEFAULT_ACCEPTABLE_PAUSE, Duration::from_millis),
+                ..DeathDetector::default()
+            },
             speculate: !run.no_speculation,
             ..BalanceConfig::default()
         },

@@ -71,6 +71,10 @@ pub type Driver = Box<
         + Send,
 >;
 
+/// How long a node of a local wall may pause past its rhythm before it is dead (see
+/// `--acceptable-pause-ms`): twice a served wall's, as its processes share the cores.
+const LOCAL_ACCEPTABLE_PAUSE: Duration = Duration::from_secs(6);
+
 /// [`run_local`], with `driver` steering the wall while it runs.
 pub async fn run_local_driven(
     args: &LocalArgs,
@@ -80,7 +84,11 @@ pub async fn run_local_driven(
     if args.render_nodes == 0 {
         bail!("--render-nodes must be at least 1");
     }
-    let cfg = prepare_run(&args.run, args.render_nodes, show_progress)?;
+    let mut cfg = prepare_run(&args.run, args.render_nodes, show_progress)?;
+    if args.run.acceptable_pause_ms.is_none() {
+        // Every process of a local wall shares this machine's cores: pauses are the norm.
+        cfg.master.balance.death.acceptable_pause = LOCAL_ACCEPTABLE_PAUSE;
+    }
     // Every node runs from this very executable (`tessera-master display-node|render-node`),
     // so whatever built the master is enough for a local wall.
     let this = std::env::current_exe().context("cannot locate the running executable")?;

@@ -44,7 +44,7 @@ fn local_wall(
 }
 
 #[test]
-fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_deadline() {
+fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_suspicion_deadline() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let deadline_ms = 300;
@@ -74,9 +74,9 @@ fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_deadline() {
     master.signal(libc::SIGINT);
     let o = master.wait(Duration::from_secs(60));
     assert!(
-        o.stderr
-            .contains(&format!("past the {deadline_ms} ms deadline")),
-        "the master's clock, not the transport, noticed the death:\n{}",
+        o.stderr.contains("suspected; its tiles are copied")
+            && o.stderr.contains("past what its heartbeats allow"),
+        "the master's clock, not the transport, noticed the silence, then the death:\n{}",
         o.stderr
     );
     let report = read_json(&out.join("report.json"));

@@ -9,6 +9,8 @@
 use crate::framed::{read_msg, spawn_reader, write_msg};
 use crate::{hostname, quic, NetError};
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 use tessera_protocol::{
     FromNode, Hello, NodeStats, RenderNodeId, Role, Session, ToNode, PROTOCOL_VERSION,
@@ -85,11 +87,46 @@ pub struct Welcome {
     pub session: Session,
 }
 
+/// A master this long without a packet (its keep-alives come every 250 ms) is suspected: a
+/// render node stops tracing for it until it speaks again, so a dead master's nodes stop
+/// within this, while a master stopped for seconds keeps its wall (the connection closes only
+/// after [`quic::IDLE_TIMEOUT`]).
+pub const MASTER_SILENCE: Duration = Duration::from_millis(1500);
+
+/// How often the watch looks at what arrived from the master.
+const WATCH_EVERY: Duration = Duration::from_millis(100);
+
 /// The control stream to the master, once joined.
 pub struct MasterLink {
     conn: quinn::Connection,
     send: quinn::SendStream,
     control: mpsc::Receiver<Result<Option<ToNode>, NetError>>,
+    silent: Arc<AtomicBool>,
+}
+
+/// Watches what arrives from the master on `conn`, from a task of its own so that a node's
+/// busy driver cannot delay it: `silent` is set while nothing arrived for [`MASTER_SILENCE`].
+fn watch_master(conn: quinn::Connection, silent: Arc<AtomicBool>) {
+    tokio::spawn(async move {
+        let mut last = conn.stats().udp_rx.datagrams;
+        let mut heard = tokio::time::Instant::now();
+        while conn.close_reason().is_none() {
+            tokio::time::sleep(WATCH_EVERY).await;
+            let now = conn.stats().udp_rx.datagrams;
+            if now != last {
+                (last, heard) = (now, tokio::time::Instant::now());
+                if silent.swap(false, Ordering::AcqRel) {
+                    tracing::info!("the master speaks again");
+                }
+            } else if heard.elapsed() >= MASTER_SILENCE && !silent.swap(true, Ordering::AcqRel) {
+                tracing::warn!(
+                    "the master has been silent for {} ms: work for it stops until it speaks (the connection closes after {} s of silence)",
+                    heard.elapsed().as_millis(),
+                    quic::IDLE_TIMEOUT.as_secs()
+                );
+            }
+        }
+    });
 }
 
 impl MasterLink {
@@ -121,12 +158,21 @@ impl MasterLink {
             Some(other) => return Err(LinkError::NoWelcome(format!("{other:?}"))),
             None => return Err(LinkError::ClosedInHandshake),
         };
+        let silent = Arc::new(AtomicBool::new(false));
+        watch_master(conn.clone(), silent.clone());
         let link = MasterLink {
             conn,
             send,
             control: spawn_reader::<ToNode>(recv),
+            silent,
         };
         Ok((link, welcome))
+    }
+
+    /// Set while the master has been silent for [`MASTER_SILENCE`] or longer (see
+    /// [`MASTER_SILENCE`]); what a render node's tracing checks between packets.
+    pub fn master_silent(&self) -> Arc<AtomicBool> {
+        self.silent.clone()
     }
 
     /// Sends `msg` to the master.

@@ -38,11 +38,14 @@ pub const MAX_UDP_PAYLOAD: u16 = 8972;
 /// black hole that drops the packet size to 1200 bytes.
 const SOCKET_BUFFER: usize = 16 << 20;
 
-/// A peer silent this long is gone: its connection closes, and a node whose master died exits
-/// (a wall must not hang on a dead master, nor a master keep a dead node's connection for the
-/// default ten seconds). Keep-alives come from quinn's own task, so a node busy loading or
-/// rendering still sends them; six of them lost in a row are needed for a false death.
-pub const IDLE_TIMEOUT: Duration = Duration::from_millis(1500);
+/// A connection silent this long is closed: the transport's last word on a peer that died
+/// without a goodbye. It is longer than any pause the master accepts of a node
+/// (`--acceptable-pause-ms`, at most 8 s, plus a few spreads of its rhythm), so that the
+/// master's failure detector, not the transport, decides who is dead, and a node or master
+/// stopped for seconds (a busy machine, SIGSTOP, a network blip) keeps its connections. Nodes
+/// notice a silent master sooner, by their own watch over what arrives (`link`). Keep-alives
+/// come from quinn's own task, so a node busy loading or rendering still sends them.
+pub const IDLE_TIMEOUT: Duration = Duration::from_secs(12);
 const KEEP_ALIVE: Duration = Duration::from_millis(250);
 
 /// Window sizes sized for pixel traffic: a 4K screen's frame is 25 MB, and a window much smaller
@@ -81,7 +84,7 @@ fn base_transport() -> quinn::TransportConfig {
         .black_hole_cooldown(Duration::from_secs(5));
     t.mtu_discovery_config(Some(mtu));
     t.keep_alive_interval(Some(KEEP_ALIVE))
-        .max_idle_timeout(Some(IDLE_TIMEOUT.try_into().expect("1.5 s fits")));
+        .max_idle_timeout(Some(IDLE_TIMEOUT.try_into().expect("12 s fits")));
     t
 }
 

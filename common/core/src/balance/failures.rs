@@ -16,8 +16,30 @@ impl Coordinator {
         if !self.nodes.contains_key(&node) {
             return Err(BalanceError::UnknownNode(node));
         }
-        self.liveness.heard(node, now);
+        self.heard_render(node, now);
         Ok(())
+    }
+
+    /// `node` said something: a suspected node is back.
+    pub(super) fn heard_render(&mut self, node: RenderNodeId, now: Instant) {
+        if let Some(silent) = self.liveness.heard(node, now) {
+            self.outputs.push_back(Output::RenderBack { node, silent });
+        }
+    }
+
+    /// `display` said something: a suspected display is back.
+    pub(super) fn heard_display(&mut self, display: DisplayId, now: Instant) {
+        if let Some(silent) = self.display_liveness.heard(display, now) {
+            self.outputs
+                .push_back(Output::DisplayBack { display, silent });
+        }
+    }
+
+    /// The master did not run for `blind` until `now` (its process was stopped, or starved):
+    /// silence in that time counts against nobody.
+    pub fn credit_blind_time(&mut self, blind: Duration, now: Instant) {
+        self.liveness.credit(blind, now);
+        self.display_liveness.credit(blind, now);
     }
 
     /// When [`Coordinator::handle_timeout`] is next due (`None`: nothing is timed, as once
@@ -38,15 +60,26 @@ impl Coordinator {
         .min()
     }
 
-    /// Time passed: nodes silent past the deadline are gone, as if they had left, and idle
-    /// nodes get copies of the tiles of nodes late past their lease.
+    /// Time passed: nodes silent past the deadline are suspected (a render node's tiles are
+    /// copied to idle nodes at once), nodes silent past what their rhythm allows are gone, as
+    /// if they had left, and idle nodes get copies of the tiles of nodes late past their lease.
     pub fn handle_timeout(&mut self, now: Instant) {
-        for (node, silent) in self.liveness.expired(now) {
+        let renders = self.liveness.expired(now);
+        for (node, silent) in renders.suspected {
+            self.outputs
+                .push_back(Output::RenderSuspected { node, silent });
+        }
+        for (node, silent) in renders.dead {
             self.outputs
                 .push_back(Output::RenderTimedOut { node, silent });
             self.handle_render_left(node, now);
         }
-        for (display, silent) in self.display_liveness.expired(now) {
+        let displays = self.display_liveness.expired(now);
+        for (display, silent) in displays.suspected {
+            self.outputs
+                .push_back(Output::DisplaySuspected { display, silent });
+        }
+        for (display, silent) in displays.dead {
             self.outputs
                 .push_back(Output::DisplayTimedOut { display, silent });
             self.handle_display_left(display, now);
@@ -125,7 +158,7 @@ impl Coordinator {
     /// it goes on.
     pub fn handle_display_joined(&mut self, display: DisplayId, now: Instant) {
         if display.0 < self.display_count && self.live_displays.insert(display) {
-            self.display_liveness.heard(display, now);
+            self.heard_display(display, now);
         }
         if self.awaited_displays.remove(&display).is_some() {
             self.try_start_frames(now);
@@ -147,7 +180,7 @@ impl Coordinator {
         if !self.nodes.contains_key(&node) {
             return Err(BalanceError::UnknownNode(node));
         }
-        self.liveness.heard(node, now);
+        self.heard_render(node, now);
         if let Some(state) = self.in_flight.get_mut(&frame) {
             let in_range = |t: &TileId| t.0 < self.tile_count;
             state.give_back(node, tiles.iter().flat_map(|r| r.tiles()).filter(in_range));
@@ -160,7 +193,7 @@ impl Coordinator {
     /// `display` said it is alive (a display's heartbeat).
     pub fn handle_display_heartbeat(&mut self, display: DisplayId, now: Instant) {
         if self.live_displays.contains(&display) {
-            self.display_liveness.heard(display, now);
+            self.heard_display(display, now);
         }
     }
 

@@ -31,9 +31,13 @@
 mod failures;
 mod frames;
 mod liveness;
+mod output;
 mod refine;
+mod shares;
 mod speculate;
 
+pub use liveness::DeathDetector;
+pub use output::{BalanceError, Output};
 pub use refine::Refinement;
 
 use frames::InFlight;
@@ -53,8 +57,11 @@ pub struct BalanceConfig {
     pub static_fraction: f32,
     /// Smallest batch handed out on request.
     pub min_batch: u32,
-    /// A render node silent this long is gone: its tiles go to the others.
+    /// A node silent this long is suspected: a render node's tiles are copied to the others
+    /// and it gets no static share, but it stays in the run and is back when it speaks.
     pub node_deadline: Duration,
+    /// When a silent node is dead (see [`DeathDetector`]): then its connection is closed.
+    pub death: DeathDetector,
     /// Whether idle nodes get copies of the tiles of a node late past its lease (off: they
     /// wait for the deadline, and no tile is ever rendered twice).
     pub speculate: bool,
@@ -67,114 +74,22 @@ pub struct BalanceConfig {
 /// The default [`BalanceConfig::node_deadline`]: six heartbeats, a few frame periods.
 pub const DEFAULT_NODE_DEADLINE: Duration = Duration::from_millis(300);
 
+/// The default [`DeathDetector::acceptable_pause`] of a served wall: a stopped process, a
+/// scheduler that starved a node for seconds, a network blip of two seconds are not deaths.
+/// Its tiles moved at suspicion, so a real death costs only the wait for its connection.
+pub const DEFAULT_ACCEPTABLE_PAUSE: Duration = Duration::from_secs(3);
+
 impl Default for BalanceConfig {
     fn default() -> Self {
         BalanceConfig {
             static_fraction: 0.5,
             min_batch: 1,
             node_deadline: DEFAULT_NODE_DEADLINE,
+            death: DeathDetector::default(),
             speculate: true,
             wait_for_lost_displays: None,
         }
     }
-}
-
-/// What the driver must do.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Output {
-    /// Send this message to that render node.
-    ToRender(RenderNodeId, ToNode),
-    /// Send to every display.
-    ToDisplays(ToNode),
-    /// The frame started: its `FrameStart` and static shares follow in the outputs.
-    FrameStarted(FrameId),
-    /// A new state takes effect with `frame`: the `changes` queued since the last barrier,
-    /// collapsed into one, with the entry stamps they were queued with (for input latency).
-    StateApplied {
-        /// The first frame rendered with the new state.
-        frame: FrameId,
-        /// The new state's id, one more than the last.
-        state: StateId,
-        /// The new state itself.
-        wall: WallState,
-        /// How many changes (queued or scheduled) it folds in.
-        changes: u64,
-        /// One per change, in the order they were applied: the `stamp` given to
-        /// [`Coordinator::queue_change`], or 0 for a change from
-        /// [`Coordinator::schedule_change`].
-        stamps: Vec<u64>,
-    },
-    /// `frame` is the final refinement pass: nothing more starts until something changes.
-    Converged(FrameId),
-    /// A change scheduled for `frame` was refused by the state there.
-    Refused {
-        /// The frame whose barrier the change was scheduled for.
-        frame: FrameId,
-        /// Why the state there refused it.
-        error: ParamsError,
-    },
-    /// Every tile of the frame reached its display.
-    FrameRendered(FrameId),
-    /// `Present` was sent for this frame.
-    FramePresented(FrameId),
-    /// The last frame of the run was presented.
-    Finished,
-    /// Frames are in flight but no render node is left to render them, or no display to show
-    /// them (and none is waited for).
-    Stalled,
-    /// `node` was silent for `silent` (past the deadline) and is treated as gone; the driver
-    /// should close its connection.
-    RenderTimedOut {
-        /// The node given up for dead.
-        node: RenderNodeId,
-        /// How long since it was last heard from.
-        silent: Duration,
-    },
-    /// `display` was silent past the deadline and the wall goes on without it; the driver
-    /// should close its connection.
-    DisplayTimedOut {
-        /// The display given up for dead.
-        display: DisplayId,
-        /// How long since it was last heard from.
-        silent: Duration,
-    },
-    /// A display lost under [`BalanceConfig::wait_for_lost_displays`] was not back within
-    /// the limit; no frame has started since it was lost.
-    DisplayNotBack {
-        /// The lost display the wall waited for.
-        display: DisplayId,
-        /// How long the wall waited since it was lost.
-        waited: Duration,
-    },
-}
-
-/// A message that does not fit the coordinator's state: a buggy or hostile peer.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
-pub enum BalanceError {
-    /// A message from a render node that never joined, or already left.
-    #[error("render node {0:?} is not part of this run")]
-    UnknownNode(RenderNodeId),
-    /// A display id past the wall's displays.
-    #[error("display {0:?} is not part of this wall")]
-    UnknownDisplay(DisplayId),
-    /// A report of tiles done or a frame complete, for a frame that has not started yet.
-    #[error("frame {0:?} has not started")]
-    FutureFrame(FrameId),
-    /// A change scheduled for the barrier of a frame that has already started.
-    #[error("frame {0:?} has already started")]
-    PastFrame(FrameId),
-    /// A render node reported a tile done that it does not hold: never given to it, already
-    /// reported, or past the wall's tiles.
-    #[error("tile {tile} of frame {frame:?} was not assigned to render node {node:?}")]
-    NotAssigned {
-        /// The node that sent the report.
-        node: RenderNodeId,
-        /// The frame the report was for.
-        frame: FrameId,
-        /// The first tile (wall-wide index) it does not hold; for a range past the wall's
-        /// tiles, the range's end.
-        tile: u32,
-    },
 }
 
 struct RenderNode {
@@ -297,7 +212,7 @@ impl Coordinator {
             display_count,
             config,
             live_displays: (0..display_count).map(DisplayId).collect(),
-            display_liveness: Liveness::new(config.node_deadline),
+            display_liveness: Liveness::new(config.node_deadline, config.death),
             awaited_displays: BTreeMap::new(),
             tile_displays: Vec::new(),
             state: WallState {
@@ -321,7 +236,7 @@ impl Coordinator {
             running: false,
             nodes: BTreeMap::new(),
             waiting: BTreeSet::new(),
-            liveness: Liveness::new(config.node_deadline),
+            liveness: Liveness::new(config.node_deadline, config.death),
             tiles_per_frame: BTreeMap::new(),
             in_flight: BTreeMap::new(),
             next_frame: FrameId(0),
@@ -416,8 +331,8 @@ impl Coordinator {
     /// Allows frames to start (call once the expected nodes have joined).
     pub fn start(&mut self, now: Instant) {
         self.running = true;
-        for &d in &self.live_displays {
-            self.display_liveness.heard(d, now);
+        for d in self.live_displays.clone() {
+            self.heard_display(d, now);
         }
         self.try_start_frames(now);
     }
@@ -454,7 +369,7 @@ impl Coordinator {
         if !joined_frames {
             self.waiting.insert(node);
         }
-        self.liveness.heard(node, now);
+        self.heard_render(node, now);
         self.feed_waiting(now);
         self.try_start_frames(now);
     }
@@ -487,7 +402,7 @@ impl Coordinator {
         if !self.nodes.contains_key(&node) {
             return Err(BalanceError::UnknownNode(node));
         }
-        self.liveness.heard(node, now);
+        self.heard_render(node, now);
         if frame >= self.next_frame {
             return Err(BalanceError::FutureFrame(frame));
         }
@@ -532,7 +447,7 @@ impl Coordinator {
             // Gone already: what it still says counts for nothing.
             return Ok(());
         }
-        self.display_liveness.heard(display, now);
+        self.heard_display(display, now);
         if frame >= self.next_frame {
             return Err(BalanceError::FutureFrame(frame));
         }
@@ -682,16 +597,19 @@ impl Coordinator {
             self.outputs.push_back(Output::FrameStarted(frame));
             self.outputs
                 .push_back(Output::ToDisplays(ToNode::FrameStart(start)));
-            let nodes = self.weighted_nodes();
+            let (nodes, suspected) = self.share_holders();
             let shares = state.static_shares(&nodes, self.config.static_fraction);
-            for ((node, _), tiles) in nodes.iter().zip(shares) {
+            // A suspected node gets the start and an empty share: back, it asks for work.
+            let empty = std::iter::repeat_with(Vec::new);
+            let holders = nodes.iter().map(|&(n, _)| n).zip(shares);
+            for (node, tiles) in holders.chain(suspected.into_iter().zip(empty)) {
                 if !tiles.is_empty() {
-                    self.note_given(*node, now);
+                    self.note_given(node, now);
                 }
                 self.outputs
-                    .push_back(Output::ToRender(*node, ToNode::FrameStart(start)));
+                    .push_back(Output::ToRender(node, ToNode::FrameStart(start)));
                 self.outputs.push_back(Output::ToRender(
-                    *node,
+                    node,
                     ToNode::Assign {
                         frame,
                         tiles: to_ranges(tiles),
@@ -740,37 +658,6 @@ impl Coordinator {
                 },
             ));
         }
-    }
-
-    /// Smooths each live node's tile count of a presented frame into its speed estimate. A
-    /// reclaimed node's tiles count for whoever rendered them.
-    fn learn_speeds(&mut self, frame: &InFlight) {
-        for node in self.nodes.keys() {
-            let count = f64::from(frame.done_by().get(node).copied().unwrap_or(0));
-            self.tiles_per_frame
-                .entry(*node)
-                .and_modify(|w| *w = 0.5 * *w + 0.5 * count)
-                .or_insert(count);
-        }
-    }
-
-    /// Every live node with its weight for static shares; a node with no presented frame yet
-    /// counts as the mean of the others (all alike before the first present).
-    fn weighted_nodes(&self) -> Vec<(RenderNodeId, f64)> {
-        let known: Vec<f64> = self
-            .nodes
-            .keys()
-            .filter_map(|n| self.tiles_per_frame.get(n).copied())
-            .collect();
-        let mean = if known.is_empty() {
-            1.0
-        } else {
-            known.iter().sum::<f64>() / known.len() as f64
-        };
-        self.nodes
-            .keys()
-            .map(|n| (*n, self.tiles_per_frame.get(n).copied().unwrap_or(mean)))
-            .collect()
     }
 
     /// Gives reclaimed tiles to nodes that are idle.

@@ -41,6 +41,10 @@ impl Coordinator {
 
     fn lease_end(&self, node: RenderNodeId) -> Option<Instant> {
         let n = self.nodes.get(&node)?;
+        if self.liveness.is_suspected(node) {
+            // Its lease ended when it fell silent, whatever its pace.
+            return Some(n.last_progress);
+        }
         let lease = n
             .progress_gap
             .map_or(MIN_LEASE, |gap| (gap * LEASE_GAPS).max(MIN_LEASE));

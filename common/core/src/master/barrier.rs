@@ -82,6 +82,10 @@ impl Master {
                 }
             }
             Output::Stalled => self.fail(RunError::Stalled),
+            Output::RenderSuspected { .. }
+            | Output::DisplaySuspected { .. }
+            | Output::RenderBack { .. }
+            | Output::DisplayBack { .. } => self.suspicion(&out),
         }
     }
 
@@ -117,18 +121,5 @@ impl Master {
             self.record.frames_short_of_displays += 1;
         }
         self.events.push_back(MasterEvent::FramePresented(frame));
-    }
-
-    /// Closes the connection of a peer the coordinator found silent past the deadline, and
-    /// drops it as if it had left.
-    fn drop_silent(&mut self, peer: PeerId, silent: Duration, now: Now) {
-        self.closes
-            .push_back((peer, CloseReason::SilentPastDeadline));
-        let reason = format!(
-            "silent for {} ms, past the {} ms deadline",
-            silent.as_millis(),
-            self.cfg.balance.node_deadline.as_millis()
-        );
-        self.drop_peer(peer, now, &reason);
     }
 }

@@ -161,6 +161,7 @@ impl Master {
                 role,
                 host,
                 remote,
+                welcomed: false,
                 ready: false,
                 stats: None,
             },
@@ -174,7 +175,7 @@ impl Master {
                 .renders
                 .values()
                 .copied()
-                .filter(|p| self.peers.get(p).is_some_and(|p| !p.ready))
+                .filter(|p| self.peers.get(p).is_some_and(|p| !p.welcomed))
                 .collect();
             for p in waiting {
                 self.welcome(p);
@@ -359,6 +360,9 @@ impl Master {
             None => return,
         };
         let session = self.session();
+        if let Some(p) = self.peers.get_mut(&peer) {
+            p.welcomed = true;
+        }
         self.send(peer, ToNode::Welcome { node, session });
         if let Some(node) = node {
             self.send_holders(peer, node);

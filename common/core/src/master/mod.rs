@@ -49,6 +49,7 @@
 
 mod barrier;
 mod control;
+mod liveness;
 mod membership;
 pub use membership::JoinRefusal;
 mod messages;
@@ -397,6 +398,8 @@ struct Peer {
     role: PeerRole,
     host: String,
     remote: SocketAddr,
+    /// Sent its welcome: a render node gets one, however many displays rejoin meanwhile.
+    welcomed: bool,
     ready: bool,
     stats: Option<NodeStats>,
 }
@@ -415,6 +418,11 @@ struct RunRecord {
     frames_short_of_displays: u64,
     /// State changes the barrier applied.
     changes_applied: u64,
+    /// Nodes found silent past the suspicion deadline (each time).
+    suspicions: u32,
+    /// Times the master woke later than it asked to, and the longest.
+    master_pauses: u32,
+    longest_master_pause: Duration,
 }
 
 /// The master of one wall run: see the module documentation.
@@ -500,6 +508,7 @@ impl Master {
         if self.phase == Phase::Done {
             return;
         }
+        self.credit_own_pause(now);
         self.join(join);
         self.start_if_ready(now);
         self.pump(now);
@@ -510,6 +519,7 @@ impl Master {
         if self.phase == Phase::Done {
             return;
         }
+        self.credit_own_pause(now);
         if let Phase::Collecting { .. } = self.phase {
             self.collect(peer, msg, now);
             return;
@@ -526,6 +536,7 @@ impl Master {
 
     /// A peer's connection closed (`reason` as the transport says it).
     pub fn handle_closed(&mut self, peer: PeerId, reason: &str, now: Now) {
+        self.credit_own_pause(now);
         match self.phase {
             Phase::Done => {}
             Phase::Collecting { .. } => {
@@ -543,6 +554,7 @@ impl Master {
 
     /// The time [`Master::poll_timeout`] gave has come (or passed).
     pub fn handle_timeout(&mut self, now: Now) {
+        self.credit_own_pause(now);
         match self.phase {
             Phase::Joining { deadline } if now.instant >= deadline => {
                 let missing = self.missing_summary();
@@ -569,6 +581,7 @@ impl Master {
     /// Ctrl-C: no new frame starts; frames in flight finish and the nodes are shut down as
     /// after a normal run.
     pub fn handle_interrupt(&mut self, now: Now) {
+        self.credit_own_pause(now);
         match self.phase {
             Phase::Joining { .. } => self.fail(RunError::InterruptedBeforeStart),
             Phase::Running => {

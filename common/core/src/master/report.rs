@@ -37,6 +37,17 @@ pub struct Report {
     /// Displays lost while the others went on (`--display-loss go-on`) or waited for them
     /// (`wait`).
     pub displays_lost: u32,
+    /// Times a render node or display was silent past the suspicion deadline and kept (its
+    /// tiles copied to others); those that spoke again were simply back.
+    #[serde(default)]
+    pub nodes_suspected: u32,
+    /// Times the master itself did not run when it meant to (stopped, or starved of CPU),
+    /// and the longest (ms): silence in those times counted against no node.
+    #[serde(default)]
+    pub master_pauses: u32,
+    /// The longest of [`Report::master_pauses`], in ms.
+    #[serde(default)]
+    pub longest_master_pause_ms: f64,
     /// Frames presented while some display was not showing them: every frame from a loss to
     /// the rejoin under `go-on`, at most the frames in flight at the loss under `wait`.
     pub frames_short_of_displays: u64,

@@ -187,3 +187,26 @@ fn displays_present_at_one_instant_on_their_own_clocks_after_the_margin() {
     let expected = at(base, 11).unix_ns + 20_000_000 + 5_000_000;
     assert_eq!(present, Some((PeerId(1), FrameId(0), expected)));
 }
+
+#[test]
+fn a_render_node_joining_while_a_display_rejoins_is_welcomed_once() {
+    let base = Instant::now();
+    let mut master = Master::new(MasterConfig::new(wall(2), 1), at(base, 0)).unwrap();
+    master.handle_join(join(1, display(0)), at(base, 1));
+    master.handle_join(join(2, display(1)), at(base, 1));
+    master.handle_join(join(3, Role::Render { cores: 1 }), at(base, 1));
+    for peer in 1..=3 {
+        master.handle_message(PeerId(peer), FromNode::Ready, at(base, 2));
+    }
+    assert!(master.record.started.is_some(), "the wall runs");
+    master.handle_closed(PeerId(2), "restarted", at(base, 10));
+    // A render node joins while display 1 is away; it loads (not ready) as the display
+    // comes back.
+    master.handle_join(join(4, Role::Render { cores: 1 }), at(base, 11));
+    master.handle_join(join(5, display(1)), at(base, 12));
+    let welcomes = sent(&mut master)
+        .iter()
+        .filter(|t| t.peer == PeerId(4) && matches!(t.msg, ToNode::Welcome { .. }))
+        .count();
+    assert_eq!(welcomes, 1);
+}

@@ -521,7 +521,10 @@ impl SimWall {
     /// When the master asked to be called back, in simulated microseconds.
     fn master_timeout_us(&self) -> Option<u64> {
         let due = self.master.poll_timeout()?;
-        Some(due.saturating_duration_since(self.base).as_micros() as u64)
+        // Rounded up: a deadline between two microseconds is due at the later one, or the
+        // master would be woken, still early, forever.
+        let ns = due.saturating_duration_since(self.base).as_nanos();
+        Some(ns.div_ceil(1000) as u64)
     }
 
     fn schedule_at(&mut self, at: u64, event: Event) {
