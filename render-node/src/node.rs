@@ -171,6 +171,9 @@ async fn session(
         })
         .collect();
     let mut driver = Driver::new(started, renderer, here, displays);
+    // A master silent for 1.5 s holds the render threads where they are: stopped for a dead
+    // master (the connection closes later), going on where they were for a paused one.
+    driver.cancel = driver.cancel.clone().held_while(link.master_silent());
     match driver.drive(&side.endpoint, &mut link).await? {
         End::Shutdown => {
             let stats = driver.stats().await;

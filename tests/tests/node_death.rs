@@ -543,10 +543,28 @@ fn a_render_node_tracing_a_runaway_frame_stops_when_its_master_is_killed() {
     );
     let killed = std::time::Instant::now();
     wall.master.signal(libc::SIGKILL);
-    // The transport notices a silent master after its idle timeout; stopping the render
-    // threads and exiting must add next to nothing (it used to trace on for minutes).
-    let bound = tessera_net::quic::IDLE_TIMEOUT + Duration::from_millis(500);
-    wait_for(bound + Duration::from_secs(5), || render.has_exited());
+    // Its watch of the master's packets holds the render threads after 1.5 s of silence:
+    // from then on the node spends (next to) no CPU, although its connection lasts until
+    // the transport's idle timeout.
+    let silence = tessera_net::link::MASTER_SILENCE;
+    render.wait_for_stderr(
+        "the master has been silent",
+        silence + Duration::from_secs(5),
+    );
+    let noticed = killed.elapsed();
+    let held = cpu_seconds(render.pid());
+    let window = std::time::Instant::now();
+    // A window to measure over, not a wait for anything.
+    std::thread::sleep(Duration::from_secs(1));
+    let spent = cpu_seconds(render.pid()) - held;
+    let per_second = spent / window.elapsed().as_secs_f64();
+    eprintln!(
+        "render node held its tracing {noticed:?} after its master was killed; then {per_second:.3} CPU s/s"
+    );
+    // Tracing used both threads (2 CPU s/s); a held node only polls its flags and sockets.
+    assert!(per_second < 0.2, "still tracing: {per_second:.3} CPU s/s");
+    let bound = tessera_net::quic::IDLE_TIMEOUT + Duration::from_secs(3);
+    wait_for(bound, || render.has_exited());
     let exited = killed.elapsed();
     let o = render.wait(Duration::from_secs(5));
     eprintln!("render node exited {exited:?} after its master was killed mid-frame");

@@ -27,13 +27,20 @@ use std::sync::Arc;
 pub struct Cancel {
     /// This token's flag first, then its ancestors'.
     flags: Vec<Arc<AtomicBool>>,
+    /// While set, a check waits (the render holds its place, using no CPU) until it clears
+    /// or the token is cancelled: a render node's master gone silent, maybe only paused.
+    hold: Option<Arc<AtomicBool>>,
 }
+
+/// How often a held render looks again whether it may go on.
+const HOLD_POLL: std::time::Duration = std::time::Duration::from_millis(10);
 
 impl Cancel {
     /// A token nobody has cancelled.
     pub fn new() -> Self {
         Cancel {
             flags: vec![Arc::default()],
+            hold: None,
         }
     }
 
@@ -41,7 +48,32 @@ impl Cancel {
     pub fn child(&self) -> Cancel {
         let mut flags = vec![Arc::default()];
         flags.extend(self.flags.iter().cloned());
-        Cancel { flags }
+        Cancel {
+            flags,
+            hold: self.hold.clone(),
+        }
+    }
+
+    /// This token, whose renders also stop and wait where they are while `hold` is set, and
+    /// go on when it clears (or end, if cancelled meanwhile).
+    ///
+    /// ```
+    /// use std::sync::atomic::{AtomicBool, Ordering};
+    /// use std::sync::Arc;
+    /// use tessera_render::Cancel;
+    ///
+    /// let hold = Arc::new(AtomicBool::new(true));
+    /// let token = Cancel::new().held_while(hold.clone());
+    /// let waiter = std::thread::spawn({
+    ///     let token = token.clone();
+    ///     move || token.is_cancelled()
+    /// });
+    /// hold.store(false, Ordering::Relaxed);
+    /// assert!(!waiter.join().unwrap(), "released, it goes on");
+    /// ```
+    pub fn held_while(mut self, hold: Arc<AtomicBool>) -> Cancel {
+        self.hold = Some(hold);
+        self
     }
 
     /// Stops every render holding this token or one of its children, at their next check.
@@ -52,10 +84,19 @@ impl Cancel {
     }
 
     /// Whether this token or an ancestor is cancelled: a relaxed load per level (one or
-    /// two), cheap enough to check once per sample of a packet.
+    /// two) and one of the hold, cheap enough to check once per sample of a packet. While
+    /// held, it waits until released (false) or cancelled (true).
     #[inline]
     pub fn is_cancelled(&self) -> bool {
-        self.flags.iter().any(|f| f.load(Ordering::Relaxed))
+        loop {
+            if self.flags.iter().any(|f| f.load(Ordering::Relaxed)) {
+                return true;
+            }
+            match &self.hold {
+                Some(hold) if hold.load(Ordering::Relaxed) => std::thread::sleep(HOLD_POLL),
+                _ => return false,
+            }
+        }
     }
 }
 
