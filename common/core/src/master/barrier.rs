@@ -129,6 +129,6 @@ impl Master {
             silent.as_millis(),
             self.cfg.balance.node_deadline.as_millis()
         );
-        self.drop_peer(peer, now, &reason);
+        self.drop_noted(peer, now, &reason);
     }
 }
