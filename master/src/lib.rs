@@ -48,7 +48,8 @@ pub struct Cli {
 enum Command {
     /// Run a whole wall on this machine: display and render nodes as processes on 127.0.0.1.
     ///
-    /// Exit status: 0 when the run completed (every frame presented,
+    /// The nodes are started with --reconnect: one paused or starved long enough to be
+    /// dropped rejoins the wall. Exit status: 0 when the run completed (every frame presented,
     /// even if nodes were lost on the way: report.json's `nodes_lost` names them), 130 on
     /// Ctrl-C or SIGTERM, 1 when it did not complete or its report could not be written.
     /// With --out, report.json is written for every run, a failed one too, its `outcome`

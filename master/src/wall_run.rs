@@ -155,6 +155,18 @@ struct Nodes<'a> {
 }
 
 impl Nodes<'_> {
+    /// Every child rejoins the master when it loses it, as a served wall's nodes started with
+    /// `--reconnect` do: a child paused or starved long enough to be dropped (a busy machine,
+    /// SIGSTOP) comes back instead of exiting. It waits as long as a node may take to join;
+    /// a master that dies takes its children along anyway (`PR_SET_PDEATHSIG`).
+    fn reconnect(&self) -> [String; 3] {
+        [
+            "--reconnect".into(),
+            "--reconnect-timeout".into(),
+            self.args.run.join_timeout.to_string(),
+        ]
+    }
+
     /// Starts display nodes 0..`displays`.
     fn spawn_displays(&self, displays: u32) -> Result<Vec<NodeProcess>> {
         let args = self.args;
@@ -171,6 +183,7 @@ impl Nodes<'_> {
                 "--listen".into(),
                 "127.0.0.1:0".into(),
             ];
+            a.extend(self.reconnect());
             if let Some(out) = &args.run.out {
                 a.extend(["--out".into(), out.display().to_string()]);
             }
@@ -206,6 +219,7 @@ impl Nodes<'_> {
                 "--threads".into(),
                 threads.to_string(),
             ];
+            a.extend(self.reconnect());
             if let Some(mb) = args.volume_cache_mb {
                 a.extend(["--volume-cache-mb".into(), mb.to_string()]);
             }
