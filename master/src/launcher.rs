@@ -26,7 +26,9 @@ pub enum NodeKind {
     },
 }
 
+/// A node started as a child process, until it is reaped.
 pub struct NodeProcess {
+    /// Which node it runs.
     pub kind: NodeKind,
     /// A display's death ends the run; a render node's is survivable.
     pub essential: bool,
