@@ -24,7 +24,9 @@ pub struct RunArgs {
     /// Frames to render (serve: 0 runs until Ctrl-C).
     #[arg(long, default_value_t = 60)]
     pub frames: u64,
-    /// Directory for report.json (and PNGs with --save-frame).
+    /// Directory for report.json (and PNGs with --save-frame). The report is written for
+    /// every run that started, a failed one too: its `outcome` says whether the run completed,
+    /// was interrupted or failed (and why), with whatever figures the run had.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Each display saves frame K as DIR/display-<id>.png; the master writes DIR/wall.png.

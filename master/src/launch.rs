@@ -9,15 +9,15 @@ mod hosts;
 mod remote;
 
 use crate::args::{prepare_run, RunArgs};
-use crate::server::{bind, run_wall};
+use crate::outcome::Ended;
+use crate::server::{bind, run_wall, RunSignals};
 use crate::wall_run::{finish_run, stop_on_ctrl_c};
 use anyhow::{Context, Result};
 use hosts::{HostFile, NodeRole, PlannedNode};
 use remote::{scp_args, shell_line, ssh_args, step, RemoteNode};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 use tessera_net::cluster::{CertRole, ClusterCa, NodeIdentity};
 
@@ -79,7 +79,7 @@ pub async fn launch(args: LaunchArgs) -> Result<ExitCode> {
     let copied = copy_certificates(&file, &plan, certs.path(), &run_dir).await;
     // Filled as the nodes start, so that those started before a failure are stopped too.
     let mut nodes = Vec::new();
-    let outcome = match copied {
+    let end = match copied {
         Err(e) => Err(e),
         Ok(()) if interrupted.load(Ordering::SeqCst) => {
             Err(anyhow::anyhow!("interrupted before the nodes were started"))
@@ -87,12 +87,8 @@ pub async fn launch(args: LaunchArgs) -> Result<ExitCode> {
         Ok(()) => match start_nodes(&mut nodes, &file, &plan, &args.run, &run_dir, &master_addr) {
             Err(e) => Err(e),
             Ok(()) => {
-                let run = run_wall(endpoint, cfg, Arc::new(AtomicBool::new(false)), stop);
-                tokio::pin!(run);
-                tokio::select! {
-                    report = &mut run => report,
-                    err = watch(&mut nodes) => Err(err),
-                }
+                let signals = RunSignals::default();
+                run_wall(endpoint, cfg, signals, stop, watch(&mut nodes)).await
             }
         },
     };
@@ -103,8 +99,9 @@ pub async fn launch(args: LaunchArgs) -> Result<ExitCode> {
     }
     remove_certificates(&file, &run_dir).await;
     tracing::info!("every node has stopped and every ssh session is closed");
-    let interrupted = interrupted.load(Ordering::SeqCst);
-    finish_run(outcome, &args.run, &wall, interrupted, Vec::new(), failures)
+    let mut ended = Ended::of(end, interrupted.load(Ordering::SeqCst));
+    ended.processes_failed = failures;
+    finish_run(ended, &args.run, &wall)
 }
 
 /// Issues, under `dir`, the certificates of every node of `plan` (in `dir/NAME`), of the

@@ -1,21 +1,58 @@
 //! `tessera-master local`: the wall's nodes as child processes on 127.0.0.1.
 //!
 //! Children get certificates from a fresh cluster CA in a temporary directory, are killed when
-//! the master exits (also on a crash: `PR_SET_PDEATHSIG`), and are always reaped.
+//! the master exits (also on a crash: `PR_SET_PDEATHSIG`), and are always reaped. Log lines
+//! name a child as the master's own lines and the report name its node (`render node 2`, by
+//! the id the master gave it when it joined, not by the order it was started in), with its pid.
 
+use crate::server::RunSignals;
 use anyhow::{Context, Result};
 use std::path::Path;
 use std::process::ExitStatus;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
+use tessera_protocol::RenderNodeId;
 use tokio::process::{Child, Command};
 
+/// Which node a child process runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NodeKind {
+    /// Display node `id`.
+    Display(u32),
+    /// The `slot`-th render node started; the master numbers it when it joins.
+    Render {
+        /// Its place in the order of starting.
+        slot: u32,
+    },
+}
+
+/// A node started as a child process, until it is reaped.
 pub struct NodeProcess {
-    pub name: String,
+    /// Which node it runs.
+    pub kind: NodeKind,
     /// A display's death ends the run; a render node's is survivable.
     pub essential: bool,
+    /// Its process id, kept: a child that was reaped no longer says it.
+    pid: u32,
+    /// The id the master gave this render node when it last joined (it gets a new one each
+    /// time it rejoins).
+    node: Option<RenderNodeId>,
     child: Child,
+}
+
+impl NodeProcess {
+    /// The process as log lines name it: its node as the master's log and the report name
+    /// it, and its pid (`render node 2 (pid 1234)`).
+    pub fn name(&self) -> String {
+        let pid = self.pid;
+        match (self.kind, self.node) {
+            (NodeKind::Display(d), _) => format!("display {d} (pid {pid})"),
+            (NodeKind::Render { .. }, Some(node)) => format!("render node {} (pid {pid})", node.0),
+            (NodeKind::Render { slot }, None) => {
+                format!("render node process {slot} (pid {pid}, not joined)")
+            }
+        }
+    }
 }
 
 /// Has the kernel send `signal` to the process `cmd` starts when this process dies (Linux;
@@ -37,7 +74,7 @@ pub fn die_with_parent(cmd: &mut Command, signal: libc::c_int) {
 }
 
 pub fn spawn(
-    name: String,
+    kind: NodeKind,
     essential: bool,
     program: &Path,
     args: &[String],
@@ -50,23 +87,51 @@ pub fn spawn(
     die_with_parent(&mut cmd, libc::SIGKILL);
     let child = cmd
         .spawn()
-        .with_context(|| format!("cannot start {name} ({})", program.display()))?;
-    tracing::debug!("started {name} (pid {:?})", child.id());
-    Ok(NodeProcess {
-        name,
+        .with_context(|| format!("cannot start {kind:?} ({})", program.display()))?;
+    let pid = child.id().context("a child just started has a pid")?;
+    let process = NodeProcess {
+        kind,
         essential,
+        pid,
+        node: None,
         child,
-    })
+    };
+    tracing::debug!("started {}", process.name());
+    Ok(process)
+}
+
+/// Puts the render nodes that joined since the `seen` first onto the children running them:
+/// the process whose QUIC endpoint has the port the master saw the node join from.
+fn name_joined(children: &mut [NodeProcess], signals: &RunSignals, seen: &mut usize) {
+    let joins: Vec<_> = {
+        let joins = signals.render_joins.lock();
+        let joins = joins.unwrap_or_else(|e| e.into_inner());
+        joins.iter().skip(*seen).copied().collect()
+    };
+    *seen += joins.len();
+    for (node, from) in joins {
+        let renders = children
+            .iter_mut()
+            .filter(|c| matches!(c.kind, NodeKind::Render { .. }));
+        for c in renders {
+            if tessera_cli::procs::udp_ports(c.pid).contains(&from.port()) {
+                c.node = Some(node);
+                break;
+            }
+        }
+    }
 }
 
 /// Watches children while the run goes on. Returns when an essential child dies, or when any
 /// child dies before the first frame (a node that cannot start is a configuration error).
 pub async fn watch(
     children: &mut Vec<NodeProcess>,
-    started: Arc<AtomicBool>,
+    signals: RunSignals,
     lost: &mut Vec<String>,
 ) -> anyhow::Error {
+    let mut seen = 0;
     loop {
+        name_joined(children, &signals, &mut seen);
         let mut dead = None;
         for (i, c) in children.iter_mut().enumerate() {
             if let Ok(Some(status)) = c.child.try_wait() {
@@ -80,14 +145,13 @@ pub async fn watch(
                 // Nodes exit 0 only after the master's shutdown; the run is ending.
                 continue;
             }
-            let what = format!("{} exited with {}", c.name, describe(status));
-            if c.essential || !started.load(Ordering::SeqCst) {
+            let what = format!("{} exited with {}", c.name(), describe(status));
+            if c.essential || !signals.started.load(Ordering::SeqCst) {
                 return anyhow::anyhow!("{what}; stopping the wall (see its log lines above)");
             }
-            let rest = if c.name.starts_with("display") {
-                "the other displays go on without it"
-            } else {
-                "the other render nodes take over its tiles"
+            let rest = match c.kind {
+                NodeKind::Display(_) => "the other displays go on without it",
+                NodeKind::Render { .. } => "the other render nodes take over its tiles",
             };
             tracing::error!("{what}; {rest}");
             lost.push(what);
@@ -122,8 +186,8 @@ pub async fn reap(children: &mut Vec<NodeProcess>, grace: Duration) -> Vec<Strin
         };
         match status {
             Some(s) if s.success() => {}
-            Some(s) => failures.push(format!("{} exited with {}", c.name, describe(s))),
-            None => failures.push(format!("{} did not exit and was killed", c.name)),
+            Some(s) => failures.push(format!("{} exited with {}", c.name(), describe(s))),
+            None => failures.push(format!("{} did not exit and was killed", c.name())),
         }
     }
     children.clear();

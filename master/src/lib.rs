@@ -16,6 +16,7 @@ mod control;
 mod dsm_data;
 mod launch;
 mod launcher;
+mod outcome;
 mod peers;
 mod probe;
 mod record;
@@ -46,12 +47,25 @@ pub struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run a whole wall on this machine: display and render nodes as processes on 127.0.0.1.
+    ///
+    /// The nodes are started with --reconnect: one paused or starved long enough to be
+    /// dropped rejoins the wall. Exit status: 0 when the run completed (every frame presented,
+    /// even if nodes were lost on the way: report.json's `nodes_lost` names them), 130 on
+    /// Ctrl-C or SIGTERM, 1 when it did not complete or its report could not be written.
+    /// With --out, report.json is written for every run, a failed one too, its `outcome`
+    /// saying how the run ended.
     Local(args::LocalArgs),
     /// Run a wall across hosts, its nodes started over ssh from a host file (which host runs
     /// which render nodes and displays); this process is the master. Every node is stopped on
     /// exit, on Ctrl-C and when one fails.
+    ///
+    /// Exit status and report.json as for `local`.
     Launch(launch::LaunchArgs),
     /// Wait for the wall's nodes on an address and run it (a real wall over several hosts).
+    ///
+    /// Exit status and report.json as for `local`: 0 when the run completed (nodes lost on
+    /// the way are named in the report), 130 on Ctrl-C or SIGTERM (how a run of --frames 0
+    /// ends), 1 when it did not complete.
     Serve(args::ServeArgs),
     /// Render one frame of the wall in this process, no network: the reference image.
     Render(args::RenderArgs),

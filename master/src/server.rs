@@ -7,10 +7,11 @@ use crate::peers::{accept_peer, Event, PeerSender};
 use crate::record::Recorder;
 use anyhow::{Context, Result};
 use std::collections::HashMap;
+use std::future::Future;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tessera_core::master::report::Report;
 use tessera_core::master::{
@@ -18,7 +19,7 @@ use tessera_core::master::{
 };
 use tessera_net::cluster::CertRole;
 use tessera_net::unix_ns;
-use tessera_protocol::{Role, ToNode};
+use tessera_protocol::{RenderNodeId, Role, ToNode};
 use tokio::sync::mpsc;
 
 /// What a run needs to know: the master's own configuration, and what only the driver does.
@@ -31,6 +32,27 @@ pub struct RunConfig {
     pub show_progress: bool,
     /// Where to record the session, if anywhere.
     pub record: Option<PathBuf>,
+}
+
+/// What the driver tells the tools around the run (the launcher) while the wall runs.
+#[derive(Clone, Default)]
+pub struct RunSignals {
+    /// Set once the first frame starts: the launcher tells a failed start from a node lost
+    /// mid-run by it.
+    pub started: Arc<AtomicBool>,
+    /// Each render node the master took in, with the address its connection comes from, in
+    /// the order they joined: the launcher finds the process behind the address, so that
+    /// its log lines name the process as the master's name the node (`render node 2`).
+    pub render_joins: Arc<Mutex<Vec<(RenderNodeId, SocketAddr)>>>,
+}
+
+/// How a run ended: its figures and, if it did not complete, why.
+pub struct RunEnd {
+    /// What the run measured: all of it for a run that completed, what it had for one that
+    /// did not (nodes' own figures come only at a normal shutdown).
+    pub report: Report,
+    /// Why the run did not complete; `None` if it did.
+    pub error: Option<anyhow::Error>,
 }
 
 /// A joined peer's connection and its queue of messages.
@@ -60,8 +82,8 @@ struct Driver {
     progress: Option<indicatif::ProgressBar>,
     /// [`RunConfig::show_progress`].
     show_progress: bool,
-    /// Set at the first frame (see [`run_wall`]).
-    started: Arc<AtomicBool>,
+    /// What the launcher is told (see [`RunSignals`]).
+    signals: RunSignals,
 }
 
 /// This moment on both of the master's clocks, for the event about to be handed to it.
@@ -72,17 +94,23 @@ fn now() -> Now {
     }
 }
 
-/// Runs a whole wall on `endpoint` and returns its report. `started` is set once the first frame
-/// starts (the launcher uses it to tell a failed start from a node lost mid-run).
+/// Runs a whole wall on `endpoint` and returns how it ended, with its figures whether it
+/// completed or not; `signals` tell the launcher how it goes.
 ///
 /// When `stop` turns true (Ctrl-C), no new frame starts; frames in flight finish and the nodes
-/// are shut down as after a normal run.
+/// are shut down as after a normal run. When `fatal` completes (the launcher found a node
+/// process the wall cannot do without dead), the run ends at once with its error.
+///
+/// # Errors
+/// Only a run that could not start: the recording cannot be created, or the replayed
+/// session cannot be scheduled.
 pub async fn run_wall(
     endpoint: quinn::Endpoint,
     cfg: RunConfig,
-    started: Arc<AtomicBool>,
+    signals: RunSignals,
     mut stop: tokio::sync::watch::Receiver<bool>,
-) -> Result<Report> {
+    fatal: impl Future<Output = anyhow::Error>,
+) -> Result<RunEnd> {
     let (events_tx, mut events) = mpsc::channel(crate::peers::EVENT_QUEUE);
     let acceptor = {
         let endpoint = endpoint.clone();
@@ -106,9 +134,12 @@ pub async fn run_wall(
         links: HashMap::new(),
         progress: None,
         show_progress: cfg.show_progress,
-        started,
+        signals,
     };
-    let result = driver.run(&mut events, &mut stop).await;
+    let result = tokio::select! {
+        result = driver.run(&mut events, &mut stop) => result,
+        error = fatal => Err(error),
+    };
     if let Some(bar) = &driver.progress {
         bar.finish_and_clear();
     }
@@ -118,7 +149,16 @@ pub async fn run_wall(
     acceptor.abort();
     endpoint.close(0u32.into(), b"run over");
     let _ = tokio::time::timeout(Duration::from_secs(2), endpoint.wait_idle()).await;
-    result
+    Ok(match result {
+        Ok(report) => RunEnd {
+            report,
+            error: None,
+        },
+        Err(error) => RunEnd {
+            report: driver.master.report_so_far(),
+            error: Some(error),
+        },
+    })
 }
 
 impl Driver {
@@ -188,6 +228,11 @@ impl Driver {
                     credentials,
                 };
                 self.master.handle_join(join, now());
+                if let Some(node) = self.master.render_node_of(peer) {
+                    let joins = &self.signals.render_joins;
+                    let mut joins = joins.lock().unwrap_or_else(|e| e.into_inner());
+                    joins.push((node, remote));
+                }
             }
             Event::Msg(peer, msg) => self.master.handle_message(peer, msg, now()),
             Event::Closed(peer, reason) => {
@@ -219,7 +264,7 @@ impl Driver {
     fn note(&mut self, event: MasterEvent) -> Result<()> {
         match event {
             MasterEvent::Started => {
-                self.started.store(true, Ordering::SeqCst);
+                self.signals.started.store(true, Ordering::SeqCst);
                 if self.show_progress {
                     self.progress = Some(progress_bar(self.master.frames_limit()));
                 }

@@ -3,9 +3,10 @@
 //! wall image.
 
 use crate::args::{prepare_run, LocalArgs, RunArgs, ServeArgs};
-use crate::launcher::{reap, spawn, watch, NodeProcess};
+use crate::launcher::{reap, spawn, watch, NodeKind, NodeProcess};
+use crate::outcome::{exit_code, write_report, Ended};
 use crate::report;
-use crate::server::{bind, run_wall};
+use crate::server::{bind, run_wall, RunSignals};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -36,23 +37,14 @@ pub fn stop_on_ctrl_c() -> (tokio::sync::watch::Receiver<bool>, Arc<AtomicBool>)
 
 pub async fn local(args: LocalArgs) -> Result<ExitCode> {
     let run = run_local(&args, true).await?;
-    finish_run(
-        run.outcome,
-        &args.run,
-        &run.wall,
-        run.interrupted,
-        run.lost,
-        run.failures,
-    )
+    finish_run(run.ended, &args.run, &run.wall)
 }
 
-/// What a local wall run gave: the report (or why there is none) and which nodes failed.
+/// What a local wall run gave: how it ended (its figures, its error, the node processes that
+/// failed) and its wall.
 pub struct LocalRun {
-    pub outcome: Result<report::Report>,
+    pub ended: Ended,
     pub wall: WallLayout,
-    pub interrupted: bool,
-    pub lost: Vec<String>,
-    pub failures: Vec<String>,
 }
 
 /// Starts the display and render nodes of `args` as child processes, runs the wall, and reaps
@@ -112,18 +104,12 @@ pub async fn run_local_driven(
     children.extend(nodes.spawn_render_nodes()?);
 
     let (stop, interrupted) = stop_on_ctrl_c();
-    let started = Arc::new(AtomicBool::new(false));
+    let signals = RunSignals::default();
     let mut lost = Vec::new();
     let wall = cfg.master.wall.clone();
     let driving = driver.map(|d| tokio::spawn(d(master_addr.clone(), control_dir.clone())));
-    let outcome = {
-        let run = run_wall(endpoint, cfg, started.clone(), stop);
-        tokio::pin!(run);
-        tokio::select! {
-            report = &mut run => report,
-            err = watch(&mut children, started.clone(), &mut lost) => Err(err),
-        }
-    };
+    let watching = watch(&mut children, signals.clone(), &mut lost);
+    let end = run_wall(endpoint, cfg, signals, stop, watching).await;
     if let Some(task) = driving {
         task.abort();
     }
@@ -131,13 +117,10 @@ pub async fn run_local_driven(
     let grace = Duration::from_secs(5) + Duration::from_secs_f64(args.linger);
     let failures = reap(&mut children, grace).await;
     tracing::info!("every node process has exited");
-    Ok(LocalRun {
-        outcome,
-        wall,
-        interrupted: interrupted.load(std::sync::atomic::Ordering::SeqCst),
-        lost,
-        failures,
-    })
+    let interrupted = interrupted.load(std::sync::atomic::Ordering::SeqCst);
+    let mut ended = Ended::of(end, interrupted);
+    ended.processes_failed = lost.into_iter().chain(failures).collect();
+    Ok(LocalRun { ended, wall })
 }
 
 /// A local wall's certificates: a new CA in a temporary directory, removed when dropped.
@@ -180,6 +163,18 @@ struct Nodes<'a> {
 }
 
 impl Nodes<'_> {
+    /// Every child rejoins the master when it loses it, as a served wall's nodes started with
+    /// `--reconnect` do: a child paused or starved long enough to be dropped (a busy machine,
+    /// SIGSTOP) comes back instead of exiting. It waits as long as a node may take to join;
+    /// a master that dies takes its children along anyway (`PR_SET_PDEATHSIG`).
+    fn reconnect(&self) -> [String; 3] {
+        [
+            "--reconnect".into(),
+            "--reconnect-timeout".into(),
+            self.args.run.join_timeout.to_string(),
+        ]
+    }
+
     /// Starts display nodes 0..`displays`.
     fn spawn_displays(&self, displays: u32) -> Result<Vec<NodeProcess>> {
         let args = self.args;
@@ -196,6 +191,7 @@ impl Nodes<'_> {
                 "--listen".into(),
                 "127.0.0.1:0".into(),
             ];
+            a.extend(self.reconnect());
             if let Some(out) = &args.run.out {
                 a.extend(["--out".into(), out.display().to_string()]);
             }
@@ -205,12 +201,7 @@ impl Nodes<'_> {
             }
             // Essential only if losing it ends the run.
             let essential = args.run.display_loss == crate::args::DisplayLoss::Stop;
-            children.push(spawn(
-                format!("display node {d}"),
-                essential,
-                self.this,
-                &a,
-            )?);
+            children.push(spawn(NodeKind::Display(d), essential, self.this, &a)?);
         }
         Ok(children)
     }
@@ -236,25 +227,45 @@ impl Nodes<'_> {
                 "--threads".into(),
                 threads.to_string(),
             ];
+            a.extend(self.reconnect());
             if let Some(mb) = args.volume_cache_mb {
                 a.extend(["--volume-cache-mb".into(), mb.to_string()]);
             }
-            children.push(spawn(format!("render node {r}"), false, self.this, &a)?);
+            let kind = NodeKind::Render { slot: r };
+            children.push(spawn(kind, false, self.this, &a)?);
         }
         Ok(children)
     }
 }
 
-/// Writes the report and wall image and turns the run's outcome into an exit code.
-pub(crate) fn finish_run(
-    outcome: Result<report::Report>,
-    run: &RunArgs,
-    wall: &WallLayout,
-    interrupted: bool,
-    lost: Vec<String>,
-    failures: Vec<String>,
-) -> Result<ExitCode> {
-    let report = outcome?;
+/// Writes the report (a failed run's too, with its error) and the wall image, and turns how
+/// the run ended into an exit code: 0 for a run that completed, nodes lost on the way or not;
+/// 130 interrupted; 1 for a run that did not complete or whose report could not be written.
+pub(crate) fn finish_run(ended: Ended, run: &RunArgs, wall: &WallLayout) -> Result<ExitCode> {
+    let outcome = ended.outcome();
+    if let Some(report) = &ended.report {
+        print_summary(report);
+    }
+    for problem in &outcome.processes_failed {
+        eprintln!("tessera-master: {problem}");
+    }
+    let mut written = Ok(());
+    if let Some(dir) = &run.out {
+        match write_report(dir, &outcome, ended.report.as_ref()) {
+            Ok(path) => eprintln!("wrote {}", path.display()),
+            Err(e) => written = Err(e),
+        }
+        if ended.error.is_none() {
+            if let Some(report) = &ended.report {
+                write_images(dir, run, wall, report)?;
+            }
+        }
+    }
+    exit_code(&outcome, ended.error, written)
+}
+
+/// The run's figures in a few lines, and the nodes it lost and went on without.
+fn print_summary(report: &report::Report) {
     eprintln!(
         "{} frames in {:.2} s: {:.1} fps, frame time p50 {:.1} ms, p95 {:.1} ms",
         report.frames, report.elapsed_s, report.fps, report.frame_ms.p50, report.frame_ms.p95
@@ -269,34 +280,29 @@ pub(crate) fn finish_run(
             d.stats.frames_presented
         );
     }
-    if let Some(dir) = &run.out {
-        let path = dir.join("report.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&report)?)
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        eprintln!("wrote {}", path.display());
-        if run.save_frame.is_some() {
-            write_wall_png(dir, wall, "", "wall.png")?;
+    for lost in &report.nodes_lost {
+        eprintln!("lost {} during the run ({})", lost.node, lost.reason);
+    }
+}
+
+/// The wall images of a run: the saved frame's, and each snapshot's.
+fn write_images(
+    dir: &Path,
+    run: &RunArgs,
+    wall: &WallLayout,
+    report: &report::Report,
+) -> Result<()> {
+    if run.save_frame.is_some() {
+        write_wall_png(dir, wall, "", "wall.png")?;
+    }
+    for frame in &report.snapshots {
+        // A snapshot of a frame the run never presented (it ended first) has no images.
+        if dir.join(format!("display-0-frame-{frame}.png")).exists() {
+            let suffix = format!("-frame-{frame}");
+            write_wall_png(dir, wall, &suffix, &format!("wall{suffix}.png"))?;
         }
-        for frame in &report.snapshots {
-            // A snapshot of a frame the run never presented (it ended first) has no images.
-            if dir.join(format!("display-0-frame-{frame}.png")).exists() {
-                let suffix = format!("-frame-{frame}");
-                write_wall_png(dir, wall, &suffix, &format!("wall{suffix}.png"))?;
-            }
-        }
     }
-    if interrupted {
-        eprintln!("tessera-master: interrupted");
-        return Ok(ExitCode::from(130));
-    }
-    let problems: Vec<String> = lost.into_iter().chain(failures).collect();
-    if !problems.is_empty() {
-        bail!(
-            "the run completed, but nodes failed: {}",
-            problems.join("; ")
-        );
-    }
-    Ok(ExitCode::SUCCESS)
+    Ok(())
 }
 
 /// `name`: the displays' saved images `display-<id><suffix>.png` put together, bezels black.
@@ -332,13 +338,9 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     eprintln!("tessera-master: listening on {}", endpoint.local_addr()?);
     let (stop, interrupted) = stop_on_ctrl_c();
     let wall = cfg.master.wall.clone();
-    let outcome = run_wall(endpoint, cfg, Arc::new(AtomicBool::new(false)), stop).await;
-    finish_run(
-        outcome,
-        &args.run,
-        &wall,
-        interrupted.load(std::sync::atomic::Ordering::SeqCst),
-        Vec::new(),
-        Vec::new(),
-    )
+    let signals = RunSignals::default();
+    let end = run_wall(endpoint, cfg, signals, stop, std::future::pending()).await;
+    let interrupted = interrupted.load(std::sync::atomic::Ordering::SeqCst);
+    let ended = Ended::of(end, interrupted);
+    finish_run(ended, &args.run, &wall)
 }

@@ -60,6 +60,48 @@ pub fn processes() -> Vec<Process> {
     found
 }
 
+/// The UDP ports process `pid`'s sockets are bound to: how a local wall's launcher tells which
+/// of its children the master saw join from `127.0.0.1:PORT` (a QUIC endpoint is one UDP
+/// socket). Empty for a process that is gone, or off Linux.
+pub fn udp_ports(pid: u32) -> Vec<u16> {
+    let proc_dir = std::path::PathBuf::from(format!("/proc/{pid}"));
+    let inodes: Vec<u64> = std::fs::read_dir(proc_dir.join("fd"))
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|fd| std::fs::read_link(fd.path()).ok())
+        .filter_map(|target| {
+            let target = target.to_string_lossy().into_owned();
+            target
+                .strip_prefix("socket:[")?
+                .strip_suffix(']')?
+                .parse()
+                .ok()
+        })
+        .collect();
+    let mut ports = Vec::new();
+    for table in ["udp", "udp6"] {
+        let text = std::fs::read_to_string(proc_dir.join("net").join(table)).unwrap_or_default();
+        // `sl local_address rem_address st tx_queue:rx_queue tr:tm->when retrnsmt uid timeout
+        // inode ...`, the address as HEXIP:HEXPORT.
+        for line in text.lines().skip(1) {
+            let fields: Vec<&str> = line.split_whitespace().collect();
+            let (Some(local), Some(inode)) = (fields.get(1), fields.get(9)) else {
+                continue;
+            };
+            let port = local
+                .rsplit_once(':')
+                .and_then(|(_, p)| u16::from_str_radix(p, 16).ok());
+            if let (Some(port), Ok(inode)) = (port, inode.parse::<u64>()) {
+                if inodes.contains(&inode) {
+                    ports.push(port);
+                }
+            }
+        }
+    }
+    ports
+}
+
 #[cfg(all(test, target_os = "linux"))]
 mod tests {
     use super::*;
@@ -96,5 +138,14 @@ mod tests {
         }
         child.wait().unwrap();
         assert!(!children_of(me).iter().any(|c| c.pid == child.id()));
+    }
+
+    #[test]
+    fn the_ports_of_this_process_udp_sockets_are_found() {
+        let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a UDP socket");
+        let port = socket.local_addr().unwrap().port();
+        assert!(udp_ports(std::process::id()).contains(&port));
+        drop(socket);
+        assert!(!udp_ports(std::process::id()).contains(&port));
     }
 }

@@ -12,7 +12,22 @@ pub async fn write_msg<T: Serialize>(
 ) -> Result<(), NetError> {
     send.write_all(&codec::encode(msg)?)
         .await
-        .map_err(|e| NetError::StreamClosed(e.to_string()))
+        .map_err(|e| match e {
+            quinn::WriteError::ConnectionLost(lost) => closed_by_peer(lost, NetError::StreamClosed),
+            e => NetError::StreamClosed(e.to_string()),
+        })
+}
+
+/// A connection lost, as [`NetError::ClosedByPeer`] when the peer closed it on purpose (its
+/// code and reason say why: a run that is over is not a master lost), else as `other` says.
+fn closed_by_peer(lost: quinn::ConnectionError, other: fn(String) -> NetError) -> NetError {
+    match lost {
+        quinn::ConnectionError::ApplicationClosed(close) => NetError::ClosedByPeer {
+            code: close.error_code.into_inner(),
+            reason: String::from_utf8_lossy(&close.reason).into_owned(),
+        },
+        lost => other(format!("connection lost: {lost}")),
+    }
 }
 
 /// Reads one message; `Ok(None)` when the peer finished the stream cleanly between messages.
@@ -23,6 +38,9 @@ pub async fn read_msg<T: DeserializeOwned>(
     match recv.read_exact(&mut prefix).await {
         Ok(()) => {}
         Err(quinn::ReadExactError::FinishedEarly(0)) => return Ok(None),
+        Err(quinn::ReadExactError::ReadError(quinn::ReadError::ConnectionLost(lost))) => {
+            return Err(closed_by_peer(lost, NetError::StreamBroken))
+        }
         Err(e) => return Err(NetError::StreamBroken(e.to_string())),
     }
     let len = codec::body_len(prefix)?;

@@ -73,6 +73,16 @@ pub enum NetError {
     /// A message could not be read whole: the stream or its connection broke.
     #[error("control stream broken: {0}")]
     StreamBroken(String),
+    /// The peer closed the connection on purpose, with an application code and reason: the
+    /// master closes a node's with [`link::RUN_OVER`] once its run is over (completed or
+    /// failed), with another code when it drops the node.
+    #[error("the peer closed the connection: {reason} (code {code})")]
+    ClosedByPeer {
+        /// The application error code it closed with.
+        code: u64,
+        /// Its reason phrase.
+        reason: String,
+    },
     /// A message could not be encoded, or the bytes read are no message (bad length prefix,
     /// malformed body).
     #[error(transparent)]

@@ -20,6 +20,11 @@ use tokio::sync::mpsc;
 /// How long a leaving node waits for the master to take its last message and close.
 pub const GOODBYE_WAIT: Duration = Duration::from_secs(10);
 
+/// The application code the master closes a node's connection with once its run is over,
+/// completed or failed (`tessera_core::master::CloseReason::RunOver`): the node's part is done,
+/// and it does not wait for that master to come back.
+pub const RUN_OVER: u64 = 0;
+
 /// Why a node lost, or never got, its place in the wall.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
@@ -53,13 +58,33 @@ impl LinkError {
     /// yet), rather than refusing this node or breaking the protocol: what a node started with
     /// `--reconnect` waits out.
     pub fn is_lost_master(&self) -> bool {
-        matches!(
-            self,
-            LinkError::Lost(_)
-                | LinkError::Ended
-                | LinkError::ClosedInHandshake
-                | LinkError::Net(NetError::Connect { .. })
-        )
+        match self {
+            LinkError::Lost(e) => !is_run_over(e),
+            LinkError::Ended | LinkError::ClosedInHandshake => true,
+            LinkError::Net(e) => matches!(e, NetError::Connect { .. }),
+            _ => false,
+        }
+    }
+
+    /// Whether the master closed the connection because its run is over (see [`RUN_OVER`]):
+    /// it failed, or ended without telling this node to shut down.
+    pub fn is_run_over(&self) -> bool {
+        matches!(self, LinkError::Lost(e) | LinkError::Net(e) if is_run_over(e))
+    }
+
+    /// Whether `error`, somewhere in its chain, is a run that is over (see
+    /// [`LinkError::is_run_over`]).
+    pub fn run_over_in(error: &(dyn std::error::Error + 'static)) -> bool {
+        let mut cause = Some(error);
+        while let Some(e) = cause {
+            if e.downcast_ref::<LinkError>()
+                .is_some_and(LinkError::is_run_over)
+            {
+                return true;
+            }
+            cause = e.source();
+        }
+        false
     }
 
     /// Whether `error`, somewhere in its chain, is a lost master (see
@@ -76,6 +101,10 @@ impl LinkError {
         }
         false
     }
+}
+
+fn is_run_over(e: &NetError) -> bool {
+    matches!(e, NetError::ClosedByPeer { code, .. } if *code == RUN_OVER)
 }
 
 /// What the master said when it took the node in.

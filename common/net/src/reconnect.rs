@@ -5,7 +5,8 @@
 //! crashed, its host down) waits, bounded, for a master at the same address, joins it again
 //! and runs the next session, as often as the master is lost. A refusal, a broken protocol or
 //! a failure of the node's own ends the node whatever the flags say: waiting would not mend
-//! them.
+//! them. A master that closes the connection because its run is over (it failed, or ended
+//! without a shutdown) ends the node as a shutdown does: its part is done.
 
 use crate::link::{LinkError, MasterLink, Welcome};
 use std::error::Error;
@@ -102,6 +103,8 @@ impl Reconnect {
 enum Next<E> {
     /// The master shut the wall down: the node is done.
     Done,
+    /// The master ended its run (see [`LinkError::is_run_over`]): the node is done too.
+    Over(E),
     /// The master is lost and the node waits for it this long.
     Rejoin(E, Duration),
     /// The node ends with this error.
@@ -114,6 +117,7 @@ where
 {
     match (outcome, wait) {
         (Ok(()), _) => Next::Done,
+        (Err(e), _) if LinkError::run_over_in(e.as_ref()) => Next::Over(e),
         (Err(e), Some(within)) if LinkError::lost_master_in(e.as_ref()) => Next::Rejoin(e, within),
         (Err(e), _) => Next::Fail(e),
     }
@@ -135,6 +139,10 @@ where
     loop {
         let within = match next(session(joined).await, wait) {
             Next::Done => return Ok(()),
+            Next::Over(e) => {
+                tracing::info!("{name}: {e:#}; the master's run is over, leaving");
+                return Ok(());
+            }
             Next::Fail(e) => return Err(e),
             Next::Rejoin(e, within) => {
                 tracing::warn!(
@@ -181,6 +189,24 @@ mod tests {
         assert!(matches!(next(Err(refused), wait), Next::Fail(_)));
         let own: BoxError = "cannot load the volume's time step".into();
         assert!(matches!(next(Err(own), wait), Next::Fail(_)));
+    }
+
+    #[test]
+    fn a_node_dropped_by_its_master_rejoins_and_one_whose_run_is_over_leaves() {
+        let closed = |code| {
+            let reason = "why".to_string();
+            let e: BoxError =
+                Wrapped(LinkError::Lost(NetError::ClosedByPeer { code, reason })).into();
+            e
+        };
+        let wait = Some(Duration::from_secs(3));
+        // Code 5: silent past the deadline, as a paused node is.
+        assert!(matches!(next(Err(closed(5)), wait), Next::Rejoin(..)));
+        assert!(matches!(next(Err(closed(5)), None), Next::Fail(_)));
+        for wait in [wait, None] {
+            let over = next(Err(closed(crate::link::RUN_OVER)), wait);
+            assert!(matches!(over, Next::Over(_)), "{over:?}");
+        }
     }
 
     #[tokio::test]

@@ -146,13 +146,16 @@ async fn wall_run(local: &LocalArgs, what: &str) -> Result<Report> {
 
 /// A run's report, or why there is none: interrupted, failed, or nodes lost on the way.
 fn checked_run(run: crate::wall_run::LocalRun, what: &str) -> Result<Report> {
-    if run.interrupted {
+    let ended = run.ended;
+    if ended.interrupted {
         bail!("interrupted during {what}");
     }
-    let report = run.outcome.with_context(|| format!("{what} failed"))?;
-    let problems: Vec<String> = run.lost.into_iter().chain(run.failures).collect();
+    let problems = ended.processes_failed.join("; ");
+    let report = ended
+        .into_report()
+        .with_context(|| format!("{what} failed"))?;
     if !problems.is_empty() {
-        bail!("{what}: nodes failed: {}", problems.join("; "));
+        bail!("{what}: nodes failed: {problems}");
     }
     Ok(report)
 }

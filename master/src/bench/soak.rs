@@ -188,7 +188,7 @@ pub async fn soak(args: &BenchArgs, out: &Path) -> Result<()> {
     );
     let driver = soak_driver(length, kill_every, threads, log.clone());
     let run = run_local_driven(&local, true, Some(driver)).await?;
-    let report = run.outcome.context("the soak run failed")?;
+    let report = run.ended.into_report().context("the soak run failed")?;
     let mut log = std::mem::take(&mut *log.lock().unwrap_or_else(|e| e.into_inner()));
     for child in &mut log.restarted {
         let _ = tokio::time::timeout(Duration::from_secs(10), child.wait()).await;

@@ -82,6 +82,6 @@ impl Master {
             death.phi_threshold,
             death.acceptable_pause.as_millis()
         );
-        self.drop_peer(peer, now, &reason);
+        self.drop_noted(peer, now, &reason);
     }
 }

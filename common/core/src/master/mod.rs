@@ -416,6 +416,8 @@ struct RunRecord {
     lost_displays: u32,
     /// Frames presented while some display was not showing them (lost, or not yet back).
     frames_short_of_displays: u64,
+    /// The nodes counted in the two losses above, by name.
+    lost: Vec<report::LostNode>,
     /// State changes the barrier applied.
     changes_applied: u64,
     /// Nodes found silent past the suspicion deadline (each time).
@@ -528,7 +530,7 @@ impl Master {
             tracing::error!("closing {}: {e}", self.describe(peer));
             self.closes
                 .push_back((peer, CloseReason::ProtocolViolation));
-            self.drop_peer(peer, now, "protocol violation");
+            self.drop_noted(peer, now, "protocol violation");
         }
         self.start_if_ready(now);
         self.pump(now);
@@ -546,7 +548,7 @@ impl Master {
                 self.finish_if_collected();
             }
             _ => {
-                self.drop_peer(peer, now, reason);
+                self.drop_noted(peer, now, reason);
                 self.pump(now);
             }
         }

@@ -51,6 +51,9 @@ pub struct Report {
     /// Frames presented while some display was not showing them: every frame from a loss to
     /// the rejoin under `go-on`, at most the frames in flight at the loss under `wait`.
     pub frames_short_of_displays: u64,
+    /// Each node counted in `render_nodes_lost` and `displays_lost`, named as the master's log
+    /// names it, in the order they were lost.
+    pub nodes_lost: Vec<LostNode>,
     /// Tiles given to a second render node because the first was late with them (past its
     /// lease): the price of not waiting on a slow, hung or dead node.
     pub tiles_speculated: u64,
@@ -62,6 +65,16 @@ pub struct Report {
     pub data: &'static str,
     /// A shared scene's reads over every render node (each node's own under its `dsm`).
     pub dsm: Option<DsmSummary>,
+}
+
+/// A node lost while the wall ran.
+#[derive(Serialize, Debug, Clone, PartialEq, Eq)]
+pub struct LostNode {
+    /// The node as log lines name it: `render node 2 (host)`, `display 1 (host)`.
+    pub node: String,
+    /// Why it was lost: its connection closed (as the transport said), it broke the protocol,
+    /// or it was silent past the deadline.
+    pub reason: String,
 }
 
 /// The render nodes' reads of a shared scene, together.

@@ -1,9 +1,32 @@
 //! The run's report, from what the master recorded and what the nodes said at shutdown.
 
-use super::report::{DisplayReport, DsmSummary, Percentiles, RenderNodeReport, WallReport};
+use super::report::{
+    DisplayReport, DsmSummary, LostNode, Percentiles, RenderNodeReport, WallReport,
+};
 use super::*;
 
 impl Master {
+    /// The figures of the run so far: what [`Master::take_outcome`] gives for a run that
+    /// completed, and for one that did not, what it measured until it ended (a failed run's
+    /// report is written too). Nodes' own figures are only in it once they sent them at
+    /// shutdown.
+    pub fn report_so_far(&self) -> Report {
+        self.report()
+    }
+
+    /// Drops a peer (see `drop_peer`) and, if that counted it as lost, keeps its name for
+    /// the report: a figure without the name would leave the reader to match log lines.
+    pub(super) fn drop_noted(&mut self, peer: PeerId, now: Now, reason: &str) {
+        let node = self.describe(peer);
+        let counted = |r: &RunRecord| r.lost_render_nodes + r.lost_displays;
+        let before = counted(&self.record);
+        self.drop_peer(peer, now, reason);
+        if counted(&self.record) > before {
+            let reason = reason.to_string();
+            self.record.lost.push(LostNode { node, reason });
+        }
+    }
+
     /// The render nodes' reads of a shared scene, together.
     fn dsm_summary(&self, nodes: &[RenderNodeReport], frames: u64) -> Option<DsmSummary> {
         let DataSpec::Dsm(spec) = &self.cfg.data else {
@@ -125,6 +148,7 @@ impl Master {
             master_pauses: record.master_pauses,
             longest_master_pause_ms: record.longest_master_pause.as_secs_f64() * 1000.0,
             frames_short_of_displays: record.frames_short_of_displays,
+            nodes_lost: record.lost.clone(),
             tiles_speculated: self.coordinator.speculated_tiles(),
             changes_applied: record.changes_applied,
             snapshots: self.live.snapshots.iter().map(|f| f.0).collect(),

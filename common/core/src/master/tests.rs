@@ -133,6 +133,10 @@ fn nodes_missing_at_the_join_deadline_end_the_run_naming_them() {
         other => panic!("{other:?}"),
     }
     assert!(master.is_done());
+    // A failed run still has figures to write: none of frames here, but a report.
+    let report = master.report_so_far();
+    assert_eq!(report.frames, 0);
+    assert!(report.nodes_lost.is_empty());
 }
 
 #[test]

@@ -58,6 +58,23 @@ fn a_display_that_rejoins_a_wall_going_on_shows_every_frame_from_its_first() {
     let report = sim.take_outcome().expect("over").expect("a report");
     assert_eq!(report.displays_lost, 1);
     assert_eq!(report.frames_short_of_displays, missed.len() as u64);
+    let lost: Vec<&str> = report.nodes_lost.iter().map(|l| l.node.as_str()).collect();
+    assert_eq!(lost.len(), 1, "{:?}", report.nodes_lost);
+    assert!(lost[0].starts_with("display 1 ("), "{lost:?}");
+}
+
+#[test]
+fn a_killed_render_node_is_named_in_the_report_as_the_log_names_it() {
+    let mut sim = SimWall::with_config(3, two_displays(), &SimConfig::new(3));
+    sim.kill_at(RenderNodeId(1), FrameId(3));
+    // Well past the master's finding it silent past its deadline (300 ms; a frame ~5 ms).
+    assert_eq!(sim.run_frames(200), 200);
+    let report = sim.take_outcome().expect("over").expect("a report");
+    assert_eq!(report.render_nodes_lost, 1);
+    let lost: Vec<&str> = report.nodes_lost.iter().map(|l| l.node.as_str()).collect();
+    assert_eq!(lost.len(), 1, "{:?}", report.nodes_lost);
+    assert!(lost[0].starts_with("render node 1 ("), "{lost:?}");
+    assert!(!report.nodes_lost[0].reason.is_empty());
 }
 
 #[test]
