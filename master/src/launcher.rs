@@ -5,12 +5,13 @@
 //! name a child as the master's own lines and the report name its node (`render node 2`, by
 //! the id the master gave it when it joined, not by the order it was started in), with its pid.
 
-use crate::server::RunSignals;
+use crate::server::{ExitedNode, RunSignals};
 use anyhow::{Context, Result};
 use std::path::Path;
 use std::process::ExitStatus;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
+use tessera_model::wall::DisplayId;
 use tessera_protocol::RenderNodeId;
 use tokio::process::{Child, Command};
 
@@ -154,6 +155,16 @@ pub async fn watch(
                 NodeKind::Render { .. } => "the other render nodes take over its tiles",
             };
             tracing::error!("{what}; {rest}");
+            let node = match (c.kind, c.node) {
+                (NodeKind::Display(d), _) => Some(ExitedNode::Display(DisplayId(d))),
+                (NodeKind::Render { .. }, node) => node.map(ExitedNode::Render),
+            };
+            if let Some(node) = node {
+                let how = format!("exited with {}", describe(status));
+                let exited = signals.exited.lock();
+                exited.unwrap_or_else(|e| e.into_inner()).push((node, how));
+                signals.exit_notify.notify_one();
+            }
             lost.push(what);
             continue;
         }

@@ -17,6 +17,7 @@ use tessera_core::master::report::Report;
 use tessera_core::master::{
     CertifiedRole, CloseReason, Credentials, Join, Master, MasterConfig, MasterEvent, Now, PeerId,
 };
+use tessera_model::wall::DisplayId;
 use tessera_net::cluster::CertRole;
 use tessera_net::unix_ns;
 use tessera_protocol::{RenderNodeId, Role, ToNode};
@@ -44,6 +45,21 @@ pub struct RunSignals {
     /// the order they joined: the launcher finds the process behind the address, so that
     /// its log lines name the process as the master's name the node (`render node 2`).
     pub render_joins: Arc<Mutex<Vec<(RenderNodeId, SocketAddr)>>>,
+    /// Node processes the launcher saw exit mid-run, and how: a process that is gone is
+    /// dead at once, not after the failure detector's acceptable pause. `exit_notify` wakes
+    /// the driver to read them.
+    pub exited: Arc<Mutex<Vec<(ExitedNode, String)>>>,
+    /// Notified after each push onto `exited`.
+    pub exit_notify: Arc<tokio::sync::Notify>,
+}
+
+/// A node whose process the launcher saw exit.
+#[derive(Clone, Copy, Debug)]
+pub enum ExitedNode {
+    /// A render node, by the id the master gave it.
+    Render(RenderNodeId),
+    /// A display.
+    Display(DisplayId),
 }
 
 /// How a run ended: its figures and, if it did not complete, why.
@@ -196,6 +212,7 @@ impl Driver {
                     }
                     self.master.handle_timeout(now());
                 }
+                () = self.signals.exit_notify.notified() => self.processes_exited(),
                 changed = stop.changed(), if !stopping => {
                     stopping = true;
                     // The interrupt watcher gone without an interrupt: nothing to stop.
@@ -239,6 +256,31 @@ impl Driver {
                 self.links.remove(&peer);
                 self.master.handle_closed(peer, &reason, now());
             }
+        }
+    }
+
+    /// Node processes the launcher saw exit: their connections are closed now, as if the
+    /// nodes had left, rather than waited out as silence.
+    fn processes_exited(&mut self) {
+        let exited = {
+            let mut exited = self
+                .signals
+                .exited
+                .lock()
+                .unwrap_or_else(|e| e.into_inner());
+            std::mem::take(&mut *exited)
+        };
+        for (node, how) in exited {
+            let peer = match node {
+                ExitedNode::Render(id) => self.master.peer_of_render(id),
+                ExitedNode::Display(d) => self.master.peer_of_display(d),
+            };
+            let Some(peer) = peer else { continue };
+            if let Some(link) = self.links.remove(&peer) {
+                link.close(CloseReason::RunOver);
+            }
+            let reason = format!("its process {how}");
+            self.master.handle_closed(peer, &reason, now());
         }
     }
 

@@ -44,7 +44,7 @@ fn local_wall(
 }
 
 #[test]
-fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_suspicion_deadline() {
+fn a_killed_render_node_of_a_local_wall_is_dropped_at_once_and_stalls_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let deadline_ms = 300;
@@ -63,7 +63,7 @@ fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_suspicion_deadlin
         "render nodes of {}: {nodes:?}",
         master.pid()
     );
-    // SIGKILL: no goodbye on the connection, so only the master's own clock can notice.
+    // SIGKILL: no goodbye on the connection; the launcher, its parent, sees it die.
     // SAFETY: kill only sends a signal and touches no memory; the pid is a node
     // process of the wall this test started, still running.
     unsafe { libc::kill(nodes[1] as i32, libc::SIGKILL) };
@@ -74,9 +74,9 @@ fn a_killed_render_node_stalls_the_wall_for_no_longer_than_its_suspicion_deadlin
     master.signal(libc::SIGINT);
     let o = master.wait(Duration::from_secs(60));
     assert!(
-        o.stderr.contains("suspected; its tiles are copied")
-            && o.stderr.contains("past what its heartbeats allow"),
-        "the master's clock, not the transport, noticed the silence, then the death:\n{}",
+        o.stderr
+            .contains("disconnected (its process exited with signal 9)"),
+        "the launcher saw its child die and told the master at once:\n{}",
         o.stderr
     );
     let report = read_json(&out.join("report.json"));
@@ -280,6 +280,31 @@ fn nodes_of_a_killed_served_master_exit_within_the_idle_timeout_saying_why() {
         "every node exited {:?} after the master was killed",
         killed.elapsed()
     );
+    let _ = wall.master.wait(Duration::from_secs(10));
+}
+
+#[test]
+fn a_killed_render_node_of_a_served_wall_is_suspected_then_dead_by_its_rhythm() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = Served::start(dir.path());
+    let (_d0, _d1, _r0) = (wall.display(0), wall.display(1), wall.render());
+    let victim = wall.render();
+    wall.wait_for_frame_2();
+    // Another host's node: no parent to see it die, no goodbye; only the master's clock.
+    let killed = std::time::Instant::now();
+    victim.signal(libc::SIGKILL);
+    wall.master
+        .wait_for_stderr("suspected; its tiles are copied", Duration::from_secs(10));
+    let suspected = killed.elapsed();
+    wall.master
+        .wait_for_stderr("past what its heartbeats allow", Duration::from_secs(20));
+    let dead = killed.elapsed();
+    eprintln!("killed render node: suspected after {suspected:?}, dead after {dead:?}");
+    // Dead after the served default's 3 s acceptable pause past its rhythm, before the
+    // transport's idle timeout would have said so.
+    assert!(dead >= Duration::from_secs(3), "{dead:?}");
+    assert!(dead < tessera_net::quic::IDLE_TIMEOUT, "{dead:?}");
+    wall.master.signal(libc::SIGKILL);
     let _ = wall.master.wait(Duration::from_secs(10));
 }
 

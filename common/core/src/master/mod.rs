@@ -667,6 +667,16 @@ impl Master {
         self.coordinator.next_state()
     }
 
+    /// The peer of render node `node`, if it is in the run.
+    pub fn peer_of_render(&self, node: RenderNodeId) -> Option<PeerId> {
+        self.renders.get(&node).copied()
+    }
+
+    /// The peer showing display `display` now, if any.
+    pub fn peer_of_display(&self, display: DisplayId) -> Option<PeerId> {
+        self.displays.get(&display).copied()
+    }
+
     /// The render node a peer joined as, if it did.
     pub fn render_node_of(&self, peer: PeerId) -> Option<RenderNodeId> {
         match self.peers.get(&peer)?.role {
