@@ -35,6 +35,12 @@ impl Coordinator {
         }
     }
 
+    /// The render nodes and displays suspected now (silent past the deadline, not yet dead).
+    pub fn suspected(&self) -> (Vec<RenderNodeId>, Vec<DisplayId>) {
+        let renders = self.liveness.suspected().collect();
+        (renders, self.display_liveness.suspected().collect())
+    }
+
     /// The master did not run for `blind` until `now` (its process was stopped, or starved):
     /// silence in that time counts against nobody.
     pub fn credit_blind_time(&mut self, blind: Duration, now: Instant) {

@@ -221,6 +221,11 @@ impl<K: Ord + Copy> Liveness<K> {
         self.suspected.contains(&node)
     }
 
+    /// The nodes suspected now.
+    pub fn suspected(&self) -> impl Iterator<Item = K> + '_ {
+        self.suspected.iter().copied()
+    }
+
     /// When the next node would be suspected or dead.
     pub fn next_deadline(&self) -> Option<Instant> {
         let suspect = self.suspect_at.first().map(|&(t, _)| t);

@@ -84,4 +84,22 @@ impl Master {
         );
         self.drop_noted(peer, now, &reason);
     }
+
+    /// The run is over: render nodes still suspected are not waited for (a dead one would
+    /// hold the end for the whole stats wait); they count as lost, and say why. A suspected
+    /// display is waited for: under `--display-loss stop` dropping it would fail a run that
+    /// completed.
+    pub(super) fn drop_suspected_at_the_end(&mut self, now: Now) {
+        let (renders, _) = self.coordinator.suspected();
+        let peers: Vec<PeerId> = renders
+            .iter()
+            .filter_map(|n| self.renders.get(n))
+            .copied()
+            .collect();
+        for peer in peers {
+            self.closes
+                .push_back((peer, CloseReason::SilentPastDeadline));
+            self.drop_noted(peer, now, "still silent (suspected) when the run ended");
+        }
+    }
 }

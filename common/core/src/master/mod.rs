@@ -706,6 +706,7 @@ impl Master {
 
     /// The frames are over: every node is asked for its figures.
     fn shut_down(&mut self, now: Now) {
+        self.drop_suspected_at_the_end(now);
         tracing::info!(
             "{} frames presented; asking the nodes for their figures",
             self.record.presents.len()

@@ -17,7 +17,8 @@ impl SimWall {
                 // A dead node's timer dies with it; a finished run needs no more.
                 if self.nodes.contains_key(&node) && !self.master.frames_over() {
                     self.send(Event::FromRender(node, FromNode::Heartbeat));
-                    self.schedule_at(self.now_us + HEARTBEAT_US, Event::Heartbeat(node));
+                    let next = self.now_us + self.beat_delay_us();
+                    self.schedule_at(next, Event::Heartbeat(node));
                 }
             }
             Event::FromRender(node, msg) => {
@@ -260,8 +261,10 @@ impl SimWall {
                 self.route(t.peer, t.msg);
             } else if let Some(event) = self.master.poll_event() {
                 self.on_master_event(event);
-            } else if self.master.poll_close().is_none() {
-                // The connections the master closes are those of nodes already dead here.
+            } else if let Some((peer, _)) = self.master.poll_close() {
+                // Noted: a live node's connection closed is a false death.
+                self.note_close(peer);
+            } else {
                 return;
             }
         }

@@ -42,12 +42,16 @@ mod events;
 mod master_tests;
 mod metrics;
 mod net;
+#[cfg(test)]
+mod pause_tests;
+mod pauses;
 mod peers;
 #[cfg(test)]
 mod tests;
 
 pub use metrics::{SimReport, Spread};
 pub use net::Rng;
+pub use pauses::{Actor, Dropped};
 pub use peers::ControlAnswer;
 
 use crate::assemble::FrameAssembler;
@@ -323,6 +327,12 @@ pub struct SimWall {
     /// What is scripted to happen as frames start: displays leaving, control requests,
     /// render nodes joining.
     script: Vec<(FrameId, peers::Scripted)>,
+    /// When the master and nodes are stopped.
+    pauses: pauses::Pauses,
+    beat_jitter_us: u64,
+    beat_rng: Rng,
+    /// Connections the master closed, with when.
+    dropped: Vec<Dropped>,
 }
 
 impl SimWall {
@@ -409,6 +419,10 @@ impl SimWall {
             change_every_frame: config.change_every_frame,
             states: BTreeMap::new(),
             script: Vec::new(),
+            pauses: pauses::Pauses::default(),
+            beat_jitter_us: 0,
+            beat_rng: Rng::derived(seed, 7),
+            dropped: Vec::new(),
             grid,
             pixel_grid,
         }
@@ -524,7 +538,9 @@ impl SimWall {
         // Rounded up: a deadline between two microseconds is due at the later one, or the
         // master would be woken, still early, forever.
         let ns = due.saturating_duration_since(self.base).as_nanos();
-        Some(ns.div_ceil(1000) as u64)
+        let due = ns.div_ceil(1000) as u64;
+        // A stopped master's timer fires when it runs again.
+        Some(self.pauses.until(Actor::Master, due).unwrap_or(due))
     }
 
     fn schedule_at(&mut self, at: u64, event: Event) {
@@ -589,6 +605,12 @@ impl SimWall {
             self.events.pop();
             let event = self.slab[slot].take().expect("each event runs once");
             self.free_slots.push(slot);
+            let stopped = Self::actor_of(&event).and_then(|a| self.pauses.until(a, at));
+            if let Some(until) = stopped {
+                // Whatever happens to a stopped process happens when it goes on.
+                self.schedule_at(until, event);
+                continue;
+            }
             // Heartbeats still on their way when the run ends are not part of it: they would
             // stretch its virtual time to the next beat.
             let beat = matches!(

@@ -243,7 +243,8 @@ impl SimWall {
         match self.peers.display(display) {
             Some(peer) if !self.master.frames_over() => {
                 self.send(Event::FromDisplay(peer, display, FromNode::Heartbeat));
-                self.schedule_at(self.now_us + HEARTBEAT_US, Event::DisplayBeat(display));
+                let next = self.now_us + self.beat_delay_us();
+                self.schedule_at(next, Event::DisplayBeat(display));
             }
             _ => {
                 self.peers.beating.remove(&display);
