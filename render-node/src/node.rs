@@ -23,7 +23,7 @@ use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
-use tessera_protocol::{FromNode, NodeStats, Role, ToNode};
+use tessera_protocol::{FrameId, FromNode, NodeStats, Role, ToNode};
 use tessera_render::volume::VolumeError;
 use tessera_render::Cancel;
 use tokio::sync::mpsc;
@@ -219,6 +219,8 @@ struct Driver {
     /// render threads stops within a sample of a packet instead of tracing on for a master
     /// that is gone.
     cancel: Cancel,
+    /// The batch on the render threads: its frame and its own token.
+    batch: Option<(FrameId, Cancel)>,
     done: Channel<Result<Option<Rendered>, VolumeError>>,
     delivered: Channel<Delivery>,
     /// Displays reached at the new address the master gave.
@@ -257,6 +259,7 @@ impl Driver {
             here,
             displays,
             cancel: Cancel::new(),
+            batch: None,
             done: Channel::new(),
             delivered: Channel::new(),
             reached: Channel::new(),
@@ -338,7 +341,7 @@ impl Driver {
     }
 
     /// Hands a batch to the render threads.
-    fn start(&self, order: BatchOrder) {
+    fn start(&mut self, order: BatchOrder) {
         if let Some(shared) = &self.here.shared {
             shared.prefetch(
                 &read(&self.renderer.prepared),
@@ -348,6 +351,7 @@ impl Driver {
         let (renderer, done) = (self.renderer.clone(), self.done.tx.clone());
         // A token of its own, so that one frame can be stopped without the session.
         let cancel = self.cancel.child();
+        self.batch = Some((order.start.frame, cancel.clone()));
         tokio::task::spawn_blocking(move || {
             let _ = done.send(renderer.render(order, &cancel));
         });
@@ -420,6 +424,13 @@ impl Driver {
                 RenderEvent::BlockHolders(holders) => {
                     if let Some(shared) = &self.here.shared {
                         shared.driver.holders(holders);
+                    }
+                }
+                RenderEvent::CancelUpTo(frame) => {
+                    if let Some((batch_frame, token)) = &self.batch {
+                        if *batch_frame <= frame {
+                            token.cancel();
+                        }
                     }
                 }
             }

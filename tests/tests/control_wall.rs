@@ -265,3 +265,73 @@ fn the_probe_reads_the_volume_under_a_pixel_and_follows_the_iso_value() {
     assert!(on_iso, "the probe never saw the iso-surface");
     wall.stop();
 }
+
+/// Frames the wall has presented, as a control client reads them.
+fn presented(wall: &Wall) -> u64 {
+    let o = wall.control(&["figures"]);
+    o.assert_success("figures");
+    let figures: serde_json::Value = serde_json::from_str(&o.stdout).expect("JSON figures");
+    figures["Figures"]["frames_presented"]
+        .as_u64()
+        .expect("a count")
+}
+
+/// The most rays a pixel may ask for, 2^18: hours of this machine for one frame.
+const RUNAWAY: [&str; 5] = ["quality", "--spp", "4096", "--ao", "63"];
+
+#[test]
+fn a_runaway_quality_corrected_is_cancelled_and_the_wall_is_back_within_2_s() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = start_wall(dir.path(), &[]);
+    wall.control(&RUNAWAY).assert_success("the runaway quality");
+    // Wait for the wall to be stuck on the runaway frame: no present for a while.
+    let stuck = wait_for(LIMIT, || {
+        let before = presented(&wall);
+        std::thread::sleep(Duration::from_millis(300));
+        presented(&wall) == before
+    });
+    assert!(stuck, "the runaway frame never held the wall");
+    let corrected = std::time::Instant::now();
+    let before = presented(&wall);
+    wall.control(&["quality", "--spp", "1", "--ao", "0"])
+        .assert_success("the correction");
+    assert!(
+        wait_for(Duration::from_secs(10), || presented(&wall) > before),
+        "the wall never came back"
+    );
+    let back = corrected.elapsed();
+    eprintln!("runaway frame corrected: a frame presented {back:?} after the correction");
+    wall.master
+        .wait_for_stderr("cancelled after", Duration::from_secs(5));
+    let report = wall.stop();
+    assert!(
+        report["frames_cancelled"].as_u64().unwrap() >= 1,
+        "{report}"
+    );
+    assert!(back < Duration::from_secs(2), "back after {back:?}");
+}
+
+#[test]
+fn an_interrupt_during_a_runaway_frame_ends_the_run_within_2_s_with_a_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = start_wall(dir.path(), &[]);
+    wall.control(&RUNAWAY).assert_success("the runaway quality");
+    let stuck = wait_for(LIMIT, || {
+        let before = presented(&wall);
+        std::thread::sleep(Duration::from_millis(300));
+        presented(&wall) == before
+    });
+    assert!(stuck, "the runaway frame never held the wall");
+    let interrupted = std::time::Instant::now();
+    wall.master.signal(libc::SIGINT);
+    let o = wall.master.wait(LIMIT);
+    let took = interrupted.elapsed();
+    eprintln!("interrupted during a runaway frame: the run ended {took:?} later");
+    assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
+    let report = read_json(&wall.out.join("report.json"));
+    assert!(
+        report["frames_cancelled"].as_u64().unwrap() >= 1,
+        "{report}"
+    );
+    assert!(took < Duration::from_secs(2), "ended after {took:?}");
+}

@@ -312,6 +312,17 @@ impl FrameAssembler {
         Ok((partial.missing == 0).then_some(frame))
     }
 
+    /// Frames up to `frame` were abandoned by the master: none of them is shown, what came of
+    /// them is dropped, and the next frame to present is the one after.
+    pub fn cancel_up_to(&mut self, frame: FrameId) {
+        if frame < self.next_present {
+            return;
+        }
+        self.next_present = FrameId(frame.0 + 1);
+        self.frames.retain(|f, _| *f > frame);
+        self.states.retain(|f, _| *f > frame);
+    }
+
     /// The swap barrier: hands over `frame` for presentation. Frames are presented in order.
     pub fn handle_present(&mut self, frame: FrameId) -> Result<PresentedFrame, AssembleError> {
         if frame < self.next_present {

@@ -190,6 +190,12 @@ impl RenderWorker {
                     .extend(tiles.iter().flat_map(|r| r.tiles()).map(|t| (*frame, t)));
                 self.queue.append(&mut later);
             }
+            ToNode::Cancel { frame } => {
+                // Nothing of those frames is wanted any more; ask for later work afresh.
+                self.queue.retain(|(f, _)| f > frame);
+                self.frames.retain(|f, _| f > frame);
+                self.starved = false;
+            }
             // The driver handles the shutdown; the rest is for displays or the handshake,
             // and a master that sends it to a render node is broken.
             ToNode::Shutdown => {}

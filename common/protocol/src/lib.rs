@@ -31,7 +31,7 @@ use tessera_model::wall::{DisplayId, TileId, WallLayout};
 use tessera_model::window::WindowPlacement;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 6;
+pub const PROTOCOL_VERSION: u32 = 7;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
@@ -508,6 +508,13 @@ pub enum ToNode {
         /// Every holder's rank and address.
         holders: Vec<dsm::BlockHolder>,
     },
+    /// Frames up to `frame` are abandoned (a newer state made them stale while they ran far
+    /// longer than the frames before, or the run was interrupted): render nodes stop and drop
+    /// their tiles, displays never show them. Later frames go on as usual.
+    Cancel {
+        /// The last frame abandoned.
+        frame: FrameId,
+    },
 }
 
 impl ToNode {
@@ -528,6 +535,7 @@ impl ToNode {
             ToNode::DisplayAt { .. } => "display at",
             ToNode::StartAt { .. } => "start at",
             ToNode::BlockHolders { .. } => "block holders",
+            ToNode::Cancel { .. } => "cancel",
         }
     }
 }

@@ -60,6 +60,7 @@ impl Coordinator {
             self.display_liveness.next_deadline(),
             self.next_speculation(),
             self.next_wait_end(),
+            self.next_cancel(),
         ]
         .into_iter()
         .flatten()
@@ -104,6 +105,7 @@ impl Coordinator {
             }
         }
         self.feed_speculation(now);
+        self.cancel_runaways(now);
     }
 
     /// When the wait for the display lost first runs out.
@@ -155,7 +157,7 @@ impl Coordinator {
         if self.live_displays.is_empty() && !self.in_flight.is_empty() && !waiting {
             self.outputs.push_back(Output::Stalled);
         }
-        self.try_present();
+        self.try_present(now);
         self.try_start_frames(now);
     }
 
@@ -215,6 +217,13 @@ impl Coordinator {
     /// Sets how many frames the run has in all (`None`: until stopped).
     pub fn set_frame_limit(&mut self, limit: Option<u64>) {
         self.frame_limit = limit;
+    }
+
+    /// Stops starting new frames; frames in flight still finish, for at most
+    /// [`cancel::INTERRUPT_GRACE`] after `now`, and are cancelled then.
+    pub fn interrupt(&mut self, now: Instant) {
+        self.interrupted_at.get_or_insert(now);
+        self.stop_after_in_flight();
     }
 
     /// Stops starting new frames; frames in flight still finish.

@@ -2,6 +2,7 @@
 
 use super::BalanceError;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::time::Instant;
 use tessera_model::wall::{DisplayId, TileId};
 use tessera_protocol::{FrameId, FrameStart, RenderNodeId};
 
@@ -22,6 +23,8 @@ pub(super) struct InFlight {
     /// The displays that were there when the frame started: only they show it (one that
     /// rejoins later starts with a later frame).
     pub displays_expected: BTreeSet<DisplayId>,
+    /// When it started, by the coordinator's clock.
+    pub started_at: Option<Instant>,
 }
 
 impl InFlight {
@@ -36,6 +39,7 @@ impl InFlight {
             done_by: BTreeMap::new(),
             displays_complete: BTreeSet::new(),
             displays_expected: BTreeSet::new(),
+            started_at: None,
         }
     }
 

@@ -28,6 +28,7 @@
 //!   flight; then the others go on without it, or, with
 //!   [`BalanceConfig::wait_for_lost_displays`], no frame starts until it is back.
 
+mod cancel;
 mod failures;
 mod frames;
 mod liveness;
@@ -36,6 +37,7 @@ mod refine;
 mod shares;
 mod speculate;
 
+pub use cancel::{INTERRUPT_GRACE, MIN_RUNAWAY, RUNAWAY_FACTOR};
 pub use liveness::DeathDetector;
 pub use output::{BalanceError, Output};
 pub use refine::Refinement;
@@ -193,6 +195,11 @@ pub struct Coordinator {
     stalled: bool,
     /// Tiles copied to a second node because the first was late with them.
     speculated_tiles: u64,
+    /// Time from a frame's start to its present, smoothed over the presented frames.
+    frame_time: Option<Duration>,
+    /// When the run was interrupted: frames in flight get a moment to finish, then are
+    /// cancelled.
+    interrupted_at: Option<Instant>,
     outputs: VecDeque<Output>,
 }
 
@@ -243,6 +250,8 @@ impl Coordinator {
             next_present: FrameId(0),
             stalled: false,
             speculated_tiles: 0,
+            frame_time: None,
+            interrupted_at: None,
             outputs: VecDeque::new(),
         }
     }
@@ -454,7 +463,7 @@ impl Coordinator {
         if let Some(state) = self.in_flight.get_mut(&frame) {
             state.displays_complete.insert(display);
         }
-        self.try_present();
+        self.try_present(now);
         self.try_start_frames(now);
         Ok(())
     }
@@ -469,7 +478,7 @@ impl Coordinator {
 
     // ---- internals ----
 
-    fn try_present(&mut self) {
+    fn try_present(&mut self, now: Instant) {
         while let Some(state) = self.in_flight.get(&self.next_present) {
             let waiting = state
                 .displays_expected
@@ -486,6 +495,7 @@ impl Coordinator {
             }
             if let Some(state) = self.in_flight.remove(&frame) {
                 self.learn_speeds(&state);
+                self.learn_frame_time(&state, now);
             }
             self.outputs
                 .push_back(Output::ToDisplays(ToNode::Present { frame }));
@@ -587,6 +597,7 @@ impl Coordinator {
                 lights: self.state.lights,
             };
             let mut state = InFlight::new(start, self.tile_count);
+            state.started_at = Some(now);
             state.displays_expected = self.live_displays.clone();
             for d in 0..self.display_count {
                 let display = DisplayId(d);
@@ -680,6 +691,8 @@ impl Coordinator {
     }
 }
 
+#[cfg(test)]
+mod cancel_tests;
 #[cfg(test)]
 mod liveness_tests;
 #[cfg(test)]

@@ -40,6 +40,17 @@ pub enum Output {
     FrameRendered(FrameId),
     /// `Present` was sent for this frame.
     FramePresented(FrameId),
+    /// The frame was abandoned and will never be shown (see [`ToNode::Cancel`]): it ran for
+    /// `ran`, where recent frames took `usual`, and a newer state waited (or the run was
+    /// interrupted).
+    FrameCancelled {
+        /// The frame abandoned.
+        frame: FrameId,
+        /// How long it had been in flight.
+        ran: Duration,
+        /// The smoothed start-to-present time of the frames before it, if any was shown.
+        usual: Option<Duration>,
+    },
     /// The last frame of the run was presented.
     Finished,
     /// Frames are in flight but no render node is left to render them, or no display to show

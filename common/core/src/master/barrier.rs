@@ -43,6 +43,18 @@ impl Master {
                 }
             }
             Output::FramePresented(frame) => self.presented(frame, now),
+            Output::FrameCancelled { frame, ran, usual } => {
+                self.record.frames_cancelled += 1;
+                self.record.frame_started.remove(&frame);
+                let usual = usual.map_or("none shown yet".to_string(), |u| {
+                    format!("{} ms", u.as_millis())
+                });
+                tracing::warn!(
+                    "frame {} cancelled after {} ms (recent frames: {usual}): no display shows it; the next frame starts with the newest state",
+                    frame.0,
+                    ran.as_millis()
+                );
+            }
             Output::FrameRendered(frame) => {
                 self.events.push_back(MasterEvent::FrameRendered(frame))
             }

@@ -420,6 +420,8 @@ struct RunRecord {
     lost: Vec<report::LostNode>,
     /// State changes the barrier applied.
     changes_applied: u64,
+    /// Frames abandoned in flight (runaways, or at an interrupt).
+    frames_cancelled: u32,
     /// Nodes found silent past the suspicion deadline (each time).
     suspicions: u32,
     /// Times the master woke later than it asked to, and the longest.
@@ -587,8 +589,11 @@ impl Master {
         match self.phase {
             Phase::Joining { .. } => self.fail(RunError::InterruptedBeforeStart),
             Phase::Running => {
-                tracing::warn!("interrupted: finishing the frames in flight, then shutting down");
-                self.coordinator.stop_after_in_flight();
+                tracing::warn!(
+                    "interrupted: finishing the frames in flight (at most {} s), then shutting down",
+                    crate::balance::INTERRUPT_GRACE.as_secs()
+                );
+                self.coordinator.interrupt(now.instant);
                 self.pump(now);
             }
             Phase::Collecting { .. } | Phase::Done => {}

@@ -37,6 +37,11 @@ pub struct Report {
     /// Displays lost while the others went on (`--display-loss go-on`) or waited for them
     /// (`wait`).
     pub displays_lost: u32,
+    /// Frames abandoned in flight and never shown: runaways (a newer state waited while they
+    /// ran far longer than the frames before) and those still in flight after an interrupt's
+    /// grace.
+    #[serde(default)]
+    pub frames_cancelled: u32,
     /// Times a render node or display was silent past the suspicion deadline and kept (its
     /// tiles copied to others); those that spoke again were simply back.
     #[serde(default)]

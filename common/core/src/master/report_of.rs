@@ -144,6 +144,7 @@ impl Master {
             elapsed_s: elapsed,
             render_nodes_lost: record.lost_render_nodes,
             displays_lost: record.lost_displays,
+            frames_cancelled: record.frames_cancelled,
             nodes_suspected: record.suspicions,
             master_pauses: record.master_pauses,
             longest_master_pause_ms: record.longest_master_pause.as_secs_f64() * 1000.0,

@@ -211,6 +211,12 @@ impl DisplaySession {
                 .handle_frame_start(start.frame, start.state)
                 .map_err(DisplaySessionError::FrameBarrier)?,
             ToNode::StartAt { frame } => self.assembler.start_at(frame),
+            ToNode::Cancel { frame } => {
+                self.assembler.cancel_up_to(frame);
+                self.sources.retain(|f, _| *f > frame);
+                // The frame after may be here already, complete.
+                self.report_next_complete();
+            }
             ToNode::Overlay { on } => self.overlay = on,
             ToNode::SaveFrame { frame } => self.snapshots.push(frame),
             other @ (ToNode::Assign { .. }

@@ -140,6 +140,9 @@ pub enum RenderEvent {
     /// The master ended the wall: send [`RenderSession::stats`] (with the driver's own
     /// figures added) and leave.
     Shutdown,
+    /// Frames up to `frame` are abandoned: stop the batch on the render threads if it is of
+    /// one of them (it then comes back as [`RenderSession::handle_cancelled`]).
+    CancelUpTo(FrameId),
 }
 
 /// A render node's side of one master's wall, from its `Ready` to the shutdown.
@@ -272,6 +275,10 @@ impl RenderSession {
     pub fn handle_message(&mut self, msg: ToNode, now: Instant) -> Result<(), RenderSessionError> {
         match msg {
             ToNode::Shutdown => self.events.push_back(RenderEvent::Shutdown),
+            ToNode::Cancel { frame } => {
+                self.worker.handle_message(&msg, now)?;
+                self.events.push_back(RenderEvent::CancelUpTo(frame));
+            }
             ToNode::DisplayAt { display, addr } => {
                 let link = LinkId(self.next_link);
                 self.next_link += 1;

@@ -109,6 +109,14 @@ impl SimWall {
             ToNode::Present { frame } | ToNode::PresentAt { frame, .. } => {
                 self.present(peer, display, frame)
             }
+            ToNode::Cancel { frame } => {
+                let assembler = &mut self.displays[d];
+                assembler.cancel_up_to(frame);
+                if let Some(frame) = assembler.poll_complete() {
+                    let msg = FromNode::FrameComplete { frame };
+                    self.send(Event::FromDisplay(peer, display, msg));
+                }
+            }
             _ => {}
         }
     }
