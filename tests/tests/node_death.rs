@@ -399,6 +399,48 @@ fn a_restarted_display_rejoins_the_running_wall_and_shows_its_frames() {
 }
 
 #[test]
+fn a_display_restarted_after_0_2_0_5_and_1_s_rejoins_each_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let wall = Served::start(dir.path());
+    let control_certs = wall.certs("control-0");
+    let (_d0, mut current, _render) = (wall.display(0), wall.display(1), wall.render());
+    wall.wait_for_frame_2();
+    let connect = ["--connect", &wall.addr, "--cert-dir", &control_certs].map(String::from);
+    for ms in [200, 500, 1000] {
+        current.signal(libc::SIGKILL);
+        let _ = current.wait(Duration::from_secs(10));
+        // The restart's delay is what is tested, not a wait for anything.
+        std::thread::sleep(Duration::from_millis(ms));
+        let restarted = std::time::Instant::now();
+        current = wall.display(1);
+        // Shown again: a snapshot the restarted display saves (asked again while it rejoins).
+        let showing = wait_for(Duration::from_secs(30), || {
+            let snap = control(&connect, &["snapshot"], Duration::from_secs(30));
+            snap.assert_success("snapshot");
+            let frame: u64 = snap.stdout.trim().parse().expect("a frame number");
+            let shown = wall.out.join(format!("display-1-frame-{frame}.png"));
+            wait_for(Duration::from_secs(2), || shown.exists())
+        });
+        assert!(
+            showing,
+            "display 1 restarted after {ms} ms never showed a frame"
+        );
+        eprintln!(
+            "display 1 restarted after {ms} ms: showing frames {:?} after its restart",
+            restarted.elapsed()
+        );
+    }
+    wall.master.signal(libc::SIGINT);
+    let o = wall.master.wait(Duration::from_secs(60));
+    assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
+    assert!(
+        o.stderr.contains("replaced: display 1 joined again"),
+        "{}",
+        o.stderr
+    );
+}
+
+#[test]
 fn nodes_started_with_reconnect_rejoin_a_restarted_master() {
     let dir = tempfile::tempdir().unwrap();
     let (wall, nodes) = Served::reconnecting(dir.path(), "60");

@@ -65,7 +65,7 @@ fn certified_name(role: CertifiedRole) -> &'static str {
 }
 
 impl Master {
-    pub(super) fn join(&mut self, join: Join) {
+    pub(super) fn join(&mut self, join: Join, now: Now) {
         let Join {
             peer,
             hello,
@@ -85,7 +85,7 @@ impl Master {
                 pixel_addr,
             } => {
                 let same_host = credentials.same_host;
-                match self.join_display(display, pixel_addr, (&host, remote, same_host)) {
+                match self.join_display(display, pixel_addr, (&host, remote, same_host), now) {
                     Ok(()) => PeerRole::Display(display),
                     Err(refusal) => {
                         tracing::warn!("refused {host} from {remote}: {refusal}");
@@ -189,6 +189,7 @@ impl Master {
         display: DisplayId,
         pixel_addr: SocketAddr,
         (host, remote, same_host): (&str, SocketAddr, bool),
+        now: Now,
     ) -> Result<(), JoinRefusal> {
         let count = self.cfg.wall.display_count();
         if display.0 >= count {
@@ -197,6 +198,7 @@ impl Master {
                 count,
             });
         }
+        self.replace_restarted_display(display, host, now);
         let joining = self
             .peers
             .values()
@@ -216,6 +218,21 @@ impl Master {
         }
         self.display_endpoints.insert(display, addr);
         Ok(())
+    }
+
+    /// A display of the running wall joins again while its old connection is still there
+    /// (restarted quicker than its silence could be called a death; its certificate says it
+    /// is that display): the old connection is dropped as lost, and the new one rejoins.
+    fn replace_restarted_display(&mut self, display: DisplayId, host: &str, now: Now) {
+        if self.record.started.is_none() {
+            return;
+        }
+        let Some(&old) = self.displays.get(&display) else {
+            return;
+        };
+        self.closes.push_back((old, CloseReason::Replaced));
+        let reason = format!("replaced: display {} joined again from {host}", display.0);
+        self.drop_noted(old, now, &reason);
     }
 
     /// A display that rejoined the running wall is ready: it is shown the frames that start

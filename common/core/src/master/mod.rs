@@ -183,6 +183,8 @@ pub enum CloseReason {
     NotReading,
     /// The run is over.
     RunOver,
+    /// The same display joined again on a new connection (it was restarted).
+    Replaced,
 }
 
 impl CloseReason {
@@ -193,6 +195,7 @@ impl CloseReason {
             CloseReason::NotReading => 4,
             CloseReason::SilentPastDeadline => 5,
             CloseReason::RunOver => 0,
+            CloseReason::Replaced => 6,
         }
     }
 
@@ -203,6 +206,7 @@ impl CloseReason {
             CloseReason::NotReading => b"not reading",
             CloseReason::SilentPastDeadline => b"silent past the deadline",
             CloseReason::RunOver => b"run over",
+            CloseReason::Replaced => b"replaced by a new connection",
         }
     }
 }
@@ -513,7 +517,7 @@ impl Master {
             return;
         }
         self.credit_own_pause(now);
-        self.join(join);
+        self.join(join, now);
         self.start_if_ready(now);
         self.pump(now);
     }
