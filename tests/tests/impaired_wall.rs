@@ -1,7 +1,8 @@
 //! A served wall whose every link runs through `tessera-master relay`: the master's traffic
 //! through one relay, each display's pixels through another. Clean, then with 2 % loss and
 //! 20 ms (± 5 ms) delay each way: every frame completes on every display, and the figures
-//! of both runs are printed side by side.
+//! of both runs are printed side by side. A partition of every link for 2 s loses no frame
+//! and nobody.
 
 use std::time::Duration;
 use tessera_tests::*;
@@ -157,5 +158,17 @@ fn every_frame_completes_through_loss_and_delay() {
         bad.present_p95_ms,
         bad.forwarded,
         bad.dropped
+    );
+}
+
+#[test]
+fn a_two_second_partition_of_every_link_loses_no_frame_and_nobody() {
+    let dir = tempfile::tempdir().unwrap();
+    // Every relay cuts its link from 3 s after it started, for 2 s, while frames flow.
+    let cut = wall_through_relays(dir.path(), &["--partition", "3:2"], 300);
+    assert!(cut.dropped > 0, "the partition fell outside the run");
+    eprintln!(
+        "2 s partition of every link: {:.1} fps, {} datagrams dropped by it, every frame shown",
+        cut.fps, cut.dropped
     );
 }
