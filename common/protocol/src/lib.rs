@@ -31,7 +31,7 @@ use tessera_model::wall::{DisplayId, TileId, WallLayout};
 use tessera_model::window::WindowPlacement;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 6;
+pub const PROTOCOL_VERSION: u32 = 7;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
@@ -591,8 +591,9 @@ pub enum FromNode {
         /// When, on the display's clock (ns since the Unix epoch).
         clock_ns: u64,
     },
-    /// A render node or display is alive (sent every [`HEARTBEAT_INTERVAL`], whatever it is
-    /// doing).
+    /// A render node or display is alive. It never travels on the control stream: a node
+    /// sends [`HEARTBEAT_DATAGRAM`] as a QUIC datagram every [`HEARTBEAT_INTERVAL`], and the
+    /// master's driver hands each one to its state machine as this message.
     Heartbeat,
     /// A render node could not deliver these tiles (their display was unreachable): they go
     /// back to the master, to be rendered again, by this node or another.
@@ -613,6 +614,13 @@ pub enum FromNode {
 /// How often a render node says it is alive. The master's deadline for a silent node
 /// (`--node-deadline`) must be several of these, so that a late packet or two is not a death.
 pub const HEARTBEAT_INTERVAL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// The payload of a heartbeat datagram (see [`FromNode::Heartbeat`]). A datagram is never
+/// retransmitted nor queued behind a lost packet of the control stream, so a beat says that the
+/// node is alive now, not that the stream caught up. The version is in it so that a stray
+/// datagram of another protocol is not taken for a beat.
+pub const HEARTBEAT_DATAGRAM: &[u8] = b"tessera-beat/7";
+
 
 /// Measured by a node, reported at shutdown.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
