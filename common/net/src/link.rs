@@ -303,3 +303,69 @@ pub fn node_runtime() -> std::io::Result<tokio::runtime::Runtime> {
         .enable_all()
         .build()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cluster::{CertRole, ClusterCa, NodeIdentity};
+    use tessera_model::scene_spec::SceneSpec;
+    use tessera_model::wall::WallLayout;
+    use tessera_protocol::{dsm::DataSpec, pixels::Compression, SessionSpec};
+
+    /// A master that welcomes one render node and then only counts its heartbeat datagrams,
+    /// and that node's link, whose driver never runs: it stands for a node busy loading.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_joined_node_beats_as_datagrams_while_its_driver_does_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca = ClusterCa::open_or_create(&dir.path().join("ca")).unwrap();
+        for (name, role) in [("master", CertRole::Master), ("node", CertRole::Render)] {
+            ca.issue(name, &dir.path().join(name), Some(role)).unwrap();
+        }
+        let load = |name: &str| NodeIdentity::load(&dir.path().join(name)).unwrap();
+        let any = "127.0.0.1:0".parse().unwrap();
+        let server = quic::endpoint(any, &load("master"), true).unwrap();
+        let client = quic::endpoint(any, &load("node"), false).unwrap();
+        let addr = server.local_addr().unwrap();
+        let master = tokio::spawn(async move {
+            let conn = server.accept().await.unwrap().await.unwrap();
+            let (mut send, mut recv) = conn.accept_bi().await.unwrap();
+            let hello = read_msg::<FromNode>(&mut recv).await.unwrap();
+            assert!(matches!(hello, Some(FromNode::Hello(_))), "{hello:?}");
+            let session = Session::new(SessionSpec {
+                wall: WallLayout::grid(1, 1, 64, 64).unwrap(),
+                scene: SceneSpec::Empty,
+                scene_hash: [0; 32],
+                displays: Vec::new(),
+                save_frame: None,
+                compression: Compression::None,
+                windows: Default::default(),
+                data: DataSpec::Replicated,
+            })
+            .unwrap();
+            let welcome = ToNode::Welcome {
+                node: Some(RenderNodeId(0)),
+                session,
+            };
+            write_msg(&mut send, &welcome).await.unwrap();
+            let mut beats = 0;
+            while beats < 10 {
+                let datagram = conn.read_datagram().await.unwrap();
+                assert_eq!(&datagram[..], HEARTBEAT_DATAGRAM);
+                beats += 1;
+            }
+            (conn, send)
+        });
+        let t0 = std::time::Instant::now();
+        let (link, _) = MasterLink::join(&client, addr, Role::Render { cores: 1 })
+            .await
+            .unwrap();
+        let (conn, _send) = tokio::time::timeout(Duration::from_secs(10), master)
+            .await
+            .expect("ten beats well within 10 s")
+            .unwrap();
+        // Ten beats 50 ms apart, the first at once: about 450 ms.
+        assert!(t0.elapsed() >= 9 * HEARTBEAT_INTERVAL, "{:?}", t0.elapsed());
+        drop(link);
+        conn.close(0u32.into(), b"done");
+    }
+}
