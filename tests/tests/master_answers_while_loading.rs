@@ -3,7 +3,12 @@
 //! resident, on a machine whose cores the loads keep busy), a control client's `state` query is
 //! answered within 100 ms, every time. The round trips are timed here, in the test, from a
 //! control link of its own (not the `control` command, whose start-up would be measured too).
-//! On a 2-core machine the loading lasts about 14 s, the whole test about 15 s.
+//! On a 2-core machine the loading lasts about 8 s, the whole test about 10 s.
+//!
+//! The bound is the master's; a machine that holds its processes up for longer than it (an
+//! oversubscribed VM) fails the test whatever the master does, so the test measures, and prints,
+//! how long it was held up itself: answers over 100 ms beside a stall of this process of over
+//! 100 ms point at the machine, not at the master's loop.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -44,6 +49,38 @@ async fn time_state(link: &mut MasterLink, id: u32) -> Duration {
     }
 }
 
+/// How long at most a thread of the test process that only sleeps 5 ms at a time overslept,
+/// while it ran: how long the machine itself held this process up. A slow answer on a machine
+/// that stalls its processes that long says nothing of the master's loop; printed beside the
+/// figures so that a failure tells one from the other.
+struct StallProbe {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<Duration>,
+}
+
+impl StallProbe {
+    fn start() -> StallProbe {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let stopped = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let (nap, mut worst) = (Duration::from_millis(5), Duration::ZERO);
+            while !stopped.load(std::sync::atomic::Ordering::Relaxed) {
+                let t = Instant::now();
+                std::thread::sleep(nap);
+                worst = worst.max(t.elapsed().saturating_sub(nap));
+            }
+            worst
+        });
+        StallProbe { stop, thread }
+    }
+
+    /// The longest oversleep.
+    fn finish(self) -> Duration {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.thread.join().expect("the probe thread")
+    }
+}
+
 /// Queries `state` every 20 ms until the master logs that the wall started (or `LIMIT`):
 /// the round trips made while the render nodes were still loading.
 fn query_while_loading(master: &Proc, connect: &[String]) -> Vec<Duration> {
@@ -78,7 +115,11 @@ fn query_while_loading(master: &Proc, connect: &[String]) -> Vec<Duration> {
 fn the_master_answers_state_within_100_ms_while_render_nodes_load_a_big_scene() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
-    let master = Proc::start(
+    // A cache "directory" that is a file: no BVH is read from a cache (each run builds, and
+    // loads as long) nor written to one (gigabytes of it, on the user's disk).
+    let no_cache = dir.path().join("no-cache");
+    std::fs::write(&no_cache, "").unwrap();
+    let master = Proc::start_with_env(
         "tessera-master",
         &[
             "local",
@@ -97,9 +138,12 @@ fn the_master_answers_state_within_100_ms_while_render_nodes_load_a_big_scene() 
             "--out",
             out.to_str().unwrap(),
         ],
+        &[("XDG_CACHE_HOME", no_cache.to_str().unwrap())],
     );
     let connect = control_args(&master, LIMIT);
+    let probe = StallProbe::start();
     let times = query_while_loading(&master, &connect);
+    let stalled = probe.finish();
     let log = master.stderr_so_far();
     let mut sorted = times.clone();
     sorted.sort();
@@ -109,11 +153,13 @@ fn the_master_answers_state_within_100_ms_while_render_nodes_load_a_big_scene() 
         "no query was answered before the wall started:\n{log}"
     );
     eprintln!(
-        "{} state queries while the render nodes loaded: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        "{} state queries while the render nodes loaded: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms \
+         (this test's own process was held up for up to {:.1} ms meanwhile)",
         sorted.len(),
         at(0.5),
         at(0.99),
-        at(1.0)
+        at(1.0),
+        stalled.as_secs_f64() * 1e3
     );
     assert!(
         log.contains("loading the scene: building the BVH"),
@@ -122,7 +168,8 @@ fn the_master_answers_state_within_100_ms_while_render_nodes_load_a_big_scene() 
     let slow: Vec<_> = times.iter().filter(|t| **t > ANSWER_WITHIN).collect();
     assert!(
         slow.is_empty(),
-        "{} of {} answers took over {ANSWER_WITHIN:?}: {slow:?}",
+        "{} of {} answers took over {ANSWER_WITHIN:?}: {slow:?} (the machine held this test's \
+         own process up for up to {stalled:?} meanwhile)",
         slow.len(),
         times.len()
     );
