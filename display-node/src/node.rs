@@ -1,10 +1,10 @@
 //! The display node's driver loop: the only place in the display node with sockets and clock
-//! reads. It moves bytes and reads clocks: the master's messages, the tiles the render nodes
-//! send and the heartbeat's timer go to the sans-IO [`DisplaySession`], and the driver carries
-//! out what it returns: messages to the master, presents (at their deadline, headless or in
-//! the window), saved frames, answers to clock probes, the shutdown. It forwards the window's
-//! presents and the person's input to the master. Losing the master and joining it again is
-//! `tessera_net::reconnect`'s loop.
+//! reads. It moves bytes and reads clocks: the master's messages and the tiles the render
+//! nodes send go to the sans-IO [`DisplaySession`], and the driver carries out what it
+//! returns: messages to the master, presents (at their deadline, headless or in the window),
+//! saved frames, answers to clock probes, the shutdown. It forwards the window's presents and
+//! the person's input to the master. Heartbeats are the link's, sent whatever this loop is
+//! doing. Losing the master and joining it again is `tessera_net::reconnect`'s loop.
 
 use crate::pixels_in::{accept_render_nodes, IncomingTile, Intake};
 use crate::present::wait_until;
@@ -183,7 +183,7 @@ async fn session(
         pixel_addr
     );
     let mut driver = Driver {
-        session: DisplaySession::new(grid, screen, session.save_frame(), Instant::now()),
+        session: DisplaySession::new(grid, screen, session.save_frame()),
         me,
         window,
         out: cli.out.clone(),
@@ -237,13 +237,11 @@ impl Driver {
             if self.events(link).await? {
                 return Ok(());
             }
-            let beat = tokio::time::Instant::from_std(self.session.poll_timeout());
             tokio::select! {
                 // The master's messages first: a Present waiting behind a burst of tiles would
                 // let tiles of later frames be judged against a stale frame count, and refused.
                 biased;
                 msg = link.recv() => self.session.handle_message(msg?)?,
-                _ = tokio::time::sleep_until(beat) => self.session.handle_timeout(Instant::now()),
                 Some((frame, clock_ns)) = async { presents.as_mut()?.recv().await } => {
                     link.send(&FromNode::Presented { frame: FrameId(frame), clock_ns }).await?;
                 }

@@ -36,9 +36,15 @@ pub struct RunArgs {
     pub quality: QualityArgs,
     #[command(flatten)]
     pub data: crate::dsm_data::DataArgs,
-    /// How long to wait for all nodes to join, in seconds (1 to 86400).
+    /// How long to wait for all nodes to join, in seconds (1 to 86400). Loading the scene
+    /// is not part of it (see --load-timeout).
     #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub join_timeout: u64,
+    /// How long, once every node has joined, they have to load the scene and be ready, in
+    /// seconds (1 to 86400): a scene of gigabytes may take minutes. Render nodes report how far
+    /// they are in the master's log.
+    #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub load_timeout: u64,
     /// A node silent this many ms (no heartbeat, no report) is suspected: a render node's
     /// tiles are copied to the others so the frame still completes, but it stays in the run
     /// and is back when it speaks again. Nodes beat every 50 ms; 150 to 60000.
@@ -333,6 +339,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         save_frame: run.save_frame.map(FrameId),
         compression: run.compress.into(),
         join_timeout: Duration::from_secs(run.join_timeout),
+        load_timeout: Duration::from_secs(run.load_timeout),
         balance: BalanceConfig {
             node_deadline: Duration::from_millis(run.node_deadline_ms),
             death: DeathDetector {

@@ -1,10 +1,10 @@
 //! One task per connecting node: TLS handshake and hello, then a reader that forwards the
-//! node's messages to the driver loop and a writer that sends what the loop queues for it, so a
-//! slow node never blocks the loop.
+//! node's messages to the driver loop, a reader of its heartbeat datagrams, and a writer that
+//! sends what the loop queues for it, so a slow node never blocks the loop.
 
 use std::time::Duration;
 use tessera_net::framed::{read_msg, write_msg};
-use tessera_protocol::{FromNode, Hello, ToNode};
+use tessera_protocol::{FromNode, Hello, ToNode, HEARTBEAT_DATAGRAM};
 use tokio::sync::mpsc;
 
 pub use tessera_core::master::PeerId;
@@ -67,7 +67,10 @@ pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::
     {
         return;
     }
-    if let Some(reason) = forward(&conn, recv, peer, &events).await {
+    let beats = tokio::spawn(read_beats(conn.clone(), peer, events.clone()));
+    let closed = forward(&conn, recv, peer, &events).await;
+    beats.abort();
+    if let Some(reason) = closed {
         let _ = events.send(Event::Closed(peer, reason)).await;
     }
 }
@@ -144,6 +147,26 @@ fn spawn_writer(mut send: quinn::SendStream) -> PeerSender {
     tx
 }
 
+/// Forwards the peer's heartbeat datagrams to the driver loop as [`FromNode::Heartbeat`]
+/// until its connection closes. Apart from its control stream: a beat never waits for a
+/// stream's retransmissions, nor for the messages before it to be read.
+async fn read_beats(conn: quinn::Connection, peer: PeerId, events: mpsc::Sender<Event>) {
+    while let Ok(datagram) = conn.read_datagram().await {
+        if datagram[..] != *HEARTBEAT_DATAGRAM {
+            // Nothing else travels as a datagram; one that is not a beat changes nothing.
+            tracing::debug!("peer {}: ignored a datagram that is no heartbeat", peer.0);
+            continue;
+        }
+        if events
+            .send(Event::Msg(peer, FromNode::Heartbeat))
+            .await
+            .is_err()
+        {
+            return;
+        }
+    }
+}
+
 /// Forwards the peer's messages to the driver loop until the peer goes: why it went, or None
 /// if the driver loop is gone.
 async fn forward(
@@ -154,6 +177,12 @@ async fn forward(
 ) -> Option<String> {
     loop {
         match read_msg::<FromNode>(&mut recv).await {
+            Ok(Some(FromNode::Heartbeat)) => {
+                // Heartbeats come as datagrams only: one on the stream is from an older
+                // protocol, or forged to keep a node alive that has stopped beating.
+                conn.close(2u32.into(), b"heartbeat on the control stream");
+                return Some("sent a heartbeat on its control stream".to_string());
+            }
             Ok(Some(msg)) => {
                 // Waits while the driver is behind: the peer's stream stops being read, and
                 // QUIC's flow control holds the peer back instead of the master's memory.

@@ -30,26 +30,53 @@ pub struct Recorded {
     pub camera_at_frame: Camera,
 }
 
-/// Writes a session file as the wall runs.
+/// Writes a session file as the wall runs, on a thread of its own: the master's loop only
+/// hands it lines, so a slow or full disk never holds up a frame, a heartbeat or a control
+/// answer. Dropping it waits for the lines handed so far to be written.
 pub struct Recorder {
-    out: std::io::BufWriter<std::fs::File>,
+    /// Lines for the writer; `None` once dropped.
+    lines: Option<std::sync::mpsc::Sender<Vec<u8>>>,
+    /// The writer, which ends with the first error it meets.
+    writer: Option<std::thread::JoinHandle<Result<()>>>,
     last: Option<WallState>,
-    path: String,
 }
 
 impl Recorder {
+    /// Creates the file `path` (here, so that a path that cannot be written fails the start)
+    /// and the writer thread.
+    ///
+    /// # Errors
+    /// The file cannot be created, or the thread started.
     pub fn create(path: &Path) -> Result<Recorder> {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create the --record file {}", path.display()))?;
+        let name = path.display().to_string();
+        let (lines, rx) = std::sync::mpsc::channel::<Vec<u8>>();
+        let writer = std::thread::Builder::new()
+            .name("record".into())
+            .spawn(move || {
+                let mut out = std::io::BufWriter::new(file);
+                for line in rx {
+                    // Flushed line by line: a session cut short by a crash is still a session
+                    // up to there.
+                    out.write_all(&line)
+                        .and_then(|()| out.flush())
+                        .with_context(|| format!("cannot write the --record file {name}"))?;
+                }
+                Ok(())
+            })?;
         Ok(Recorder {
-            out: std::io::BufWriter::new(file),
+            lines: Some(lines),
+            writer: Some(writer),
             last: None,
-            path: path.display().to_string(),
         })
     }
 
     /// Frame `start` begins with state `wall` (its mode, as the frame start holds only the
     /// frame's camera): a line if anything it renders with differs from the line before.
+    ///
+    /// # Errors
+    /// The writer met an error with an earlier line (the disk is full).
     pub fn frame(&mut self, start: &FrameStart, wall: WallState) -> Result<()> {
         // The frame's own parameters, which refinement passes may have raised above the state's.
         let wall = WallState {
@@ -66,12 +93,32 @@ impl Recorder {
             wall,
             camera_at_frame: start.camera,
         };
-        serde_json::to_writer(&mut self.out, &line)?;
-        self.out.write_all(b"\n")?;
-        // Flushed line by line: a session cut short by a crash is still a session up to there.
-        self.out
-            .flush()
-            .with_context(|| format!("cannot write the --record file {}", self.path))
+        let mut bytes = serde_json::to_vec(&line)?;
+        bytes.push(b'\n');
+        let sent = self.lines.as_ref().is_some_and(|l| l.send(bytes).is_ok());
+        if !sent {
+            // The writer ended: only an error ends it while lines may still come.
+            return self.finish();
+        }
+        Ok(())
+    }
+
+    /// Stops the writer once it has written what it was handed, and says how it went.
+    fn finish(&mut self) -> Result<()> {
+        self.lines = None;
+        match self.writer.take().map(std::thread::JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => bail!("the --record writer panicked"),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        if let Err(e) = self.finish() {
+            tracing::error!("{e:#}");
+        }
     }
 }
 

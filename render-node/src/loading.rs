@@ -7,13 +7,13 @@ use crate::node::NodeSide;
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicUsize;
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::Instant;
 use tessera_model::scene_spec::SceneSpec;
 use tessera_net::link::MasterLink;
 use tessera_net::quic;
 use tessera_protocol::dsm::DataSpec;
-use tessera_protocol::{FromNode, RenderNodeId, Session, ToNode};
+use tessera_protocol::{FromNode, LoadStep, RenderNodeId, Session, ToNode, LOAD_REPORT_INTERVAL};
 use tessera_render::scene::{footprint, Scene};
 use tessera_render::volume::SeriesCache;
 use tessera_render::PreparedScene;
@@ -80,6 +80,7 @@ pub async fn scene_here(
             side.pool.clone(),
             side.bvh_cache.clone(),
             side.volume_cache_bytes,
+            link,
         )
         .await?;
         *loaded = Some(Loaded {
@@ -181,37 +182,81 @@ pub(crate) fn fits_in_memory(spec: &SceneSpec, budget: Option<u64>) -> Result<()
 /// The scene, prepared, and for a time series the cache its steps are read through.
 type Prepared = (PreparedScene, Option<Arc<SeriesCache>>);
 
+/// Loads and prepares the session's scene on a blocking thread, off the driver's runtime,
+/// and tells the master how far it is every [`LOAD_REPORT_INTERVAL`] until it is done (a
+/// scene that loads faster says nothing).
 async fn prepare(
     session: &Session,
     pool: Arc<rayon::ThreadPool>,
     bvh_cache: Option<PathBuf>,
     volume_cache_bytes: usize,
+    link: &mut MasterLink,
 ) -> Result<Prepared> {
     let spec = session.scene().clone();
     let expected = session.scene_hash();
-    tokio::task::spawn_blocking(move || {
-        let scene = Scene::load(&spec)?;
-        if scene.content_hash() != expected {
-            bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
+    let step = Arc::new(Mutex::new(LoadStep::Reading));
+    let at = step.clone();
+    let mut task = tokio::task::spawn_blocking(move || {
+        load(&spec, expected, &pool, bvh_cache, volume_cache_bytes, &at)
+    });
+    let t0 = Instant::now();
+    let first = tokio::time::Instant::now() + LOAD_REPORT_INTERVAL;
+    let mut every = tokio::time::interval_at(first, LOAD_REPORT_INTERVAL);
+    loop {
+        tokio::select! {
+            done = &mut task => return done?,
+            _ = every.tick() => {
+                let step = *step.lock().unwrap_or_else(|e| e.into_inner());
+                let elapsed_s = t0.elapsed().as_secs() as u32;
+                link.send(&FromNode::Loading { step, elapsed_s }).await?;
+            }
         }
-        let t0 = Instant::now();
-        let (accel, source) = pool.install(|| tessera_render::bvh::cache::load_or_build(&scene, bvh_cache.as_deref()));
-        tracing::info!("BVH of {} triangles {:?} in {:.2} s", scene.triangles.len(), source, t0.elapsed().as_secs_f64());
-        let mut prepared = PreparedScene::from_accel(&scene, accel);
-        prepared.slim_for_rendering();
-        // Two readers: one step ahead while the next loads, on a node whose cores render.
-        let series = (!scene.series.is_empty()).then(|| {
-            Arc::new(SeriesCache::new(
-                scene.series.clone(),
-                scene.render_from_world,
-                volume_cache_bytes,
-                2,
-            ))
-        });
-        // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
-        drop(scene);
-        crate::memory::release_freed();
-        Ok((prepared, series))
-    })
-    .await?
+    }
+}
+
+/// [`prepare`]'s blocking part; `step` says what it is doing.
+fn load(
+    spec: &SceneSpec,
+    expected: [u8; 32],
+    pool: &rayon::ThreadPool,
+    bvh_cache: Option<PathBuf>,
+    volume_cache_bytes: usize,
+    step: &Mutex<LoadStep>,
+) -> Result<Prepared> {
+    let set = |now: LoadStep| *step.lock().unwrap_or_else(|e| e.into_inner()) = now;
+    let scene = Scene::load(spec)?;
+    if scene.content_hash() != expected {
+        bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
+    }
+    set(match scene.triangles.len() {
+        0 => LoadStep::Preparing,
+        n => LoadStep::BuildingBvh {
+            triangles: n as u64,
+        },
+    });
+    let t0 = Instant::now();
+    let (accel, source) =
+        pool.install(|| tessera_render::bvh::cache::load_or_build(&scene, bvh_cache.as_deref()));
+    set(LoadStep::Preparing);
+    tracing::info!(
+        "BVH of {} triangles {:?} in {:.2} s",
+        scene.triangles.len(),
+        source,
+        t0.elapsed().as_secs_f64()
+    );
+    let mut prepared = PreparedScene::from_accel(&scene, accel);
+    prepared.slim_for_rendering();
+    // Two readers: one step ahead while the next loads, on a node whose cores render.
+    let series = (!scene.series.is_empty()).then(|| {
+        Arc::new(SeriesCache::new(
+            scene.series.clone(),
+            scene.render_from_world,
+            volume_cache_bytes,
+            2,
+        ))
+    });
+    // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
+    drop(scene);
+    crate::memory::release_freed();
+    Ok((prepared, series))
 }

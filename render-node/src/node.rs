@@ -1,9 +1,10 @@
 //! The render node's driver loop: the only place in the render node with sockets and
 //! `Instant::now()`. It moves bytes and reads clocks: what the master says, what the render
-//! threads and display links report and the heartbeat's timer go to the sans-IO
-//! [`RenderSession`], and the driver carries out what it returns (a batch to render, messages
-//! to the master, displays to connect to or drop, block holders for the fetcher, the
-//! shutdown). Losing the master and joining it again is `tessera_net::reconnect`'s loop.
+//! threads and display links report go to the sans-IO [`RenderSession`], and the driver
+//! carries out what it returns (a batch to render, messages to the master, displays to connect
+//! to or drop, block holders for the fetcher, the shutdown). Heartbeats are the link's, sent
+//! whatever this loop is doing. Losing the master and joining it again is
+//! `tessera_net::reconnect`'s loop.
 
 use crate::batch::{read, Rendered, Renderer};
 use crate::pixels_out::{send_pixels, Batch, Delivery, DisplayConn};
@@ -204,7 +205,6 @@ enum End {
 enum Input {
     Master(Result<ToNode, LinkError>),
     Rendered(Result<Option<Rendered>, VolumeError>),
-    Beat,
     Reached(DisplayId, DisplayConn),
     Delivered(Delivery),
 }
@@ -274,11 +274,9 @@ impl Driver {
                 self.start(order);
             }
             self.transmit(link).await?;
-            let beat = tokio::time::Instant::from_std(self.session.poll_timeout());
             let input = tokio::select! {
                 msg = link.recv() => Input::Master(msg),
                 Some(done) = self.done.rx.recv() => Input::Rendered(done),
-                _ = tokio::time::sleep_until(beat) => Input::Beat,
                 Some((display, conn)) = self.reached.rx.recv() => Input::Reached(display, conn),
                 Some(delivery) = self.delivered.rx.recv() => Input::Delivered(delivery),
             };
@@ -305,7 +303,6 @@ impl Driver {
                     "cannot load the volume's time step: {e}"
                 ))))
             }
-            Input::Beat => self.session.handle_timeout(Instant::now()),
             Input::Reached(moved, reached) => self.reached(moved, reached),
             Input::Delivered(d) => {
                 self.session.handle_delivery(

@@ -188,6 +188,11 @@ impl Proc {
         })
     }
 
+    /// Everything the process printed on stderr so far.
+    pub fn stderr_so_far(&self) -> String {
+        self.stderr.snapshot()
+    }
+
     /// Kills the process and panics with `why` and everything it printed.
     pub fn fail(mut self, why: &str) -> ! {
         let mut child = self.child.take().expect("running");

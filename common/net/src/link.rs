@@ -13,7 +13,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tessera_protocol::{
-    FromNode, Hello, NodeStats, RenderNodeId, Role, Session, ToNode, PROTOCOL_VERSION,
+    FromNode, Hello, NodeStats, RenderNodeId, Role, Session, ToNode, HEARTBEAT_DATAGRAM,
+    HEARTBEAT_INTERVAL, PROTOCOL_VERSION,
 };
 use tokio::sync::mpsc;
 
@@ -131,6 +132,47 @@ pub struct MasterLink {
     send: quinn::SendStream,
     control: mpsc::Receiver<Result<Option<ToNode>, NetError>>,
     silent: Arc<AtomicBool>,
+    /// The heartbeat's task, for render nodes and displays: stopped with the link, so that
+    /// a connection given up on is not kept alive by its beats.
+    beats: Option<tokio::task::JoinHandle<()>>,
+}
+
+impl Drop for MasterLink {
+    fn drop(&mut self) {
+        if let Some(beats) = &self.beats {
+            beats.abort();
+        }
+    }
+}
+
+/// Tells the master on `conn` that this node is alive, every [`HEARTBEAT_INTERVAL`], as a
+/// QUIC datagram, from a task of its own until the connection closes.
+///
+/// A datagram is sent at once whatever the control stream holds (a stream's bytes wait
+/// behind its lost packets' retransmissions), and this task needs nothing of the node's
+/// driver loop: it beats while the node loads a scene, builds a BVH or waits on its window.
+/// It runs on the node's tokio runtime, whose workers do no heavy work (tracing and loading
+/// run on rayon and blocking threads); so does quinn's own connection task, which puts the
+/// datagram on the wire, so an OS thread of its own would not make a beat any surer.
+fn beat(conn: quinn::Connection) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(HEARTBEAT_INTERVAL);
+        // A beat late after a stall is followed by one an interval later, not by a burst: a
+        // burst says nothing one beat does not.
+        every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            every.tick().await;
+            match conn.send_datagram(bytes::Bytes::from_static(HEARTBEAT_DATAGRAM)) {
+                Ok(()) => {}
+                Err(quinn::SendDatagramError::ConnectionLost(_)) => return,
+                Err(e) => {
+                    // The master takes no datagrams: it would find this node silent soon.
+                    tracing::error!("cannot send heartbeats to the master: {e}");
+                    return;
+                }
+            }
+        }
+    })
 }
 
 /// Watches what arrives from the master on `conn`, from a task of its own so that a node's
@@ -175,6 +217,7 @@ impl MasterLink {
             .open_bi()
             .await
             .map_err(|e| LinkError::Lost(NetError::StreamBroken(e.to_string())))?;
+        let beats = !matches!(role, Role::Control);
         let hello = Hello {
             version: PROTOCOL_VERSION,
             role,
@@ -189,11 +232,15 @@ impl MasterLink {
         };
         let silent = Arc::new(AtomicBool::new(false));
         watch_master(conn.clone(), silent.clone());
+        // From the welcome on, loading included: the master times a node only once it is
+        // ready, but a beat costs nothing and a node loading is then seen to be alive.
+        let beats = beats.then(|| beat(conn.clone()));
         let link = MasterLink {
             conn,
             send,
             control: spawn_reader::<ToNode>(recv),
             silent,
+            beats,
         };
         Ok((link, welcome))
     }
@@ -255,4 +302,70 @@ pub fn node_runtime() -> std::io::Result<tokio::runtime::Runtime> {
         .worker_threads(2)
         .enable_all()
         .build()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cluster::{CertRole, ClusterCa, NodeIdentity};
+    use tessera_model::scene_spec::SceneSpec;
+    use tessera_model::wall::WallLayout;
+    use tessera_protocol::{dsm::DataSpec, pixels::Compression, SessionSpec};
+
+    /// A master that welcomes one render node and then only counts its heartbeat datagrams,
+    /// and that node's link, whose driver never runs: it stands for a node busy loading.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_joined_node_beats_as_datagrams_while_its_driver_does_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca = ClusterCa::open_or_create(&dir.path().join("ca")).unwrap();
+        for (name, role) in [("master", CertRole::Master), ("node", CertRole::Render)] {
+            ca.issue(name, &dir.path().join(name), Some(role)).unwrap();
+        }
+        let load = |name: &str| NodeIdentity::load(&dir.path().join(name)).unwrap();
+        let any = "127.0.0.1:0".parse().unwrap();
+        let server = quic::endpoint(any, &load("master"), true).unwrap();
+        let client = quic::endpoint(any, &load("node"), false).unwrap();
+        let addr = server.local_addr().unwrap();
+        let master = tokio::spawn(async move {
+            let conn = server.accept().await.unwrap().await.unwrap();
+            let (mut send, mut recv) = conn.accept_bi().await.unwrap();
+            let hello = read_msg::<FromNode>(&mut recv).await.unwrap();
+            assert!(matches!(hello, Some(FromNode::Hello(_))), "{hello:?}");
+            let session = Session::new(SessionSpec {
+                wall: WallLayout::grid(1, 1, 64, 64).unwrap(),
+                scene: SceneSpec::Empty,
+                scene_hash: [0; 32],
+                displays: Vec::new(),
+                save_frame: None,
+                compression: Compression::None,
+                windows: Default::default(),
+                data: DataSpec::Replicated,
+            })
+            .unwrap();
+            let welcome = ToNode::Welcome {
+                node: Some(RenderNodeId(0)),
+                session,
+            };
+            write_msg(&mut send, &welcome).await.unwrap();
+            let mut beats = 0;
+            while beats < 10 {
+                let datagram = conn.read_datagram().await.unwrap();
+                assert_eq!(&datagram[..], HEARTBEAT_DATAGRAM);
+                beats += 1;
+            }
+            (conn, send)
+        });
+        let t0 = std::time::Instant::now();
+        let (link, _) = MasterLink::join(&client, addr, Role::Render { cores: 1 })
+            .await
+            .unwrap();
+        let (conn, _send) = tokio::time::timeout(Duration::from_secs(10), master)
+            .await
+            .expect("ten beats well within 10 s")
+            .unwrap();
+        // Ten beats 50 ms apart, the first at once: about 450 ms.
+        assert!(t0.elapsed() >= 9 * HEARTBEAT_INTERVAL, "{:?}", t0.elapsed());
+        drop(link);
+        conn.close(0u32.into(), b"done");
+    }
 }

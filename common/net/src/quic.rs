@@ -84,9 +84,16 @@ fn base_transport() -> quinn::TransportConfig {
         .black_hole_cooldown(Duration::from_secs(5));
     t.mtu_discovery_config(Some(mtu));
     t.keep_alive_interval(Some(KEEP_ALIVE))
-        .max_idle_timeout(Some(IDLE_TIMEOUT.try_into().expect("12 s fits")));
+        .max_idle_timeout(Some(IDLE_TIMEOUT.try_into().expect("12 s fits")))
+        // Heartbeats travel as datagrams (`link`); quinn enables them by default, and a
+        // peer that advertised no buffer could not be sent one, so this says so here.
+        .datagram_receive_buffer_size(Some(DATAGRAM_BUFFER));
     t
 }
+
+/// What a connection buffers of received datagrams not yet read: a heartbeat is a few bytes,
+/// so this holds seconds of a stalled reader's beats.
+const DATAGRAM_BUFFER: usize = 64 << 10;
 
 /// The server side of control and pixel connections, with windows for pixel traffic: it
 /// accepts only peers whose certificate the cluster CA signed.

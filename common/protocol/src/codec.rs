@@ -152,6 +152,12 @@ mod tests {
             FromNode::BlocksAt {
                 addr: "10.0.0.7:7401".parse().unwrap(),
             },
+            FromNode::Loading {
+                step: crate::LoadStep::BuildingBvh {
+                    triangles: 2_180_000,
+                },
+                elapsed_s: 14,
+            },
         ]
     }
 

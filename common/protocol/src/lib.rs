@@ -599,9 +599,19 @@ pub enum FromNode {
         /// When, on the display's clock (ns since the Unix epoch).
         clock_ns: u64,
     },
-    /// A render node or display is alive (sent every [`HEARTBEAT_INTERVAL`], whatever it is
-    /// doing).
+    /// A render node or display is alive. It never travels on the control stream: a node
+    /// sends [`HEARTBEAT_DATAGRAM`] as a QUIC datagram every [`HEARTBEAT_INTERVAL`], and the
+    /// master's driver hands each one to its state machine as this message.
     Heartbeat,
+    /// A render node is still loading the scene: what it is doing and for how long it has
+    /// been at it (sent when the step changes and every [`LOAD_REPORT_INTERVAL`]), so that
+    /// the master's log says why the wall has not started yet.
+    Loading {
+        /// What the node is doing.
+        step: LoadStep,
+        /// Seconds since it started loading.
+        elapsed_s: u32,
+    },
     /// A render node could not deliver these tiles (their display was unreachable): they go
     /// back to the master, to be rendered again, by this node or another.
     TilesReturned {
@@ -621,6 +631,42 @@ pub enum FromNode {
 /// How often a render node says it is alive. The master's deadline for a silent node
 /// (`--node-deadline`) must be several of these, so that a late packet or two is not a death.
 pub const HEARTBEAT_INTERVAL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// The payload of a heartbeat datagram (see [`FromNode::Heartbeat`]). A datagram is never
+/// retransmitted nor queued behind a lost packet of the control stream, so a beat says that the
+/// node is alive now, not that the stream caught up. The version is in it so that a stray
+/// datagram of another protocol is not taken for a beat.
+pub const HEARTBEAT_DATAGRAM: &[u8] = b"tessera-beat/7";
+
+/// How often a loading render node tells the master how far it is (see
+/// [`FromNode::Loading`]).
+pub const LOAD_REPORT_INTERVAL: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// What a loading render node is doing (see [`FromNode::Loading`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum LoadStep {
+    /// Reading the scene's files (or generating a procedural scene) and hashing them.
+    Reading,
+    /// Building (or reading from the cache) the BVH of this many triangles.
+    BuildingBvh {
+        /// Triangles in the scene.
+        triangles: u64,
+    },
+    /// Preparing what the render threads read (volume bricks, the packed BVH).
+    Preparing,
+}
+
+impl std::fmt::Display for LoadStep {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LoadStep::Reading => write!(f, "reading the scene"),
+            LoadStep::BuildingBvh { triangles } => {
+                write!(f, "building the BVH of {triangles} triangles")
+            }
+            LoadStep::Preparing => write!(f, "preparing it for rendering"),
+        }
+    }
+}
 
 /// Measured by a node, reported at shutdown.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -79,6 +79,9 @@ impl Master {
                 // declared gone or one before it is ready: nothing to keep alive.
                 let _ = self.coordinator.handle_heartbeat(node, now.instant);
             }
+            FromNode::Loading { step, elapsed_s } => {
+                self.note_loading(peer, node, step, elapsed_s);
+            }
             FromNode::TilesReturned { frame, tiles } => {
                 self.coordinator
                     .handle_tiles_returned(node, frame, &tiles, now.instant)?;

@@ -50,6 +50,7 @@
 mod barrier;
 mod control;
 mod liveness;
+mod loading;
 mod membership;
 pub use membership::JoinRefusal;
 mod messages;
@@ -238,6 +239,16 @@ pub enum RunError {
         /// [`Master::missing_summary`]).
         missing: String,
     },
+    /// Every node joined, but not all were ready within the load timeout.
+    #[error(
+        "the nodes joined but were not all ready {waited:?} later: {missing} — see their logs, or raise --load-timeout for a scene that loads this long"
+    )]
+    LoadTimeout {
+        /// The load timeout.
+        waited: Duration,
+        /// Who was not ready, and what the render nodes said they were doing.
+        missing: String,
+    },
     /// Ctrl-C before every node was ready.
     #[error("interrupted before the first frame")]
     InterruptedBeforeStart,
@@ -322,6 +333,9 @@ pub struct MasterConfig {
     /// How long nodes have to join before the first frame (and a lost display to come back
     /// under [`DisplayLoss::Wait`]).
     pub join_timeout: Duration,
+    /// How long, once every node the wall needs has joined, they have to load the scene and
+    /// say they are ready: a big scene may load for minutes.
+    pub load_timeout: Duration,
     /// The load balancer's knobs: the node deadline, speculation; its display wait is set
     /// from `display_loss` and `join_timeout`.
     pub balance: BalanceConfig,
@@ -364,6 +378,7 @@ impl MasterConfig {
             save_frame: None,
             compression: Compression::None,
             join_timeout: Duration::from_secs(30),
+            load_timeout: Duration::from_secs(600),
             balance: BalanceConfig::default(),
             display_loss: DisplayLoss::GoOn,
             present_margin: Duration::ZERO,
@@ -453,6 +468,8 @@ pub struct Master {
     /// The state of the frames starting now (as the last `StateApplied` said).
     frame_state: WallState,
     ranks: ranks::Ranks,
+    /// Whether every node has joined, and how far loading render nodes are.
+    loading: loading::Loading,
     transmits: VecDeque<Transmit>,
     closes: VecDeque<(PeerId, CloseReason)>,
     events: VecDeque<MasterEvent>,
@@ -502,6 +519,7 @@ impl Master {
             navigator: Navigator::new(cfg.camera, cfg.pivot, cfg.scene_size),
             frame_state,
             ranks: ranks::Ranks::default(),
+            loading: loading::Loading::default(),
             transmits: VecDeque::new(),
             closes: VecDeque::new(),
             events: VecDeque::new(),
@@ -564,13 +582,7 @@ impl Master {
     pub fn handle_timeout(&mut self, now: Now) {
         self.credit_own_pause(now);
         match self.phase {
-            Phase::Joining { deadline } if now.instant >= deadline => {
-                let missing = self.missing_summary();
-                self.fail(RunError::JoinTimeout {
-                    waited: self.cfg.join_timeout,
-                    missing,
-                });
-            }
+            Phase::Joining { deadline } if now.instant >= deadline => self.joining_timed_out(),
             Phase::Collecting { deadline } if now.instant >= deadline => {
                 tracing::warn!(
                     "some nodes sent no stats within {} s; the report lacks them",
@@ -704,6 +716,7 @@ impl Master {
     }
 
     fn start_if_ready(&mut self, now: Now) {
+        self.load_if_all_joined(now);
         if matches!(self.phase, Phase::Joining { .. }) && self.all_ready() {
             self.phase = Phase::Running;
             self.record.started = Some(now.instant);

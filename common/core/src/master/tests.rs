@@ -214,3 +214,61 @@ fn a_render_node_joining_while_a_display_rejoins_is_welcomed_once() {
         .count();
     assert_eq!(welcomes, 1);
 }
+
+#[test]
+fn nodes_that_joined_in_time_may_load_past_the_join_timeout_until_the_load_timeout() {
+    let base = Instant::now();
+    let cfg = MasterConfig {
+        load_timeout: Duration::from_secs(120),
+        ..MasterConfig::new(wall(1), 2)
+    };
+    let mut master = Master::new(cfg, at(base, 0)).unwrap();
+    master.handle_join(join(1, display(0)), at(base, 1));
+    master.handle_message(PeerId(1), FromNode::Ready, at(base, 2));
+    master.handle_join(join(2, Role::Render { cores: 2 }), at(base, 3));
+    assert_eq!(
+        master.poll_timeout(),
+        Some(base + Duration::from_secs(30)),
+        "one render node has yet to join: the join timeout holds"
+    );
+    master.handle_join(join(3, Role::Render { cores: 2 }), at(base, 1_000));
+    let loading = base + Duration::from_millis(1_000) + Duration::from_secs(120);
+    assert_eq!(master.poll_timeout(), Some(loading), "now the load timeout");
+    let step = tessera_protocol::LoadStep::BuildingBvh { triangles: 5 };
+    master.handle_message(PeerId(2), FromNode::Ready, at(base, 20_000));
+    master.handle_message(
+        PeerId(3),
+        FromNode::Loading {
+            step,
+            elapsed_s: 40,
+        },
+        at(base, 41_000),
+    );
+    master.handle_timeout(at(base, 60_000));
+    assert!(!master.is_done(), "past the join timeout, still loading");
+    master.handle_timeout(at(base, 121_000));
+    match master.take_outcome() {
+        Some(Err(RunError::LoadTimeout { waited, missing })) => {
+            assert_eq!(waited, Duration::from_secs(120));
+            assert_eq!(
+                missing,
+                "displays not ready: []; render nodes ready: 1 of 2; \
+                 render node 1: building the BVH of 5 triangles (40 s)"
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_wall_whose_nodes_load_in_time_starts() {
+    let base = Instant::now();
+    let mut master = Master::new(MasterConfig::new(wall(1), 1), at(base, 0)).unwrap();
+    master.handle_join(join(1, display(0)), at(base, 1));
+    master.handle_join(join(2, Role::Render { cores: 2 }), at(base, 2));
+    master.handle_message(PeerId(1), FromNode::Ready, at(base, 3));
+    master.handle_timeout(at(base, 40_000));
+    assert!(!master.is_done(), "joined in time, loading");
+    master.handle_message(PeerId(2), FromNode::Ready, at(base, 50_000));
+    assert_eq!(master.poll_event(), Some(MasterEvent::Started));
+}

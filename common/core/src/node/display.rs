@@ -3,10 +3,10 @@
 //!
 //! It wraps the [`FrameAssembler`] and adds what the driver loop used to decide on its own:
 //! what a present shows and under which names it is saved, when to report a frame complete,
-//! the overlay's figures (who rendered each tile, the display's frame rate), the heartbeat,
-//! and the figures reported at shutdown.
+//! the overlay's figures (who rendered each tile, the display's frame rate), and the figures
+//! reported at shutdown. (Heartbeats are not the session's: `tessera_net::link` sends them as
+//! datagrams, whatever the driver loop is doing.)
 
-use super::Heartbeat;
 use crate::assemble::{AssembleError, FrameAssembler, PresentedFrame};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
@@ -101,8 +101,7 @@ pub enum DisplayEvent {
 /// [`DisplaySession::poll_transmit`] until it returns `None` (the messages to the master, in
 /// order; before carrying out any event, so the master hears a frame complete before this
 /// display waits for a present's deadline), then [`DisplaySession::poll_event`] until it
-/// returns `None`. [`DisplaySession::poll_timeout`] says when to call
-/// [`DisplaySession::handle_timeout`] next.
+/// returns `None`.
 ///
 /// # Examples
 ///
@@ -120,8 +119,7 @@ pub enum DisplayEvent {
 /// let screen = wall.screen(DisplayId(0)).unwrap();
 /// let grid = Arc::new(TileGrid::new(wall));
 /// let tile = grid.tiles()[0].id;
-/// let mut display = DisplaySession::new(grid, screen, None, Instant::now());
-/// assert_eq!(display.poll_transmit(), Some(FromNode::Heartbeat), "a beat at once");
+/// let mut display = DisplaySession::new(grid, screen, None);
 ///
 /// let (frame, state) = (FrameId(0), StateId(0));
 /// display.handle_tile(frame, state, tile, &[9; 16 * 16 * 3], BatchSource::default())?;
@@ -151,22 +149,16 @@ pub struct DisplaySession {
     sources: BTreeMap<FrameId, BTreeMap<TileId, BatchSource>>,
     /// When the last presents happened, for the overlay's frame rate.
     present_times: VecDeque<Instant>,
-    heartbeat: Heartbeat,
     transmit: VecDeque<FromNode>,
     events: VecDeque<DisplayEvent>,
 }
 
 impl DisplaySession {
-    /// A session of the display showing `screen` of the wall `grid` cuts into tiles, which
-    /// starts at `now`, the display having just told the master it is ready; `save_frame` is
-    /// the session's frame to save, if any.
-    pub fn new(
-        grid: Arc<TileGrid>,
-        screen: ScreenRect,
-        save_frame: Option<FrameId>,
-        now: Instant,
-    ) -> Self {
-        let mut session = DisplaySession {
+    /// A session of the display showing `screen` of the wall `grid` cuts into tiles, the
+    /// display having just told the master it is ready; `save_frame` is the session's frame to
+    /// save, if any.
+    pub fn new(grid: Arc<TileGrid>, screen: ScreenRect, save_frame: Option<FrameId>) -> Self {
+        DisplaySession {
             screen,
             assembler: FrameAssembler::new(&grid, screen),
             grid,
@@ -176,12 +168,9 @@ impl DisplaySession {
             overlay: false,
             sources: BTreeMap::new(),
             present_times: VecDeque::new(),
-            heartbeat: Heartbeat::new(now),
             transmit: VecDeque::new(),
             events: VecDeque::new(),
-        };
-        session.handle_timeout(now);
-        session
+        }
     }
 
     /// Frames presented so far.
@@ -262,18 +251,6 @@ impl DisplaySession {
             self.present_times.pop_front();
         }
         overlay
-    }
-
-    /// Time passed: a heartbeat, if one is due.
-    pub fn handle_timeout(&mut self, now: Instant) {
-        if self.heartbeat.fire(now) {
-            self.transmit.push_back(FromNode::Heartbeat);
-        }
-    }
-
-    /// When to call [`DisplaySession::handle_timeout`] next.
-    pub fn poll_timeout(&self) -> Instant {
-        self.heartbeat.deadline()
     }
 
     /// The next message for the master.

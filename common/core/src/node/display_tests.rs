@@ -11,7 +11,7 @@ use tessera_model::params::RenderParams;
 use tessera_model::state::StateId;
 use tessera_model::wall::{DisplayId, TileGrid, TileId, WallSpec};
 use tessera_protocol::pixels::BatchSource;
-use tessera_protocol::{FrameId, FrameStart, FromNode, RenderNodeId, ToNode, HEARTBEAT_INTERVAL};
+use tessera_protocol::{FrameId, FrameStart, FromNode, RenderNodeId, ToNode};
 
 const STATE: StateId = StateId(4);
 
@@ -31,8 +31,8 @@ fn display(save_frame: Option<FrameId>) -> (DisplaySession, [TileId; 2]) {
     let screen = wall.screen(DisplayId(1)).unwrap();
     let grid = Arc::new(TileGrid::new(wall));
     let mine = [grid.tiles()[2].id, grid.tiles()[3].id];
-    let mut s = DisplaySession::new(grid, screen, save_frame, t0());
-    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
+    let mut s = DisplaySession::new(grid, screen, save_frame);
+    assert_eq!(drain(&mut s), vec![], "heartbeats are the link's");
     (s, mine)
 }
 
@@ -238,13 +238,4 @@ fn pings_are_answered_and_the_shutdown_reports_the_sessions_figures() {
         ),
         (32 * 16, 1, 1)
     );
-}
-
-#[test]
-fn heartbeats_keep_their_schedule_whatever_else_happens() {
-    let (mut s, _) = display(None);
-    assert_eq!(s.poll_timeout(), t0() + HEARTBEAT_INTERVAL);
-    s.handle_timeout(t0() + HEARTBEAT_INTERVAL);
-    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
-    assert_eq!(s.poll_timeout(), t0() + 2 * HEARTBEAT_INTERVAL);
 }

@@ -5,9 +5,9 @@
 //! what the driver loop used to decide on its own: one batch on the render threads at a time,
 //! the blocks a shared scene fetches ahead of a batch, the time step a volume series must show
 //! before a batch renders, which displays are still worth sending to, what goes back to the
-//! master undelivered, the heartbeat, and the figures reported at shutdown.
+//! master undelivered, and the figures reported at shutdown. (Heartbeats are not the session's:
+//! `tessera_net::link` sends them as datagrams, whatever the driver loop is doing.)
 
-use super::Heartbeat;
 use crate::worker::{BatchSizer, RenderWorker, WorkerError};
 use std::collections::{BTreeMap, VecDeque};
 use std::net::SocketAddr;
@@ -151,8 +151,7 @@ pub enum RenderEvent {
 /// driver calls, in this order: [`RenderSession::poll_batch`] (a batch to start, if the
 /// render threads are free), [`RenderSession::poll_transmit`] until it returns `None` (the
 /// messages to the master, in order), and [`RenderSession::poll_event`] until it returns
-/// `None`. [`RenderSession::poll_timeout`] says when to call
-/// [`RenderSession::handle_timeout`] next.
+/// `None`.
 ///
 /// # Examples
 ///
@@ -176,7 +175,6 @@ pub enum RenderEvent {
 ///     displays: vec![DisplayId(0)],
 /// };
 /// let mut node = RenderSession::new(setup, t0);
-/// assert_eq!(node.poll_transmit(), Some(FromNode::Heartbeat), "a beat at once");
 ///
 /// let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap();
 /// let start = FrameStart::new(FrameId(0), StateId(0), camera, RenderParams::interactive());
@@ -212,7 +210,6 @@ pub struct RenderSession {
     /// Tiles, rays and busy seconds so far.
     stats: RenderStats,
     started: Instant,
-    heartbeat: Heartbeat,
     transmit: VecDeque<FromNode>,
     events: VecDeque<RenderEvent>,
 }
@@ -227,7 +224,7 @@ impl RenderSession {
             .zip(0..)
             .map(|(&d, i)| (d, LinkId(i)))
             .collect();
-        let mut session = RenderSession {
+        RenderSession {
             node: setup.node,
             worker: RenderWorker::new(setup.tile_count, sizer.low_water(None)),
             sizer,
@@ -239,12 +236,9 @@ impl RenderSession {
             asked: BTreeMap::new(),
             stats: RenderStats::default(),
             started: now,
-            heartbeat: Heartbeat::new(now),
             transmit: VecDeque::new(),
             events: VecDeque::new(),
-        };
-        session.handle_timeout(now);
-        session
+        }
     }
 
     /// The id the master gave this node.
@@ -369,18 +363,6 @@ impl RenderSession {
         }
         let report = self.worker.handle_delivered(frame, delivered, now);
         self.transmit.push_back(report);
-    }
-
-    /// Time passed: a heartbeat, if one is due.
-    pub fn handle_timeout(&mut self, now: Instant) {
-        if self.heartbeat.fire(now) {
-            self.transmit.push_back(FromNode::Heartbeat);
-        }
-    }
-
-    /// When to call [`RenderSession::handle_timeout`] next.
-    pub fn poll_timeout(&self) -> Instant {
-        self.heartbeat.deadline()
     }
 
     /// The next batch, if the render threads are free and tiles are queued. While the threads

@@ -10,9 +10,7 @@ use tessera_model::params::{RenderParams, RenderParamsSpec};
 use tessera_model::state::StateId;
 use tessera_model::volume_params::VolumeParams;
 use tessera_model::wall::{DisplayId, TileId};
-use tessera_protocol::{
-    to_ranges, FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode, HEARTBEAT_INTERVAL,
-};
+use tessera_protocol::{to_ranges, FrameId, FrameStart, FromNode, RenderNodeId, TileRange, ToNode};
 
 /// The virtual clock's zero.
 fn t0() -> Instant {
@@ -35,10 +33,10 @@ fn setup() -> RenderSetup {
     }
 }
 
-/// A session past its first heartbeat.
+/// A session, which says nothing until it is asked something (heartbeats are the link's).
 fn session(setup: RenderSetup) -> RenderSession {
     let mut s = RenderSession::new(setup, t0());
-    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
+    assert_eq!(drain(&mut s), vec![]);
     s
 }
 
@@ -250,24 +248,6 @@ fn a_lost_display_is_forgotten_once_and_its_tiles_go_back_before_the_report() {
         s.poll_event(),
         Some(RenderEvent::ForgetDisplay { .. })
     ));
-}
-
-#[test]
-fn heartbeats_keep_their_schedule_and_a_late_one_pushes_the_next_back() {
-    let mut s = session(setup());
-    let interval = HEARTBEAT_INTERVAL;
-    assert_eq!(s.poll_timeout(), t0() + interval);
-    s.handle_timeout(t0() + interval / 2);
-    assert_eq!(drain(&mut s), vec![], "not due yet");
-    // A millisecond late: the next stays on the schedule.
-    s.handle_timeout(t0() + interval + Duration::from_millis(1));
-    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
-    assert_eq!(s.poll_timeout(), t0() + 2 * interval);
-    // A loop held up for a second beats once, then an interval later.
-    let late = t0() + Duration::from_secs(1);
-    s.handle_timeout(late);
-    assert_eq!(drain(&mut s), vec![FromNode::Heartbeat]);
-    assert_eq!(s.poll_timeout(), late + interval);
 }
 
 #[test]
