@@ -123,15 +123,15 @@ async fn shared_here(
     let endpoint = side.endpoint.clone();
     // Only other render nodes connect to a render node: for blocks, with windows of their own.
     endpoint.set_server_config(Some(quic::block_server_config(&side.identity)?));
-    let (prepared, shared) = crate::dsm::start(
+    let start = crate::dsm::start(
         spec,
         session.scene_hash(),
         rank,
         holders,
         &side.dsm,
         (endpoint.clone(), quic::block_client_config(&side.identity)?),
-    )
-    .await?;
+    );
+    let (prepared, shared) = reporting(link, &Mutex::new(LoadStep::ReadingShare), start).await?;
     let prepared = Arc::new(RwLock::new(prepared));
     let server = AbortOnDrop(tokio::spawn(crate::block_server::serve(
         endpoint.clone(),
@@ -196,15 +196,26 @@ async fn prepare(
     let expected = session.scene_hash();
     let step = Arc::new(Mutex::new(LoadStep::Reading));
     let at = step.clone();
-    let mut task = tokio::task::spawn_blocking(move || {
+    let task = tokio::task::spawn_blocking(move || {
         load(&spec, expected, &pool, bvh_cache, volume_cache_bytes, &at)
     });
+    reporting(link, &step, async { task.await? }).await
+}
+
+/// Awaits `work`, telling the master what `step` says the node is doing every
+/// [`LOAD_REPORT_INTERVAL`] (work done sooner says nothing).
+async fn reporting<T>(
+    link: &mut MasterLink,
+    step: &Mutex<LoadStep>,
+    work: impl std::future::Future<Output = Result<T>>,
+) -> Result<T> {
     let t0 = Instant::now();
     let first = tokio::time::Instant::now() + LOAD_REPORT_INTERVAL;
     let mut every = tokio::time::interval_at(first, LOAD_REPORT_INTERVAL);
+    let mut work = std::pin::pin!(work);
     loop {
         tokio::select! {
-            done = &mut task => return done?,
+            done = &mut work => return done,
             _ = every.tick() => {
                 let step = *step.lock().unwrap_or_else(|e| e.into_inner());
                 let elapsed_s = t0.elapsed().as_secs() as u32;

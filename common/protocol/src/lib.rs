@@ -654,6 +654,8 @@ pub enum LoadStep {
     },
     /// Preparing what the render threads read (volume bricks, the packed BVH).
     Preparing,
+    /// Reading its share of a scene shared across the render nodes (`--data dsm`).
+    ReadingShare,
 }
 
 impl std::fmt::Display for LoadStep {
@@ -664,6 +666,7 @@ impl std::fmt::Display for LoadStep {
                 write!(f, "building the BVH of {triangles} triangles")
             }
             LoadStep::Preparing => write!(f, "preparing it for rendering"),
+            LoadStep::ReadingShare => write!(f, "reading its share of the shared scene"),
         }
     }
 }
