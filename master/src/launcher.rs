@@ -74,6 +74,28 @@ pub fn die_with_parent(cmd: &mut Command, signal: libc::c_int) {
     let _ = (cmd, signal);
 }
 
+/// How much a local wall's render nodes yield the CPU to its master and displays: they share
+/// this machine's cores, and a render node building a BVH or tracing takes every core it can,
+/// while the master and displays need a little CPU at once (a control answer, a present).
+const RENDER_NICENESS: libc::c_int = 10;
+
+/// Starts the command at [`RENDER_NICENESS`]: its threads, all created after, inherit it.
+fn yield_to_the_wall(cmd: &mut Command) {
+    #[cfg(target_os = "linux")]
+    // SAFETY: the closure runs in the child between fork and exec and calls only setpriority,
+    // which is async-signal-safe. A failure only leaves the node at normal priority.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::setpriority(libc::PRIO_PROCESS, 0, RENDER_NICENESS);
+            Ok(())
+        });
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = cmd;
+}
+
+/// Starts a node process of kind `kind`: killed with its parent, a render node at a lower
+/// priority than the master and displays.
 pub fn spawn(
     kind: NodeKind,
     essential: bool,
@@ -86,6 +108,9 @@ pub fn spawn(
         .stdin(std::process::Stdio::null());
     // If the master dies without cleaning up, the kernel kills the children: no orphans.
     die_with_parent(&mut cmd, libc::SIGKILL);
+    if matches!(kind, NodeKind::Render { .. }) {
+        yield_to_the_wall(&mut cmd);
+    }
     let child = cmd
         .spawn()
         .with_context(|| format!("cannot start {kind:?} ({})", program.display()))?;
