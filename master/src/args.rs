@@ -278,6 +278,21 @@ impl RoleArg {
     }
 }
 
+/// The load balancer's knobs from the run's flags.
+fn balance_config(run: &RunArgs) -> BalanceConfig {
+    BalanceConfig {
+        node_deadline: Duration::from_millis(run.node_deadline_ms),
+        death: DeathDetector {
+            acceptable_pause: run
+                .acceptable_pause_ms
+                .map_or(DEFAULT_ACCEPTABLE_PAUSE, Duration::from_millis),
+            ..DeathDetector::default()
+        },
+        speculate: !run.no_speculation,
+        ..BalanceConfig::default()
+    }
+}
+
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
 pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
     // Every flag is checked before the scene, which can take long to load.
@@ -340,17 +355,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         compression: run.compress.into(),
         join_timeout: Duration::from_secs(run.join_timeout),
         load_timeout: Duration::from_secs(run.load_timeout),
-        balance: BalanceConfig {
-            node_deadline: Duration::from_millis(run.node_deadline_ms),
-            death: DeathDetector {
-                acceptable_pause: run
-                    .acceptable_pause_ms
-                    .map_or(DEFAULT_ACCEPTABLE_PAUSE, Duration::from_millis),
-                ..DeathDetector::default()
-            },
-            speculate: !run.no_speculation,
-            ..BalanceConfig::default()
-        },
+        balance: balance_config(run),
         display_loss: run.display_loss.into(),
         present_margin: Duration::try_from_secs_f64(run.present_margin_ms / 1000.0)
             .ok()

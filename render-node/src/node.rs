@@ -171,10 +171,7 @@ async fn session(
             (display, DisplayConn { link, conn })
         })
         .collect();
-    let mut driver = Driver::new(started, renderer, here, displays);
-    // A master silent for 1.5 s holds the render threads where they are: stopped for a dead
-    // master (the connection closes later), going on where they were for a paused one.
-    driver.cancel = driver.cancel.clone().held_while(link.master_silent());
+    let mut driver = Driver::new(started, renderer, here, displays, link.master_silent());
     match driver.drive(&side.endpoint, &mut link).await? {
         End::Shutdown => {
             let stats = driver.stats().await;
@@ -252,13 +249,16 @@ impl Driver {
         renderer: Renderer,
         here: crate::loading::SceneHere,
         displays: BTreeMap<DisplayId, DisplayConn>,
+        master_silent: Arc<std::sync::atomic::AtomicBool>,
     ) -> Self {
         Driver {
             session,
             renderer,
             here,
             displays,
-            cancel: Cancel::new(),
+            // A master silent for 1.5 s holds the render threads where they are: stopped for
+            // a dead master (the connection closes later), going on for a paused one.
+            cancel: Cancel::new().held_while(master_silent),
             batch: None,
             done: Channel::new(),
             delivered: Channel::new(),

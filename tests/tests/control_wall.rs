@@ -276,6 +276,17 @@ fn presented(wall: &Wall) -> u64 {
         .expect("a count")
 }
 
+/// Waits until the wall is held by a runaway frame: no present for 300 ms.
+fn wait_until_stuck(wall: &Wall) {
+    let stuck = wait_for(LIMIT, || {
+        let before = presented(wall);
+        // A window to watch the count over, not a wait for readiness.
+        std::thread::sleep(Duration::from_millis(300));
+        presented(wall) == before
+    });
+    assert!(stuck, "the runaway frame never held the wall");
+}
+
 /// The most rays a pixel may ask for, 2^18: hours of this machine for one frame.
 const RUNAWAY: [&str; 5] = ["quality", "--spp", "4096", "--ao", "63"];
 
@@ -285,12 +296,7 @@ fn a_runaway_quality_corrected_is_cancelled_and_the_wall_is_back_within_2_s() {
     let wall = start_wall(dir.path(), &[]);
     wall.control(&RUNAWAY).assert_success("the runaway quality");
     // Wait for the wall to be stuck on the runaway frame: no present for a while.
-    let stuck = wait_for(LIMIT, || {
-        let before = presented(&wall);
-        std::thread::sleep(Duration::from_millis(300));
-        presented(&wall) == before
-    });
-    assert!(stuck, "the runaway frame never held the wall");
+    wait_until_stuck(&wall);
     let corrected = std::time::Instant::now();
     let before = presented(&wall);
     wall.control(&["quality", "--spp", "1", "--ao", "0"])
@@ -316,12 +322,7 @@ fn an_interrupt_during_a_runaway_frame_ends_the_run_within_2_s_with_a_report() {
     let dir = tempfile::tempdir().unwrap();
     let wall = start_wall(dir.path(), &[]);
     wall.control(&RUNAWAY).assert_success("the runaway quality");
-    let stuck = wait_for(LIMIT, || {
-        let before = presented(&wall);
-        std::thread::sleep(Duration::from_millis(300));
-        presented(&wall) == before
-    });
-    assert!(stuck, "the runaway frame never held the wall");
+    wait_until_stuck(&wall);
     let interrupted = std::time::Instant::now();
     wall.master.signal(libc::SIGINT);
     let o = wall.master.wait(LIMIT);

@@ -246,23 +246,11 @@ impl<K: Ord + Copy> Liveness<K> {
             suspected: Vec::new(),
             dead: Vec::new(),
         };
-        let dead: Vec<K> = self
-            .dead_at
-            .iter()
-            .take_while(|&&(t, _)| t <= now)
-            .map(|&(_, k)| k)
-            .collect();
-        for node in dead {
+        for node in due(&self.dead_at, now) {
             found.dead.push((node, self.silence(node, now)));
             self.forget(node);
         }
-        let suspected: Vec<K> = self
-            .suspect_at
-            .iter()
-            .take_while(|&&(t, _)| t <= now)
-            .map(|&(_, k)| k)
-            .collect();
-        for node in suspected {
+        for node in due(&self.suspect_at, now) {
             found.suspected.push((node, self.silence(node, now)));
             self.suspected.insert(node);
             self.reschedule(node);
@@ -282,4 +270,13 @@ impl<K: Ord + Copy> Liveness<K> {
             self.reschedule(node);
         }
     }
+}
+
+/// The nodes whose time in `schedule` has come at `now`.
+fn due<K: Copy>(schedule: &BTreeSet<(Instant, K)>, now: Instant) -> Vec<K> {
+    schedule
+        .iter()
+        .take_while(|&&(t, _)| t <= now)
+        .map(|&(_, k)| k)
+        .collect()
 }

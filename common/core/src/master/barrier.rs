@@ -43,18 +43,7 @@ impl Master {
                 }
             }
             Output::FramePresented(frame) => self.presented(frame, now),
-            Output::FrameCancelled { frame, ran, usual } => {
-                self.record.frames_cancelled += 1;
-                self.record.frame_started.remove(&frame);
-                let usual = usual.map_or("none shown yet".to_string(), |u| {
-                    format!("{} ms", u.as_millis())
-                });
-                tracing::warn!(
-                    "frame {} cancelled after {} ms (recent frames: {usual}): no display shows it; the next frame starts with the newest state",
-                    frame.0,
-                    ran.as_millis()
-                );
-            }
+            Output::FrameCancelled { frame, ran, usual } => self.cancelled(frame, ran, usual),
             Output::FrameRendered(frame) => {
                 self.events.push_back(MasterEvent::FrameRendered(frame))
             }
@@ -133,5 +122,19 @@ impl Master {
             self.record.frames_short_of_displays += 1;
         }
         self.events.push_back(MasterEvent::FramePresented(frame));
+    }
+
+    /// A frame was abandoned in flight: counted, and said.
+    fn cancelled(&mut self, frame: FrameId, ran: Duration, usual: Option<Duration>) {
+        self.record.frames_cancelled += 1;
+        self.record.frame_started.remove(&frame);
+        let usual = usual.map_or("none shown yet".to_string(), |u| {
+            format!("{} ms", u.as_millis())
+        });
+        tracing::warn!(
+            "frame {} cancelled after {} ms (recent frames: {usual}): no display shows it; the next frame starts with the newest state",
+            frame.0,
+            ran.as_millis()
+        );
     }
 }

@@ -371,23 +371,7 @@ impl SimWall {
             .screens()
             .map(|s| FrameAssembler::new(&pixel_grid, s))
             .collect();
-        let mut speeds = Rng::derived(seed, 2);
-        let clocks = (0..config.render_nodes as u64)
-            .map(|k| NodeClock {
-                tile_us: match &config.speeds {
-                    NodeSpeeds::Cycle => 100 + (37 * k) % 200,
-                    NodeSpeeds::Spread { fastest_us, spread } => {
-                        let factor = 1.0 + (spread - 1.0).max(0.0) * speeds.unit();
-                        ((*fastest_us as f64 * factor).round() as u64).max(1)
-                    }
-                    NodeSpeeds::List(list) if !list.is_empty() => {
-                        list[k as usize % list.len()].max(1)
-                    }
-                    NodeSpeeds::List(_) => 100,
-                },
-                ..NodeClock::default()
-            })
-            .collect();
+        let clocks = node_clocks(seed, config);
         let base = Instant::now();
         SimWall {
             master,
@@ -629,4 +613,23 @@ impl SimWall {
         }
         self.master.frames_presented()
     }
+}
+
+/// Each render node's clock, its speed drawn from `config.speeds` (seeded).
+fn node_clocks(seed: u64, config: &SimConfig) -> Vec<NodeClock> {
+    let mut speeds = Rng::derived(seed, 2);
+    (0..config.render_nodes as u64)
+        .map(|k| NodeClock {
+            tile_us: match &config.speeds {
+                NodeSpeeds::Cycle => 100 + (37 * k) % 200,
+                NodeSpeeds::Spread { fastest_us, spread } => {
+                    let factor = 1.0 + (spread - 1.0).max(0.0) * speeds.unit();
+                    ((*fastest_us as f64 * factor).round() as u64).max(1)
+                }
+                NodeSpeeds::List(list) if !list.is_empty() => list[k as usize % list.len()].max(1),
+                NodeSpeeds::List(_) => 100,
+            },
+            ..NodeClock::default()
+        })
+        .collect()
 }
