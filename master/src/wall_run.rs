@@ -293,23 +293,41 @@ fn write_images(
     report: &report::Report,
 ) -> Result<()> {
     if run.save_frame.is_some() {
-        write_wall_png(dir, wall, "", "wall.png")?;
+        write_wall_png(dir, wall, "", "wall.png", false)?;
     }
     for frame in &report.snapshots {
-        // A snapshot of a frame the run never presented (it ended first) has no images.
-        if dir.join(format!("display-0-frame-{frame}.png")).exists() {
+        // A snapshot of a frame the run never presented (it ended first) has no images; one
+        // that a display away at the time (lost, or rejoining) did not show has a black screen.
+        let shown = |id: u32| dir.join(format!("display-{id}-frame-{frame}.png")).exists();
+        if wall.screens().any(|s| shown(s.id.0)) {
             let suffix = format!("-frame-{frame}");
-            write_wall_png(dir, wall, &suffix, &format!("wall{suffix}.png"))?;
+            write_wall_png(dir, wall, &suffix, &format!("wall{suffix}.png"), true)?;
         }
     }
     Ok(())
 }
 
 /// `name`: the displays' saved images `display-<id><suffix>.png` put together, bezels black.
-fn write_wall_png(dir: &Path, wall: &WallLayout, suffix: &str, name: &str) -> Result<()> {
+/// With `away_ok`, a display's missing image is a black screen (it did not show the frame),
+/// said on stderr; without, it is an error.
+fn write_wall_png(
+    dir: &Path,
+    wall: &WallLayout,
+    suffix: &str,
+    name: &str,
+    away_ok: bool,
+) -> Result<()> {
     let mut screens = Vec::new();
     for screen in wall.screens() {
         let path = dir.join(format!("display-{}{suffix}.png", screen.id.0));
+        if !path.exists() && away_ok {
+            eprintln!(
+                "display {} did not show this frame (it was away): its screen is black in {name}",
+                screen.id.0
+            );
+            screens.push((screen, RgbImage::black(screen.width, screen.height)));
+            continue;
+        }
         if !path.exists() {
             bail!(
                 "{} is missing: {name} can only be assembled where the displays' --out directory is shared",
@@ -343,4 +361,29 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     let interrupted = interrupted.load(std::sync::atomic::Ordering::SeqCst);
     let ended = Ended::of(end, interrupted);
     finish_run(ended, &args.run, &wall)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_snapshot_a_display_missed_has_its_screen_black_and_wall_png_stays_strict() {
+        let dir = tempfile::tempdir().unwrap();
+        let wall = tessera_model::wall::WallSpec::grid(2, 1, 8, 4)
+            .tile_size(4)
+            .build()
+            .unwrap();
+        let shown = dir.path().join("display-0-frame-5.png");
+        RgbImage::black(8, 4).save_png(&shown).unwrap();
+        // Display 1 was away for frame 5 (lost, or rejoining): its screen is black.
+        write_wall_png(dir.path(), &wall, "-frame-5", "wall-frame-5.png", true).unwrap();
+        assert!(dir.path().join("wall-frame-5.png").exists());
+        // The run's saved frame still needs every display's image.
+        let strict = write_wall_png(dir.path(), &wall, "-frame-5", "wall.png", false);
+        assert!(strict
+            .unwrap_err()
+            .to_string()
+            .contains("display-1-frame-5.png is missing"));
+    }
 }
