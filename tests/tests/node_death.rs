@@ -47,15 +47,9 @@ fn local_wall(
 fn a_killed_render_node_of_a_local_wall_is_dropped_at_once_and_stalls_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
+    // The master's default suspicion deadline (--node-deadline-ms).
     let deadline_ms = 300;
-    let deadline = deadline_ms.to_string();
-    let master = local_wall(
-        &out,
-        "2x1",
-        3,
-        &["--node-deadline-ms", &deadline, "--frames", "100000"],
-        3,
-    );
+    let master = local_wall(&out, "2x1", 3, &["--frames", "100000"], 3);
     let nodes = children(master.pid(), "render-node");
     assert_eq!(
         nodes.len(),

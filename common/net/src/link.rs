@@ -119,9 +119,10 @@ pub struct Welcome {
 
 /// A master this long without a packet (its keep-alives come every 250 ms) is suspected: a
 /// render node stops tracing for it until it speaks again, so a dead master's nodes stop
-/// within this, while a master stopped for seconds keeps its wall (the connection closes only
-/// after [`quic::IDLE_TIMEOUT`]).
-pub const MASTER_SILENCE: Duration = Duration::from_millis(1500);
+/// within 1.5 s of its death (this, the watch's period and the last keep-alive's age), while
+/// a master stopped for seconds keeps its wall (the connection closes only after
+/// [`quic::IDLE_TIMEOUT`]). Holding is harmless for a master that was only paused.
+pub const MASTER_SILENCE: Duration = Duration::from_millis(1000);
 
 /// How often the watch looks at what arrived from the master.
 const WATCH_EVERY: Duration = Duration::from_millis(100);
