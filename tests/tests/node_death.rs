@@ -604,7 +604,7 @@ fn a_render_node_tracing_a_runaway_frame_stops_when_its_master_is_killed() {
     );
     let killed = std::time::Instant::now();
     wall.master.signal(libc::SIGKILL);
-    // Its watch of the master's packets holds the render threads after 1.5 s of silence:
+    // Its watch of the master's packets holds the render threads after 1 s of silence:
     // from then on the node spends (next to) no CPU, although its connection lasts until
     // the transport's idle timeout.
     let silence = tessera_net::link::MASTER_SILENCE;
