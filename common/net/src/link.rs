@@ -76,32 +76,26 @@ impl LinkError {
     /// Whether `error`, somewhere in its chain, is a run that is over (see
     /// [`LinkError::is_run_over`]).
     pub fn run_over_in(error: &(dyn std::error::Error + 'static)) -> bool {
-        let mut cause = Some(error);
-        while let Some(e) = cause {
-            if e.downcast_ref::<LinkError>()
-                .is_some_and(LinkError::is_run_over)
-            {
-                return true;
-            }
-            cause = e.source();
-        }
-        false
+        in_chain(error, LinkError::is_run_over)
     }
 
     /// Whether `error`, somewhere in its chain, is a lost master (see
     /// [`LinkError::is_lost_master`]).
     pub fn lost_master_in(error: &(dyn std::error::Error + 'static)) -> bool {
-        let mut cause = Some(error);
-        while let Some(e) = cause {
-            if e.downcast_ref::<LinkError>()
-                .is_some_and(LinkError::is_lost_master)
-            {
-                return true;
-            }
-            cause = e.source();
-        }
-        false
+        in_chain(error, LinkError::is_lost_master)
     }
+}
+
+/// Whether some [`LinkError`] in `error`'s chain of causes is `what`.
+fn in_chain(error: &(dyn std::error::Error + 'static), what: fn(&LinkError) -> bool) -> bool {
+    let mut cause = Some(error);
+    while let Some(e) = cause {
+        if e.downcast_ref::<LinkError>().is_some_and(what) {
+            return true;
+        }
+        cause = e.source();
+    }
+    false
 }
 
 fn is_run_over(e: &NetError) -> bool {
@@ -133,15 +127,16 @@ pub struct MasterLink {
     send: quinn::SendStream,
     control: mpsc::Receiver<Result<Option<ToNode>, NetError>>,
     silent: Arc<AtomicBool>,
-    /// The heartbeat's task, for render nodes and displays: stopped with the link, so that
-    /// a connection given up on is not kept alive by its beats.
-    beats: Option<tokio::task::JoinHandle<()>>,
+    /// The watch over the master's packets, and the heartbeat (render nodes and displays):
+    /// tasks that hold the connection, stopped with the link so that a connection given up
+    /// on is not kept open by them (quinn closes it when its last handle goes).
+    tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
 impl Drop for MasterLink {
     fn drop(&mut self) {
-        if let Some(beats) = &self.beats {
-            beats.abort();
+        for task in &self.tasks {
+            task.abort();
         }
     }
 }
@@ -178,7 +173,7 @@ fn beat(conn: quinn::Connection) -> tokio::task::JoinHandle<()> {
 
 /// Watches what arrives from the master on `conn`, from a task of its own so that a node's
 /// busy driver cannot delay it: `silent` is set while nothing arrived for [`MASTER_SILENCE`].
-fn watch_master(conn: quinn::Connection, silent: Arc<AtomicBool>) {
+fn watch_master(conn: quinn::Connection, silent: Arc<AtomicBool>) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let mut last = conn.stats().udp_rx.datagrams;
         let mut heard = tokio::time::Instant::now();
@@ -198,7 +193,7 @@ fn watch_master(conn: quinn::Connection, silent: Arc<AtomicBool>) {
                 );
             }
         }
-    });
+    })
 }
 
 impl MasterLink {
@@ -232,16 +227,16 @@ impl MasterLink {
             None => return Err(LinkError::ClosedInHandshake),
         };
         let silent = Arc::new(AtomicBool::new(false));
-        watch_master(conn.clone(), silent.clone());
+        let mut tasks = vec![watch_master(conn.clone(), silent.clone())];
         // From the welcome on, loading included: the master times a node only once it is
         // ready, but a beat costs nothing and a node loading is then seen to be alive.
-        let beats = beats.then(|| beat(conn.clone()));
+        tasks.extend(beats.then(|| beat(conn.clone())));
         let link = MasterLink {
             conn,
             send,
             control: spawn_reader::<ToNode>(recv),
             silent,
-            beats,
+            tasks,
         };
         Ok((link, welcome))
     }
