@@ -35,10 +35,9 @@ impl Coordinator {
         }
     }
 
-    /// The render nodes and displays suspected now (silent past the deadline, not yet dead).
-    pub fn suspected(&self) -> (Vec<RenderNodeId>, Vec<DisplayId>) {
-        let renders = self.liveness.suspected().collect();
-        (renders, self.display_liveness.suspected().collect())
+    /// The render nodes suspected now (silent past the deadline, not yet dead).
+    pub fn suspected_render_nodes(&self) -> impl Iterator<Item = RenderNodeId> + '_ {
+        self.liveness.suspected()
     }
 
     /// The master did not run for `blind` until `now` (its process was stopped, or starved):

@@ -73,8 +73,6 @@ impl Master {
     /// Closes the connection of a peer the coordinator found dead by its silence, and drops
     /// it as if it had left.
     pub(super) fn drop_silent(&mut self, peer: PeerId, silent: Duration, now: Now) {
-        self.closes
-            .push_back((peer, CloseReason::SilentPastDeadline));
         let death = self.cfg.balance.death;
         let reason = format!(
             "silent for {} ms, past what its heartbeats allow (phi {} with a {} ms acceptable pause)",
@@ -82,7 +80,7 @@ impl Master {
             death.phi_threshold,
             death.acceptable_pause.as_millis()
         );
-        self.drop_noted(peer, now, &reason);
+        self.close_and_drop(peer, CloseReason::SilentPastDeadline, now, &reason);
     }
 
     /// The run is over: render nodes still suspected are not waited for (a dead one would
@@ -90,16 +88,14 @@ impl Master {
     /// display is waited for: under `--display-loss stop` dropping it would fail a run that
     /// completed.
     pub(super) fn drop_suspected_at_the_end(&mut self, now: Now) {
-        let (renders, _) = self.coordinator.suspected();
-        let peers: Vec<PeerId> = renders
-            .iter()
-            .filter_map(|n| self.renders.get(n))
-            .copied()
+        let peers: Vec<PeerId> = self
+            .coordinator
+            .suspected_render_nodes()
+            .filter_map(|n| self.renders.get(&n).copied())
             .collect();
+        let reason = "still silent (suspected) when the run ended";
         for peer in peers {
-            self.closes
-                .push_back((peer, CloseReason::SilentPastDeadline));
-            self.drop_noted(peer, now, "still silent (suspected) when the run ended");
+            self.close_and_drop(peer, CloseReason::SilentPastDeadline, now, reason);
         }
     }
 }

@@ -230,9 +230,8 @@ impl Master {
         let Some(&old) = self.displays.get(&display) else {
             return;
         };
-        self.closes.push_back((old, CloseReason::Replaced));
         let reason = format!("replaced: display {} joined again from {host}", display.0);
-        self.drop_noted(old, now, &reason);
+        self.close_and_drop(old, CloseReason::Replaced, now, &reason);
     }
 
     /// A display that rejoined the running wall is ready: it is shown the frames that start

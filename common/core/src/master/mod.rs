@@ -552,9 +552,8 @@ impl Master {
         }
         if let Err(e) = self.message(peer, msg, now) {
             tracing::error!("closing {}: {e}", self.describe(peer));
-            self.closes
-                .push_back((peer, CloseReason::ProtocolViolation));
-            self.drop_noted(peer, now, "protocol violation");
+            let close = CloseReason::ProtocolViolation;
+            self.close_and_drop(peer, close, now, "protocol violation");
         }
         self.start_if_ready(now);
         self.pump(now);
@@ -598,8 +597,8 @@ impl Master {
         }
     }
 
-    /// Ctrl-C: no new frame starts; frames in flight finish and the nodes are shut down as
-    /// after a normal run.
+    /// Ctrl-C: no new frame starts; frames in flight have [`crate::balance::INTERRUPT_GRACE`]
+    /// to finish (then they are cancelled) and the nodes are shut down as after a normal run.
     pub fn handle_interrupt(&mut self, now: Now) {
         self.credit_own_pause(now);
         match self.phase {

@@ -14,6 +14,18 @@ impl Master {
         self.report()
     }
 
+    /// Closes a peer's connection with `close`, then drops it as [`Master::drop_noted`] does.
+    pub(super) fn close_and_drop(
+        &mut self,
+        peer: PeerId,
+        close: CloseReason,
+        now: Now,
+        reason: &str,
+    ) {
+        self.closes.push_back((peer, close));
+        self.drop_noted(peer, now, reason);
+    }
+
     /// Drops a peer (see `drop_peer`) and, if that counted it as lost, keeps its name for
     /// the report: a figure without the name would leave the reader to match log lines.
     pub(super) fn drop_noted(&mut self, peer: PeerId, now: Now, reason: &str) {
