@@ -256,8 +256,9 @@ impl Driver {
             renderer,
             here,
             displays,
-            // A master silent for 1.5 s holds the render threads where they are: stopped for
-            // a dead master (the connection closes later), going on for a paused one.
+            // A master silent for `link::MASTER_SILENCE` holds the render threads where they
+            // are: stopped for a dead master (the connection closes later), going on for a
+            // paused one.
             cancel: Cancel::new().held_while(master_silent),
             batch: None,
             done: Channel::new(),
