@@ -82,6 +82,7 @@ fn soak_driver(
                 log,
             };
             let mut client = connect_when_up(&addr, &cert_dir).await;
+            wait_for_the_first_frame(&mut client).await?;
             let start = Instant::now();
             let mut next_kill = start + kill_every;
             let mut tick = tokio::time::interval(Duration::from_secs(1));
@@ -104,6 +105,21 @@ fn soak_driver(
             }
         })
     })
+}
+
+/// Waits until the wall presents its first frame: a render node killed while the nodes still
+/// load the scene is a node that could not start, which ends a local wall (a busy machine
+/// loads for longer than the first --kill-every). Bounded by the default --load-timeout; the
+/// master ends the run, and this driver with it, at its own.
+async fn wait_for_the_first_frame(client: &mut ControlClient) -> Result<()> {
+    let deadline = Instant::now() + Duration::from_secs(600);
+    while frames_presented(client).await? == 0 {
+        if Instant::now() > deadline {
+            bail!("the wall presented no frame in 600 s");
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    Ok(())
 }
 
 /// What the soak driver needs to measure the wall's processes and replace its render nodes.
