@@ -26,12 +26,13 @@ pub enum TransferFileError {
     #[error("`{0}` is neither a preset (ramp, ct-bone, ct-skin) nor a .toml file")]
     Unknown(String),
     /// The file could not be read.
-    #[error("{path}: {source}")]
+    // `reason`, not `source` (here and below): an error chain would print a source again.
+    #[error("{path}: {reason}")]
     Io {
         /// The file, as given to `--transfer`.
         path: String,
         /// Why reading it failed.
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// The file is not TOML of the expected shape.
     #[error("{path}: {message}")]
@@ -42,12 +43,12 @@ pub enum TransferFileError {
         message: String,
     },
     /// The points do not make a transfer function (too few or too many, or a bad one).
-    #[error("{path}: {source}")]
+    #[error("{path}: {reason}")]
     Invalid {
         /// The file, as given to `--transfer`.
         path: String,
         /// What is wrong with the points (a bad one by its index).
-        source: VolumeParamsError,
+        reason: VolumeParamsError,
     },
 }
 
@@ -79,9 +80,9 @@ pub fn transfer_function(arg: &str) -> Result<TransferFunction, TransferFileErro
         return Err(TransferFileError::Unknown(arg.to_string()));
     }
     let path = Path::new(arg);
-    let text = std::fs::read_to_string(path).map_err(|source| TransferFileError::Io {
+    let text = std::fs::read_to_string(path).map_err(|reason| TransferFileError::Io {
         path: arg.to_string(),
-        source,
+        reason,
     })?;
     parse(&text, arg)
 }
@@ -95,9 +96,9 @@ fn parse(text: &str, path: &str) -> Result<TransferFunction, TransferFileError> 
         DomainToml::Normalized => TransferDomain::Normalized,
         DomainToml::Data => TransferDomain::Data,
     };
-    TransferFunction::new(domain, &file.point).map_err(|source| TransferFileError::Invalid {
+    TransferFunction::new(domain, &file.point).map_err(|reason| TransferFileError::Invalid {
         path: path.to_string(),
-        source,
+        reason,
     })
 }
 

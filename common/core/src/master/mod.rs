@@ -283,7 +283,7 @@ pub enum RunError {
 pub enum MasterError {
     /// A change of the recorded session cannot be scheduled.
     #[error("the replayed session: {0}")]
-    Replay(#[from] BalanceError),
+    Replay(BalanceError),
 }
 
 /// What the master answers a probe of the volume with: implemented where the renderer is
@@ -500,7 +500,9 @@ impl Master {
                 .collect(),
         );
         for &(frame, wall) in &cfg.replay {
-            coordinator.schedule_change(frame, StateChange::All(wall))?;
+            coordinator
+                .schedule_change(frame, StateChange::All(wall))
+                .map_err(MasterError::Replay)?;
         }
         let frame_state = coordinator.state().1;
         Ok(Master {

@@ -65,12 +65,13 @@ pub enum PrepareError {
     #[error(transparent)]
     Layout(#[from] LayoutError),
     /// A file of the prepared folder could not be created, written, opened or read.
-    #[error("{path}: {source}")]
+    // `reason`, not `source`: an error chain would print a source a second time.
+    #[error("{path}: {reason}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The operating system's error.
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// The manifest does not parse, is of another format or describes what cannot exist, or the
     /// block files are not as long as it says.
@@ -102,9 +103,9 @@ pub enum PrepareError {
 }
 
 fn io(path: &Path) -> impl Fn(std::io::Error) -> PrepareError + '_ {
-    move |source| PrepareError::Io {
+    move |reason| PrepareError::Io {
         path: path.to_path_buf(),
-        source,
+        reason,
     }
 }
 
