@@ -125,9 +125,12 @@ fn particles_are_drawn_colour_mapped_and_cropped_and_only_they_get_a_sphere_bvh(
     assert!(prepared.spheres.is_some() && prepared.accel.nodes.is_empty());
     let wall = WallSpec::grid(1, 1, 64, 48).tile_size(32).build().unwrap();
     let grid = TileGrid::new(wall.clone());
+    // The file's world point (4.5, 2, 0) is the middle of the particles, the render origin.
+    let frame = scene.render_from_world;
+    assert_eq!(frame.world_origin, glam::DVec3::new(4.5, 2.0, 0.0));
     let camera = Camera::new(
-        Vec3::new(4.5, 2.0, 14.0),
-        Vec3::new(4.5, 2.0, 0.0),
+        frame.point(glam::DVec3::new(4.5, 2.0, 14.0)),
+        frame.point(glam::DVec3::new(4.5, 2.0, 0.0)),
         Vec3::Y,
         50.0,
     )

@@ -285,9 +285,13 @@ impl PreparedScene {
             SurfaceHit::Triangle(h) => self.materials[self.slot_material.of(h.slot) as usize],
             SurfaceHit::Sphere { slot, .. } => {
                 let s = &self.spheres().spheres[slot as usize];
+                if s.attribute.is_nan() {
+                    return Material::lambert(MISSING_COLOR);
+                }
                 let (lo, hi) = self.attribute_range;
+                // In f64: the span of attributes near ±f32::MAX is past f32's range.
                 let x = if hi > lo {
-                    (s.attribute - lo) / (hi - lo)
+                    ((s.attribute as f64 - lo as f64) / (hi as f64 - lo as f64)) as f32
                 } else {
                     0.5
                 };
@@ -299,6 +303,10 @@ impl PreparedScene {
         }
     }
 }
+
+/// The colour of a particle whose attribute is missing (NaN in its file): a neutral grey, a
+/// colour the viridis map never gives.
+pub const MISSING_COLOR: Vec3 = Vec3::splat(0.5);
 
 /// `cos^shininess` with the exponent rounded to an integer: `powi` is a chain of multiplies,
 /// the same bits on every CPU, where `powf` comes from the C library, which may pick an FMA

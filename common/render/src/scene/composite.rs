@@ -121,7 +121,7 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
         .map(|v| dir.join(v))
         .or(series.first().cloned());
     let volume: Option<Volume> = first.as_deref().map(volume::load).transpose()?;
-    let mut particles = match &file.particles {
+    let world_particles = match &file.particles {
         Some(p) => particles::load_particles(&dir.join(p))?,
         None => Vec::new(),
     };
@@ -129,11 +129,9 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     if let Some(v) = &volume {
         extent.extend(v.world_corners().map(DVec3::from_array));
     }
-    extent.extend(particles.iter().map(|p| p.center.as_dvec3()));
+    extent.extend(world_particles.iter().map(|p| p.center));
     let frame = RenderFromWorld::centred_on(&extent);
-    for p in &mut particles {
-        p.center = frame.point(p.center.as_dvec3());
-    }
+    let particles = particles::place(&world_particles, frame);
     let mut scene = if mesh.triangles.is_empty() {
         Scene {
             lights: vec![default_light()],

@@ -247,11 +247,16 @@ impl Scene {
             SceneSpec::Gallery => procedural::gallery_scene(),
             // Empty by design, so the check for something to draw does not apply.
             SceneSpec::Empty => return Ok(Scene::default()),
-            SceneSpec::File(path) if particles::is_particle_file(path) => Scene {
-                particles: particles::load_particles(path)?,
-                lights: vec![default_light()],
-                ..Scene::default()
-            },
+            SceneSpec::File(path) if particles::is_particle_file(path) => {
+                let world = particles::load_particles(path)?;
+                let render_from_world = particles::frame_of(&world);
+                Scene {
+                    particles: particles::place(&world, render_from_world),
+                    lights: vec![default_light()],
+                    render_from_world,
+                    ..Scene::default()
+                }
+            }
             SceneSpec::File(path) if composite::is_scene_file(path) => {
                 composite::load_scene_file(path)?
             }
@@ -508,7 +513,7 @@ fn from_mesh_in(mut mesh: Mesh, path: &Path, render_from_world: RenderFromWorld)
 }
 
 /// A volume alone, lit by the default light, its render coordinates centred on its box.
-fn from_volume(volume: Volume) -> Scene {
+pub(crate) fn from_volume(volume: Volume) -> Scene {
     let corners: Vec<DVec3> = volume
         .world_corners()
         .iter()
