@@ -4,7 +4,10 @@
 //! function with opacity correction, and direct iso-surfaces.
 //!
 //! Samples are kept as f32 whatever the file's voxel type (u8, i16, u16, f32), in x-fastest
-//! order, with the file's own values (no rescaling). A file is read whole and checked before a
+//! order, with the file's own values (no rescaling). A NaN or infinite sample is missing data
+//! (land in an ocean model, outside a simulation's domain): it is kept as NaN, which every
+//! interpolation through it carries, so a sample of a cell that touches one is transparent and
+//! no iso-surface crosses such a cell (the surface ends open at the cell's boundary). A file is read whole and checked before a
 //! [`Volume`] exists: a bad header names the field, data cut short says how many bytes were
 //! expected, and nothing half-loaded is ever returned.
 //!
@@ -98,13 +101,15 @@ impl VoxelType {
 pub enum VolumeError {
     /// The file (or a detached data file or slice it names) could not be read, or a time-series
     /// step failed to load.
-    #[error("volume {path}: {source}")]
+    // `reason`, not `source`: a source is printed again by every error chain (anyhow's `{:#}`),
+    // and the reason would be said twice.
+    #[error("volume {path}: {reason}")]
     Io {
         /// The file as the user named it, or the one it refers to.
         path: String,
         /// The underlying error (for a time-series step that failed in the background, its
         /// message).
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// A header field is missing, malformed or out of range, or the data has a non-finite voxel
     /// (field `data`).
@@ -146,10 +151,10 @@ impl VolumeError {
         }
     }
 
-    fn io(path: &Path, source: std::io::Error) -> Self {
+    fn io(path: &Path, reason: std::io::Error) -> Self {
         VolumeError::Io {
             path: path.display().to_string(),
-            source,
+            reason,
         }
     }
 }
@@ -165,6 +170,11 @@ pub struct Volume {
     voxel_type: VoxelType,
     values: Vec<f32>,
     range: (f32, f32),
+    /// How many samples are missing data (NaN, as the file's NaN and infinities become).
+    missing: usize,
+    /// The samples are the file's times 2^this: 0 unless the file's f64 values lie beyond
+    /// f32's range (see [`narrow_f64`]).
+    value_exponent: i32,
 }
 
 impl Volume {
@@ -173,7 +183,8 @@ impl Volume {
     ///
     /// # Errors
     /// A dimension of 0, a spacing that is not finite and positive, an origin that is not
-    /// finite, a value count other than the product of `dims`, or a non-finite value.
+    /// finite, a value count other than the product of `dims`, or no value that is not
+    /// missing data (NaN or infinite).
     pub fn new(
         dims: [usize; 3],
         spacing: [f64; 3],
@@ -193,7 +204,7 @@ impl Volume {
         axes: [[f64; 3]; 3],
         origin: [f64; 3],
         voxel_type: VoxelType,
-        values: Vec<f32>,
+        mut values: Vec<f32>,
     ) -> Result<Self, VolumeError> {
         if dims.contains(&0) {
             return Err(VolumeError::field(
@@ -227,11 +238,12 @@ impl Volume {
                 found: values.len() * voxel_type.bytes(),
             });
         }
-        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        let missing = mark_missing(&mut values);
+        if missing == count {
             return Err(VolumeError::field(
                 path,
                 "data",
-                format!("voxel {i} is {} (not finite)", values[i]),
+                format!("every one of the {count} voxels is missing data (NaN or infinite)"),
             ));
         }
         let range = values
@@ -246,7 +258,45 @@ impl Volume {
             voxel_type,
             values,
             range,
+            missing,
+            value_exponent: 0,
         })
+    }
+
+    /// The samples are the file's values times 2 to this power: 0 unless the file held f64
+    /// values beyond f32's range, which were scaled into it (iso-values and data-domain
+    /// transfer points are then in those scaled units).
+    pub fn value_exponent(&self) -> i32 {
+        self.value_exponent
+    }
+
+    /// This volume with every length multiplied by `extent`, then moved by `offset` along
+    /// each axis, and every value multiplied by `values` (missing ones stay missing): the
+    /// stiff cases of [`crate::stiff`].
+    pub fn scaled(&self, extent: f64, offset: f64, values: f32) -> Volume {
+        let scaled: Vec<f32> = self.values.iter().map(|v| v * values).collect();
+        let range = scaled
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        Volume {
+            axes: self.axes.map(|a| a.map(|c| c * extent)),
+            origin: self.origin.map(|o| o * extent + offset),
+            values: scaled,
+            range,
+            ..self.clone()
+        }
+    }
+
+    /// How many samples are missing data (NaN or infinite in the file).
+    pub fn missing(&self) -> usize {
+        self.missing
+    }
+
+    /// The first missing sample (index, as [`Volume::values`] orders them), for a refusal.
+    pub fn first_missing(&self) -> Option<usize> {
+        self.values.iter().position(|v| v.is_nan())
     }
 
     /// Samples along each index axis, x first.
@@ -280,7 +330,7 @@ impl Volume {
         &self.values
     }
 
-    /// Smallest and largest sample.
+    /// Smallest and largest sample that is not missing.
     pub fn range(&self) -> (f32, f32) {
         self.range
     }
@@ -320,6 +370,37 @@ impl Volume {
                 + index[2] * self.axes[2][w]
         })
     }
+}
+
+/// f64 samples as f32: as they are where f32 holds the largest finite one within a factor of
+/// 2¹⁰⁰ of its limits, else every one multiplied by the power of two 2^e that brings the
+/// largest magnitude to between 1/2 and 1 — exact but for f32's rounding (a relative error of
+/// at most 2⁻²⁴ of each value, and values under 2⁻¹⁴⁹ of the largest flushed towards 0).
+/// Returns the samples and `e`.
+fn narrow_f64(values: &[f64]) -> (Vec<f32>, i32) {
+    let largest = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0f64, |m, v| m.max(v.abs()));
+    let exponent = if largest == 0.0 || (2f64.powi(-100)..2f64.powi(100)).contains(&largest) {
+        0
+    } else {
+        -(largest.log2().floor() as i32 + 1)
+    };
+    let unit = 2f64.powi(exponent);
+    let narrowed = values.iter().map(|v| (v * unit) as f32).collect();
+    (narrowed, exponent)
+}
+
+/// Makes every non-finite sample the one NaN (so that nodes hash the same bits whatever NaN
+/// or infinity the file held) and counts them.
+fn mark_missing(values: &mut [f32]) -> usize {
+    let mut missing = 0;
+    for v in values.iter_mut().filter(|v| !v.is_finite()) {
+        *v = f32::NAN;
+        missing += 1;
+    }
+    missing
 }
 
 /// The axes of a grid aligned with the world's, `spacing` apart; `field` names the spacing in
@@ -408,7 +489,7 @@ pub fn declared_voxels(path: &Path) -> Option<u64> {
 /// # Errors
 /// An unknown extension, an unreadable file, a bad header field (named), or data cut short.
 pub fn load(path: &Path) -> Result<Volume, VolumeError> {
-    match format_of(path) {
+    let volume = match format_of(path) {
         Some(Format::Nrrd) => nrrd::load(path),
         Some(Format::Nifti) => nifti::load(path),
         Some(Format::DicomSeries) => dicom::load(path),
@@ -416,7 +497,26 @@ pub fn load(path: &Path) -> Result<Volume, VolumeError> {
         None => Err(VolumeError::UnknownFormat {
             path: path.display().to_string(),
         }),
+    }?;
+    if volume.value_exponent != 0 {
+        tracing::warn!(
+            "volume {}: its f64 values lie beyond f32's range; they are stored times 2^{} \
+             (relative error under 6e-8), and --iso and data-domain transfer points are in those \
+             units",
+            path.display(),
+            volume.value_exponent
+        );
     }
+    if volume.missing > 0 {
+        tracing::info!(
+            "volume {}: {} of {} voxels are missing data (NaN or infinite): drawn transparent, \
+             no iso-surface through their cells",
+            path.display(),
+            volume.missing,
+            volume.values.len()
+        );
+    }
+    Ok(volume)
 }
 
 /// Reads exactly the voxels of `dims` × `voxel_type` from the start of `bytes`; more bytes

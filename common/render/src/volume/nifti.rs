@@ -16,6 +16,9 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
     let volume = object.into_volume();
     let dims = dims_of(path, volume.dim())?;
     let little = header.endianness == Endianness::Little;
+    if volume.data_type() == NiftiType::Float64 {
+        return load_f64(path, &header, dims, volume.raw_data(), little);
+    }
     let (voxel_type, mut values) = decode(path, volume.data_type(), volume.raw_data(), little)?;
     let (slope, inter) = (header.scl_slope, header.scl_inter);
     if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope, inter) != (1.0, 0.0) {
@@ -25,6 +28,43 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
     }
     let (axes, origin) = placement(path, &header)?;
     Volume::checked(path, dims, axes, origin, voxel_type, values)
+}
+
+/// A volume of f64 samples: scaled into f32's range where they lie beyond it (see
+/// [`super::narrow_f64`]), `scl_slope` and `scl_inter` applied in f64 first.
+fn load_f64(
+    path: &Path,
+    header: &nifti::NiftiHeader,
+    dims: [usize; 3],
+    raw: &[u8],
+    little: bool,
+) -> Result<Volume, VolumeError> {
+    let (slope, inter) = (header.scl_slope as f64, header.scl_inter as f64);
+    let scaled =
+        slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope, inter) != (1.0, 0.0);
+    let values: Vec<f64> = raw
+        .chunks_exact(8)
+        .map(|b| {
+            let bytes: [u8; 8] = b.try_into().expect("8 bytes");
+            let v = if little {
+                f64::from_le_bytes(bytes)
+            } else {
+                f64::from_be_bytes(bytes)
+            };
+            if scaled {
+                v * slope + inter
+            } else {
+                v
+            }
+        })
+        .collect();
+    let (narrowed, exponent) = super::narrow_f64(&values);
+    let (axes, origin) = placement(path, header)?;
+    let volume = Volume::checked(path, dims, axes, origin, VoxelType::F32, narrowed)?;
+    Ok(Volume {
+        value_exponent: exponent,
+        ..volume
+    })
 }
 
 /// Three spatial dimensions; a fourth (time) of length 1 is allowed, a longer one is a series.
@@ -73,7 +113,6 @@ fn decode(
         NiftiType::Int8 => (1, |w| w[0] as i8 as f32),
         NiftiType::Int32 => (4, |w| i32::from_le_bytes([w[0], w[1], w[2], w[3]]) as f32),
         NiftiType::Uint32 => (4, |w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) as f32),
-        NiftiType::Float64 => (8, |w| f64::from_le_bytes(w) as f32),
         other => {
             return Err(VolumeError::field(
                 path,

@@ -366,6 +366,9 @@ impl PreparedVolume {
         let p = (self.index_from_render * point + self.index_offset).to_array();
         let (cell, u) = self.cell_of(p);
         let g = Vec3::from_array(trilinear_gradient(&self.bricks.corners(cell), u));
+        // Scaled to a largest component of 1 first: the gradient of values of 10³⁰ squares to
+        // past f32's range, of 10⁻³⁰ to below it, and either normalised to zero (flat shading).
+        let g = g / g.abs().max_element();
         let n = (self.gradient_to_render * g).normalize_or_zero();
         if n == Vec3::ZERO || !n.is_finite() {
             fallback
@@ -435,6 +438,10 @@ fn cell_crossing(
     seg: &Segment,
     iso: &[f32],
 ) -> Option<(f32, u8)> {
+    // A cell that touches missing data has no field to cross: the surface ends open there.
+    if corners.iter().any(|v| v.is_nan()) {
+        return None;
+    }
     let (lo, hi) = corners
         .iter()
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {

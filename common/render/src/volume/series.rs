@@ -128,7 +128,7 @@ impl SeriesCache {
                 if let Some(why) = state.failed.remove(&step) {
                     return Err(VolumeError::Io {
                         path: shared.paths[step].display().to_string(),
-                        source: std::io::Error::other(why),
+                        reason: std::io::Error::other(why),
                     });
                 }
                 state = shared

@@ -166,7 +166,7 @@ fn bad_files_name_the_field_at_fault() {
             "nan",
             good.replace("short", "float"),
             nan_floats(),
-            "voxel 0 is NaN",
+            "every one of the 12 voxels is missing data",
         ),
     ];
     for (name, header, data, says) in cases {
@@ -296,6 +296,29 @@ fn a_nifti_file_of_fewer_than_three_dimensions_is_read_not_a_panic() {
         match load(&path) {
             Ok(v) => assert_eq!(v.dims(), dims),
             Err(e) => panic!("rank {rank}: {e}"),
+        }
+    }
+}
+
+#[test]
+fn f64_values_beyond_f32_are_scaled_by_a_power_of_two_and_others_kept() {
+    let (kept, e) = super::narrow_f64(&[1.0, -2.5, 1e30, f64::NAN]);
+    assert_eq!(e, 0);
+    assert_eq!(&kept[..3], &[1.0, -2.5, 1e30f32]);
+    assert!(kept[3].is_nan());
+    for values in [[1e200, -3e199, 7.0, 0.0], [1e-200, 5e-201, -1e-201, 0.0]] {
+        let (narrowed, e) = super::narrow_f64(&values);
+        assert!(
+            e != 0 && narrowed.iter().all(|v| v.is_finite()),
+            "{narrowed:?}"
+        );
+        assert!((0.5..1.0).contains(&narrowed[0]), "{narrowed:?}");
+        for (n, v) in narrowed.iter().zip(values) {
+            let back = *n as f64 * 2f64.powi(-e);
+            assert!(
+                (back - v).abs() <= v.abs() * 6e-8 + 1e-30 * values[0].abs(),
+                "{back} {v}"
+            );
         }
     }
 }

@@ -80,9 +80,13 @@ impl TransferTable {
         ((value - self.lo) * self.per_unit).clamp(0.0, (TABLE_ENTRIES - 1) as f32)
     }
 
-    /// Premultiplied colour and opacity of a sample of `value`.
+    /// Premultiplied colour and opacity of a sample of `value`; a missing one (NaN: its cell
+    /// touches missing data) is transparent.
     #[inline]
     pub fn lookup(&self, value: f32) -> [f32; 4] {
+        if value.is_nan() {
+            return [0.0; 4];
+        }
         let x = self.position(value);
         let i = (x as usize).min(TABLE_ENTRIES - 2);
         let f = x - i as f32;
@@ -94,6 +98,7 @@ impl TransferTable {
     /// `lookup` gives, bit for bit.
     #[inline(always)]
     pub fn lookup4(&self, values: Vec4) -> [Vec4; 4] {
+        let missing = values.to_array().map(f32::is_nan);
         let last = (TABLE_ENTRIES - 1) as f32;
         let x =
             ((values - Vec4::splat(self.lo)) * self.per_unit).clamp(Vec4::ZERO, Vec4::splat(last));
@@ -101,6 +106,9 @@ impl TransferTable {
         let whole = whole4(x.trunc());
         let x = x.to_array();
         std::array::from_fn(|lane| {
+            if missing[lane] {
+                return Vec4::ZERO;
+            }
             let i = (whole[lane] as usize).min(TABLE_ENTRIES - 2);
             let f = x[lane] - i as f32;
             let (a, b) = (
