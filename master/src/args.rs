@@ -293,6 +293,27 @@ fn balance_config(run: &RunArgs) -> BalanceConfig {
     }
 }
 
+/// Loads the scene `args` name, refusing one with missing data under `--nan refuse`.
+pub fn load_scene(args: &SceneArgs) -> Result<Scene> {
+    let scene = Scene::load(&args.spec()?)?;
+    if args.nan == tessera_cli::NanPolicy::Refuse {
+        if let Some(i) = scene.volume.as_ref().and_then(|v| v.first_missing()) {
+            bail!(
+                "scene {}: voxel {i} is missing data (NaN or infinite), and --nan refuse was given",
+                args.scene
+            );
+        }
+        if let Some(i) = scene.particles.iter().position(|p| p.attribute.is_nan()) {
+            bail!(
+                "scene {}: particle {i} has a missing attribute (NaN or infinite), and --nan \
+                 refuse was given",
+                args.scene
+            );
+        }
+    }
+    Ok(scene)
+}
+
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
 pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
     // Every flag is checked before the scene, which can take long to load.
@@ -303,7 +324,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     run.quality
         .params(&tessera_model::local_origin::RenderFromWorld::IDENTITY)?;
     let refinement = run.refinement()?;
-    let scene = Scene::load(&spec)?;
+    let scene = load_scene(&run.scene)?;
     let params = run.quality.params(&scene.render_from_world)?;
     if run.play && scene.series.is_empty() {
         bail!("--play needs a scene with a time series (`series` in a .scene.toml)");

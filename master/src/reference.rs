@@ -22,7 +22,7 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
         .as_deref()
         .map(|path| crate::record::Session::load(path)?.state_at(args.frame))
         .transpose()?;
-    let scene = Scene::load(&args.scene.spec()?)?;
+    let scene = crate::args::load_scene(&args.scene)?;
     let params = args.quality.params(&scene.render_from_world)?;
     let camera = match &replayed {
         Some(state) => state.camera,

@@ -313,3 +313,30 @@ fn dsm_compares_shared_with_replicated_at_each_cache_size() {
     }
     assert!(dir.path().join("fps-vs-nodes.svg").exists());
 }
+
+#[test]
+fn stiff_finds_a_volume_and_a_mesh_render_alike_moved_rescaled_and_value_scaled() {
+    let dir = tempfile::tempdir().unwrap();
+    // A 16³ distance field of a sphere, f32, 1 mm apart, drawn as its iso-surface.
+    let values: Vec<u8> = (0..16 * 16 * 16)
+        .flat_map(|i: usize| {
+            let p = [i % 16, i / 16 % 16, i / 256].map(|c| c as f32 - 7.5);
+            ((p.iter().map(|c| c * c).sum::<f32>()).sqrt() - 5.0).to_le_bytes()
+        })
+        .collect();
+    std::fs::write(dir.path().join("ball.raw"), values).unwrap();
+    let side = dir.path().join("ball.vol.toml");
+    let sidecar = "data = \"ball.raw\"\ndims = [16, 16, 16]\ntype = \"f32\"\n";
+    std::fs::write(&side, sidecar).unwrap();
+    for (scene, cases) in [(side.to_str().unwrap(), 14), ("knot:64:8", 8)] {
+        let out = dir.path().join(format!("out-{cases}"));
+        let r = bench("stiff", &["--scene", scene, "--iso", "0"], &out);
+        let all = r["cases"].as_array().unwrap();
+        assert_eq!(all.len(), cases, "{r}");
+        for case in all {
+            let agree = case["pixels_agree"].as_f64().unwrap();
+            let depth = non_negative(&case["depth_error_over_size"]);
+            assert!(agree >= 0.99 && depth < 1e-4, "{scene}: {case}");
+        }
+    }
+}

@@ -89,6 +89,48 @@ fn fov_is_honoured_by_the_orbit_camera() {
 }
 
 #[test]
+fn a_missing_file_says_its_reason_once() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["x.vol.toml", "x.nrrd", "x.obj", "x.csv", "x.scene.toml"] {
+        let path = dir.path().join(name);
+        let o = render_with(&["--scene", path.to_str().unwrap()]);
+        o.assert_refused(name, &[name, "No such file"]);
+        let said = o.stderr.matches("No such file").count();
+        assert_eq!(said, 1, "{name}: the reason {said} times:\n{}", o.stderr);
+    }
+    let o = render_with(&["--transfer", dir.path().join("tf.toml").to_str().unwrap()]);
+    o.assert_refused("--transfer tf.toml", &["tf.toml", "No such file"]);
+    assert_eq!(o.stderr.matches("No such file").count(), 1, "{}", o.stderr);
+}
+
+#[test]
+fn missing_data_is_drawn_by_default_and_refused_under_nan_refuse() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("p.csv");
+    std::fs::write(&csv, "x,y,z,radius,attribute\n0,0,0,0.5,1\n1,0,0,0.5,nan\n").unwrap();
+    let raw = dir.path().join("v.raw");
+    let mut voxels: Vec<u8> = (0..27).flat_map(|i| (i as f32).to_le_bytes()).collect();
+    voxels[13 * 4..14 * 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&raw, voxels).unwrap();
+    let vol = dir.path().join("v.vol.toml");
+    let sidecar = "data = \"v.raw\"\ndims = [3, 3, 3]\ntype = \"f32\"\n";
+    std::fs::write(&vol, sidecar).unwrap();
+    for (scene, what) in [(&csv, "particle 1"), (&vol, "voxel 13")] {
+        let scene = scene.to_str().unwrap();
+        let drawn = render_with(&["--scene", scene]);
+        assert!(drawn.status.success(), "{scene}: {}", drawn.stderr);
+        render_with(&["--scene", scene, "--nan", "refuse"])
+            .assert_refused(scene, &[what, "missing", "--nan refuse"]);
+    }
+    let drawn = render_with(&["--scene", vol.to_str().unwrap()]);
+    assert!(
+        drawn.stderr.contains("1 of 27 voxels are missing data"),
+        "{}",
+        drawn.stderr
+    );
+}
+
+#[test]
 fn walls_whose_display_count_overflows_are_refused() {
     // 65536 × 65536 screens is 2^32 displays: the count wrapped to 0 in a u32.
     render_with(&["--wall", "65536x65536", "--screen", "1x1"])

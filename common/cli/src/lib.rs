@@ -175,6 +175,21 @@ pub struct SceneArgs {
     /// camera and the orbit alike.
     #[arg(long, default_value_t = DEFAULT_FOV_DEG, value_parser = parse_fov, allow_hyphen_values = true)]
     pub fov: f32,
+    /// Missing data: NaN or infinite voxels, and particles whose attribute is NaN. `missing`
+    /// draws them as such (voxels transparent, no iso-surface through their cells, the count
+    /// in the log; particles grey); `refuse` refuses such a scene, naming the first.
+    #[arg(long = "nan", value_enum, default_value = "missing")]
+    pub nan: NanPolicy,
+}
+
+/// What a scene's missing data (NaN or infinite values) does: see [`SceneArgs::nan`].
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum NanPolicy {
+    /// Drawn as missing data.
+    #[default]
+    Missing,
+    /// The scene is refused.
+    Refuse,
 }
 
 /// A flag's value that does not parse, with what was expected.

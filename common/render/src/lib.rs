@@ -17,6 +17,11 @@
 //! build of the traversals is chosen at run time, the same way for every entry point
 //! (`isa_builds!` in [`isa`]).
 //!
+//! Coordinates are read in f64 and moved near the render origin before they become f32
+//! (meshes, particles, volumes and scenes of several alike); volume values keep their scale
+//! but normals are computed scale-free, and NaN is missing data. [`stiff`] renders any scene
+//! moved, rescaled and with its values scaled, against its plain picture (`bench stiff`).
+//!
 //! It depends on `tessera-model` for the state it renders with (camera, parameters, scene name,
 //! wall geometry) and on compute and file-format crates (obvhs, rayon, tobj, gltf, ply-rs);
 //! never on an async runtime, socket or command-line crate.
@@ -44,6 +49,7 @@ mod shade;
 mod shadow_packet;
 pub mod slot_materials;
 pub mod spheres;
+pub mod stiff;
 mod surface_hit;
 mod tracer;
 mod views;
@@ -51,6 +57,8 @@ pub mod volume;
 
 #[cfg(test)]
 mod render_tests;
+#[cfg(test)]
+mod stiff_tests;
 
 pub use cancel::Cancel;
 pub use frame::{render_tiles, render_tiles_footprints, render_tiles_linear, PACKET};

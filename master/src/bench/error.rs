@@ -67,7 +67,7 @@ struct Point {
 pub fn error_vs_time(args: &BenchArgs, out: &Path) -> Result<()> {
     let run = &args.local.run;
     let wall = run.wall.layout()?;
-    let scene = Scene::load(&run.scene.spec()?)?;
+    let scene = crate::args::load_scene(&run.scene)?;
     let settings = Settings::check(args, &scene)?;
     let renders =
         2 + AO_STEPS.len() + SPP_STEPS.len() + PASSES as usize + settings.step_params.len();

@@ -6,6 +6,7 @@ mod error;
 mod max_fps;
 mod plot;
 mod soak;
+mod stiff;
 mod transport;
 
 use crate::args::LocalArgs;
@@ -40,6 +41,10 @@ pub enum Experiment {
     /// (--cache-fractions) and render nodes (--nodes), for each of --shadings, with cache
     /// misses, blocks read per frame and remote-read latency beside the QUIC round trip.
     Dsm,
+    /// The scene moved to 10⁷ from the origin, its units changed (10⁻⁶ to 10⁶) and a volume's
+    /// values scaled (10⁻³⁰ to 10³⁰): per case, the share of pixels that agree with the plain
+    /// picture and the largest depth error.
+    Stiff,
 }
 
 #[derive(clap::Args)]
@@ -134,6 +139,7 @@ pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
         Experiment::ErrorVsTime => error::error_vs_time(&args, &out)?,
         Experiment::Soak => soak::soak(&args, &out).await?,
         Experiment::Dsm => dsm::dsm(&args, &out).await?,
+        Experiment::Stiff => stiff::stiff(&args, &out)?,
     }
     Ok(ExitCode::SUCCESS)
 }
