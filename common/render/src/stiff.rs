@@ -99,22 +99,29 @@ impl View {
 /// `scene` after `t`, placed in a render frame anew; None for a change of values of a scene
 /// without a volume.
 pub fn transformed(scene: &Scene, t: Transform) -> Option<Scene> {
-    let old = scene.render_from_world;
-    let (offset, extent) = match t {
-        Transform::Offset(d) => (d, 1.0),
-        Transform::Extent(s) => (0.0, s),
+    match t {
+        Transform::Offset(d) => Some(moved_and_scaled(scene, 1.0, DVec3::splat(d))),
+        Transform::Extent(s) => Some(moved_and_scaled(scene, s, DVec3::ZERO)),
         Transform::Values(s) => {
-            let volume = scene.volume.as_ref()?.scaled(1.0, 0.0, s);
-            return Some(Scene {
+            let volume = scene.volume.as_ref()?.scaled(1.0, [0.0; 3], s);
+            Some(Scene {
                 volume: Some(volume),
                 ..scene.clone()
-            });
+            })
         }
-    };
-    let world = |p: Vec3| old.world_point(p) * extent + DVec3::splat(offset);
+    }
+}
+
+/// `scene` with every world point `p` at `p · extent + offset`, placed in a render frame anew.
+pub fn moved_and_scaled(scene: &Scene, extent: f64, offset: DVec3) -> Scene {
+    let old = scene.render_from_world;
+    let world = |p: Vec3| old.world_point(p) * extent + offset;
     let mut extent_of: Vec<DVec3> = scene.positions.iter().map(|&p| world(p)).collect();
     extent_of.extend(scene.particles.iter().map(|p| world(p.center)));
-    let volume = scene.volume.as_ref().map(|v| v.scaled(extent, offset, 1.0));
+    let volume = scene
+        .volume
+        .as_ref()
+        .map(|v| v.scaled(extent, offset.to_array(), 1.0));
     if let Some(v) = &volume {
         extent_of.extend(v.world_corners().map(DVec3::from_array));
     }
@@ -125,13 +132,13 @@ pub fn transformed(scene: &Scene, t: Transform) -> Option<Scene> {
         radius: (p.radius as f64 * extent) as f32,
         attribute: p.attribute,
     });
-    Some(Scene {
+    Scene {
         positions: positions.collect(),
         particles: particles.collect(),
         volume,
         render_from_world: frame,
         ..scene.clone()
-    })
+    }
 }
 
 /// `params` for the scene after `t`: lengths scaled with an extent, values with values.

@@ -407,3 +407,45 @@ fn an_iso_surface_exactly_at_voxel_values_has_no_hole() {
         }
     }
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+
+    /// Any offset up to 10⁷ times the scene's own units on each axis, any units from 10⁻⁶ to
+    /// 10⁶ and any value scale from 10⁻³⁰ to 10³⁰, together, leave the picture of a volume with
+    /// particles beside it. Offsets are in the scene's units: f64 world coordinates themselves
+    /// hold a scene of 10⁻⁵ at 10⁷ to 2·10⁻⁹ only, 5·10⁻⁵ of its size (proptest found it).
+    #[test]
+    fn any_offset_units_and_value_scale_leave_the_picture(
+        offset in proptest::array::uniform3(0.0f64..1e7),
+        extent_exponent in -6i32..=6,
+        value_exponent in -30i32..=30,
+        iso in proptest::bool::ANY,
+    ) {
+        let mut scene = from_volume(sphere_field(16, 1.0, DVec3::new(2.0, 0.0, 0.0)));
+        scene.particles = place(&cloud(200), scene.render_from_world);
+        let near = View::of(&scene);
+        let params = volume_params(iso, 1.0);
+        let plain = picture(&scene, &near, params, SIZE);
+        let values = Transform::Values(10f32.powi(value_exponent));
+        let scale = Transform::Extent(10f64.powi(extent_exponent));
+        let Transform::Extent(s) = scale else { unreachable!() };
+        let offset = DVec3::from_array(offset) * s;
+        let seen_scene = crate::stiff::moved_and_scaled(&transformed(&scene, values).unwrap(), s, offset);
+        let seen_view = View {
+            eye: near.eye * s + offset,
+            target: near.target * s + offset,
+            size: near.size * s,
+        };
+        let seen_params = crate::stiff::transformed_params(
+            crate::stiff::transformed_params(params, values),
+            scale,
+        );
+        let seen = picture(&seen_scene, &seen_view, seen_params, SIZE);
+        let agreed = agreement(&plain, &seen, scale);
+        proptest::prop_assert!(
+            agreed.pixels >= 0.99 && agreed.depth < 1e-4 * near.size && agreed.coverage <= 2,
+            "{agreed:?}"
+        );
+    }
+}

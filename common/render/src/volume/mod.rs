@@ -270,10 +270,10 @@ impl Volume {
         self.value_exponent
     }
 
-    /// This volume with every length multiplied by `extent`, then moved by `offset` along
-    /// each axis, and every value multiplied by `values` (missing ones stay missing): the
-    /// stiff cases of [`crate::stiff`].
-    pub fn scaled(&self, extent: f64, offset: f64, values: f32) -> Volume {
+    /// This volume with every length multiplied by `extent`, then moved by `offset`, and every
+    /// value multiplied by `values` (missing ones stay missing): the stiff cases of
+    /// [`crate::stiff`].
+    pub fn scaled(&self, extent: f64, offset: [f64; 3], values: f32) -> Volume {
         let scaled: Vec<f32> = self.values.iter().map(|v| v * values).collect();
         let range = scaled
             .iter()
@@ -282,7 +282,7 @@ impl Volume {
             });
         Volume {
             axes: self.axes.map(|a| a.map(|c| c * extent)),
-            origin: self.origin.map(|o| o * extent + offset),
+            origin: std::array::from_fn(|w| self.origin[w] * extent + offset[w]),
             values: scaled,
             range,
             ..self.clone()
