@@ -307,6 +307,19 @@ pub struct QualityArgs {
     /// Volumes: which step of a time series to show (see `series` in a .scene.toml).
     #[arg(long, default_value_t = 0)]
     pub time_step: u32,
+    /// Draw missing data (NaN or infinite voxels; particles with a NaN attribute) opaque in
+    /// this linear colour R,G,B (0 to 1 each) instead of transparent (particles: grey).
+    #[arg(long, value_name = "R,G,B", value_parser = parse_color)]
+    pub nan_color: Option<Vec3>,
+}
+
+/// Parses `R,G,B`, each component from 0 to 1.
+fn parse_color(text: &str) -> Result<Vec3, BadValue> {
+    let c = parse_vec3(text)?;
+    if c.min_element() < 0.0 || c.max_element() > 1.0 {
+        return Err(bad(format!("`{text}` is not R,G,B with each from 0 to 1")));
+    }
+    Ok(c)
 }
 
 impl QualityArgs {
@@ -331,6 +344,7 @@ impl QualityArgs {
                 iso: IsoValues::new(&self.iso).map_err(ParamsError::from)?,
                 transfer: transfer_file::transfer_function(&self.transfer)?,
                 time_step: self.time_step,
+                missing_color: self.nan_color.map(|c| c.to_array()),
                 ..VolumeParams::DEFAULT
             },
             ..RenderParamsSpec::INTERACTIVE

@@ -27,6 +27,9 @@ pub enum VolumeParamsError {
     /// The step factor [`VolumeParams::coarsen`] is outside 1 to [`VolumeParams::MAX_COARSEN`].
     #[error("the step factor {0} must be from 1 to 16")]
     BadCoarsen(f32),
+    /// The colour of missing data has a component that is negative or not finite.
+    #[error("the missing-data colour {0:?} needs finite components of 0 or more")]
+    BadMissingColor([f32; 3]),
     /// A transfer function has no points or more than [`MAX_TRANSFER_POINTS`]; carries how many.
     #[error("a transfer function needs 1 to {MAX_TRANSFER_POINTS} points, got {0}")]
     TransferPointCount(usize),
@@ -361,6 +364,10 @@ pub struct VolumeParams {
     /// Which volume of a time series is shown (modulo the series' length; a single volume
     /// ignores it).
     pub time_step: u32,
+    /// What missing data (NaN) is drawn as: `None`, transparent; a linear RGB colour, opaque
+    /// in that colour (`--nan-color`). Particles with a missing attribute take it too (grey
+    /// without it).
+    pub missing_color: Option<[f32; 3]>,
 }
 
 impl VolumeParams {
@@ -372,6 +379,7 @@ impl VolumeParams {
         transfer: TransferFunction::ramp(),
         coarsen: 1.0,
         time_step: 0,
+        missing_color: None,
     };
 
     /// Most [`VolumeParams::coarsen`] allowed.
@@ -381,8 +389,14 @@ impl VolumeParams {
     /// checked when they were made).
     ///
     /// # Errors
-    /// A step that is negative or not finite, or a coarsening outside 1..=16.
+    /// A step that is negative or not finite, a coarsening outside 1..=16, or a missing-data
+    /// colour with a negative or non-finite component.
     pub fn check(&self) -> Result<(), VolumeParamsError> {
+        if let Some(c) = self.missing_color {
+            if !c.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                return Err(VolumeParamsError::BadMissingColor(c));
+            }
+        }
         if !(self.step.is_finite() && self.step >= 0.0) {
             return Err(VolumeParamsError::BadStep(self.step));
         }
@@ -461,6 +475,7 @@ mod tests {
             transfer: TransferFunction::ct_bone(),
             coarsen: 2.0,
             time_step: 3,
+            missing_color: Some([1.0, 0.0, 1.0]),
         };
         let bytes = postcard::to_allocvec(&good).unwrap();
         assert_eq!(postcard::from_bytes::<VolumeParams>(&bytes).unwrap(), good);

@@ -105,7 +105,7 @@ impl Shader<'_, '_> {
         let color = match nearest {
             None => background(dir),
             Some(hit) => {
-                let material = self.scene.material_of(hit);
+                let material = self.scene.material_of(hit, self.view);
                 self.shade(origin, dir, hit, &material, depth)
             }
         };
@@ -279,14 +279,16 @@ impl Shader<'_, '_> {
 }
 
 impl PreparedScene {
-    /// The material a hit is shaded with.
-    pub fn material_of(&self, hit: SurfaceHit) -> Material {
+    /// The material a hit is shaded with in frame `view` (a particle whose attribute is
+    /// missing takes the frame's missing-data colour, else [`MISSING_COLOR`]).
+    pub fn material_of(&self, hit: SurfaceHit, view: &FrameView) -> Material {
         match hit {
             SurfaceHit::Triangle(h) => self.materials[self.slot_material.of(h.slot) as usize],
             SurfaceHit::Sphere { slot, .. } => {
                 let s = &self.spheres().spheres[slot as usize];
                 if s.attribute.is_nan() {
-                    return Material::lambert(MISSING_COLOR);
+                    let color = view.params.volume().missing_color;
+                    return Material::lambert(color.map_or(MISSING_COLOR, Vec3::from_array));
                 }
                 let (lo, hi) = self.attribute_range;
                 // In f64: the span of attributes near ±f32::MAX is past f32's range.

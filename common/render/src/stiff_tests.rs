@@ -449,3 +449,35 @@ proptest::proptest! {
         );
     }
 }
+
+/// Pixels of a bright magenta hue (the dark purple viridis starts with is not one).
+fn magenta(p: &crate::stiff::Picture) -> usize {
+    let is = |c: &[u8]| c[0] > 100 && c[2] > 100 && 4 * (c[1] as u32) < c[0].min(c[2]) as u32;
+    p.rgb.chunks(3).filter(|c| is(c)).count()
+}
+
+#[test]
+fn missing_data_is_drawn_in_the_missing_colour_when_asked() {
+    let near = view(DVec3::new(2.0, 1.5, 2.5), DVec3::ZERO, 3.5);
+    let plain = volume_params(false, 1.0);
+    let mut spec = plain.spec();
+    spec.volume.missing_color = Some([1.0, 0.0, 1.0]);
+    let asked = spec.build().unwrap();
+    let holed = from_volume(field_with_a_hole(false));
+    assert_eq!(magenta(&picture(&holed, &near, plain, SIZE)), 0);
+    let coloured = magenta(&picture(&holed, &near, asked, SIZE));
+    assert!(coloured > 200, "{coloured} pixels show the missing octant");
+
+    let mut cloud = cloud(400);
+    for p in cloud.iter_mut().step_by(2) {
+        p.attribute = f32::NAN;
+    }
+    let particles = particle_scene(&cloud);
+    let eye = view(DVec3::new(0.0, 0.0, 4.0), DVec3::ZERO, 4.0);
+    let grey = magenta(&picture(&particles, &eye, plain, SIZE));
+    let coloured = magenta(&picture(&particles, &eye, asked, SIZE));
+    assert!(
+        coloured > grey + 20,
+        "{coloured} pixels, against {grey} without the colour"
+    );
+}

@@ -227,8 +227,12 @@ impl<'a> BrickView<'a> {
     }
 
     /// One bit per cell of the brick ([`cell_bit`] numbers them): set where `visible` holds
-    /// for the range of the cell's eight corners, which bounds every value interpolated in it.
-    pub fn cells_where(&self, visible: impl Fn((f32, f32)) -> bool) -> Box<[u64; CELL_WORDS]> {
+    /// for the range of the cell's eight corners, which bounds every value interpolated in it,
+    /// and whether a corner is missing data (NaN, which the range leaves out).
+    pub fn cells_where(
+        &self,
+        visible: impl Fn((f32, f32), bool) -> bool,
+    ) -> Box<[u64; CELL_WORDS]> {
         let mut bits = Box::new([0u64; CELL_WORDS]);
         for z in 0..=self.last_cell.z {
             for y in 0..=self.last_cell.y {
@@ -239,7 +243,7 @@ impl<'a> BrickView<'a> {
                         .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
                             (lo.min(v), hi.max(v))
                         });
-                    if visible(range) {
+                    if visible(range, corners.iter().any(|v| v.is_nan())) {
                         let bit = cell_bit([x, y, z].map(|i| i as usize));
                         bits[bit / 64] |= 1 << (bit % 64);
                     }
@@ -312,6 +316,8 @@ pub fn trilinear_gradient(c: &[f32; 8], [x, y, z]: [f32; 3]) -> [f32; 3] {
 pub struct MinMaxGrid {
     dims: [usize; 3],
     ranges: Vec<(f32, f32)>,
+    /// Whether each macro-cell touches missing data (NaN), which its range leaves out.
+    missing: Vec<bool>,
 }
 
 impl MinMaxGrid {
@@ -319,18 +325,25 @@ impl MinMaxGrid {
         let cells = bricks.cells();
         let dims = cells.map(|c| c.div_ceil(MACRO_CELLS));
         let mut ranges = vec![(f32::INFINITY, f32::NEG_INFINITY); dims.iter().product()];
+        let mut missing = vec![false; ranges.len()];
         for z in 0..cells[2] {
             for y in 0..cells[1] {
                 for x in 0..cells[0] {
                     let m = [x, y, z].map(|i| i / MACRO_CELLS);
-                    let r = &mut ranges[(m[2] * dims[1] + m[1]) * dims[0] + m[0]];
+                    let i = (m[2] * dims[1] + m[1]) * dims[0] + m[0];
+                    let r = &mut ranges[i];
                     for v in bricks.corners([x, y, z]) {
                         *r = (r.0.min(v), r.1.max(v));
+                        missing[i] |= v.is_nan();
                     }
                 }
             }
         }
-        MinMaxGrid { dims, ranges }
+        MinMaxGrid {
+            dims,
+            ranges,
+            missing,
+        }
     }
 
     /// Macro-cells along each axis.
@@ -345,5 +358,10 @@ impl MinMaxGrid {
 
     pub fn ranges(&self) -> &[(f32, f32)] {
         &self.ranges
+    }
+
+    /// Whether each macro-cell touches missing data, in the order of [`MinMaxGrid::ranges`].
+    pub fn missing(&self) -> &[bool] {
+        &self.missing
     }
 }

@@ -21,17 +21,27 @@ use tessera_model::volume_params::TransferFunction;
 #[derive(Debug)]
 pub struct CellMask {
     transfer: TransferFunction,
+    /// The missing-data colour (None: missing data is transparent, its cells shown only for
+    /// their other corners).
+    missing_color: Option<[f32; 3]>,
     /// The transfer function at the reference step: what decides visibility.
     table: Option<TransferTable>,
     bricks: Vec<OnceLock<Box<[u64; CELL_WORDS]>>>,
 }
 
 impl CellMask {
-    /// The mask of `transfer` over a volume with values in `range` and `bricks` bricks.
-    pub fn new(transfer: TransferFunction, range: (f32, f32), bricks: usize) -> Self {
+    /// The mask of `transfer` over a volume with values in `range` and `bricks` bricks, its
+    /// missing data drawn in `missing_color` if there is one.
+    pub fn new(
+        transfer: TransferFunction,
+        missing_color: Option<[f32; 3]>,
+        range: (f32, f32),
+        bricks: usize,
+    ) -> Self {
         CellMask {
             transfer,
-            table: Some(TransferTable::new(&transfer, range, 1.0)),
+            missing_color,
+            table: Some(TransferTable::new(&transfer, range, 1.0).with_missing(missing_color)),
             bricks: (0..bricks).map(|_| OnceLock::new()).collect(),
         }
     }
@@ -42,13 +52,15 @@ impl CellMask {
         let all = || OnceLock::from(Box::new([u64::MAX; CELL_WORDS]));
         CellMask {
             transfer,
+            missing_color: None,
             table: None,
             bricks: (0..bricks).map(|_| all()).collect(),
         }
     }
 
-    pub fn transfer(&self) -> &TransferFunction {
-        &self.transfer
+    /// What the mask was made for: the transfer function and the missing-data colour.
+    pub fn made_for(&self) -> (&TransferFunction, Option<[f32; 3]>) {
+        (&self.transfer, self.missing_color)
     }
 
     /// The bits of `brick`, made now if no ray has needed them yet.
@@ -56,7 +68,9 @@ impl CellMask {
     pub fn of_brick(&self, brick: &BrickView) -> &[u64; CELL_WORDS] {
         self.bricks[brick.index()].get_or_init(|| {
             let table = self.table.as_ref().expect("a mask without a table is full");
-            brick.cells_where(|range| table.any_visible(range))
+            brick.cells_where(|range, missing| {
+                table.any_visible(range) || (missing && table.shows_missing())
+            })
         })
     }
 }
@@ -89,7 +103,7 @@ mod tests {
         };
         let transfer =
             TransferFunction::new(TransferDomain::Data, &[p(0.6, 0.0), p(0.9, 1.0)]).unwrap();
-        let mask = CellMask::new(transfer, (-1.0, 1.0), 4);
+        let mask = CellMask::new(transfer, None, (-1.0, 1.0), 4);
         let table = TransferTable::new(&transfer, (-1.0, 1.0), 1.0);
         let (mut set, mut clear) = (0, 0);
         for z in 0..2 {

@@ -25,7 +25,7 @@ const MAX_SAMPLES_PER_RAY: u32 = 1 << 22;
 /// What the transfer function and step of a frame make of the volume.
 #[derive(Debug)]
 pub struct FrameTables {
-    key: (TransferFunction, f32),
+    key: (TransferFunction, f32, Option<[f32; 3]>),
     /// The distance between samples along a ray, in render units ([`PreparedVolume::step`]).
     pub step: f32,
     /// The transfer function as a table over the volume's range, its opacities corrected for
@@ -145,7 +145,7 @@ impl PreparedVolume {
     /// step and shared by every packet of the frames that use them.
     pub fn tables(&self, params: &VolumeParams) -> Arc<FrameTables> {
         let step = self.step(params);
-        let key = (params.transfer, step);
+        let key = (params.transfer, step, params.missing_color);
         let mut cached = self.frame.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(tables) = cached.as_ref().filter(|t| t.key == key) {
             return tables.clone();
@@ -154,31 +154,33 @@ impl PreparedVolume {
             &params.transfer,
             self.range,
             step as f64 / self.reference_step as f64,
-        );
-        let visible: Vec<bool> = self
-            .minmax
-            .ranges()
-            .iter()
-            .map(|&r| table.any_visible(r))
+        )
+        .with_missing(params.missing_color);
+        let ranges = self.minmax.ranges().iter().zip(self.minmax.missing());
+        let visible: Vec<bool> = ranges
+            .map(|(&r, &missing)| table.any_visible(r) || (missing && table.shows_missing()))
             .collect();
         let tables = Arc::new(FrameTables {
             key,
             step,
             table,
             leap: chebyshev_distance(self.minmax.dims(), &visible),
-            cells: self.cell_mask(&params.transfer),
+            cells: self.cell_mask(&params.transfer, params.missing_color),
         });
         *cached = Some(tables.clone());
         tables
     }
 
-    fn cell_mask(&self, transfer: &TransferFunction) -> Arc<CellMask> {
+    fn cell_mask(&self, transfer: &TransferFunction, missing: Option<[f32; 3]>) -> Arc<CellMask> {
         let mut cached = self.cell_mask.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(mask) = cached.as_ref().filter(|m| m.transfer() == transfer) {
+        if let Some(mask) = cached
+            .as_ref()
+            .filter(|m| m.made_for() == (transfer, missing))
+        {
             return mask.clone();
         }
         let bricks = self.bricks.brick_counts().iter().product();
-        let mask = Arc::new(CellMask::new(*transfer, self.range, bricks));
+        let mask = Arc::new(CellMask::new(*transfer, missing, self.range, bricks));
         *cached = Some(mask.clone());
         mask
     }

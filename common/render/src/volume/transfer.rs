@@ -32,6 +32,8 @@ pub struct TransferTable {
     /// How many entries below each index have a non-zero opacity: a value range is invisible
     /// iff the count does not change across it.
     visible_before: Vec<u32>,
+    /// What a missing sample (NaN) shows: transparent, or an opaque colour.
+    missing: [f32; 4],
 }
 
 impl TransferTable {
@@ -71,7 +73,20 @@ impl TransferTable {
             per_unit: if hi > lo { last / span } else { 0.0 },
             entries,
             visible_before,
+            missing: [0.0; 4],
         }
+    }
+
+    /// This table with missing samples drawn opaque in the linear colour `color` (None:
+    /// transparent, as they are by default).
+    pub fn with_missing(self, color: Option<[f32; 3]>) -> Self {
+        let missing = color.map_or([0.0; 4], |[r, g, b]| [r, g, b, 1.0]);
+        TransferTable { missing, ..self }
+    }
+
+    /// Whether a missing sample shows at all.
+    pub fn shows_missing(&self) -> bool {
+        self.missing[3] > 0.0
     }
 
     /// Where `value` falls in the table, clamped to it.
@@ -81,11 +96,12 @@ impl TransferTable {
     }
 
     /// Premultiplied colour and opacity of a sample of `value`; a missing one (NaN: its cell
-    /// touches missing data) is transparent.
+    /// touches missing data) is transparent, or the missing-data colour
+    /// ([`TransferTable::with_missing`]).
     #[inline]
     pub fn lookup(&self, value: f32) -> [f32; 4] {
         if value.is_nan() {
-            return [0.0; 4];
+            return self.missing;
         }
         let x = self.position(value);
         let i = (x as usize).min(TABLE_ENTRIES - 2);
@@ -107,7 +123,7 @@ impl TransferTable {
         let x = x.to_array();
         std::array::from_fn(|lane| {
             if missing[lane] {
-                return Vec4::ZERO;
+                return Vec4::from_array(self.missing);
             }
             let i = (whole[lane] as usize).min(TABLE_ENTRIES - 2);
             let f = x[lane] - i as f32;
