@@ -481,3 +481,50 @@ fn missing_data_is_drawn_in_the_missing_colour_when_asked() {
         "{coloured} pixels, against {grey} without the colour"
     );
 }
+
+#[test]
+fn a_viewer_almost_in_a_screens_plane_gets_a_finite_picture() {
+    use tessera_model::screens::{PhysicalSpec, ScreenSpec, Viewer};
+    use tessera_model::wall::{TileGrid, WallDescription, WallLayout};
+    let prepared = crate::PreparedScene::new(&knot_scene(64, 8));
+    let camera =
+        tessera_model::camera::Camera::new(Vec3::new(0.5, 1.0, 9.0), Vec3::ZERO, Vec3::Y, 40.0)
+            .unwrap();
+    // A screen to the right of the viewer, who is 1 µm to 1 pm in front of its plane: every
+    // ray grazes it.
+    for z_mm in [1e-3, 1e-6, 1e-9] {
+        let screen = ScreenSpec {
+            resolution: [64, 48],
+            x_mm: Some(500.0),
+            y_mm: Some(0.0),
+            width_mm: Some(1000.0),
+            height_mm: Some(750.0),
+            ..ScreenSpec::default()
+        };
+        let spec = PhysicalSpec {
+            tile_size: 16,
+            viewer: Viewer {
+                position_mm: [0.0, 0.0, z_mm],
+                scene_units_per_m: 1.0,
+            },
+            stereo: Default::default(),
+            screens: vec![screen],
+            ring: None,
+        };
+        let wall = WallLayout::new(WallDescription::Screens(spec)).unwrap();
+        let view = crate::FrameView::for_wall(0, &camera, RenderParams::interactive(), &wall);
+        let grid = TileGrid::new(wall);
+        let linear = crate::render_wall_linear(&prepared, &view, &grid);
+        assert!(
+            linear
+                .iter()
+                .all(|c| c.is_finite() && c.min_element() >= 0.0),
+            "viewer {z_mm} mm before the plane"
+        );
+        let depth = crate::aov::primary_aovs(&prepared, &view, &grid).depth;
+        assert!(
+            depth.iter().all(|d| !d.is_nan()),
+            "viewer {z_mm} mm before the plane"
+        );
+    }
+}
