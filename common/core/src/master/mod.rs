@@ -737,7 +737,10 @@ impl Master {
         self.phase = Phase::Collecting {
             deadline: now.instant + STATS_WAIT,
         };
-        let peers: Vec<PeerId> = self.peers.keys().copied().collect();
+        // In peer order, not the hash map's (random per process): the simulator draws each
+        // message's fate in the order they are sent, and a seed must replay the same run.
+        let mut peers: Vec<PeerId> = self.peers.keys().copied().collect();
+        peers.sort();
         for peer in peers {
             self.send(peer, ToNode::Shutdown);
         }

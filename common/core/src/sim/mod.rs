@@ -354,6 +354,10 @@ impl SimWall {
             ),
         };
         debug_assert_eq!(grid.len(), pixel_grid.len());
+        // One origin for every clock of the run, the master's creation included: a master
+        // made at another real instant than `base` had deadlines some nanoseconds off the
+        // simulated microseconds, and the same seed replayed a different run.
+        let base = Instant::now();
         let master = Master::new(
             MasterConfig {
                 balance: config.balance,
@@ -363,7 +367,7 @@ impl SimWall {
                 join_timeout: Duration::from_secs(30),
                 ..MasterConfig::new(layout.clone(), config.render_nodes)
             },
-            peers::now_at(Instant::now(), 0),
+            peers::now_at(base, 0),
         )
         .expect("no session to replay");
         let displays = pixel_grid
@@ -372,7 +376,6 @@ impl SimWall {
             .map(|s| FrameAssembler::new(&pixel_grid, s))
             .collect();
         let clocks = node_clocks(seed, config);
-        let base = Instant::now();
         SimWall {
             master,
             peers: peers::Peers::new(config.batching),
