@@ -114,21 +114,11 @@ fn particles_placed_in_a_far_frame_keep_their_shape() {
     }
 }
 
-/// `n`³ samples of the signed distance to a sphere of radius 0.6 (times `scale`), over -1..1,
-/// the grid's corner at `origin`.
-fn sphere_field(n: usize, scale: f32, origin: DVec3) -> Volume {
-    let step = 2.0 / (n - 1) as f64;
-    let mut values = Vec::with_capacity(n * n * n);
-    for z in 0..n {
-        for y in 0..n {
-            for x in 0..n {
-                let p = Vec3::new(x as f32, y as f32, z as f32) * step as f32 - Vec3::ONE;
-                values.push((p.length() - 0.6) * scale);
-            }
-        }
-    }
-    let origin = (origin - DVec3::ONE).to_array();
-    Volume::new([n; 3], [step; 3], origin, VoxelType::F32, values).unwrap()
+/// `n`³ samples of the signed distance to a sphere of radius 0.6 (times `scale`), over -1..1
+/// about `centre`.
+fn sphere_field(n: usize, scale: f32, centre: DVec3) -> Volume {
+    let at_origin = crate::volume::render_tests::field(n, |p| (p.length() - 0.6) * scale);
+    at_origin.scaled(1.0, centre.to_array(), 1.0)
 }
 
 /// Volume parameters with everything in data units scaled by `scale`: the iso-value, or a

@@ -10,9 +10,20 @@ use super::{wrote, BenchArgs, Outputs, Plot};
 use anyhow::Result;
 use serde_json::json;
 use std::path::Path;
+use tessera_model::params::RenderParams;
+use tessera_render::scene::Scene;
 use tessera_render::stiff::{
     agreement, cases, picture, transformed, transformed_params, Transform, View,
 };
+
+/// One case's figures: the change, and how its picture agrees with the plain one.
+struct Case {
+    change: Transform,
+    pixels: f64,
+    /// The largest depth error over the scene's size.
+    depth: f64,
+    hit_once: usize,
+}
 
 pub fn stiff(args: &BenchArgs, out: &Path) -> Result<()> {
     let run = &args.local.run;
@@ -20,67 +31,83 @@ pub fn stiff(args: &BenchArgs, out: &Path) -> Result<()> {
     let scene = crate::args::load_scene(&run.scene)?;
     let params = run.quality.params(&scene.render_from_world)?;
     let size = (wall.width(), wall.height());
-    let view = View::of(&scene);
-    let plain = picture(&scene, &view, params, size);
-    let cases = cases(&scene);
+    let measured = measure(&scene, params, size);
+    write_outputs(&run.scene.scene, size, &measured, out)
+}
+
+/// Renders every case of `scene` and prints each one's line as it comes.
+fn measure(scene: &Scene, params: RenderParams, size: (u32, u32)) -> Vec<Case> {
+    let view = View::of(scene);
+    let plain = picture(scene, &view, params, size);
+    let cases = cases(scene);
     let bar = indicatif::ProgressBar::new(cases.len() as u64);
     println!(
         "{:>18}  {:>13}  {:>18}  {:>13}",
         "case", "pixels agree", "depth error/size", "hit only once"
     );
-    let (mut rows, mut records) = (Vec::new(), Vec::new());
+    let mut measured = Vec::new();
+    for t in cases {
+        let Some(changed) = transformed(scene, t) else {
+            continue;
+        };
+        let seen_params = transformed_params(params, t);
+        let seen = picture(&changed, &view.transformed(t), seen_params, size);
+        let agreed = agreement(&plain, &seen, t);
+        let case = Case {
+            change: t,
+            pixels: agreed.pixels,
+            depth: agreed.depth / view.size,
+            hit_once: agreed.coverage,
+        };
+        bar.suspend(|| {
+            println!(
+                "{:>18}  {:>12.2}%  {:>18.2e}  {:>13}",
+                t.to_string(),
+                case.pixels * 100.0,
+                case.depth,
+                case.hit_once
+            )
+        });
+        bar.inc(1);
+        measured.push(case);
+    }
+    bar.finish_and_clear();
+    measured
+}
+
+/// The CSV, the plot of agreement against each change's factor, and report.json.
+fn write_outputs(scene: &str, size: (u32, u32), cases: &[Case], out: &Path) -> Result<()> {
     let mut series: Vec<Series> = ["offset", "extent", "values"]
         .map(|name| Series {
             name: name.into(),
             points: Vec::new(),
         })
         .into();
-    for t in cases {
-        let Some(changed) = transformed(&scene, t) else {
-            continue;
-        };
-        let seen = picture(
-            &changed,
-            &view.transformed(t),
-            transformed_params(params, t),
-            size,
-        );
-        let agreed = agreement(&plain, &seen, t);
-        let depth = agreed.depth / view.size;
-        bar.suspend(|| {
-            println!(
-                "{:>18}  {:>12.2}%  {:>18.2e}  {:>13}",
-                t.to_string(),
-                agreed.pixels * 100.0,
-                depth,
-                agreed.coverage
-            )
-        });
-        bar.inc(1);
-        let (family, factor) = match t {
+    for case in cases {
+        let (family, factor) = match case.change {
             Transform::Offset(d) => (0, d),
             Transform::Extent(s) => (1, s),
             Transform::Values(s) => (2, s as f64),
         };
         series[family]
             .points
-            .push((factor.log10(), agreed.pixels * 100.0));
-        rows.push(format!(
-            "{t},{},{depth:e},{}",
-            agreed.pixels, agreed.coverage
-        ));
-        records.push(json!({
-            "case": t.to_string(),
-            "pixels_agree": agreed.pixels,
-            "depth_error_over_size": depth,
-            "pixels_hit_only_once": agreed.coverage,
-        }));
+            .push((factor.log10(), case.pixels * 100.0));
     }
-    bar.finish_and_clear();
+    let rows = cases
+        .iter()
+        .map(|c| format!("{},{},{:e},{}", c.change, c.pixels, c.depth, c.hit_once));
+    let records = cases.iter().map(|c| {
+        json!({
+            "case": c.change.to_string(),
+            "pixels_agree": c.pixels,
+            "depth_error_over_size": c.depth,
+            "pixels_hit_only_once": c.hit_once,
+        })
+    });
     let outputs = Outputs {
         csv: "stiff.csv",
         header: "case,pixels_agree,depth_error_over_size,pixels_hit_only_once",
-        rows,
+        rows: rows.collect(),
         plots: vec![Plot {
             file: "stiff.svg",
             title: "pixels that agree with the plain picture",
@@ -93,9 +120,9 @@ pub fn stiff(args: &BenchArgs, out: &Path) -> Result<()> {
         }],
         report: json!({
             "experiment": "stiff",
-            "scene": run.scene.scene,
+            "scene": scene,
             "image": [size.0, size.1],
-            "cases": records,
+            "cases": records.collect::<Vec<_>>(),
         }),
     };
     wrote(&outputs.write(out)?);

@@ -542,6 +542,6 @@ fn decode_exact(
 }
 
 #[cfg(test)]
-mod render_tests;
+pub(crate) mod render_tests;
 #[cfg(test)]
 mod tests;

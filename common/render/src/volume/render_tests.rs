@@ -17,7 +17,7 @@ use tessera_model::volume_params::{
 use tessera_model::wall::{TileGrid, WallLayout};
 
 /// `n`³ samples of `f` over -1..1 on each axis (spacing 2 / (n - 1)).
-fn field(n: usize, f: impl Fn(Vec3) -> f32) -> Volume {
+pub(crate) fn field(n: usize, f: impl Fn(Vec3) -> f32) -> Volume {
     let step = 2.0 / (n - 1) as f64;
     let mut values = Vec::with_capacity(n * n * n);
     for z in 0..n {
