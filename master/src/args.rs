@@ -297,18 +297,8 @@ fn balance_config(run: &RunArgs) -> BalanceConfig {
 pub fn load_scene(args: &SceneArgs) -> Result<Scene> {
     let scene = Scene::load(&args.spec()?)?;
     if args.nan == tessera_cli::NanPolicy::Refuse {
-        if let Some(i) = scene.volume.as_ref().and_then(|v| v.first_missing()) {
-            bail!(
-                "scene {}: voxel {i} is missing data (NaN or infinite), and --nan refuse was given",
-                args.scene
-            );
-        }
-        if let Some(i) = scene.particles.iter().position(|p| p.attribute.is_nan()) {
-            bail!(
-                "scene {}: particle {i} has a missing attribute (NaN or infinite), and --nan \
-                 refuse was given",
-                args.scene
-            );
+        if let Some(what) = scene.first_missing() {
+            bail!("scene {}: {what}, and --nan refuse was given", args.scene);
         }
     }
     Ok(scene)

@@ -115,6 +115,14 @@ fn prepare(
     let resident_before = resident_bytes();
     let t0 = Instant::now();
     let scene = Scene::load(&spec)?;
+    if args.scene.nan == tessera_cli::NanPolicy::Refuse {
+        if let Some(what) = scene.first_missing() {
+            anyhow::bail!(
+                "scene {}: {what}, and --nan refuse was given",
+                args.scene.scene
+            );
+        }
+    }
     let loaded = t0.elapsed();
     let camera = args
         .scene

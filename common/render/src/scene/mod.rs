@@ -367,6 +367,16 @@ impl Scene {
         w.flush()
     }
 
+    /// The first missing data of the scene, said as a phrase ("voxel 13 is missing data (NaN
+    /// or infinite)"), for `--nan refuse`; None when it has none.
+    pub fn first_missing(&self) -> Option<String> {
+        if let Some(i) = self.volume.as_ref().and_then(|v| v.first_missing()) {
+            return Some(format!("voxel {i} is missing data (NaN or infinite)"));
+        }
+        let particle = self.particles.iter().position(|p| p.attribute.is_nan());
+        particle.map(|i| format!("particle {i} has a missing attribute (NaN or infinite)"))
+    }
+
     /// The box, in render coordinates, around the triangles, the particles and the volume; empty
     /// for an empty scene.
     pub fn bounds(&self) -> Bounds {
