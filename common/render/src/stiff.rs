@@ -104,10 +104,9 @@ pub fn transformed(scene: &Scene, t: Transform) -> Option<Scene> {
         Transform::Extent(s) => Some(moved_and_scaled(scene, s, DVec3::ZERO)),
         Transform::Values(s) => {
             let volume = scene.volume.as_ref()?.scaled(1.0, [0.0; 3], s);
-            Some(Scene {
-                volume: Some(volume),
-                ..scene.clone()
-            })
+            let (positions, particles) = (scene.positions.clone(), scene.particles.clone());
+            let parts = (positions, particles, Some(volume));
+            Some(with_parts(scene, parts, scene.render_from_world))
         }
     }
 }
@@ -132,12 +131,32 @@ pub fn moved_and_scaled(scene: &Scene, extent: f64, offset: DVec3) -> Scene {
         radius: (p.radius as f64 * extent) as f32,
         attribute: p.attribute,
     });
+    with_parts(
+        scene,
+        (positions.collect(), particles.collect(), volume),
+        frame,
+    )
+}
+
+/// `scene` with new vertices, particles and volume in the frame `frame`, the rest copied.
+/// Field by field: `..scene.clone()` would copy the replaced parts (a volume of gigabytes, on
+/// a user's data) only to drop them.
+fn with_parts(
+    scene: &Scene,
+    (positions, particles, volume): (Vec<Vec3>, Vec<Particle>, Option<crate::volume::Volume>),
+    frame: RenderFromWorld,
+) -> Scene {
     Scene {
-        positions: positions.collect(),
-        particles: particles.collect(),
+        positions,
+        triangles: scene.triangles.clone(),
+        triangle_material: scene.triangle_material.clone(),
+        materials: scene.materials.clone(),
+        material_names: scene.material_names.clone(),
+        lights: scene.lights.clone(),
+        particles,
         volume,
+        series: scene.series.clone(),
         render_from_world: frame,
-        ..scene.clone()
     }
 }
 

@@ -280,12 +280,16 @@ impl Volume {
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
                 (lo.min(v), hi.max(v))
             });
+        // Field by field: `..self.clone()` would copy every sample only to drop them.
         Volume {
+            dims: self.dims,
             axes: self.axes.map(|a| a.map(|c| c * extent)),
             origin: std::array::from_fn(|w| self.origin[w] * extent + offset[w]),
+            voxel_type: self.voxel_type,
             values: scaled,
             range,
-            ..self.clone()
+            missing: self.missing,
+            value_exponent: self.value_exponent,
         }
     }
 
@@ -296,6 +300,9 @@ impl Volume {
 
     /// The first missing sample (index, as [`Volume::values`] orders them), for a refusal.
     pub fn first_missing(&self) -> Option<usize> {
+        if self.missing == 0 {
+            return None;
+        }
         self.values.iter().position(|v| v.is_nan())
     }
 

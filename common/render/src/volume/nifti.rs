@@ -20,10 +20,10 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
         return load_f64(path, &header, dims, volume.raw_data(), little);
     }
     let (voxel_type, mut values) = decode(path, volume.data_type(), volume.raw_data(), little)?;
-    let (slope, inter) = (header.scl_slope, header.scl_inter);
-    if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope, inter) != (1.0, 0.0) {
+    if let Some((slope, inter)) = rescale(&header) {
         for v in &mut values {
-            *v = *v * slope + inter;
+            // In f32, as the samples are: the header's f32 round-trips through f64 exactly.
+            *v = *v * slope as f32 + inter as f32;
         }
     }
     let (axes, origin) = placement(path, &header)?;
@@ -39,9 +39,7 @@ fn load_f64(
     raw: &[u8],
     little: bool,
 ) -> Result<Volume, VolumeError> {
-    let (slope, inter) = (header.scl_slope as f64, header.scl_inter as f64);
-    let scaled =
-        slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope, inter) != (1.0, 0.0);
+    let rescale = rescale(header);
     let values: Vec<f64> = raw
         .chunks_exact(8)
         .map(|b| {
@@ -51,11 +49,7 @@ fn load_f64(
             } else {
                 f64::from_be_bytes(bytes)
             };
-            if scaled {
-                v * slope + inter
-            } else {
-                v
-            }
+            rescale.map_or(v, |(slope, inter)| v * slope + inter)
         })
         .collect();
     let (narrowed, exponent) = super::narrow_f64(&values);
@@ -65,6 +59,13 @@ fn load_f64(
         value_exponent: exponent,
         ..volume
     })
+}
+
+/// `scl_slope` and `scl_inter`, where they change the values (a slope of 0 means none).
+fn rescale(header: &nifti::NiftiHeader) -> Option<(f64, f64)> {
+    let (slope, inter) = (header.scl_slope as f64, header.scl_inter as f64);
+    let applies = slope != 0.0 && slope.is_finite() && inter.is_finite();
+    (applies && (slope, inter) != (1.0, 0.0)).then_some((slope, inter))
 }
 
 /// Three spatial dimensions; a fourth (time) of length 1 is allowed, a longer one is a series.
