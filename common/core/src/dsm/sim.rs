@@ -3,10 +3,13 @@
 //! simulated network, and render threads reading seeded streams of blocks.
 //!
 //! * **Reads.** Each node runs `threads` virtual render threads, each doing a fixed number of
-//!   reads `read_us` apart. A thread reads blocks within `window` of a centre, the part of the
+//!   reads `read_us` apart. A thread that misses either waits for the block (blocking reads,
+//!   the default) or, with [`DsmSim::parking`]`(p)`, sets the read aside and goes on with the
+//!   next one, up to `p` reads waiting at once (render threads parking packets): it idles only
+//!   when all `p` wait. A thread reads blocks within `window` of a centre, the part of the
 //!   scene its tile's rays see, and before each read moves its centre anywhere with
 //!   probability 1 − `locality`, as a new tile sees another part. A read looks in the
-//!   resident array, then in the cache; on a miss the thread waits for the block. Block k's
+//!   resident array, then in the cache; on a miss the read waits for the block. Block k's
 //!   content is [`sim_block`]`(k)`, checked on every read, so a block filed under the wrong
 //!   number or slot shows as a wrong read.
 //! * **Network.** A message arrives `latency_us` plus a seeded jitter of up to half of that
@@ -81,6 +84,7 @@ pub struct DsmSim {
     disk_us: u64,
     fetch: FetchConfig,
     kills: Vec<(u32, u64)>,
+    parking: u32,
 }
 
 impl DsmSim {
@@ -109,7 +113,15 @@ impl DsmSim {
                 timeout: Duration::from_millis(1),
             },
             kills: Vec::new(),
+            parking: 1,
         }
+    }
+
+    /// Reads a thread may have waiting at once before it idles: 1 (the default) is a
+    /// blocking read; more is the latency hiding of parked packets.
+    pub fn parking(mut self, waiting: u32) -> Self {
+        self.parking = waiting.max(1);
+        self
     }
 
     /// How many nodes hold each block.
@@ -207,8 +219,14 @@ pub struct DsmReport {
     pub lost_messages: u64,
     /// Every node's fetcher counts, merged (p99 latency: the largest node's).
     pub fetch: FetchStats,
-    /// Virtual time of the last event.
+    /// Virtual time of the last event (a fetch timer may fire after the last read).
     pub end_us: u64,
+    /// Virtual time the last read got its block.
+    pub done_us: u64,
+    /// Threads' time with nothing to read but what waits for blocks, over all threads.
+    pub idle_us: u64,
+    /// Threads over all nodes.
+    pub threads: u64,
 }
 
 impl DsmReport {
@@ -218,6 +236,17 @@ impl DsmReport {
             return 0.0;
         }
         100.0 * self.misses as f64 / self.reads as f64
+    }
+
+    /// The share of the threads' time until the last read was done spent idle waiting for
+    /// blocks, in percent.
+    pub fn idle_percent(&self) -> f64 {
+        let thread_us = self.done_us as f64 * self.threads as f64;
+        if thread_us > 0.0 {
+            100.0 * self.idle_us as f64 / thread_us
+        } else {
+            0.0
+        }
     }
 }
 
@@ -270,7 +299,12 @@ struct Thread {
     rng: Rng,
     /// The middle of the part of the scene the thread's rays see now.
     centre: BlockId,
+    /// Reads not started yet.
     left: u32,
+    /// Reads started that wait for their block.
+    waiting: u32,
+    /// Since when it idles (every read it may set aside waits), if it does.
+    idle_since: Option<u64>,
 }
 
 impl Thread {
@@ -344,7 +378,13 @@ impl<'a> Run<'a> {
                     Rng::derived(sim.seed, 1000 + u64::from(rank) * 65_536 + u64::from(t));
                 let centre = (rng.next_u64() % u64::from(sim.blocks.max(1))) as BlockId;
                 let left = if sim.blocks == 0 { 0 } else { sim.reads };
-                Thread { rng, centre, left }
+                Thread {
+                    rng,
+                    centre,
+                    left,
+                    waiting: 0,
+                    idle_since: None,
+                }
             })
             .collect();
         Ok(Node {
@@ -437,40 +477,71 @@ impl<'a> Run<'a> {
         let (sim, now) = (self.sim, self.instant());
         let node = &mut self.nodes[n];
         let k = node.threads[t].next_block(sim.blocks, sim.locality, sim.window);
+        node.threads[t].left -= 1;
         self.report.reads += 1;
         if let Some(slot) = node.residency.resident_slot(k) {
             self.report.resident_reads += 1;
             let content = node.resident[slot];
-            return self.complete(n, t, k, content);
+            self.check(k, content);
+            return self.go_on(n, t);
         }
         let line = node.residency.cache_line(k, node.cache.lines());
         if let Some(block) = node.cache.get(k, line) {
-            return self.complete(n, t, k, *block);
+            self.check(k, *block);
+            return self.go_on(n, t);
         }
         if node.fetched.contains(&k) {
             self.report.repeat_misses += 1;
         }
         node.fetcher.handle_miss(k, now);
         node.waiting.entry(k).or_default().push(t);
+        let thread = &mut node.threads[t];
+        thread.waiting += 1;
+        let blocked = thread.waiting >= sim.parking;
+        if blocked {
+            thread.idle_since = Some(self.now);
+        }
         if !node.flush_pending {
             // After the other events of this instant: the burst travels in one flush.
             node.flush_pending = true;
             self.push(self.now, Event::Flush(n));
         }
+        if !blocked {
+            self.go_on(n, t);
+        }
     }
 
-    fn complete(&mut self, n: usize, t: usize, k: BlockId, content: u64) {
+    /// A read got block `k` with `content`.
+    fn check(&mut self, k: BlockId, content: u64) {
         self.report.completed += 1;
+        self.report.done_us = self.now;
         if content != sim_block(k) {
             self.report.wrong += 1;
         }
+    }
+
+    /// Thread `t` of node `n` starts its next read, if it has one left, and otherwise idles
+    /// until the reads it set aside are done.
+    fn go_on(&mut self, n: usize, t: usize) {
         let thread = &mut self.nodes[n].threads[t];
-        thread.left -= 1;
         if thread.left > 0 {
             self.push(
                 self.now + self.sim.read_us,
                 Event::Read { node: n, thread: t },
             );
+        } else if thread.waiting > 0 {
+            thread.idle_since = Some(self.now);
+        }
+    }
+
+    /// A read of thread `t` that waited got its block: the thread goes on if it idled.
+    fn complete(&mut self, n: usize, t: usize, k: BlockId, content: u64) {
+        self.check(k, content);
+        let thread = &mut self.nodes[n].threads[t];
+        thread.waiting -= 1;
+        if let Some(since) = thread.idle_since.take() {
+            self.report.idle_us += self.now - since;
+            self.go_on(n, t);
         }
     }
 
@@ -549,7 +620,12 @@ impl<'a> Run<'a> {
     fn finish(mut self) -> DsmReport {
         let mut fetch = FetchStats::default();
         for node in &self.nodes {
-            let left: u64 = node.threads.iter().map(|t| u64::from(t.left)).sum();
+            let left: u64 = node
+                .threads
+                .iter()
+                .map(|t| u64::from(t.left + t.waiting))
+                .sum();
+            self.report.threads += node.threads.len() as u64;
             if node.alive {
                 self.report.incomplete += left;
             } else {
