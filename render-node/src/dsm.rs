@@ -16,9 +16,14 @@ use tessera_model::wall::TileId;
 use tessera_protocol::dsm::{BlockHolder, DsmSpec, DsmStats};
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
-use tessera_render::dsm::{Block, BlockFetch, DsmTree, NODE_OVERHEAD_BYTES};
+use tessera_render::dsm::{Block, BlockFetch, DsmTree, Landing, PinLimits, NODE_OVERHEAD_BYTES};
 use tessera_render::PreparedScene;
 use tokio::sync::mpsc;
+
+/// Set (to anything) in a render node's environment, its render threads wait for a block they
+/// miss instead of setting the packet aside: how shared scenes were rendered before, kept to
+/// measure the two against each other in one run (`deploy/bench/dsm-parking.sh`).
+pub const WAIT_FOR_BLOCKS: &str = "TESSERA_DSM_WAIT_FOR_BLOCKS";
 
 /// What the node was told, by its own flags, about shared scenes.
 #[derive(Clone, Debug, Default)]
@@ -31,18 +36,16 @@ pub struct DsmOptions {
     pub threads: usize,
 }
 
-/// A block a render thread waits for, filled by the driver when it arrives.
-#[derive(Default)]
-struct Waiter {
-    block: Mutex<Option<Arc<Block>>>,
-    arrived: Condvar,
-}
-
-/// Where render threads ask for blocks and wait for them: one waiter per block however many
-/// threads want it, a channel of misses to the driver, and the driver's deliveries back.
+/// Where render threads ask for blocks: one landing per block however many threads want it,
+/// a channel of misses to the driver, and the driver's deliveries back. A thread either waits
+/// for its block ([`BlockFetch::fetch`]) or goes on and looks at the landing later
+/// ([`BlockFetch::request`]); every delivery wakes the threads that wait.
 pub struct FetchHub {
     misses: mpsc::UnboundedSender<BlockId>,
-    waiting: Mutex<HashMap<BlockId, Arc<Waiter>>>,
+    waiting: Mutex<HashMap<BlockId, Landing>>,
+    /// Blocks delivered so far; a delivery notifies `landed`.
+    delivered: Mutex<u64>,
+    landed: Condvar,
     closed: AtomicBool,
     /// Where a thread reads a block itself once the driver is gone (a batch still rendering
     /// when its session ended).
@@ -54,6 +57,8 @@ impl FetchHub {
         FetchHub {
             misses,
             waiting: Mutex::new(HashMap::new()),
+            delivered: Mutex::new(0),
+            landed: Condvar::new(),
             closed: AtomicBool::new(false),
             files: Mutex::new(files),
         }
@@ -71,62 +76,83 @@ impl FetchHub {
         }
     }
 
-    /// Block `k` arrived: the threads waiting for it go on.
+    /// Block `k` arrived: its landing is filled and the threads that wait look again.
     pub fn deliver(&self, k: BlockId, block: Arc<Block>) {
-        let waiter = self
+        let landing = self
             .waiting
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .remove(&k);
-        if let Some(w) = waiter {
-            *w.block.lock().unwrap_or_else(|e| e.into_inner()) = Some(block);
-            w.arrived.notify_all();
+        if let Some(l) = landing {
+            l.land(block);
+            *self.delivered.lock().unwrap_or_else(|e| e.into_inner()) += 1;
+            self.landed.notify_all();
         }
     }
 
-    /// The driver is gone: threads waiting now, or later, fail instead of waiting for ever.
+    /// The driver is gone: threads waiting now, or later, read their blocks themselves
+    /// instead of waiting for ever.
     pub fn close(&self) {
         self.closed.store(true, Ordering::SeqCst);
-        let waiting = std::mem::take(&mut *self.waiting.lock().unwrap_or_else(|e| e.into_inner()));
-        for w in waiting.values() {
-            w.arrived.notify_all();
-        }
+        self.waiting
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
+        let _guard = self.delivered.lock().unwrap_or_else(|e| e.into_inner());
+        self.landed.notify_all();
     }
 }
 
 impl BlockFetch for FetchHub {
     fn fetch(&self, k: BlockId) -> Arc<Block> {
-        if self.closed.load(Ordering::SeqCst) {
-            return self.read_from_files(k);
-        }
-        let waiter = {
-            let mut waiting = self.waiting.lock().unwrap_or_else(|e| e.into_inner());
-            match waiting.get(&k) {
-                Some(w) => w.clone(),
-                None => {
-                    let w = Arc::new(Waiter::default());
-                    waiting.insert(k, w.clone());
-                    let _ = self.misses.send(k);
-                    w
-                }
-            }
-        };
-        let mut block = waiter.block.lock().unwrap_or_else(|e| e.into_inner());
+        let landing = self.request(k);
+        let mut delivered = self.delivered.lock().unwrap_or_else(|e| e.into_inner());
         loop {
-            if let Some(b) = block.as_ref() {
+            if let Some(b) = landing.block() {
                 return b.clone();
             }
             if self.closed.load(Ordering::SeqCst) {
-                drop(block);
+                drop(delivered);
                 return self.read_from_files(k);
             }
             // Bounded, so that a close between the check and the wait is seen.
-            block = waiter
-                .arrived
-                .wait_timeout(block, Duration::from_millis(100))
+            delivered = self
+                .landed
+                .wait_timeout(delivered, Duration::from_millis(100))
                 .unwrap_or_else(|e| e.into_inner())
                 .0;
         }
+    }
+
+    fn request(&self, k: BlockId) -> Landing {
+        if self.closed.load(Ordering::SeqCst) {
+            let landing = Landing::default();
+            landing.land(self.read_from_files(k));
+            return landing;
+        }
+        let mut waiting = self.waiting.lock().unwrap_or_else(|e| e.into_inner());
+        waiting
+            .entry(k)
+            .or_insert_with(|| {
+                let _ = self.misses.send(k);
+                Landing::default()
+            })
+            .clone()
+    }
+
+    fn landings(&self) -> u64 {
+        *self.delivered.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn wait_for_landing(&self, seen: u64, timeout: Duration) -> bool {
+        let delivered = self.delivered.lock().unwrap_or_else(|e| e.into_inner());
+        if *delivered == seen && !self.closed.load(Ordering::SeqCst) {
+            let _ = self
+                .landed
+                .wait_timeout(delivered, timeout)
+                .unwrap_or_else(|e| e.into_inner());
+        }
+        !self.closed.load(Ordering::SeqCst)
     }
 }
 
@@ -137,6 +163,10 @@ pub struct DsmScene {
     pub cache_lines: usize,
     pub driver: DriverHandle,
     hub: Arc<FetchHub>,
+    /// Its render threads.
+    threads: usize,
+    /// The memory budget it sized its cache by, if any.
+    budget: Option<u64>,
     /// The other nodes' blocks each tile read when this node last rendered it.
     footprints: HashMap<TileId, Vec<BlockId>>,
 }
@@ -189,6 +219,9 @@ impl DsmScene {
             local_reads: reads.local_reads,
             fetched: reads.fetched,
             fetch_wait_s: reads.fetch_wait_s,
+            render_threads: self.threads as u32,
+            parked: reads.parked,
+            memory_budget: self.budget.unwrap_or(0),
             cache_hits: cache.hits,
             cache_misses: cache.misses,
             evictions: cache.evictions,
@@ -243,12 +276,22 @@ fn cache_lines(
     Ok(((budget - held) / layout.block_bytes as u64) as usize)
 }
 
+/// Blocks one packet's traces may keep alive (what they read and missed; see [`PinLimits`]).
+const PACKET_PIN_BLOCKS: u64 = 64;
+/// Blocks all the packets set aside at once may keep alive or wait for.
+const PARKED_BLOCKS: u64 = 128;
+
 /// Blocks a node may hold besides its cache's: those its render threads keep
-/// ([`DsmReader::HOLDS`] each, some evicted from the cache meanwhile), those they wait for,
-/// and those fetched ahead.
+/// ([`DsmReader::HOLDS`] each, some evicted from the cache meanwhile, and the pins of the
+/// packet each traces), those the packets set aside keep and wait for, and those fetched
+/// ahead. Without this room a node with every block parked for ran 2.4 MiB over a 48 MiB
+/// budget.
 fn spare_blocks(threads: usize) -> u64 {
-    let per_thread = tessera_render::dsm::DsmReader::HOLDS as u64 + 1;
-    threads as u64 * per_thread + crate::fetch_driver::PREFETCH_IN_FLIGHT as u64 + 64
+    let per_thread = tessera_render::dsm::DsmReader::HOLDS as u64 + 1 + PACKET_PIN_BLOCKS;
+    threads as u64 * per_thread
+        + PARKED_BLOCKS
+        + crate::fetch_driver::PREFETCH_IN_FLIGHT as u64
+        + 64
 }
 
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
@@ -306,6 +349,14 @@ pub async fn start(
         cache.clone(),
         hub.clone(),
     )?;
+    tree.set_pin_limits(PinLimits {
+        per_packet: (PACKET_PIN_BLOCKS * layout.block_bytes as u64) as usize,
+        parked: (PARKED_BLOCKS * layout.block_bytes as u64) as usize,
+    });
+    if std::env::var_os(WAIT_FOR_BLOCKS).is_some() {
+        tracing::info!("{WAIT_FOR_BLOCKS} is set: render threads wait for missing blocks");
+        tree.set_parks_misses(false);
+    }
     let prepared = PreparedScene::from_shared(&manifest, tree);
     let driver = fetch_driver::spawn(fetch_driver::Setup {
         residency,
@@ -326,6 +377,8 @@ pub async fn start(
             cache_lines: lines,
             driver,
             hub,
+            threads: options.threads,
+            budget,
             footprints: HashMap::new(),
         },
     ))

@@ -54,6 +54,25 @@ pub(crate) struct NodeSide {
     pub dsm: crate::dsm::DsmOptions,
 }
 
+/// How much a render thread yields the CPU to its own node's driver: render threads that
+/// never wait for a block (misses are parked) keep every core busy, and an owner's answer to
+/// another node's block request, sent from the driver, must not wait behind them: with both at
+/// one priority, remote reads took 10 ms on a 2-core local wall against a 0.1 ms round trip.
+const RENDER_THREAD_NICENESS: libc::c_int = 5;
+
+/// Lowers the calling render thread's priority by [`RENDER_THREAD_NICENESS`] below the
+/// process's (Linux nice values are per thread). A failure leaves it where it was.
+fn yield_to_the_driver() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: gettid, getpriority and setpriority only read or set the calling thread's
+    // scheduling priority.
+    unsafe {
+        let tid = libc::gettid() as libc::id_t;
+        let now = libc::getpriority(libc::PRIO_PROCESS, tid);
+        libc::setpriority(libc::PRIO_PROCESS, tid, now + RENDER_THREAD_NICENESS);
+    }
+}
+
 /// Joins the master and renders until it shuts the wall down; with `--reconnect`, a lost
 /// master is waited for (bounded) and rejoined, as often as it is lost.
 pub async fn run(options: Options) -> Result<()> {
@@ -63,6 +82,7 @@ pub async fn run(options: Options) -> Result<()> {
     let pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
+            .start_handler(|_| yield_to_the_driver())
             .build()?,
     );
     let identity = NodeIdentity::load(&options.cert_dir)?;

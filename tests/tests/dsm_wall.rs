@@ -73,15 +73,19 @@ fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
         assert!(node["max_rss_bytes"].as_u64().unwrap() > 0, "{node}");
     }
     let summary = &report["dsm"];
-    // Every node fetched something, so its threads waited for it.
+    // Every node fetched something: packets were set aside for it, and the threads waited at
+    // least when a batch's last packets were all set aside.
+    assert!(summary["parked"].as_u64().unwrap() > 0, "{summary}");
     assert!(
         summary["miss_wait_avg_us"].as_f64().unwrap() > 0.0,
         "{summary}"
     );
     eprintln!(
-        "shared gallery: {} block reads a frame, {:.2} % fetched, a miss waited {:.0} µs, remote reads avg {:.0} µs (p99 {:.0}) against a {:.0} µs round trip",
+        "shared gallery: {} block reads a frame, {:.2} % fetched, {} packets set aside, threads idle {:.1} % of their time, a miss waited {:.0} µs, remote reads avg {:.0} µs (p99 {:.0}) against a {:.0} µs round trip",
         summary["blocks_read_per_frame"].as_f64().unwrap(),
         summary["miss_percent"].as_f64().unwrap(),
+        summary["parked"],
+        summary["wait_percent"].as_f64().unwrap(),
         summary["miss_wait_avg_us"].as_f64().unwrap(),
         summary["remote_read_avg_us"].as_f64().unwrap(),
         summary["remote_read_p99_us"].as_f64().unwrap(),
@@ -121,6 +125,8 @@ fn every_render_node_stays_within_its_memory_budget() {
             node["dsm"]["cache_bytes"].as_u64().unwrap() as f64 / 1048576.0,
         );
         assert!(rss > 0 && rss <= budget_mib << 20, "{node}");
+        assert_eq!(node["memory_budget"], budget_mib << 20, "{node}");
+        assert_eq!(node["within_budget"], true, "{node}");
     }
     assert!(
         scene_bytes > 16 << 20,

@@ -157,8 +157,16 @@ pub struct DsmStats {
     pub local_reads: u64,
     /// Of those, blocks that had to be fetched (cache misses).
     pub fetched: u64,
-    /// Render threads' time waiting for fetched blocks, in all.
+    /// Render threads' time waiting for fetched blocks, in all (thread-seconds: a wait with
+    /// nothing else to trace counts once for each thread).
     pub fetch_wait_s: f64,
+    /// Its render threads: with the time it rendered, what `fetch_wait_s` is a share of.
+    pub render_threads: u32,
+    /// Packets set aside for a missing block and traced again once it landed.
+    pub parked: u64,
+    /// The memory budget it kept to, in bytes (its own `--memory-budget` or the session's); 0
+    /// if it had none.
+    pub memory_budget: u64,
     /// Cache lookups that found their block.
     pub cache_hits: u64,
     /// Cache lookups that did not: the block was fetched.

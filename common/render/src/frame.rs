@@ -13,7 +13,6 @@ use crate::shadow_packet;
 use crate::surface_hit::{nearest_surface, SurfaceHit};
 use crate::tracer::Tracer;
 use glam::Vec3;
-use rayon::prelude::*;
 use tessera_model::wall::Tile;
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
@@ -80,24 +79,18 @@ pub(crate) fn render_tiles_with(
         return Some((images, RayCounts::default(), footprints));
     }
     let packets = packets_of(tiles);
-    type Packet = ([u8; (PACKET * PACKET * 3) as usize], RayCounts, Vec<u32>);
-    let traced: Vec<Packet> = packets
-        .par_iter()
-        .map_init(
-            || scene.tracer(),
-            |tracer, &(i, px, py)| {
-                let (pixels, counts) = trace_packet(
-                    scene,
-                    view,
-                    &tiles[i],
-                    (px, py),
-                    (shadow_rays, cancel),
-                    tracer,
-                );
-                (pixels, counts, tracer.take_footprint())
-            },
-        )
-        .collect();
+    let traced = crate::parking::trace_all(scene, packets.len(), cancel, |tracer, p| {
+        let (i, px, py) = packets[p];
+        let (pixels, counts) = trace_packet(
+            scene,
+            view,
+            &tiles[i],
+            (px, py),
+            (shadow_rays, cancel),
+            tracer,
+        );
+        (pixels, counts, tracer.take_footprint())
+    })?;
     if cancel.is_cancelled() {
         return None;
     }
@@ -132,22 +125,18 @@ pub fn render_tiles_linear(
     let packets = packets_of(tiles);
     let spp = view.params.spp().max(1) as f32;
     let never = Cancel::new();
-    let traced: Vec<([Vec3; 64], RayCounts)> = packets
-        .par_iter()
-        .map_init(
-            || scene.tracer(),
-            |tracer, &(i, px, py)| {
-                packet_sum(
-                    scene,
-                    view,
-                    &tiles[i],
-                    (px, py),
-                    (ShadowRays::Packets, &never),
-                    tracer,
-                )
-            },
+    let traced = crate::parking::trace_all(scene, packets.len(), &never, |tracer, p| {
+        let (i, px, py) = packets[p];
+        packet_sum(
+            scene,
+            view,
+            &tiles[i],
+            (px, py),
+            (ShadowRays::Packets, &never),
+            tracer,
         )
-        .collect();
+    })
+    .expect("a token nobody holds is never cancelled");
     let mut images: Vec<Vec<Vec3>> = tiles
         .iter()
         .map(|t| vec![Vec3::ZERO; t.pixel_count()])
@@ -234,7 +223,8 @@ fn packet_sum(
     let mut sum = [Vec3::ZERO; 64];
     let spp = view.params.spp().max(1);
     for s in 0..spp {
-        if cancel.is_cancelled() {
+        // After a miss the packet is traced again anyway (`parking`): its other samples wait.
+        if cancel.is_cancelled() || tracer.has_missed() {
             break;
         }
         let sample = view.params.first_sample() + s;
@@ -300,6 +290,11 @@ fn shade_packet(
     let eye = packet.origin;
     packet.clip(view.params.cuts());
     let surfaces = first_surfaces(scene, view, packet, tracer);
+    if tracer.has_missed() {
+        // Some first hits are void (a block of the tree was not here): shading them would
+        // trace secondary rays from wrong points and fetch blocks nobody needs.
+        return RayCounts::default();
+    }
     let mut shader = Shader {
         scene,
         view,

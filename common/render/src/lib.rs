@@ -40,6 +40,7 @@ mod frame;
 pub mod geometry;
 pub mod isa;
 pub mod packet;
+mod parking;
 mod pixel_rays;
 mod prepared;
 mod reference;

@@ -4,7 +4,66 @@
 
 use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, LeafTriangle};
-use crate::dsm::DsmReader;
+use crate::dsm::{DsmReader, Landing, Pins};
+use tessera_core::dsm::BlockId;
+
+/// What a packet's earlier traces leave to its next one (see `parking`): the blocks they read
+/// or missed, and the single rays' answers they got whole, so that the next trace does not
+/// trace those rays again (an ambient-occlusion packet sends hundreds of them).
+#[derive(Default)]
+pub struct Carried {
+    /// See [`Pins`].
+    pub pins: Pins,
+    answers: Answers,
+}
+
+impl Carried {
+    /// Bytes of blocks it keeps alive.
+    pub fn pinned_bytes(&self) -> usize {
+        self.pins.iter().map(|(_, b)| b.bytes().len()).sum()
+    }
+}
+
+/// A single ray's query: which (closest hit or occlusion), its origin, direction and interval,
+/// as bits: a query of the same bits has the same answer, the scene being the same.
+type Query = [u32; 9];
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Answer {
+    Occluded(bool),
+    Closest(Option<Hit>),
+}
+
+/// Single-ray answers got without a miss: this trace's, in order, and its earlier traces',
+/// sorted by query.
+#[derive(Default)]
+struct Answers {
+    new: Vec<(Query, Answer)>,
+    known: Vec<(Query, Answer)>,
+}
+
+impl Answers {
+    fn query(kind: u32, ray: &Ray, t_min: f32, t_max: f32) -> Query {
+        let (o, d) = (ray.origin, ray.dir);
+        let words = [o.x, o.y, o.z, d.x, d.y, d.z, t_min, t_max].map(f32::to_bits);
+        let mut query = [kind; 9];
+        query[1..].copy_from_slice(&words);
+        query
+    }
+
+    fn known(&self, query: &Query) -> Option<Answer> {
+        let at = self.known.binary_search_by(|(q, _)| q.cmp(query)).ok()?;
+        Some(self.known[at].1)
+    }
+
+    /// This trace's answers join the known ones (the trace missed a block and will be
+    /// traced again).
+    fn keep(&mut self) {
+        self.known.append(&mut self.new);
+        self.known.sort_unstable_by_key(|a| a.0);
+        self.known.dedup_by(|a, b| a.0 == b.0);
+    }
+}
 use crate::geometry::Ray;
 use crate::isa::Isa;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
@@ -16,6 +75,12 @@ pub struct Tracer<'s> {
     /// Also the stack of the particles' binary tree.
     pub stack: Vec<u32>,
     memory: Memory<'s>,
+    /// For a trace that may be traced again (see [`Carried`]).
+    answers: Answers,
+    /// Whether single rays' answers are looked up and kept. Only answers got before the
+    /// trace's first miss are kept: after it, a ray may read a stand-in from the reader's
+    /// table without a new miss.
+    answering: bool,
 }
 
 // One per render thread, made once: boxing the large variant would only add a pointer chase to
@@ -35,6 +100,8 @@ impl<'s> Tracer<'s> {
         Tracer {
             stack: scene.accel.new_stack(),
             memory,
+            answers: Answers::default(),
+            answering: false,
         }
     }
 
@@ -64,6 +131,17 @@ impl<'s> Tracer<'s> {
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => closest_hit(m, ray, (t_min, t_max), stack),
+            Memory::Dsm(m) if self.answering => {
+                let query = Answers::query(0, ray, t_min, t_max);
+                if let Some(Answer::Closest(hit)) = self.answers.known(&query) {
+                    return hit;
+                }
+                let hit = closest_hit(m, ray, (t_min, t_max), stack);
+                if m.missed_count() == 0 {
+                    self.answers.new.push((query, Answer::Closest(hit)));
+                }
+                hit
+            }
             Memory::Dsm(m) => closest_hit(m, ray, (t_min, t_max), stack),
         }
     }
@@ -74,6 +152,17 @@ impl<'s> Tracer<'s> {
         let stack = &mut self.stack;
         match &mut self.memory {
             Memory::Resident(m) => occluded(m, ray, (t_min, t_max), stack),
+            Memory::Dsm(m) if self.answering => {
+                let query = Answers::query(1, ray, t_min, t_max);
+                if let Some(Answer::Occluded(blocked)) = self.answers.known(&query) {
+                    return blocked;
+                }
+                let blocked = occluded(m, ray, (t_min, t_max), stack);
+                if m.missed_count() == 0 {
+                    self.answers.new.push((query, Answer::Occluded(blocked)));
+                }
+                blocked
+            }
             Memory::Dsm(m) => occluded(m, ray, (t_min, t_max), stack),
         }
     }
@@ -84,6 +173,43 @@ impl<'s> Tracer<'s> {
         match &mut self.memory {
             Memory::Resident(_) => Vec::new(),
             Memory::Dsm(m) => m.take_footprint(),
+        }
+    }
+
+    /// For a scene in shared memory: whether a missing block is parked rather than waited
+    /// for, and blocks to read as if held (see `dsm::DsmReader::park_misses`). Replicated
+    /// data never misses.
+    pub fn park_misses(&mut self, on: bool, carried: Carried) {
+        if let Memory::Dsm(m) = &mut self.memory {
+            m.park_misses(on, carried.pins);
+            self.answering = on || !carried.answers.known.is_empty();
+            self.answers = carried.answers;
+            self.answers.new.clear();
+        }
+    }
+
+    /// The blocks missed since the last call and the pins handed in (see
+    /// `dsm::DsmReader::take_missed`): if any was missed, what was traced since is void.
+    pub fn take_missed(&mut self) -> (Vec<(BlockId, Landing)>, Carried) {
+        let Memory::Dsm(m) = &mut self.memory else {
+            return (Vec::new(), Carried::default());
+        };
+        let (missed, pins) = m.take_missed();
+        let mut answers = std::mem::take(&mut self.answers);
+        if missed.is_empty() {
+            answers = Answers::default();
+        } else {
+            answers.keep();
+        }
+        self.answering = false;
+        (missed, Carried { pins, answers })
+    }
+
+    /// Whether a block was missed since [`Tracer::take_missed`] (see `dsm::DsmReader::has_missed`).
+    pub fn has_missed(&self) -> bool {
+        match &self.memory {
+            Memory::Resident(_) => false,
+            Memory::Dsm(m) => m.has_missed(),
         }
     }
 

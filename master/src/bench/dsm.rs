@@ -1,7 +1,8 @@
 //! `bench dsm`: the shape of Ize et al.'s Table 1 and Figure 3 on a local wall. For each
 //! shading (ray casting, with shadows, with ambient occlusion) and each render-node count, the
 //! scene replicated and then shared at each cache size, in the same run: frames per second,
-//! the share of block reads that missed, blocks read per frame, remote-read latency
+//! the share of block reads that missed, blocks read per frame, the render threads' time idle
+//! waiting for blocks and the packets set aside for them, remote-read latency
 //! (avg/min/max/p99) beside the QUIC round trip measured on the same connections, and the
 //! frame rate relative to replicated.
 
@@ -57,15 +58,18 @@ impl Row {
         self.cache.map_or("replicated".into(), |c| c.to_string())
     }
 
-    /// fps, ratio, miss %, blocks read per frame, a miss's average wait, remote-read
+    /// fps, ratio, miss %, blocks read per frame, the render threads' share of time idle
+    /// waiting for blocks, packets set aside per frame, a miss's average wait, remote-read
     /// avg/min/max/p99 µs and the round trip µs: the columns of the table and of the CSV.
-    fn figures(&self) -> [f64; 10] {
+    fn figures(&self) -> [f64; 12] {
         let d = self.report.dsm.unwrap_or_default();
         [
             self.report.fps,
             self.ratio(),
             d.miss_percent,
             d.blocks_read_per_frame,
+            d.wait_percent,
+            d.parked as f64 / self.report.frames.max(1) as f64,
             d.miss_wait_avg_us,
             d.remote_read_avg_us,
             d.remote_read_min_us,
@@ -82,7 +86,7 @@ impl Row {
             .iter()
             .map(|n| n.stats.max_rss_bytes)
             .max();
-        let places = [3, 3, 4, 0, 1, 1, 1, 1, 1, 1];
+        let places = [3, 3, 4, 0, 2, 1, 1, 1, 1, 1, 1, 1];
         let numbers = places
             .iter()
             .zip(self.figures())
@@ -143,7 +147,7 @@ pub async fn dsm(args: &BenchArgs, out: &Path) -> Result<()> {
     let by_nodes_title = format!("frames per second against render nodes ({})", first.name());
     let written = Outputs {
         csv: "dsm.csv",
-        header: "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,miss_wait_avg_us,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
+        header: "shading,render_nodes,cache,fps,fps_vs_replicated,miss_percent,blocks_read_per_frame,wait_percent,parked_per_frame,miss_wait_avg_us,remote_read_avg_us,remote_read_min_us,remote_read_max_us,remote_read_p99_us,round_trip_us,max_rss_bytes",
         rows: rows.iter().map(Row::csv).collect(),
         plots: vec![
             Plot {
@@ -257,6 +261,8 @@ fn print_table(rows: &[Row]) {
         ("ratio", 6, 2),
         ("miss %", 8, 3),
         ("reads/fr", 9, 0),
+        ("idle %", 7, 1),
+        ("park/fr", 8, 0),
         ("wait µs", 8, 0),
         ("avg µs", 8, 0),
         ("min µs", 7, 0),

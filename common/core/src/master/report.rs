@@ -114,6 +114,12 @@ pub struct DsmSummary {
     /// How long a render thread waited, on average, for a block it missed (a block fetched
     /// ahead waits behind the misses, so this is the stall the threads saw).
     pub miss_wait_avg_us: f64,
+    /// The share of the render threads' time, over all nodes, spent waiting for blocks with
+    /// nothing else to trace, in percent (thread-seconds waited over threads times the time
+    /// each node rendered).
+    pub wait_percent: f64,
+    /// Packets set aside for a missing block and traced again once it landed, over all nodes.
+    pub parked: u64,
     /// The fastest round trip of an empty request between render nodes, measured in the same
     /// run: the transport's floor under a remote read.
     pub round_trip_us: f64,
@@ -212,6 +218,11 @@ pub struct RenderNodeReport {
     pub stats: RenderStats,
     /// Rays traced per second of rendering ([`RenderStats::busy_s`]); 0 if it never rendered.
     pub rays_per_s: f64,
+    /// For a shared scene under a memory budget: the budget, in bytes.
+    pub memory_budget: Option<u64>,
+    /// For a shared scene under a memory budget: whether its peak resident memory
+    /// (`max_rss_bytes`) stayed within it.
+    pub within_budget: Option<bool>,
 }
 
 /// A distribution of durations, in milliseconds; all 0 when there were no samples.

@@ -53,7 +53,7 @@ impl Master {
             ..DsmSummary::default()
         };
         let (mut local, mut latency_sum, mut latency_count) = (0u64, 0.0, 0u64);
-        let mut waited_s = 0.0;
+        let (mut waited_s, mut thread_s) = (0.0, 0.0);
         for n in nodes {
             s.max_rss_bytes = s.max_rss_bytes.max(n.stats.max_rss_bytes);
             let Some(d) = n.stats.dsm.as_deref() else {
@@ -62,6 +62,8 @@ impl Master {
             s.block_reads += d.block_reads;
             s.fetched += d.fetched;
             waited_s += d.fetch_wait_s;
+            thread_s += n.stats.busy_s * d.render_threads as f64;
+            s.parked += d.parked;
             s.read_locally += d.read_locally;
             local += d.local_reads;
             if d.latency_count > 0 {
@@ -92,6 +94,9 @@ impl Master {
         };
         if s.fetched > 0 {
             s.miss_wait_avg_us = waited_s * 1e6 / s.fetched as f64;
+        }
+        if thread_s > 0.0 {
+            s.wait_percent = (waited_s * 100.0 / thread_s).min(100.0);
         }
         for v in [&mut s.remote_read_min_us, &mut s.round_trip_us] {
             if !v.is_finite() {
@@ -206,10 +211,13 @@ impl Master {
             .values()
             .filter_map(|p| match (&p.role, &p.stats) {
                 (PeerRole::Render { node, cores }, Some(NodeStats::Render(s))) => {
+                    let budget = s.dsm.as_ref().map(|d| d.memory_budget).filter(|&b| b > 0);
                     Some(RenderNodeReport {
                         id: node.0,
                         host: p.host.clone(),
                         cores: *cores,
+                        memory_budget: budget,
+                        within_budget: budget.map(|b| s.max_rss_bytes <= b),
                         stats: s.clone(),
                         rays_per_s: if s.busy_s > 0.0 {
                             s.rays as f64 / s.busy_s

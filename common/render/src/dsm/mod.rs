@@ -8,10 +8,12 @@
 //! * [`prepare`]: a scene prepared once into block files with a checksum per block and a
 //!   manifest, reused while the scene's content is the same.
 //! * [`tree`]: [`tree::DsmTree`], what a render node renders from: the replicated top of the tree, its resident
-//!   share, the direct-mapped cache of `tessera_core::dsm`, and a blocking fetch of what is
-//!   in neither.
+//!   share, the direct-mapped cache of `tessera_core::dsm`, and a fetch of what is in
+//!   neither, which a render thread either waits for or, as the frame loop does
+//!   (`crate::parking`), asks for and comes back to once it landed.
 //! * `reader`: [`DsmReader`], one thread's view of it, the
-//!   [`crate::bvh::memory::TreeMemory`] a traversal reads.
+//!   [`crate::bvh::memory::TreeMemory`] a traversal reads; when it parks its misses, a block
+//!   that is not here reads as a stand-in no ray enters or hits, and the trace is void.
 //!
 //! Volume bricks and particles are not shared: a scene with either is rendered replicated.
 
@@ -31,8 +33,8 @@ pub use layout::{Block, BlockLayout, Chunk, LayoutError};
 /// builds alike), rounded up.
 pub const NODE_OVERHEAD_BYTES: u64 = 32 << 20;
 pub use prepare::{Manifest, PrepareError};
-pub use reader::DsmReader;
-pub use tree::{BlockFetch, DsmTree, DsmTreeStats};
+pub use reader::{DsmReader, Pins};
+pub use tree::{BlockFetch, DsmTree, DsmTreeStats, Landing, PinLimits};
 
 use crate::bvh::Accel;
 use crate::PreparedScene;

@@ -10,12 +10,19 @@
 //! at three quarters of the replicated rate with every block at hand. Only a block the table
 //! does not hold costs a lookup (its own memory, or the shared cache, with its guard and
 //! reference count, or a fetch).
+//!
+//! A reader that parks its misses ([`DsmReader::park_misses`]) does not wait for a block that
+//! is not here: it asks for it, notes it, and reads a stand-in no ray enters or hits, so the
+//! traversal runs to its end with a result the caller throws away; the caller traces the same
+//! rays again once the blocks have landed, handing them back as pins (`crate::parking`).
 
 use super::layout::{nodes_of, Chunk, FastDiv};
-use super::tree::{DsmTree, Hold};
+use super::tree::{DsmTree, Hold, Landing};
+use super::Block;
 use crate::bvh::memory::{NoPrefetch, TreeMemory};
 use crate::bvh::node::{LeafTriangle, WideNode};
 use std::ops::Range;
+use std::sync::Arc;
 use tessera_core::dsm::BlockId;
 
 /// Node blocks a reader keeps (a power of two: block k goes to entry k mod this).
@@ -25,7 +32,9 @@ const TRIANGLE_HOLDS: usize = 32;
 
 /// The blocks a reader entered, block k in entry k mod `N`.
 struct Holds<'s, const N: usize> {
-    ids: [BlockId; N],
+    /// Each entry's block, and in the high half the trace it was entered or found in (see
+    /// `Parking::trace`).
+    ids: [u64; N],
     /// Each entry's first byte, kept beside its id so that a read inside a held block is a
     /// compare and an offset, as in a process's own array.
     bases: [*const Chunk; N],
@@ -40,9 +49,19 @@ impl<const N: usize> Holds<'_, N> {
 
     fn new() -> Self {
         Holds {
-            ids: [BlockId::MAX; N],
+            ids: [u64::MAX; N],
             bases: [std::ptr::null(); N],
             held: std::array::from_fn(|_| Hold::Nothing),
+        }
+    }
+
+    /// Empties the entries that hold a stand-in.
+    fn forget_absent(&mut self) {
+        for i in 0..N {
+            if matches!(self.held[i], Hold::Absent(_)) {
+                self.held[i] = Hold::Nothing;
+                self.ids[i] = u64::MAX;
+            }
         }
     }
 }
@@ -59,6 +78,55 @@ pub struct DsmReader<'s> {
     nodes: Holds<'s, NODE_HOLDS>,
     tris: Holds<'s, TRIANGLE_HOLDS>,
     tally: Tally,
+    parking: Parking,
+}
+
+/// Blocks a trace reads as if held, whatever the cache holds: those an earlier trace of the
+/// same rays read or missed.
+pub type Pins = Vec<(BlockId, Arc<Block>)>;
+
+/// What a reader that parks its misses keeps (see the module doc).
+#[derive(Default)]
+struct Parking {
+    on: bool,
+    /// The other nodes' blocks that left the reader's table during this trace, and those the
+    /// caller handed in: what an earlier trace of the same rays read or missed. A traversal
+    /// comes back to blocks it has read (its stack names parents in the blocks above), and
+    /// must find there what it found before, whatever the cache let go of meanwhile: a
+    /// stand-in where a parent was would send it to a leaf of `EMPTY` triangles. A block is
+    /// in the table or here, so it is never lost in the middle of a trace.
+    pins: Pins,
+    /// Blocks missed since [`DsmReader::take_missed`], each asked for once.
+    missed: Vec<(BlockId, Landing)>,
+    /// The trace under way, in the high half: a block a trace reads is marked with it in the
+    /// reader's table, so that only the blocks this trace read are pinned when they leave it.
+    trace: u64,
+}
+
+impl Parking {
+    /// Pins `held` (block `k`, leaving a reader's table) if it is another node's.
+    fn keep(&mut self, k: BlockId, held: Hold<'_>) {
+        if let Hold::Cached(block) = held {
+            if self.pins.iter().all(|(p, _)| *p != k) {
+                self.pins.push((k, block));
+            }
+        }
+    }
+
+    /// Block `k` is not here: asked for (once a trace), and a stand-in read meanwhile.
+    #[cold]
+    fn miss<'s>(&mut self, tree: &'s DsmTree, k: BlockId) -> Hold<'s> {
+        if self.missed.iter().all(|(m, _)| *m != k) {
+            let landing = tree.fetcher().request(k);
+            if let Some(block) = landing.block() {
+                // At hand at once: the next packets find it in the cache.
+                tree.cache_landed(k, block);
+            }
+            self.missed.push((k, landing));
+            tree.count_missed();
+        }
+        Hold::Absent(tree.absent(k >= tree.layout().node_blocks))
+    }
 }
 
 /// What a reader counts of the blocks it looks up.
@@ -87,7 +155,41 @@ impl<'s> DsmReader<'s> {
             nodes: Holds::new(),
             tris: Holds::new(),
             tally: Tally::default(),
+            parking: Parking::default(),
         }
+    }
+
+    /// Whether a miss is parked (asked for, and a stand-in read) rather than waited for, and
+    /// the blocks to read as if held (see the module doc).
+    pub fn park_misses(&mut self, on: bool, pins: Pins) {
+        self.parking.on = on;
+        self.parking.pins = pins;
+        if on {
+            self.parking.trace = self.parking.trace.wrapping_add(1 << 32);
+        }
+    }
+
+    /// The blocks missed since the last call, each with where it lands; the pins handed in
+    /// come back with them. After a miss, what was traced read stand-ins and must be traced
+    /// again: the stand-ins are let go of here, so the next trace looks again.
+    pub fn take_missed(&mut self) -> (Vec<(BlockId, Landing)>, Pins) {
+        let missed = std::mem::take(&mut self.parking.missed);
+        if !missed.is_empty() {
+            self.nodes.forget_absent();
+            self.tris.forget_absent();
+        }
+        (missed, std::mem::take(&mut self.parking.pins))
+    }
+
+    /// Whether this trace missed a block (parking misses): what it traces from here on starts
+    /// from void results.
+    pub fn has_missed(&self) -> bool {
+        !self.parking.missed.is_empty()
+    }
+
+    /// Blocks this trace missed so far.
+    pub fn missed_count(&self) -> usize {
+        self.parking.missed.len()
     }
 
     /// The other nodes' blocks read since the last call, in the order read (repeats kept).
@@ -102,13 +204,13 @@ impl<'s> DsmReader<'s> {
         tree: &'s DsmTree,
         holds: &mut Holds<'s, N>,
         k: BlockId,
-        tally: &mut Tally,
+        (tally, parking): (&mut Tally, &mut Parking),
     ) -> *const Chunk {
         let i = k as usize & Holds::<N>::MASK;
-        if holds.ids[i] == k {
+        if holds.ids[i] == parking.trace | k as u64 {
             return holds.bases[i];
         }
-        Self::enter(tree, holds, i, k, tally)
+        Self::enter(tree, holds, (i, k), tally, parking)
     }
 
     #[cold]
@@ -116,20 +218,41 @@ impl<'s> DsmReader<'s> {
     fn enter<const N: usize>(
         tree: &'s DsmTree,
         holds: &mut Holds<'s, N>,
-        i: usize,
-        k: BlockId,
+        (i, k): (usize, BlockId),
         tally: &mut Tally,
+        parking: &mut Parking,
     ) -> *const Chunk {
-        // Let go of the old block first: a line replaced meanwhile frees it at once.
-        holds.held[i] = Hold::Nothing;
-        holds.held[i] = tree.hold(k);
-        holds.ids[i] = k;
-        holds.bases[i] = holds.held[i].chunks().as_ptr();
-        tally.reads += 1;
-        if matches!(holds.held[i], Hold::Local(_)) {
-            tally.local += 1;
+        let entry = holds.ids[i];
+        if entry as BlockId == k && matches!(holds.held[i], Hold::Local(_) | Hold::Cached(_)) {
+            // Entered in an earlier trace and still held: now read in this one too.
+            holds.ids[i] = parking.trace | k as u64;
+            return holds.bases[i];
+        }
+        // Let go of the old block first: a line replaced meanwhile frees it at once. A trace
+        // that parks its misses keeps it instead if it read it (see `Parking::pins`).
+        let old = std::mem::replace(&mut holds.held[i], Hold::Nothing);
+        holds.held[i] = if parking.on {
+            if entry & !(BlockId::MAX as u64) == parking.trace {
+                parking.keep(entry as BlockId, old);
+            }
+            tree.try_hold(k, &parking.pins)
+                .unwrap_or_else(|| parking.miss(tree, k))
         } else {
-            tally.footprint.push(k);
+            drop(old);
+            tree.hold(k)
+        };
+        holds.ids[i] = parking.trace | k as u64;
+        holds.bases[i] = holds.held[i].chunks().as_ptr();
+        match holds.held[i] {
+            Hold::Local(_) => {
+                tally.reads += 1;
+                tally.local += 1;
+            }
+            Hold::Cached(_) => {
+                tally.reads += 1;
+                tally.footprint.push(k);
+            }
+            Hold::Absent(_) | Hold::Nothing => {}
         }
         holds.bases[i]
     }
@@ -151,7 +274,12 @@ impl TreeMemory for DsmReader<'_> {
     #[inline(always)]
     fn node(&mut self, index: u32) -> &WideNode {
         let (k, at) = self.per_node_block.div_rem(index);
-        let base = Self::base_of(self.tree, &mut self.nodes, k, &mut self.tally);
+        let base = Self::base_of(
+            self.tree,
+            &mut self.nodes,
+            k,
+            (&mut self.tally, &mut self.parking),
+        );
         debug_assert!(std::ptr::eq(
             &nodes_of(self.nodes.held[k as usize & (NODE_HOLDS - 1)].chunks())[at as usize],
             base.cast::<WideNode>().wrapping_add(at as usize)
@@ -174,7 +302,12 @@ impl TreeMemory for DsmReader<'_> {
         let per = self.triangles_per_block;
         let (b, at) = self.per_triangle_block.div_rem(slots.start);
         let k = self.node_blocks + b;
-        let base = Self::base_of(self.tree, &mut self.tris, k, &mut self.tally);
+        let base = Self::base_of(
+            self.tree,
+            &mut self.tris,
+            k,
+            (&mut self.tally, &mut self.parking),
+        );
         let end = (slots.end - slots.start + at).min(per);
         debug_assert!(at < end);
         let len = (end - at) as usize;

@@ -36,16 +36,29 @@ fn shared(
         blocks: blocks.map(Arc::new).collect(),
         asked: AtomicU64::new(0),
     });
+    let dsm = shared_from(&manifest, &all.blocks, (rank, ranks), lines, all.clone());
+    (dsm, all)
+}
+
+/// A node's share of the blocks of `manifest`, fetching the rest with `fetch`.
+fn shared_from(
+    manifest: &Manifest,
+    blocks: &[Arc<Block>],
+    (rank, ranks): (u32, u32),
+    lines: usize,
+    fetch: Arc<dyn BlockFetch>,
+) -> PreparedScene {
+    let block_bytes = manifest.layout.block_bytes;
     let layout = manifest.layout;
     let residency = Residency::new(layout.total(), ranks, Some(rank), 1).unwrap();
     let per = (block_bytes / 64) as usize;
     let mut top = vec![Chunk([0; 64]); layout.top_blocks as usize * per];
     for k in 0..layout.top_blocks as usize {
-        top[k * per..(k + 1) * per].copy_from_slice(all.blocks[k].chunks());
+        top[k * per..(k + 1) * per].copy_from_slice(blocks[k].chunks());
     }
     let mut share = vec![Chunk([0; 64]); residency.resident_len() * per];
     for (slot, k) in residency.resident_blocks() {
-        share[slot * per..(slot + 1) * per].copy_from_slice(all.blocks[k as usize].chunks());
+        share[slot * per..(slot + 1) * per].copy_from_slice(blocks[k as usize].chunks());
     }
     let tree = DsmTree::new(
         layout,
@@ -53,10 +66,10 @@ fn shared(
         top.into_boxed_slice(),
         share.into_boxed_slice(),
         Arc::new(BlockCache::new(lines)),
-        all.clone(),
+        fetch,
     )
     .unwrap();
-    (PreparedScene::from_shared(&manifest, tree), all)
+    PreparedScene::from_shared(manifest, tree)
 }
 
 fn view_of(scene: &Scene, params: RenderParams, (w, h): (u32, u32)) -> FrameView {
@@ -98,6 +111,75 @@ fn every_ray_kind_gives_the_replicated_pixels_on_every_node_with_a_tiny_cache() 
         assert!(stats.fetched > 0, "nothing was remote: {stats:?}");
         assert_eq!(stats.fetched, fetch.asked.load(Ordering::Relaxed));
         assert!(stats.local_reads > 0 && stats.block_reads > stats.fetched);
+    }
+}
+
+/// An owner that answers late and out of order: a block asked for lands only when the render
+/// threads have nothing left but to wait, and then only every other one of those asked for,
+/// the last asked first.
+#[derive(Default)]
+struct LateBlocks {
+    blocks: Vec<Arc<Block>>,
+    pending: std::sync::Mutex<Vec<(Landing, Arc<Block>)>>,
+    landed: AtomicU64,
+    waited_for: AtomicU64,
+}
+
+impl BlockFetch for LateBlocks {
+    fn fetch(&self, k: BlockId) -> Arc<Block> {
+        self.waited_for.fetch_add(1, Ordering::Relaxed);
+        self.blocks[k as usize].clone()
+    }
+
+    fn request(&self, k: BlockId) -> Landing {
+        let landing = Landing::default();
+        let block = self.blocks[k as usize].clone();
+        self.pending.lock().unwrap().push((landing.clone(), block));
+        landing
+    }
+
+    fn landings(&self) -> u64 {
+        self.landed.load(Ordering::SeqCst)
+    }
+
+    fn wait_for_landing(&self, _seen: u64, _timeout: std::time::Duration) -> bool {
+        let mut pending = self.pending.lock().unwrap();
+        let asked = std::mem::take(&mut *pending);
+        for (i, (landing, block)) in asked.into_iter().rev().enumerate() {
+            if i % 2 == 0 {
+                landing.land(block);
+                self.landed.fetch_add(1, Ordering::SeqCst);
+            } else {
+                pending.push((landing, block));
+            }
+        }
+        true
+    }
+}
+
+#[test]
+fn parked_packets_finish_with_the_replicated_pixels_when_blocks_come_late_out_of_order() {
+    let scene = gallery_scene();
+    let wall = WallSpec::grid(2, 1, 64, 48).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall.clone());
+    let view = view_of(&scene, every_ray_kind(), (wall.width(), wall.height()));
+    let (want, want_rays) = render_tiles(&crate::PreparedScene::new(&scene), &view, grid.tiles());
+    for lines in [0, 4, 64] {
+        let accel = crate::bvh::Accel::build(&scene);
+        let (manifest, blocks) = prepare::blocks_of(&scene, &accel, 2048).unwrap();
+        let late = Arc::new(LateBlocks {
+            blocks: blocks.map(Arc::new).collect(),
+            ..LateBlocks::default()
+        });
+        let dsm = shared_from(&manifest, &late.blocks, (1, 3), lines, late.clone());
+        let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
+        assert_eq!(rays, want_rays, "{lines} lines");
+        assert!(got == want, "{lines} lines: not the replicated pixels");
+        let stats = dsm.shared.as_ref().unwrap().stats();
+        assert!(stats.parked > 0, "{lines} lines: nothing was set aside");
+        assert!(late.landed.load(Ordering::SeqCst) > 0);
+        // Every packet finished by being traced again, none by waiting for a block.
+        assert_eq!(late.waited_for.load(Ordering::Relaxed), 0, "{lines} lines");
     }
 }
 
