@@ -278,8 +278,9 @@ fn cache_lines(
 
 /// Blocks one packet's traces may keep alive (what they read and missed; see [`PinLimits`]).
 const PACKET_PIN_BLOCKS: u64 = 64;
-/// Blocks all the packets set aside at once may keep alive or wait for.
-const PARKED_BLOCKS: u64 = 128;
+/// Distinct blocks all the packets set aside at once may keep alive or wait for, under a
+/// memory budget (without one, as many as the cache has lines if that is more).
+const PARKED_BLOCKS: u64 = 256;
 
 /// Blocks a node may hold besides its cache's: those its render threads keep
 /// ([`DsmReader::HOLDS`] each, some evicted from the cache meanwhile, and the pins of the
@@ -292,6 +293,27 @@ fn spare_blocks(threads: usize) -> u64 {
         + PARKED_BLOCKS
         + crate::fetch_driver::PREFETCH_IN_FLIGHT as u64
         + 64
+}
+
+/// Bounds what packets set aside keep: under a memory budget to the room [`spare_blocks`]
+/// made for it, without one to as many blocks as the cache holds; with [`WAIT_FOR_BLOCKS`]
+/// set, none is set aside.
+fn park_within_spare(tree: &DsmTree, budgeted: bool) {
+    let block_bytes = tree.layout().block_bytes as u64;
+    let lines = tree.cache().lines() as u64;
+    let parked = if budgeted {
+        PARKED_BLOCKS
+    } else {
+        PARKED_BLOCKS.max(lines)
+    };
+    tree.set_pin_limits(PinLimits {
+        per_packet: (PACKET_PIN_BLOCKS * block_bytes) as usize,
+        parked: (parked * block_bytes) as usize,
+    });
+    if std::env::var_os(WAIT_FOR_BLOCKS).is_some() {
+        tracing::info!("{WAIT_FOR_BLOCKS} is set: render threads wait for missing blocks");
+        tree.set_parks_misses(false);
+    }
 }
 
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
@@ -349,14 +371,7 @@ pub async fn start(
         cache.clone(),
         hub.clone(),
     )?;
-    tree.set_pin_limits(PinLimits {
-        per_packet: (PACKET_PIN_BLOCKS * layout.block_bytes as u64) as usize,
-        parked: (PARKED_BLOCKS * layout.block_bytes as u64) as usize,
-    });
-    if std::env::var_os(WAIT_FOR_BLOCKS).is_some() {
-        tracing::info!("{WAIT_FOR_BLOCKS} is set: render threads wait for missing blocks");
-        tree.set_parks_misses(false);
-    }
+    park_within_spare(&tree, budget.is_some());
     let prepared = PreparedScene::from_shared(&manifest, tree);
     let driver = fetch_driver::spawn(fetch_driver::Setup {
         residency,

@@ -21,7 +21,8 @@ use crate::dsm::{DsmTree, Landing, PinLimits};
 use crate::tracer::{Carried, Tracer};
 use crate::PreparedScene;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::collections::HashMap;
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use tessera_core::dsm::BlockId;
 
@@ -40,32 +41,52 @@ struct Attempt {
     index: usize,
     carried: Carried,
     parks: u32,
-    /// Bytes it holds of the parked packets' budget while set aside.
-    reserved: usize,
+    /// The blocks it holds of the parked packets' budget while set aside.
+    reserved: Vec<BlockId>,
 }
 
 /// The bounds on what set-aside packets keep, and what they keep now.
 struct PinBudget {
     limits: PinLimits,
     block_bytes: usize,
-    parked: AtomicUsize,
+    /// The blocks the packets set aside keep or wait for, each with how many do: packets of
+    /// one tile share most of theirs, so the memory is that of the distinct blocks.
+    held: Mutex<HashMap<BlockId, u32>>,
 }
 
 impl PinBudget {
-    /// Reserves room for a packet keeping `carried` and waiting for `missed` blocks: the
-    /// bytes reserved, or `None` if there is none.
-    fn reserve(&self, carried: &Carried, missed: usize) -> Option<usize> {
-        let pinned = carried.pinned_bytes();
-        if pinned >= self.limits.per_packet {
+    /// Reserves room for a packet keeping `carried` and waiting for `missed`: the blocks
+    /// reserved, or `None` if there is no room.
+    fn reserve(&self, carried: &Carried, missed: &[(BlockId, Landing)]) -> Option<Vec<BlockId>> {
+        if carried.pinned_bytes() >= self.limits.per_packet {
             return None;
         }
-        let bytes = pinned + missed * self.block_bytes;
-        let before = self.parked.fetch_add(bytes, Ordering::Relaxed);
-        if before.saturating_add(bytes) > self.limits.parked {
-            self.parked.fetch_sub(bytes, Ordering::Relaxed);
+        let mut ids: Vec<BlockId> = carried.pins.iter().map(|(k, _)| *k).collect();
+        ids.extend(missed.iter().map(|(k, _)| *k));
+        ids.sort_unstable();
+        ids.dedup();
+        let mut held = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        let new = ids.iter().filter(|k| !held.contains_key(k)).count();
+        if (held.len() + new).saturating_mul(self.block_bytes) > self.limits.parked {
             return None;
         }
-        Some(bytes)
+        for &k in &ids {
+            *held.entry(k).or_default() += 1;
+        }
+        Some(ids)
+    }
+
+    /// A packet set aside is traced again: what it reserved is free.
+    fn release(&self, ids: &[BlockId]) {
+        let mut held = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        for k in ids {
+            if let Some(n) = held.get_mut(k) {
+                *n -= 1;
+                if *n == 0 {
+                    held.remove(k);
+                }
+            }
+        }
     }
 }
 
@@ -116,17 +137,17 @@ pub(crate) fn trace_all<T: Send>(
             index,
             carried: Carried::default(),
             parks: 0,
-            reserved: 0,
+            reserved: Vec::new(),
         })
         .collect();
     let mut parked: Vec<Parked> = Vec::new();
     let budget = PinBudget {
         limits: tree.pin_limits(),
         block_bytes: tree.layout().block_bytes as usize,
-        parked: AtomicUsize::new(0),
+        held: Mutex::new(HashMap::new()),
     };
     loop {
-        let traced: Vec<Result<(usize, T), Parked>> = todo
+        let traced: Vec<Result<(usize, T), Box<Parked>>> = todo
             .into_par_iter()
             .map_init(
                 || scene.tracer(),
@@ -136,15 +157,16 @@ pub(crate) fn trace_all<T: Send>(
         for t in traced {
             match t {
                 Ok((i, value)) => done[i] = Some(value),
-                Err(p) => parked.push(p),
+                Err(p) => parked.push(*p),
             }
         }
         if parked.is_empty() {
             break;
         }
         todo = wait_for_ready(tree, &mut parked, cancel)?;
-        let resumed: usize = todo.iter().map(|a| a.reserved).sum();
-        budget.parked.fetch_sub(resumed, Ordering::Relaxed);
+        for attempt in &mut todo {
+            budget.release(&std::mem::take(&mut attempt.reserved));
+        }
     }
     done.into_iter().collect()
 }
@@ -154,7 +176,7 @@ fn trace_once<T>(
     tracer: &mut Tracer<'_>,
     attempt: Attempt,
     (trace, budget): (&impl Fn(&mut Tracer<'_>, usize) -> T, &PinBudget),
-) -> Result<(usize, T), Parked> {
+) -> Result<(usize, T), Box<Parked>> {
     let Attempt {
         index,
         carried,
@@ -168,7 +190,7 @@ fn trace_once<T>(
     if missed.is_empty() {
         return Ok((index, value));
     }
-    let Some(reserved) = budget.reserve(&carried, missed.len()) else {
+    let Some(reserved) = budget.reserve(&carried, &missed) else {
         // No room to set it aside: traced again at once, waiting for each block it misses.
         tracer.park_misses(false, carried);
         let value = trace(tracer, index);
@@ -176,7 +198,7 @@ fn trace_once<T>(
         tracer.park_misses(false, Carried::default());
         return Ok((index, value));
     };
-    Err(Parked {
+    Err(Box::new(Parked {
         attempt: Attempt {
             index,
             carried,
@@ -184,7 +206,7 @@ fn trace_once<T>(
             reserved,
         },
         missed,
-    })
+    }))
 }
 
 /// The set-aside packets whose blocks have all landed, taken out of `parked`, waiting for a

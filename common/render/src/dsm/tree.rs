@@ -55,7 +55,7 @@ pub trait BlockFetch: Send + Sync {
 pub struct PinLimits {
     /// Bytes of blocks one packet's traces may keep (those they read or missed).
     pub per_packet: usize,
-    /// Bytes of blocks all the packets set aside at once may keep or wait for, together.
+    /// Bytes of the distinct blocks all the packets set aside at once may keep or wait for.
     pub parked: usize,
 }
 
