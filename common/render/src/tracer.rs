@@ -28,6 +28,10 @@ impl Carried {
 /// as bits: a query of the same bits has the same answer, the scene being the same.
 type Query = [u32; 9];
 
+/// The kinds of [`Query`].
+const CLOSEST: u32 = 0;
+const OCCLUDED: u32 = 1;
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Answer {
     Occluded(bool),
@@ -54,6 +58,24 @@ impl Answers {
     fn known(&self, query: &Query) -> Option<Answer> {
         let at = self.known.binary_search_by(|(q, _)| q.cmp(query)).ok()?;
         Some(self.known[at].1)
+    }
+
+    /// The answer to `query`: an earlier trace's, or `trace`'s now, kept if this trace has
+    /// missed nothing so far.
+    fn answer(
+        &mut self,
+        query: Query,
+        reader: &mut DsmReader<'_>,
+        trace: impl FnOnce(&mut DsmReader<'_>) -> Answer,
+    ) -> Answer {
+        if let Some(known) = self.known(&query) {
+            return known;
+        }
+        let answer = trace(reader);
+        if reader.missed_count() == 0 {
+            self.new.push((query, answer));
+        }
+        answer
     }
 
     /// This trace's answers join the known ones (the trace missed a block and will be
@@ -132,15 +154,14 @@ impl<'s> Tracer<'s> {
         match &mut self.memory {
             Memory::Resident(m) => closest_hit(m, ray, (t_min, t_max), stack),
             Memory::Dsm(m) if self.answering => {
-                let query = Answers::query(0, ray, t_min, t_max);
-                if let Some(Answer::Closest(hit)) = self.answers.known(&query) {
-                    return hit;
+                let query = Answers::query(CLOSEST, ray, t_min, t_max);
+                let trace = |m: &mut DsmReader<'_>| {
+                    Answer::Closest(closest_hit(m, ray, (t_min, t_max), stack))
+                };
+                match self.answers.answer(query, m, trace) {
+                    Answer::Closest(hit) => hit,
+                    Answer::Occluded(_) => unreachable!("a closest-hit query has its own kind"),
                 }
-                let hit = closest_hit(m, ray, (t_min, t_max), stack);
-                if m.missed_count() == 0 {
-                    self.answers.new.push((query, Answer::Closest(hit)));
-                }
-                hit
             }
             Memory::Dsm(m) => closest_hit(m, ray, (t_min, t_max), stack),
         }
@@ -153,15 +174,14 @@ impl<'s> Tracer<'s> {
         match &mut self.memory {
             Memory::Resident(m) => occluded(m, ray, (t_min, t_max), stack),
             Memory::Dsm(m) if self.answering => {
-                let query = Answers::query(1, ray, t_min, t_max);
-                if let Some(Answer::Occluded(blocked)) = self.answers.known(&query) {
-                    return blocked;
+                let query = Answers::query(OCCLUDED, ray, t_min, t_max);
+                let trace = |m: &mut DsmReader<'_>| {
+                    Answer::Occluded(occluded(m, ray, (t_min, t_max), stack))
+                };
+                match self.answers.answer(query, m, trace) {
+                    Answer::Occluded(blocked) => blocked,
+                    Answer::Closest(_) => unreachable!("an occlusion query has its own kind"),
                 }
-                let blocked = occluded(m, ray, (t_min, t_max), stack);
-                if m.missed_count() == 0 {
-                    self.answers.new.push((query, Answer::Occluded(blocked)));
-                }
-                blocked
             }
             Memory::Dsm(m) => occluded(m, ray, (t_min, t_max), stack),
         }
