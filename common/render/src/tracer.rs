@@ -225,11 +225,12 @@ impl<'s> Tracer<'s> {
         (missed, Carried { pins, answers })
     }
 
-    /// Whether a block was missed since [`Tracer::take_missed`] (see `dsm::DsmReader::has_missed`).
+    /// Whether a block was missed since [`Tracer::take_missed`] (see
+    /// `dsm::DsmReader::missed_count`).
     pub fn has_missed(&self) -> bool {
         match &self.memory {
             Memory::Resident(_) => false,
-            Memory::Dsm(m) => m.has_missed(),
+            Memory::Dsm(m) => m.missed_count() > 0,
         }
     }
 

@@ -54,16 +54,6 @@ impl<const N: usize> Holds<'_, N> {
             held: std::array::from_fn(|_| Hold::Nothing),
         }
     }
-
-    /// Empties the entries that hold a stand-in.
-    fn forget_absent(&mut self) {
-        for i in 0..N {
-            if matches!(self.held[i], Hold::Absent(_)) {
-                self.held[i] = Hold::Nothing;
-                self.ids[i] = u64::MAX;
-            }
-        }
-    }
 }
 
 /// One thread's reads of a [`DsmTree`] (see the module doc). Make one per thread with
@@ -164,30 +154,20 @@ impl<'s> DsmReader<'s> {
     pub fn park_misses(&mut self, on: bool, pins: Pins) {
         self.parking.on = on;
         self.parking.pins = pins;
-        if on {
-            self.parking.trace = self.parking.trace.wrapping_add(1 << 32);
-        }
+        // A new trace: no entry, a stand-in least of all, is read without a look first.
+        self.parking.trace = self.parking.trace.wrapping_add(1 << 32);
     }
 
     /// The blocks missed since the last call, each with where it lands; the pins handed in
     /// come back with them. After a miss, what was traced read stand-ins and must be traced
-    /// again: the stand-ins are let go of here, so the next trace looks again.
+    /// again; the next [`DsmReader::park_misses`] starts a trace that looks at every entry
+    /// again, stand-ins included.
     pub fn take_missed(&mut self) -> (Vec<(BlockId, Landing)>, Pins) {
         let missed = std::mem::take(&mut self.parking.missed);
-        if !missed.is_empty() {
-            self.nodes.forget_absent();
-            self.tris.forget_absent();
-        }
         (missed, std::mem::take(&mut self.parking.pins))
     }
 
-    /// Whether this trace missed a block (parking misses): what it traces from here on starts
-    /// from void results.
-    pub fn has_missed(&self) -> bool {
-        !self.parking.missed.is_empty()
-    }
-
-    /// Blocks this trace missed so far.
+    /// Blocks this trace missed so far: after one, what it traces starts from void results.
     pub fn missed_count(&self) -> usize {
         self.parking.missed.len()
     }

@@ -341,22 +341,17 @@ impl DsmTree {
 
     /// Block `k`, from wherever it is: this node's own memory, the cache, or its owner.
     pub(super) fn hold(&self, k: BlockId) -> Hold<'_> {
-        if let Some(chunks) = self.local(k) {
-            return Hold::Local(chunks);
-        }
-        let line = self.residency.cache_line(k, self.cache.lines());
-        if let Some(block) = (self.cache.lines() > 0)
-            .then(|| self.cache.get(k, line))
-            .flatten()
-        {
-            return Hold::Cached(block);
+        if let Some(held) = self.try_hold(k, &[]) {
+            return held;
         }
         let t0 = Instant::now();
         let block = self.fetch.fetch(k);
         self.fetch_wait_ns
             .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
         self.fetched.fetch_add(1, Ordering::Relaxed);
-        if self.cache.lines() > 0 {
+        let lines = self.cache.lines();
+        if lines > 0 {
+            let line = self.residency.cache_line(k, lines);
             self.cache.insert(k, line, block.clone());
         }
         Hold::Cached(block)
