@@ -21,8 +21,9 @@ pub enum DataMode {
 pub struct DataArgs {
     /// How render nodes hold the scene: `replicated` (each loads all of it), `dsm`
     /// (distributed shared memory: the scene is prepared in blocks, each render node holds
-    /// 1/N of them plus a cache and fetches the rest from their owners; triangle meshes
-    /// only), or `auto` (dsm when the prepared scene does not fit --memory-budget).
+    /// 1/N of them plus a cache and fetches the rest from their owners; triangle meshes and
+    /// a volume, not particles or a volume series), or `auto` (dsm when the prepared scene
+    /// does not fit --memory-budget).
     #[arg(long, value_enum, default_value_t = DataMode::Replicated)]
     pub data: DataMode,
     /// Memory each render node may use, such as 512MiB or 2GiB. With --data dsm it sizes the
@@ -34,7 +35,8 @@ pub struct DataArgs {
     /// keeps every block reachable when a render node dies.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub replicas: u32,
-    /// With --data dsm: the size of a block (a multiple of 256 bytes, 2KiB to 1MiB).
+    /// With --data dsm: the size of a block (a multiple of 256 bytes, 2KiB to 1MiB); a scene
+    /// with a volume uses at least a brick's (140.5KiB).
     #[arg(long, default_value = "8KiB", value_parser = parse_bytes, value_name = "SIZE")]
     pub block_size: u64,
     /// Where the scene prepared in blocks is, or goes (default:
@@ -75,6 +77,25 @@ pub fn default_dir(scene_hash: &[u8; 32], block_bytes: u32) -> Result<PathBuf> {
 
 fn block_bytes(size: u64) -> Result<u32> {
     u32::try_from(size).map_err(|_| anyhow::anyhow!("block size {size} is too large"))
+}
+
+/// The block size a scene is shared in when `asked` was asked for: at least a volume brick
+/// (a brick is one block, about 140 KiB; the tree and triangles of a scene with a volume are
+/// cut to the same size).
+pub fn scene_block_bytes(scene: &Scene, asked: u32) -> u32 {
+    if scene.volume.is_none() {
+        return asked;
+    }
+    let brick = tessera_render::volume::BRICK_SAMPLES * std::mem::size_of::<f32>();
+    let needed = tessera_render::dsm::layout::brick_block_bytes(brick as u32);
+    if asked < needed {
+        tracing::info!(
+            "the scene has a volume: blocks of {} (a brick) in place of {}",
+            show_bytes(needed as u64),
+            show_bytes(asked as u64)
+        );
+    }
+    asked.max(needed)
 }
 
 /// The scene prepared in `dir`: reused if it holds this very scene in blocks of
@@ -121,8 +142,9 @@ pub fn ensure_prepared(
     }
     let layout = manifest.layout;
     tracing::info!(
-        "prepared {} triangles in {} blocks of {} ({}) in {:.1} s: {}",
+        "prepared {} triangles and {} volume bricks in {} blocks of {} ({}) in {:.1} s: {}",
         layout.triangle_count,
+        layout.brick_blocks,
         layout.total(),
         show_bytes(layout.block_bytes as u64),
         show_bytes(layout.total_bytes()),
@@ -136,7 +158,7 @@ pub fn ensure_prepared(
 pub fn prepare_command(args: PrepareArgs) -> Result<()> {
     let spec = tessera_model::scene_spec::SceneSpec::from_arg(&args.scene)?;
     let scene = Scene::load(&spec)?;
-    let bytes = block_bytes(args.block_size)?;
+    let bytes = scene_block_bytes(&scene, block_bytes(args.block_size)?);
     let dir = match args.out {
         Some(dir) => dir,
         None => default_dir(&scene.content_hash(), bytes)?,
@@ -169,9 +191,9 @@ pub fn data_spec(
         if budget.is_none() {
             bail!("--data auto decides by --memory-budget: give one (such as 2GiB)");
         }
-        if !scene.particles.is_empty() || scene.volume.is_some() {
+        if !scene.particles.is_empty() || !scene.series.is_empty() {
             tracing::info!(
-                "--data auto: the scene has particles or a volume, which are replicated"
+                "--data auto: the scene has particles or a volume series, which are replicated"
             );
             return Ok(DataSpec::Replicated);
         }
@@ -182,7 +204,7 @@ pub fn data_spec(
             args.replicas
         );
     }
-    let bytes = block_bytes(args.block_size)?;
+    let bytes = scene_block_bytes(scene, block_bytes(args.block_size)?);
     let dir = match &args.prepared {
         Some(dir) => dir.clone(),
         None => default_dir(&scene.content_hash(), bytes)?,

@@ -377,7 +377,11 @@ pub async fn start(
         hub.clone(),
     )?;
     park_within_spare(&tree, budget.is_some());
-    let prepared = PreparedScene::from_shared(&manifest, tree);
+    let volume = match &manifest.volume {
+        Some(entry) => Some(tessera_render::dsm::volume::load(&dir, entry)?),
+        None => None,
+    };
+    let prepared = PreparedScene::from_shared(&manifest, tree, volume);
     let driver = fetch_driver::spawn(fetch_driver::Setup {
         residency,
         holders,

@@ -268,17 +268,25 @@ fn the_probe_reads_the_volume_under_a_pixel_and_follows_the_iso_value() {
 
 /// Frames the wall has presented, as a control client reads them.
 fn presented(wall: &Wall) -> u64 {
+    figure(wall, "frames_presented")
+}
+
+fn figure(wall: &Wall, name: &str) -> u64 {
     let o = wall.control(&["figures"]);
     o.assert_success("figures");
     let figures: serde_json::Value = serde_json::from_str(&o.stdout).expect("JSON figures");
-    figures["Figures"]["frames_presented"]
-        .as_u64()
-        .expect("a count")
+    figures["Figures"][name].as_u64().expect("a count")
 }
 
-/// Waits until the wall is held by a runaway frame: no present for 300 ms.
+/// Waits until the wall is held by a runaway frame: a barrier has applied the runaway
+/// quality (so the frame rendering it is under way), and no frame is presented for 300 ms.
+/// The pause alone is not enough: on a busy machine a frame of the old quality took 690 ms,
+/// and an interrupt then came before the runaway frame had started.
 fn wait_until_stuck(wall: &Wall) {
     let stuck = wait_for(LIMIT, || {
+        if figure(wall, "changes_applied") == 0 {
+            return false;
+        }
         let before = presented(wall);
         // A window to watch the count over, not a wait for readiness.
         std::thread::sleep(Duration::from_millis(300));

@@ -345,7 +345,7 @@ fn shade_packet(
                 Some(tables) => {
                     let t_end = surfaces[i].map_or(packet.t_max[i], |h| h.t());
                     let interval = (packet.t_min[i], t_end);
-                    shade::through_volume(scene, tables, (eye, dir), interval, color)
+                    shade::through_volume(scene, tables, (eye, dir), interval, color, shader.tracer)
                 }
                 None => color,
             };

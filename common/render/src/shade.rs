@@ -70,11 +70,12 @@ pub fn through_volume(
     (origin, dir): (Vec3, Vec3),
     interval: (f32, f32),
     behind: Vec3,
+    tracer: &mut Tracer<'_>,
 ) -> Vec3 {
     let Some(volume) = &scene.volume else {
         return behind;
     };
-    let [r, g, b, a] = volume.composite(tables, origin, dir, interval);
+    let [r, g, b, a] = volume.composite(tables, (origin, dir), interval, tracer);
     Vec3::new(r, g, b) + behind * (1.0 - a)
 }
 
@@ -118,6 +119,7 @@ impl Shader<'_, '_> {
                     (origin, dir),
                     (interval.0, t_hit),
                     color,
+                    self.tracer,
                 )
             }
             None => color,
@@ -143,7 +145,7 @@ impl Shader<'_, '_> {
                     &mut self.tracer.stack,
                 )
             })
-            || iso_occludes(scene, self.view, ray, (t_min, t_max))
+            || iso_occludes(scene, self.view, ray, (t_min, t_max), self.tracer)
     }
 
     /// Colour of `hit` seen from `origin` along `dir`, `material` being its material (a

@@ -106,7 +106,7 @@ fn blocked(
             let interval = (packet.t_min[j], packet.t_max[j]);
             if occluded >> j & 1 == 0
                 && interval.0 <= interval.1
-                && iso_occludes(scene, view, &Ray::new(start, towards), interval)
+                && iso_occludes(scene, view, &Ray::new(start, towards), interval, tracer)
             {
                 occluded |= 1 << j;
             }

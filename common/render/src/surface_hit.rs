@@ -151,7 +151,8 @@ pub fn nearest_surface(
     if let Some(volume) = &scene.volume {
         let t_max = nearest.map_or(interval.1, |h| h.t().min(interval.1));
         let iso = view.params.volume().iso.as_slice();
-        if let Some((t, surface)) = volume.iso_hit(iso, origin, dir, (interval.0, t_max)) {
+        if let Some((t, surface)) = volume.iso_hit(iso, (origin, dir), (interval.0, t_max), tracer)
+        {
             nearest = Some(SurfaceHit::Iso { t, surface });
         }
     }
@@ -181,7 +182,7 @@ pub fn hit_frame(
         SurfaceHit::Iso { t, .. } => {
             let p = origin + dir * t;
             let volume = scene.volume.as_ref().expect("an iso hit implies a volume");
-            let mut n = volume.normal_at(p, -dir);
+            let mut n = volume.normal_at(p, -dir, tracer);
             if n.dot(dir) > 0.0 {
                 n = -n;
             }
@@ -215,12 +216,14 @@ pub fn iso_occludes(
     view: &FrameView,
     ray: &Ray,
     interval: (f32, f32),
+    tracer: &mut Tracer<'_>,
 ) -> bool {
     let iso = view.params.volume().iso.as_slice();
-    scene
-        .volume
-        .as_ref()
-        .is_some_and(|v| !iso.is_empty() && v.iso_hit(iso, ray.origin, ray.dir, interval).is_some())
+    scene.volume.as_ref().is_some_and(|v| {
+        !iso.is_empty()
+            && v.iso_hit(iso, (ray.origin, ray.dir), interval, tracer)
+                .is_some()
+    })
 }
 
 /// Direction towards `light` from `point`, how far the light is, and its intensity there.

@@ -5,6 +5,7 @@
 use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, LeafTriangle};
 use crate::dsm::{DsmReader, Landing, Pins};
+use crate::volume::{BrickSource, Bricks};
 use tessera_core::dsm::BlockId;
 
 /// What a packet's earlier traces leave to its next one (see `parking`): the blocks they read
@@ -111,6 +112,16 @@ pub struct Tracer<'s> {
 enum Memory<'s> {
     Resident(crate::bvh::memory::Resident<'s>),
     Dsm(DsmReader<'s>),
+}
+
+impl BrickSource for Tracer<'_> {
+    #[inline]
+    fn samples<'a>(&'a mut self, bricks: &'a Bricks, index: usize) -> Option<&'a [f32]> {
+        match &mut self.memory {
+            Memory::Dsm(reader) if bricks.is_shared() => reader.samples(bricks, index),
+            _ => Some(bricks.local_samples(index)),
+        }
+    }
 }
 
 impl<'s> Tracer<'s> {

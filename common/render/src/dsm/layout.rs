@@ -98,12 +98,26 @@ pub enum LayoutError {
     /// The scene needs this many blocks: more than 32-bit block ids can number.
     #[error("the scene needs {0} blocks; block ids are 32-bit")]
     TooManyBlocks(u64),
+    /// A volume brick (this many bytes) does not fit a block of this size.
+    #[error("a volume brick is {brick} bytes, more than a block of {block}: give a block size of at least {brick} bytes rounded up to 256 ({})", brick_block_bytes(*brick))]
+    BrickTooLarge {
+        /// The block size asked for.
+        block: u32,
+        /// The largest brick's bytes.
+        brick: u32,
+    },
 }
 
-/// Where the tree's nodes and the triangles sit in blocks: nodes `0..node_count` in blocks
-/// `0..node_blocks`, [`BlockLayout::nodes_per_block`] to a block, then triangles in the
-/// following `triangle_blocks`. The first `top_blocks` node blocks (the top of the tree, which
-/// every ray walks) are held by every node.
+/// The smallest block size that holds a brick of `brick` bytes.
+pub fn brick_block_bytes(brick: u32) -> u32 {
+    brick.div_ceil(256) * 256
+}
+
+/// Where the tree's nodes, the triangles and a volume's bricks sit in blocks: nodes
+/// `0..node_count` in blocks `0..node_blocks`, [`BlockLayout::nodes_per_block`] to a block,
+/// then triangles in the following `triangle_blocks`, then one brick a block. The first
+/// `top_blocks` node blocks (the top of the tree, which every ray walks) are held by every
+/// node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BlockLayout {
     /// Size of every block, in bytes: a multiple of 256 from [`MIN_BLOCK_BYTES`] to
@@ -119,6 +133,9 @@ pub struct BlockLayout {
     pub triangle_blocks: u32,
     /// Node blocks every render node holds (the top of the tree), at most `node_blocks`.
     pub top_blocks: u32,
+    /// Blocks holding a volume's bricks, one each, following the triangle blocks.
+    #[serde(default)]
+    pub brick_blocks: u32,
 }
 
 impl BlockLayout {
@@ -152,7 +169,35 @@ impl BlockLayout {
             node_blocks,
             triangle_blocks,
             top_blocks: top_blocks.min(node_blocks),
+            brick_blocks: 0,
         })
+    }
+
+    /// This layout with `bricks` volume bricks of at most `brick_bytes` bytes after the
+    /// triangles, one a block.
+    ///
+    /// # Errors
+    /// A brick larger than a block; more blocks than ids.
+    pub fn with_bricks(self, bricks: u32, brick_bytes: u32) -> Result<BlockLayout, LayoutError> {
+        if bricks > 0 && brick_bytes > self.block_bytes {
+            return Err(LayoutError::BrickTooLarge {
+                block: self.block_bytes,
+                brick: brick_bytes,
+            });
+        }
+        let total = self.node_blocks as u64 + self.triangle_blocks as u64 + bricks as u64;
+        if total >= u32::MAX as u64 {
+            return Err(LayoutError::TooManyBlocks(total));
+        }
+        Ok(BlockLayout {
+            brick_blocks: bricks,
+            ..self
+        })
+    }
+
+    /// The block of brick 0.
+    pub fn first_brick_block(&self) -> BlockId {
+        self.node_blocks + self.triangle_blocks
     }
 
     /// How many 8-wide nodes a block holds.
@@ -167,7 +212,7 @@ impl BlockLayout {
 
     /// Blocks in all.
     pub fn total(&self) -> u32 {
-        self.node_blocks + self.triangle_blocks
+        self.node_blocks + self.triangle_blocks + self.brick_blocks
     }
 
     /// Bytes of every block together.

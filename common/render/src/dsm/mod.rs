@@ -1,6 +1,6 @@
-//! The scene in distributed shared memory (Ize et al. 2011, §4): its 8-wide tree and leaf
-//! triangles cut into fixed-size blocks, spread over the render nodes, and read by the same
-//! traversals that read replicated arrays.
+//! The scene in distributed shared memory (Ize et al. 2011, §4): its 8-wide tree, leaf
+//! triangles and volume bricks cut into fixed-size blocks, spread over the render nodes, and
+//! read by the same traversals and volume marches that read replicated arrays.
 //!
 //! * [`layout`]: the block geometry: which block and offset hold a node or a triangle.
 //! * [`reorder`]: tree nodes written so that a block holds a coherent subtree, siblings
@@ -12,10 +12,14 @@
 //!   neither, which a render thread either waits for or, as the frame loop does
 //!   (`crate::parking`), asks for and comes back to once it landed.
 //! * `reader`: [`DsmReader`], one thread's view of it, the
-//!   [`crate::bvh::memory::TreeMemory`] a traversal reads; when it parks its misses, a block
-//!   that is not here reads as a stand-in no ray enters or hits, and the trace is void.
+//!   [`crate::bvh::memory::TreeMemory`] a traversal reads and the
+//!   [`crate::volume::BrickSource`] a volume march reads; when it parks its misses, a block
+//!   that is not here reads as a stand-in no ray enters or hits (a brick as none, which a
+//!   march passes), and the trace is void.
+//! * [`volume`]: a volume's bricks, one a block after the triangles, and what every node holds
+//!   whole of it (where it lies, its min/max grid) in a file of its own.
 //!
-//! Volume bricks and particles are not shared: a scene with either is rendered replicated.
+//! Particles and volume series are not shared: a scene with either is rendered replicated.
 
 pub mod layout;
 pub mod pool;
@@ -23,6 +27,7 @@ pub mod prepare;
 mod reader;
 pub mod reorder;
 pub mod tree;
+pub mod volume;
 
 pub use layout::{Block, BlockLayout, Chunk, LayoutError};
 
@@ -40,9 +45,14 @@ use crate::bvh::Accel;
 use crate::PreparedScene;
 
 impl PreparedScene {
-    /// A scene whose triangles and tree are in shared memory: what its manifest holds whole
-    /// (materials, lights, the slots' materials), and its tree as this node holds it.
-    pub fn from_shared(manifest: &Manifest, tree: DsmTree) -> PreparedScene {
+    /// A scene whose triangles, tree and volume bricks are in shared memory: what its manifest
+    /// holds whole (materials, lights, the slots' materials), what `volume.bin` holds of its
+    /// volume, and its blocks as this node holds them.
+    pub fn from_shared(
+        manifest: &Manifest,
+        tree: DsmTree,
+        volume: Option<crate::volume::SharedVolume>,
+    ) -> PreparedScene {
         PreparedScene {
             // Only its depth is used: it sizes the traversal stacks.
             accel: Accel::from_parts(
@@ -59,7 +69,7 @@ impl PreparedScene {
             diagonal: manifest.diagonal,
             spheres: None,
             attribute_range: (f32::INFINITY, f32::NEG_INFINITY),
-            volume: None,
+            volume: volume.map(|v| std::sync::Arc::new(crate::volume::PreparedVolume::shared(v))),
         }
     }
 }

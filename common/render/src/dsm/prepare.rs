@@ -3,16 +3,19 @@
 //! every node needs whole (materials, lights, the tree's depth) in a manifest.
 //!
 //! A folder holds `blocks.bin` (block k at byte k × block size), `checksums.bin` (the first 8
-//! bytes of each block's BLAKE3 hash, little-endian) and `manifest.json`, written last, so a
-//! folder without one was never finished. It is reused while the manifest names the same
+//! bytes of each block's BLAKE3 hash, little-endian), for a volume `volume.bin`
+//! ([`super::volume`]), and `manifest.json`, written last, so a folder without one was never
+//! finished. It is reused while the manifest names the same
 //! scene content hash, format and block size.
 
 use super::layout::{Block, BlockLayout, Chunk, LayoutError};
 use super::reorder::reorder_for_blocks;
+use super::volume::{brick_blocks, encode, largest_brick_bytes, volume_path, VolumeEntry};
 use crate::bvh::node::{LeafTriangle, WideNode};
 use crate::bvh::Accel;
 use crate::scene::{Light, Material, Scene};
 use crate::slot_materials::SlotMaterials;
+use crate::volume::{PreparedVolume, SharedVolume};
 use serde::{Deserialize, Serialize};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -20,7 +23,7 @@ use tessera_core::dsm::{BlockId, Residency};
 use tessera_model::local_origin::RenderFromWorld;
 
 /// Bumped whenever the block contents or the files change.
-pub const FORMAT: u32 = 1;
+pub const FORMAT: u32 = 2;
 
 /// Blocks at the top of the tree that every node holds: 8 KB, the root and its first levels
 /// (Ize et al. replicate the same, since every ray starts there).
@@ -53,13 +56,17 @@ pub struct Manifest {
     pub slot_materials: SlotMaterials,
     /// Whether any material is transparent, as [`Scene::has_transparency`].
     pub blends: bool,
+    /// The scene's volume, if it has one: its bricks are the layout's brick blocks, and what
+    /// every node holds whole of it is in `volume.bin`.
+    #[serde(default)]
+    pub volume: Option<VolumeEntry>,
 }
 
 /// Why a scene could not be prepared, or a prepared one not read.
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
-    /// The scene has particles or a volume (named by the text), which are never shared.
-    #[error("distributed shared memory holds triangle meshes; this scene has {0}, render it replicated (--data replicated)")]
+    /// The scene has what is never shared (named by the text): particles or a volume series.
+    #[error("distributed shared memory holds triangle meshes and a volume; this scene has {0}, render it replicated (--data replicated)")]
     NotAMesh(&'static str),
     /// The block size is out of range, or the scene needs too many blocks.
     #[error(transparent)]
@@ -120,27 +127,45 @@ pub fn checksum(bytes: &[u8]) -> u64 {
     u64::from_le_bytes(hash.as_bytes()[..8].try_into().expect("8 bytes"))
 }
 
-/// The scene's blocks, in order, and its manifest: what [`prepare`] writes, in memory.
+/// The scene's blocks, in order, its manifest and its volume's part every node holds whole:
+/// what [`prepare`] writes, in memory.
 ///
 /// # Errors
-/// A scene with particles or a volume; a block size out of range.
+/// A scene with particles or a volume series; a block size out of range, or smaller than a
+/// volume's bricks.
 pub fn blocks_of<'a>(
     scene: &Scene,
     accel: &'a Accel,
     block_bytes: u32,
-) -> Result<(Manifest, impl Iterator<Item = Block> + 'a), PrepareError> {
+) -> Result<
+    (
+        Manifest,
+        Option<SharedVolume>,
+        impl Iterator<Item = Block> + 'a,
+    ),
+    PrepareError,
+> {
     if !scene.particles.is_empty() {
         return Err(PrepareError::NotAMesh("particles"));
     }
-    if scene.volume.is_some() || !scene.series.is_empty() {
-        return Err(PrepareError::NotAMesh("a volume"));
+    if !scene.series.is_empty() {
+        return Err(PrepareError::NotAMesh("a volume series"));
     }
+    let volume = scene
+        .volume
+        .as_ref()
+        .map(|v| PreparedVolume::new(v, &scene.render_from_world));
+    let (bricks, largest) = volume.as_ref().map_or((0, 0), |v| {
+        (v.bricks().count() as u32, largest_brick_bytes(v.bricks()))
+    });
     let layout = BlockLayout::new(
         block_bytes,
         accel.wide.len() as u32,
         accel.triangles.len() as u32,
         TOP_BLOCKS,
-    )?;
+    )?
+    .with_bricks(bricks, largest)?;
+    let shared = volume.as_ref().map(PreparedVolume::to_shared);
     let wide = reorder_for_blocks(&accel.wide, layout.nodes_per_block() as usize);
     let per_slot: Vec<u16> = accel
         .scene_index
@@ -161,6 +186,7 @@ pub fn blocks_of<'a>(
         lights: scene.lights.clone(),
         slot_materials: SlotMaterials::runs_of(&per_slot),
         blends: scene.has_transparency(),
+        volume: shared.as_ref().map(|v| encode(v).1),
     };
     let per_node = layout.nodes_per_block() as usize;
     let per_tri = layout.triangles_per_block() as usize;
@@ -179,7 +205,14 @@ pub fn blocks_of<'a>(
             bytemuck::cast_slice(&triangles[b * per_tri..end]),
         )
     });
-    Ok((manifest, node_blocks.chain(tri_blocks)))
+    let bricks = volume
+        .into_iter()
+        .flat_map(move |v| brick_blocks(v, block_bytes));
+    Ok((
+        manifest,
+        shared,
+        node_blocks.chain(tri_blocks).chain(bricks),
+    ))
 }
 
 fn block_from(block_bytes: u32, bytes: &[u8]) -> Block {
@@ -219,7 +252,11 @@ pub fn prepare(
     if manifest_file.exists() {
         std::fs::remove_file(&manifest_file).map_err(io(&manifest_file))?;
     }
-    let (manifest, blocks) = blocks_of(scene, accel, block_bytes)?;
+    let (manifest, volume, blocks) = blocks_of(scene, accel, block_bytes)?;
+    if let Some(volume) = &volume {
+        let path = volume_path(dir);
+        std::fs::write(&path, encode(volume).0).map_err(io(&path))?;
+    }
     let total = manifest.layout.total() as u64;
     let (blocks_file, sums_file) = (blocks_path(dir), checksums_path(dir));
     let mut out =
@@ -256,7 +293,11 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     }
     let l = manifest.layout;
     let again = BlockLayout::new(l.block_bytes, l.node_count, l.triangle_count, l.top_blocks)
+        .and_then(|again| again.with_bricks(l.brick_blocks, 0))
         .map_err(|e| e.to_string())?;
+    if (l.brick_blocks > 0) != manifest.volume.is_some() {
+        return Err("its brick blocks and its volume do not go together".into());
+    }
     if again != l {
         return Err("its block counts do not follow from its sizes".into());
     }
@@ -460,7 +501,7 @@ mod tests {
             load_manifest(dir.path(), Some((&hash, 8192))),
             Err(PrepareError::OtherScene { .. })
         ));
-        let (_, blocks) = blocks_of(&scene, &accel, 4096).unwrap();
+        let (_, _, blocks) = blocks_of(&scene, &accel, 4096).unwrap();
         let blocks: Vec<Block> = blocks.collect();
         let mut file = BlockFile::open(dir.path(), &manifest).unwrap();
         for (k, block) in blocks.iter().enumerate() {
@@ -487,7 +528,7 @@ mod tests {
     fn a_manifest_naming_materials_it_lacks_or_uncovered_slots_is_refused() {
         let scene = knot_scene(24, 4);
         let accel = Accel::build(&scene);
-        let (good, _) = blocks_of(&scene, &accel, 2048).unwrap();
+        let (good, _, _) = blocks_of(&scene, &accel, 2048).unwrap();
         let text = |m: &Manifest| serde_json::to_string(m).unwrap();
         assert_eq!(parse_manifest(&text(&good)).unwrap(), good);
         let cases = [

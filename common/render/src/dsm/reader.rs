@@ -21,6 +21,7 @@ use super::tree::{DsmTree, Hold, Landing};
 use super::Block;
 use crate::bvh::memory::{NoPrefetch, TreeMemory};
 use crate::bvh::node::{LeafTriangle, WideNode};
+use crate::volume::{BrickSource, Bricks};
 use std::ops::Range;
 use std::sync::Arc;
 use tessera_core::dsm::BlockId;
@@ -29,6 +30,9 @@ use tessera_core::dsm::BlockId;
 const NODE_HOLDS: usize = 64;
 /// Triangle blocks a reader keeps (a power of two).
 const TRIANGLE_HOLDS: usize = 32;
+/// Volume bricks a reader keeps (a power of two): a ray marches one brick at a time, and an
+/// iso-surface's shading reads the brick of its hit again.
+const BRICK_HOLDS: usize = 4;
 
 /// The blocks a reader entered, block k in entry k mod `N`.
 struct Holds<'s, const N: usize> {
@@ -67,6 +71,9 @@ pub struct DsmReader<'s> {
     node_blocks: u32,
     nodes: Holds<'s, NODE_HOLDS>,
     tris: Holds<'s, TRIANGLE_HOLDS>,
+    /// The first block of volume bricks, brick `i` in block `first_brick + i`.
+    first_brick: BlockId,
+    bricks: Holds<'s, BRICK_HOLDS>,
     tally: Tally,
     parking: Parking,
 }
@@ -132,7 +139,7 @@ struct Tally {
 
 impl<'s> DsmReader<'s> {
     /// Blocks a reader keeps at most (they stay alive while it does, whatever the cache).
-    pub const HOLDS: usize = NODE_HOLDS + TRIANGLE_HOLDS;
+    pub const HOLDS: usize = NODE_HOLDS + TRIANGLE_HOLDS + BRICK_HOLDS;
 
     pub(super) fn new(tree: &'s DsmTree) -> Self {
         let layout = tree.layout();
@@ -144,6 +151,8 @@ impl<'s> DsmReader<'s> {
             node_blocks: layout.node_blocks,
             nodes: Holds::new(),
             tris: Holds::new(),
+            first_brick: layout.first_brick_block(),
+            bricks: Holds::new(),
             tally: Tally::default(),
             parking: Parking::default(),
         }
@@ -241,6 +250,23 @@ impl<'s> DsmReader<'s> {
 impl Drop for DsmReader<'_> {
     fn drop(&mut self) {
         self.tree.count_reads(self.tally.reads, self.tally.local);
+    }
+}
+
+impl BrickSource for DsmReader<'_> {
+    #[inline]
+    fn samples<'a>(&'a mut self, _: &'a Bricks, index: usize) -> Option<&'a [f32]> {
+        let k = self.first_brick + index as BlockId;
+        Self::base_of(
+            self.tree,
+            &mut self.bricks,
+            k,
+            (&mut self.tally, &mut self.parking),
+        );
+        match &self.bricks.held[k as usize & (BRICK_HOLDS - 1)] {
+            Hold::Absent(_) | Hold::Nothing => None,
+            held => Some(bytemuck::cast_slice(held.chunks())),
+        }
     }
 }
 

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::scene::{gallery_scene, knot_scene, Scene};
+use crate::volume::SharedVolume;
 use crate::{orbit_of, render_tiles, FrameView};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -31,18 +32,19 @@ fn shared(
     lines: usize,
 ) -> (PreparedScene, Arc<AllBlocks>) {
     let accel = crate::bvh::Accel::build(scene);
-    let (manifest, blocks) = prepare::blocks_of(scene, &accel, block_bytes).unwrap();
+    let (manifest, volume, blocks) = prepare::blocks_of(scene, &accel, block_bytes).unwrap();
     let all = Arc::new(AllBlocks {
         blocks: blocks.map(Arc::new).collect(),
         asked: AtomicU64::new(0),
     });
-    let dsm = shared_from(&manifest, &all.blocks, (rank, ranks), lines, all.clone());
+    let prepared = (&manifest, volume);
+    let dsm = shared_from(prepared, &all.blocks, (rank, ranks), lines, all.clone());
     (dsm, all)
 }
 
 /// A node's share of the blocks of `manifest`, fetching the rest with `fetch`.
 fn shared_from(
-    manifest: &Manifest,
+    (manifest, volume): (&Manifest, Option<SharedVolume>),
     blocks: &[Arc<Block>],
     (rank, ranks): (u32, u32),
     lines: usize,
@@ -69,7 +71,7 @@ fn shared_from(
         fetch,
     )
     .unwrap();
-    PreparedScene::from_shared(manifest, tree)
+    PreparedScene::from_shared(manifest, tree, volume)
 }
 
 fn view_of(scene: &Scene, params: RenderParams, (w, h): (u32, u32)) -> FrameView {
@@ -123,6 +125,9 @@ struct LateBlocks {
     pending: std::sync::Mutex<Vec<(Landing, Arc<Block>)>>,
     landed: AtomicU64,
     waited_for: AtomicU64,
+    /// Blocks from this one on are counted in `asked_from_first`.
+    first_counted: BlockId,
+    asked_from_first: AtomicU64,
 }
 
 impl BlockFetch for LateBlocks {
@@ -133,6 +138,9 @@ impl BlockFetch for LateBlocks {
 
     fn request(&self, k: BlockId) -> Landing {
         let landing = Landing::default();
+        if k >= self.first_counted {
+            self.asked_from_first.fetch_add(1, Ordering::Relaxed);
+        }
         let block = self.blocks[k as usize].clone();
         self.pending.lock().unwrap().push((landing.clone(), block));
         landing
@@ -166,12 +174,18 @@ fn parked_packets_finish_with_the_replicated_pixels_when_blocks_come_late_out_of
     let (want, want_rays) = render_tiles(&crate::PreparedScene::new(&scene), &view, grid.tiles());
     for lines in [0, 4, 64] {
         let accel = crate::bvh::Accel::build(&scene);
-        let (manifest, blocks) = prepare::blocks_of(&scene, &accel, 2048).unwrap();
+        let (manifest, volume, blocks) = prepare::blocks_of(&scene, &accel, 2048).unwrap();
         let late = Arc::new(LateBlocks {
             blocks: blocks.map(Arc::new).collect(),
             ..LateBlocks::default()
         });
-        let dsm = shared_from(&manifest, &late.blocks, (1, 3), lines, late.clone());
+        let dsm = shared_from(
+            (&manifest, volume),
+            &late.blocks,
+            (1, 3),
+            lines,
+            late.clone(),
+        );
         let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
         assert_eq!(rays, want_rays, "{lines} lines");
         assert!(got == want, "{lines} lines: not the replicated pixels");
@@ -274,5 +288,84 @@ fn reader_overhead_against_replicated() {
     }
     for (name, p) in &variants[2..] {
         println!("{name}: {:?}", p.shared.as_ref().unwrap().stats());
+    }
+}
+
+/// The gallery with a volume of 27 bricks through it (a mixed scene), or the volume alone.
+fn with_volume(mesh: bool) -> Scene {
+    let blobs = |p: glam::Vec3| {
+        let g = |c: glam::Vec3, s: f32| (-(p - c).length_squared() / (s * s)).exp();
+        g(glam::Vec3::new(-0.3, -0.2, 0.0), 0.35) + g(glam::Vec3::new(0.35, 0.1, 0.1), 0.3)
+    };
+    let volume = crate::volume::render_tests::field(70, blobs).scaled(1.5, [0.0; 3], 1.0);
+    let scene = if mesh {
+        gallery_scene()
+    } else {
+        Scene::default()
+    };
+    Scene {
+        volume: Some(volume),
+        ..scene
+    }
+}
+
+/// Iso-surfaces shaded, shadowed and ambient-occluded, or the transfer function, with the
+/// other ray kinds of [`every_ray_kind`].
+fn volume_params(iso: bool) -> RenderParams {
+    use tessera_model::volume_params::{IsoValues, VolumeParams};
+    let iso = if iso { &[0.3, 0.6][..] } else { &[] };
+    RenderParamsSpec {
+        shadows: true,
+        ao_samples: 4,
+        spp: 2,
+        volume: VolumeParams {
+            iso: IsoValues::new(iso).unwrap(),
+            ..VolumeParams::DEFAULT
+        },
+        ..RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .unwrap()
+}
+
+#[test]
+fn a_shared_volume_gives_the_replicated_pixels_with_blocks_late_and_out_of_order() {
+    let brick = crate::volume::BRICK_SAMPLES * 4;
+    let block_bytes = super::layout::brick_block_bytes(brick as u32);
+    let wall = WallSpec::grid(2, 1, 48, 32).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall.clone());
+    for (mesh, iso) in [(false, false), (false, true), (true, false), (true, true)] {
+        let scene = with_volume(mesh);
+        let view = view_of(&scene, volume_params(iso), (wall.width(), wall.height()));
+        let replicated = crate::PreparedScene::new(&scene);
+        let (want, want_rays) = render_tiles(&replicated, &view, grid.tiles());
+        let without = Scene {
+            volume: None,
+            ..scene.clone()
+        };
+        let (unseen, _) = render_tiles(&crate::PreparedScene::new(&without), &view, grid.tiles());
+        assert!(unseen != want, "the volume is not in view");
+        let accel = crate::bvh::Accel::build(&scene);
+        let (manifest, volume, blocks) = prepare::blocks_of(&scene, &accel, block_bytes).unwrap();
+        assert_eq!(manifest.layout.brick_blocks, 27);
+        let blocks: Vec<_> = blocks.map(Arc::new).collect();
+        for lines in [0, 4, 64] {
+            let case = format!("mesh {mesh}, iso {iso}, {lines} lines");
+            let late = Arc::new(LateBlocks {
+                blocks: blocks.clone(),
+                first_counted: manifest.layout.first_brick_block(),
+                ..LateBlocks::default()
+            });
+            let prepared = (&manifest, volume.clone());
+            let dsm = shared_from(prepared, &late.blocks, (1, 3), lines, late.clone());
+            let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
+            assert_eq!(rays, want_rays, "{case}");
+            assert!(got == want, "{case}: not the replicated pixels");
+            let stats = dsm.shared.as_ref().unwrap().stats();
+            assert!(stats.parked > 0, "{case}: nothing was set aside");
+            assert_eq!(late.waited_for.load(Ordering::Relaxed), 0, "{case}");
+            let bricks_asked = late.asked_from_first.load(Ordering::Relaxed);
+            assert!(bricks_asked > 0, "{case}: no brick was asked for");
+        }
     }
 }

@@ -21,13 +21,42 @@ struct BrickSlot {
     ny: u32,
 }
 
-/// The samples of a grid of `cells` cells (`cells + 1` samples an axis), brick by brick.
+/// Samples of the largest brick, apron included.
+pub const BRICK_SAMPLES: usize = (BRICK_CELLS + 1) * (BRICK_CELLS + 1) * (BRICK_CELLS + 1);
+
+/// The samples of a grid of `cells` cells (`cells + 1` samples an axis), brick by brick: in
+/// this process's memory, or in distributed shared memory, one brick a block, read through a
+/// [`BrickSource`].
 #[derive(Clone, Debug)]
 pub struct Bricks {
     cells: [usize; 3],
     bricks: [usize; 3],
     slots: Vec<BrickSlot>,
+    /// Every brick's samples, at its slot's offset; empty for bricks in shared memory.
     samples: Vec<f32>,
+    /// Whether the samples are in shared memory (see [`Bricks::shared`]).
+    shared: bool,
+}
+
+/// Where a volume tracer reads a brick's samples: a replicated volume's own array
+/// ([`Replicated`]), or a render thread's blocks of distributed shared memory, where a brick
+/// may not be here yet (`crate::dsm::DsmReader`).
+pub trait BrickSource {
+    /// The samples of brick `index` of `bricks` from its first on ([`Bricks::brick_len`] of
+    /// them at least, x fastest), or None where they are not here: a trace that parks its misses has asked for them and
+    /// what it traces is void (it is traced again once they landed).
+    fn samples<'a>(&'a mut self, bricks: &'a Bricks, index: usize) -> Option<&'a [f32]>;
+}
+
+/// The [`BrickSource`] of a volume whose samples are in this process's memory.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Replicated;
+
+impl BrickSource for Replicated {
+    #[inline(always)]
+    fn samples<'a>(&'a mut self, bricks: &'a Bricks, index: usize) -> Option<&'a [f32]> {
+        Some(bricks.local_samples(index))
+    }
 }
 
 impl Bricks {
@@ -42,8 +71,7 @@ impl Bricks {
             for by in 0..bricks[1] {
                 for bx in 0..bricks[0] {
                     let first = [bx, by, bz].map(|b| b * BRICK_CELLS);
-                    let n: [usize; 3] =
-                        std::array::from_fn(|a| (cells[a] - first[a]).min(BRICK_CELLS) + 1);
+                    let n = brick_extent(cells, [bx, by, bz]);
                     slots.push(BrickSlot {
                         offset: samples.len(),
                         nx: n[0] as u32,
@@ -64,7 +92,58 @@ impl Bricks {
             bricks,
             slots,
             samples,
+            shared: false,
         }
+    }
+
+    /// The bricks of a grid of `dims` samples whose samples are in shared memory, brick `i`
+    /// at the start of a block of its own, laid out as [`Bricks::new`] lays them out.
+    pub fn shared(dims: [usize; 3]) -> Self {
+        assert!(dims.iter().all(|&d| d >= 2));
+        let cells = dims.map(|d| d - 1);
+        let bricks = cells.map(|c| c.div_ceil(BRICK_CELLS));
+        let mut slots = Vec::with_capacity(bricks.iter().product());
+        for bz in 0..bricks[2] {
+            for by in 0..bricks[1] {
+                for bx in 0..bricks[0] {
+                    let n = brick_extent(cells, [bx, by, bz]);
+                    let (nx, ny) = (n[0] as u32, n[1] as u32);
+                    slots.push(BrickSlot { offset: 0, nx, ny });
+                }
+            }
+        }
+        Bricks {
+            cells,
+            bricks,
+            slots,
+            samples: Vec::new(),
+            shared: true,
+        }
+    }
+
+    /// Whether the samples are in shared memory (read through a render thread's blocks).
+    pub fn is_shared(&self) -> bool {
+        self.shared
+    }
+
+    /// How many bricks there are.
+    pub fn count(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Samples of brick `index`, x fastest, its apron included.
+    pub fn brick_len(&self, index: usize) -> usize {
+        let slot = self.slots[index];
+        let bz = index / (self.bricks[0] * self.bricks[1]);
+        let nz = (self.cells[2] - bz * BRICK_CELLS).min(BRICK_CELLS) + 1;
+        slot.nx as usize * slot.ny as usize * nz
+    }
+
+    /// The samples from the first of brick `index` on, of bricks in this process's memory
+    /// (empty for bricks in shared memory).
+    #[inline(always)]
+    pub fn local_samples(&self, index: usize) -> &[f32] {
+        &self.samples[self.slots[index].offset.min(self.samples.len())..]
     }
 
     /// Cells along each axis.
@@ -82,17 +161,43 @@ impl Bricks {
         std::mem::size_of_val(&self.samples[..])
     }
 
-    /// The brick holding cell `c` (each index below `cells`).
+    /// The brick holding cell `c` (each index below `cells`), of bricks in this process's
+    /// memory.
     #[inline]
     pub fn brick_of(&self, c: [usize; 3]) -> BrickView<'_> {
+        let index = self.brick_index(c);
+        self.view(c, self.local_samples(index))
+    }
+
+    #[inline(always)]
+    fn brick_index(&self, c: [usize; 3]) -> usize {
         let b = c.map(|i| i / BRICK_CELLS);
-        let index = (b[2] * self.bricks[1] + b[1]) * self.bricks[0] + b[0];
+        (b[2] * self.bricks[1] + b[1]) * self.bricks[0] + b[0]
+    }
+
+    /// The brick holding cell `c` (each index below `cells`), its samples read from
+    /// `source`; None where they are not here.
+    #[inline(always)]
+    pub fn brick_in<'a>(
+        &'a self,
+        c: [usize; 3],
+        source: &'a mut impl BrickSource,
+    ) -> Option<BrickView<'a>> {
+        let index = self.brick_index(c);
+        Some(self.view(c, source.samples(self, index)?))
+    }
+
+    /// The view of the brick holding cell `c`, its samples from the first on.
+    #[inline(always)]
+    fn view<'a>(&self, c: [usize; 3], samples: &'a [f32]) -> BrickView<'a> {
+        let b = c.map(|i| i / BRICK_CELLS);
+        let index = self.brick_index(c);
         let slot = self.slots[index];
         let (nx, ny) = (slot.nx as usize, slot.ny as usize);
         let nz = (self.cells[2] - b[2] * BRICK_CELLS).min(BRICK_CELLS) + 1;
         BrickView {
             index,
-            samples: &self.samples[slot.offset..slot.offset + nx * ny * nz],
+            samples: &samples[..nx * ny * nz],
             first: Vec3::from_array(b.map(|i| (i * BRICK_CELLS) as f32)),
             last_cell: UVec3::new(nx as u32 - 2, ny as u32 - 2, nz as u32 - 2),
             dy: nx,
@@ -101,17 +206,24 @@ impl Bricks {
     }
 
     /// The eight corner samples of cell `c` (each index below `cells`), bit 0 of the corner's
-    /// number being +x, bit 1 +y, bit 2 +z.
+    /// number being +x, bit 1 +y, bit 2 +z, of bricks in this process's memory.
     #[inline]
     pub fn corners(&self, c: [usize; 3]) -> [f32; 8] {
-        let b = c.map(|i| i / BRICK_CELLS);
-        let slot = self.slots[(b[2] * self.bricks[1] + b[1]) * self.bricks[0] + b[0]];
+        self.corners_in(c, &mut Replicated)
+            .expect("a replicated brick is here")
+    }
+
+    /// [`Bricks::corners`], the samples read from `source`; None where they are not here.
+    #[inline(always)]
+    pub fn corners_in(&self, c: [usize; 3], source: &mut impl BrickSource) -> Option<[f32; 8]> {
+        let index = self.brick_index(c);
+        let slot = self.slots[index];
         let (nx, ny) = (slot.nx as usize, slot.ny as usize);
         let l = c.map(|i| i % BRICK_CELLS);
-        let base = slot.offset + (l[2] * ny + l[1]) * nx + l[0];
-        let s = &self.samples;
+        let base = (l[2] * ny + l[1]) * nx + l[0];
+        let s = source.samples(self, index)?;
         let (dy, dz) = (nx, nx * ny);
-        [
+        Some([
             s[base],
             s[base + 1],
             s[base + dy],
@@ -120,8 +232,13 @@ impl Bricks {
             s[base + dz + 1],
             s[base + dz + dy],
             s[base + dz + dy + 1],
-        ]
+        ])
     }
+}
+
+/// Samples along each axis of brick `b` of a grid of `cells` cells (apron included).
+fn brick_extent(cells: [usize; 3], b: [usize; 3]) -> [usize; 3] {
+    std::array::from_fn(|a| (cells[a] - b[a] * BRICK_CELLS).min(BRICK_CELLS) + 1)
 }
 
 /// The lanes of `v`, whole numbers in `0..2^23`, as integers: adding 2^23 places each in the
@@ -312,7 +429,7 @@ pub fn trilinear_gradient(c: &[f32; 8], [x, y, z]: [f32; 3]) -> [f32; 3] {
 
 /// The smallest and largest sample of each macro-cell ([`MACRO_CELLS`]³ cells, corners
 /// included, so a value on a shared face is in both cells' ranges).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MinMaxGrid {
     dims: [usize; 3],
     ranges: Vec<(f32, f32)>,
@@ -321,6 +438,7 @@ pub struct MinMaxGrid {
 }
 
 impl MinMaxGrid {
+    /// The grid of bricks in this process's memory.
     pub fn new(bricks: &Bricks) -> Self {
         let cells = bricks.cells();
         let dims = cells.map(|c| c.div_ceil(MACRO_CELLS));
@@ -351,11 +469,13 @@ impl MinMaxGrid {
         self.dims
     }
 
+    /// The smallest and largest sample of macro-cell `m`.
     #[inline]
     pub fn range(&self, m: [usize; 3]) -> (f32, f32) {
         self.ranges[(m[2] * self.dims[1] + m[1]) * self.dims[0] + m[0]]
     }
 
+    /// Every macro-cell's range, x fastest.
     pub fn ranges(&self) -> &[(f32, f32)] {
         &self.ranges
     }

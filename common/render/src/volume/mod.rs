@@ -32,8 +32,12 @@ mod raw;
 mod series;
 mod transfer;
 
-pub use bricks::{Bricks, BRICK_CELLS, MACRO_CELLS};
-pub use prepared::{FrameTables, PreparedVolume, MIN_STEP_FRACTION, OPAQUE_ENOUGH};
+pub use bricks::{
+    BrickSource, Bricks, MinMaxGrid, Replicated, BRICK_CELLS, BRICK_SAMPLES, MACRO_CELLS,
+};
+pub use prepared::{
+    FrameTables, Placement, PreparedVolume, SharedVolume, MIN_STEP_FRACTION, OPAQUE_ENOUGH,
+};
 pub use series::{SeriesCache, SeriesStats};
 pub use transfer::{corrected_opacity, TransferTable};
 

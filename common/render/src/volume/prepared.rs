@@ -3,7 +3,8 @@
 //! or stopped at the first direct iso-surface.
 
 use super::bricks::{
-    trilinear, trilinear_gradient, whole4, Bricks, MinMaxGrid, BRICK_CELLS, MACRO_CELLS,
+    trilinear, trilinear_gradient, whole4, BrickSource, Bricks, MinMaxGrid, BRICK_CELLS,
+    MACRO_CELLS,
 };
 use super::cell_mask::{is_set, CellMask};
 use super::empty_space::chebyshev_distance;
@@ -11,6 +12,7 @@ use super::grid_walk::{clip_to_box, GridWalk, IndexRay, Segment};
 use super::transfer::TransferTable;
 use super::Volume;
 use glam::{DMat3, DVec3, Mat3, Vec3, Vec4};
+use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
 use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::volume_params::{TransferFunction, VolumeParams};
@@ -43,7 +45,7 @@ pub struct FrameTables {
 /// # Examples
 ///
 /// ```
-/// use tessera_render::volume::{PreparedVolume, Volume, VoxelType};
+/// use tessera_render::volume::{PreparedVolume, Replicated, Volume, VoxelType};
 /// use tessera_model::local_origin::RenderFromWorld;
 /// use tessera_model::volume_params::VolumeParams;
 /// use glam::Vec3;
@@ -51,16 +53,30 @@ pub struct FrameTables {
 /// let v = Volume::new([2, 2, 2], [1.0; 3], [0.0; 3], VoxelType::F32, vec![0., 1., 0., 1., 0., 1., 0., 1.])?;
 /// let prepared = PreparedVolume::new(&v, &RenderFromWorld::IDENTITY);
 /// // The surface where the value is 0.5 is the plane x = 0.5.
-/// let hit = prepared.iso_hit(&[0.5], Vec3::new(-1.0, 0.5, 0.5), Vec3::X, (0.0, 10.0));
+/// let hit = prepared.iso_hit(&[0.5], (Vec3::new(-1.0, 0.5, 0.5), Vec3::X), (0.0, 10.0), &mut Replicated);
 /// assert!((hit.unwrap().0 - 1.5).abs() < 1e-5);
 /// let tables = prepared.tables(&VolumeParams::DEFAULT);
-/// let rgba = prepared.composite(&tables, Vec3::new(-1.0, 0.5, 0.5), Vec3::X, (0.0, 10.0));
+/// let rgba = prepared.composite(&tables, (Vec3::new(-1.0, 0.5, 0.5), Vec3::X), (0.0, 10.0), &mut Replicated);
 /// assert!(rgba[3] > 0.0 && rgba[3] < 1.0);
 /// # Ok::<(), tessera_render::volume::VolumeError>(())
 /// ```
 pub struct PreparedVolume {
     bricks: Bricks,
     minmax: MinMaxGrid,
+    placement: Placement,
+    frame: Mutex<Option<Arc<FrameTables>>>,
+    /// The cell mask of the last transfer function, kept across steps (it does not depend on
+    /// them).
+    cell_mask: Mutex<Option<Arc<CellMask>>>,
+}
+
+/// Where a prepared volume lies in render coordinates and what a ray needs to know of it
+/// besides its samples: what a render node of a volume in shared memory holds whole, as the
+/// replicated volume computed it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    /// Samples along each axis (the padding to two included).
+    dims: [usize; 3],
     index_from_render: Mat3,
     index_offset: Vec3,
     /// Transpose of `index_from_render`: takes an index-space gradient to render space.
@@ -70,25 +86,26 @@ pub struct PreparedVolume {
     /// The smallest voxel spacing: what transfer-function opacities are given per.
     reference_step: f32,
     corners: [Vec3; 8],
-    frame: Mutex<Option<Arc<FrameTables>>>,
-    /// The cell mask of the last transfer function, kept across steps (it does not depend on
-    /// them).
-    cell_mask: Mutex<Option<Arc<CellMask>>>,
 }
 
-impl PreparedVolume {
-    /// Bricks `volume` and its min/max grid, placed in the render coordinates of `frame` (the
-    /// scene's [`crate::scene::Scene::render_from_world`]).
-    pub fn new(volume: &Volume, frame: &RenderFromWorld) -> Self {
-        let (dims, values, origin) = padded(volume);
-        let bricks = Bricks::new(dims, &values);
-        let minmax = MinMaxGrid::new(&bricks);
+/// What every render node of a volume in shared memory holds whole: where it lies and its
+/// min/max grid (1/512 of the samples). The bricks are blocks.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SharedVolume {
+    /// See [`Placement`].
+    pub placement: Placement,
+    /// The macro-cells' ranges, as the whole volume gives them.
+    pub minmax: MinMaxGrid,
+}
+
+impl Placement {
+    fn new(volume: &Volume, dims: [usize; 3], origin: [f64; 3], frame: &RenderFromWorld) -> Self {
         let axes = volume.axes().map(DVec3::from_array);
         let render_from_index = DMat3::from_cols(axes[0], axes[1], axes[2]);
         let index_from_render = render_from_index.inverse();
         let origin_render = DVec3::from_array(origin) - frame.world_origin;
         let index_offset = -(index_from_render * origin_render);
-        let extent = bricks.cells().map(|c| c as f32);
+        let extent = dims.map(|d| (d - 1) as f32);
         let corners = std::array::from_fn(|i| {
             let idx = DVec3::new(
                 if i & 1 == 1 { extent[0] as f64 } else { 0.0 },
@@ -98,9 +115,8 @@ impl PreparedVolume {
             (origin_render + render_from_index * idx).as_vec3()
         });
         let spacing = volume.spacing();
-        PreparedVolume {
-            bricks,
-            minmax,
+        Placement {
+            dims,
             index_from_render: index_from_render.as_mat3(),
             index_offset: index_offset.as_vec3(),
             gradient_to_render: index_from_render.transpose().as_mat3(),
@@ -108,6 +124,41 @@ impl PreparedVolume {
             range: volume.range(),
             reference_step: spacing[0].min(spacing[1]).min(spacing[2]) as f32,
             corners,
+        }
+    }
+}
+
+impl PreparedVolume {
+    /// Bricks `volume` and its min/max grid, placed in the render coordinates of `frame` (the
+    /// scene's [`crate::scene::Scene::render_from_world`]).
+    pub fn new(volume: &Volume, frame: &RenderFromWorld) -> Self {
+        let (dims, values, origin) = padded(volume);
+        let bricks = Bricks::new(dims, &values);
+        let minmax = MinMaxGrid::new(&bricks);
+        let placement = Placement::new(volume, dims, origin, frame);
+        PreparedVolume::from_parts(bricks, minmax, placement)
+    }
+
+    /// A volume whose bricks are in shared memory, read through a render thread's
+    /// [`BrickSource`] (`crate::dsm::DsmReader`).
+    pub fn shared(volume: SharedVolume) -> Self {
+        let bricks = Bricks::shared(volume.placement.dims);
+        PreparedVolume::from_parts(bricks, volume.minmax, volume.placement)
+    }
+
+    /// What a render node of this volume in shared memory holds whole.
+    pub fn to_shared(&self) -> SharedVolume {
+        SharedVolume {
+            placement: self.placement.clone(),
+            minmax: self.minmax.clone(),
+        }
+    }
+
+    fn from_parts(bricks: Bricks, minmax: MinMaxGrid, placement: Placement) -> Self {
+        PreparedVolume {
+            bricks,
+            minmax,
+            placement,
             frame: Mutex::new(None),
             cell_mask: Mutex::new(None),
         }
@@ -115,7 +166,7 @@ impl PreparedVolume {
 
     /// The eight corners of the volume's box, in render coordinates.
     pub fn corners(&self) -> [Vec3; 8] {
-        self.corners
+        self.placement.corners
     }
 
     /// The samples, in bricks.
@@ -126,17 +177,17 @@ impl PreparedVolume {
     /// The smallest voxel spacing, in render units: the step transfer-function opacities are given
     /// for, and half of it the default marching step.
     pub fn reference_step(&self) -> f32 {
-        self.reference_step
+        self.placement.reference_step
     }
 
     /// The step a frame with `params` marches at, in render units (the coarsening of a moving
     /// view included).
     pub fn step(&self, params: &VolumeParams) -> f32 {
-        let floor = self.reference_step * MIN_STEP_FRACTION;
+        let floor = self.placement.reference_step * MIN_STEP_FRACTION;
         let full = if params.step > 0.0 {
             params.step.max(floor)
         } else {
-            self.reference_step * 0.5
+            self.placement.reference_step * 0.5
         };
         full * params.coarsen
     }
@@ -152,8 +203,8 @@ impl PreparedVolume {
         }
         let table = TransferTable::new(
             &params.transfer,
-            self.range,
-            step as f64 / self.reference_step as f64,
+            self.placement.range,
+            step as f64 / self.placement.reference_step as f64,
         )
         .with_missing(params.missing_color);
         let ranges = self.minmax.ranges().iter().zip(self.minmax.missing());
@@ -180,23 +231,30 @@ impl PreparedVolume {
             return mask.clone();
         }
         let bricks = self.bricks.brick_counts().iter().product();
-        let mask = Arc::new(CellMask::new(*transfer, missing, self.range, bricks));
+        let mask = Arc::new(CellMask::new(
+            *transfer,
+            missing,
+            self.placement.range,
+            bricks,
+        ));
         *cached = Some(mask.clone());
         mask
     }
 
     fn index_ray(&self, origin: Vec3, dir: Vec3) -> IndexRay {
         IndexRay {
-            origin: (self.index_from_render * origin + self.index_offset).to_array(),
-            dir: (self.index_from_render * dir).to_array(),
+            origin: (self.placement.index_from_render * origin + self.placement.index_offset)
+                .to_array(),
+            dir: (self.placement.index_from_render * dir).to_array(),
         }
     }
 
-    /// The value at index-space point `p` (clamped into the grid).
+    /// The value at index-space point `p` (clamped into the grid); None where its brick is
+    /// not here.
     #[inline]
-    fn sample(&self, p: [f32; 3]) -> f32 {
+    fn sample(&self, p: [f32; 3], source: &mut impl BrickSource) -> Option<f32> {
         let (cell, u) = self.cell_of(p);
-        trilinear(&self.bricks.corners(cell), u)
+        Some(trilinear(&self.bricks.corners_in(cell, source)?, u))
     }
 
     #[inline]
@@ -205,7 +263,7 @@ impl PreparedVolume {
         let mut cell = [0usize; 3];
         let mut u = [0f32; 3];
         for a in 0..3 {
-            let x = p[a].clamp(0.0, self.extent[a]);
+            let x = p[a].clamp(0.0, self.placement.extent[a]);
             let c = (x as usize).min(cells[a] - 1);
             cell[a] = c;
             u[a] = x - c as f32;
@@ -225,17 +283,18 @@ impl PreparedVolume {
     /// Front-to-back composite (premultiplied colour, opacity) of the volume along
     /// `origin + t · dir` for `t` in `interval`, sampled at `t = k · step`. Macro-cells the
     /// transfer function makes invisible are skipped whole, and a cube of them at once where
-    /// the ray is far from anything visible; the ray stops once [`OPAQUE_ENOUGH`].
+    /// the ray is far from anything visible; the ray stops once [`OPAQUE_ENOUGH`]. A brick
+    /// `source` does not have adds nothing (the trace is void).
     pub fn composite(
         &self,
         tables: &FrameTables,
-        origin: Vec3,
-        dir: Vec3,
+        (origin, dir): (Vec3, Vec3),
         interval: (f32, f32),
+        source: &mut impl BrickSource,
     ) -> [f32; 4] {
         let ray = self.index_ray(origin, dir);
         let mut acc = Vec4::ZERO;
-        let Some(span) = clip_to_box(&ray, self.extent, interval.0, interval.1) else {
+        let Some(span) = clip_to_box(&ray, self.placement.extent, interval.0, interval.1) else {
             return [0.0; 4];
         };
         let step = tables.step;
@@ -259,9 +318,9 @@ impl PreparedVolume {
             if self.march_macro_cell(
                 tables,
                 (origin_index, dir_index),
-                cell,
-                first..end,
+                (cell, first..end),
                 &mut acc,
+                source,
             ) {
                 break;
             }
@@ -281,12 +340,14 @@ impl PreparedVolume {
         &self,
         tables: &FrameTables,
         (origin, dir): (Vec3, Vec3),
-        cell: [usize; 3],
-        ks: std::ops::Range<i64>,
+        (cell, ks): ([usize; 3], std::ops::Range<i64>),
         acc: &mut Vec4,
+        source: &mut impl BrickSource,
     ) -> bool {
         // A macro-cell lies in one brick (8 divides 32): found once per macro-cell.
-        let brick = self.bricks.brick_of(cell.map(|m| m * MACRO_CELLS));
+        let Some(brick) = self.bricks.brick_in(cell.map(|m| m * MACRO_CELLS), source) else {
+            return false;
+        };
         let mask = tables.cells.of_brick(&brick);
         let edge = BRICK_CELLS as f32;
         for k in ks.clone().step_by(4) {
@@ -329,24 +390,26 @@ impl PreparedVolume {
                 self.bricks.brick_counts().iter().product(),
             )),
         };
-        self.composite(&everything, origin, dir, interval)
+        let mut source = super::bricks::Replicated;
+        self.composite(&everything, (origin, dir), interval, &mut source)
     }
 
     /// The nearest crossing of any of `iso` along the ray within `interval`: its `t` and which
     /// value it is. Exact per cell: the trilinear field along the ray is a cubic, split where
-    /// it turns so that each piece crosses at most once, so no thin crossing is skipped.
+    /// it turns so that each piece crosses at most once, so no thin crossing is skipped. A
+    /// cell whose brick `source` does not have is passed (the trace is void).
     pub fn iso_hit(
         &self,
         iso: &[f32],
-        origin: Vec3,
-        dir: Vec3,
+        (origin, dir): (Vec3, Vec3),
         interval: (f32, f32),
+        source: &mut impl BrickSource,
     ) -> Option<(f32, u8)> {
         if iso.is_empty() {
             return None;
         }
         let ray = self.index_ray(origin, dir);
-        let span = clip_to_box(&ray, self.extent, interval.0, interval.1)?;
+        let span = clip_to_box(&ray, self.placement.extent, interval.0, interval.1)?;
         let cells = self.bricks.cells();
         for outer in self.macro_walk(&ray, span) {
             let (lo, hi) = self.minmax.range(outer.cell);
@@ -354,7 +417,10 @@ impl PreparedVolume {
                 continue;
             }
             for seg in GridWalk::new(&ray, 1.0, cells, outer.t0, outer.t1) {
-                if let Some(hit) = cell_crossing(&self.bricks.corners(seg.cell), &ray, &seg, iso) {
+                let Some(corners) = self.bricks.corners_in(seg.cell, source) else {
+                    continue;
+                };
+                if let Some(hit) = cell_crossing(&corners, &ray, &seg, iso) {
                     return Some(hit);
                 }
             }
@@ -363,15 +429,18 @@ impl PreparedVolume {
     }
 
     /// The unit normal of the field at render-space `point` (the gradient of the trilinear
-    /// interpolant of its cell); `fallback` where the field is flat.
-    pub fn normal_at(&self, point: Vec3, fallback: Vec3) -> Vec3 {
-        let p = (self.index_from_render * point + self.index_offset).to_array();
+    /// interpolant of its cell); `fallback` where the field is flat, or its brick not here.
+    pub fn normal_at(&self, point: Vec3, fallback: Vec3, source: &mut impl BrickSource) -> Vec3 {
+        let p = (self.placement.index_from_render * point + self.placement.index_offset).to_array();
         let (cell, u) = self.cell_of(p);
-        let g = Vec3::from_array(trilinear_gradient(&self.bricks.corners(cell), u));
+        let Some(corners) = self.bricks.corners_in(cell, source) else {
+            return fallback;
+        };
+        let g = Vec3::from_array(trilinear_gradient(&corners, u));
         // Scaled to a largest component of 1 first: the gradient of values of 10³⁰ squares to
         // past f32's range, of 10⁻³⁰ to below it, and either normalised to zero (flat shading).
         let g = g / g.abs().max_element();
-        let n = (self.gradient_to_render * g).normalize_or_zero();
+        let n = (self.placement.gradient_to_render * g).normalize_or_zero();
         if n == Vec3::ZERO || !n.is_finite() {
             fallback
         } else {
@@ -382,6 +451,7 @@ impl PreparedVolume {
     /// What a viewer sees of the volume along the ray within `interval`: its `t` and the value
     /// there. With iso-values, the first iso-surface; through the transfer function, the first
     /// sample at which the ray's composited opacity reaches one half. None where neither is.
+    /// Of a volume in this process's memory (the master's, which keeps one for the probe).
     pub fn probe(
         &self,
         params: &VolumeParams,
@@ -390,13 +460,15 @@ impl PreparedVolume {
         interval: (f32, f32),
     ) -> Option<(f32, f32)> {
         let at = |t: f32| self.value_at(origin + dir * t);
+        let mut source = super::bricks::Replicated;
         if !params.iso.is_empty() {
-            let (t, _) = self.iso_hit(params.iso.as_slice(), origin, dir, interval)?;
+            let iso = params.iso.as_slice();
+            let (t, _) = self.iso_hit(iso, (origin, dir), interval, &mut source)?;
             return Some((t, at(t)?));
         }
         let tables = self.tables(params);
         let ray = self.index_ray(origin, dir);
-        let (t0, t1) = clip_to_box(&ray, self.extent, interval.0, interval.1)?;
+        let (t0, t1) = clip_to_box(&ray, self.placement.extent, interval.0, interval.1)?;
         let step = tables.step;
         let mut alpha = 0f32;
         // The very samples `composite` takes.
@@ -405,7 +477,7 @@ impl PreparedVolume {
         for k in first..end {
             let t = k as f32 * step;
             let p = std::array::from_fn(|a| ray.origin[a] + ray.dir[a] * t);
-            let value = self.sample(p);
+            let value = self.sample(p, &mut source)?;
             alpha += (1.0 - alpha) * tables.table.lookup(value)[3];
             if alpha >= 0.5 {
                 return Some((t, value));
@@ -414,11 +486,14 @@ impl PreparedVolume {
         None
     }
 
-    /// The value at render-space `point`, or None outside the volume.
+    /// The value at render-space `point`, or None outside the volume, of a volume in this
+    /// process's memory.
     pub fn value_at(&self, point: Vec3) -> Option<f32> {
-        let p = (self.index_from_render * point + self.index_offset).to_array();
-        let inside = (0..3).all(|a| (0.0..=self.extent[a]).contains(&p[a]));
-        inside.then(|| self.sample(p))
+        let p = (self.placement.index_from_render * point + self.placement.index_offset).to_array();
+        let inside = (0..3).all(|a| (0.0..=self.placement.extent[a]).contains(&p[a]));
+        inside
+            .then(|| self.sample(p, &mut super::bricks::Replicated))
+            .flatten()
     }
 }
 

@@ -2,7 +2,7 @@
 //! sphere's known radius, a triangulated iso-surface, and the extreme cases of issue 11.
 
 use super::prepared::PreparedVolume;
-use super::{Volume, VoxelType};
+use super::{Replicated, Volume, VoxelType};
 use crate::aov::primary_aovs;
 use crate::scene::{Scene, NEUTRAL};
 use crate::shade::background;
@@ -55,7 +55,8 @@ fn image(
             let sy = (y as f32 + 0.5) / h as f32 * 2.0 - 1.0;
             let dir = (forward + right * sx * 0.5 + up * sy * 0.5).normalize();
             let behind = background(dir);
-            let [r, g, b, a] = volume.composite(&tables, eye, dir, (0.0, f32::INFINITY));
+            let [r, g, b, a] =
+                volume.composite(&tables, (eye, dir), (0.0, f32::INFINITY), &mut Replicated);
             out.push(Vec3::new(r, g, b) + behind * (1.0 - a));
         }
     }
@@ -125,7 +126,7 @@ fn skipping_empty_space_changes_no_sample() {
         let a = k as f32 * 0.031;
         let eye = Vec3::new(3.0 * a.cos(), 0.3 * (k as f32 * 0.1).sin(), 3.0 * a.sin());
         let dir = (Vec3::new(0.1, -0.05, 0.02) * (k % 7) as f32 - eye).normalize();
-        let skipped = volume.composite(&tables, eye, dir, (0.0, 100.0));
+        let skipped = volume.composite(&tables, (eye, dir), (0.0, 100.0), &mut Replicated);
         let every = volume.composite_every_sample(&tables, eye, dir, (0.0, 100.0));
         assert_eq!(skipped, every, "ray {k}");
     }
@@ -186,8 +187,18 @@ fn a_one_voxel_volume_is_a_cube_and_a_camera_inside_sees_around_it() {
     let params = VolumeParams::DEFAULT;
     let tables = volume.tables(&params);
     // The cube spans -1..1: a ray through it is tinted, one beside it is not.
-    let through = volume.composite(&tables, Vec3::new(0.0, 0.0, -5.0), Vec3::Z, (0.0, 10.0));
-    let beside = volume.composite(&tables, Vec3::new(1.5, 0.0, -5.0), Vec3::Z, (0.0, 10.0));
+    let through = volume.composite(
+        &tables,
+        (Vec3::new(0.0, 0.0, -5.0), Vec3::Z),
+        (0.0, 10.0),
+        &mut Replicated,
+    );
+    let beside = volume.composite(
+        &tables,
+        (Vec3::new(1.5, 0.0, -5.0), Vec3::Z),
+        (0.0, 10.0),
+        &mut Replicated,
+    );
     assert!(
         through[3] > 0.0 && through.iter().all(|c| c.is_finite()),
         "{through:?}"
@@ -212,8 +223,13 @@ fn rays_along_cell_faces_see_what_their_neighbours_see() {
     let face = 0.25; // Spacing 0.25: y = 0.25 is a face between two rows of cells.
     for dir in [Vec3::X, Vec3::Y, Vec3::Z] {
         let start = Vec3::new(face, face, face) - dir * 3.0;
-        let on = volume.composite(&tables, start, dir, (0.0, 10.0));
-        let off = volume.composite(&tables, start + Vec3::splat(1e-4), dir, (0.0, 10.0));
+        let on = volume.composite(&tables, (start, dir), (0.0, 10.0), &mut Replicated);
+        let off = volume.composite(
+            &tables,
+            (start + Vec3::splat(1e-4), dir),
+            (0.0, 10.0),
+            &mut Replicated,
+        );
         for c in 0..4 {
             assert!(
                 on[c].is_finite() && (on[c] - off[c]).abs() < 1e-3,
@@ -221,7 +237,7 @@ fn rays_along_cell_faces_see_what_their_neighbours_see() {
             );
         }
         assert!(on[3] > 0.0);
-        let iso = volume.iso_hit(&[0.6], start, dir, (0.0, 10.0));
+        let iso = volume.iso_hit(&[0.6], (start, dir), (0.0, 10.0), &mut Replicated);
         if dir == Vec3::X {
             // 0.5 + 0.5 x = 0.6 at x = 0.2: 3.2 - 0.25 along the ray from x = -2.75.
             assert!((iso.unwrap().0 - 2.95).abs() < 1e-4, "{iso:?}");
@@ -241,12 +257,14 @@ fn the_iso_surface_of_a_distance_field_is_its_sphere() {
         let a = k as f32 * 0.37;
         let eye = Vec3::new(3.0 * a.cos(), (k as f32 * 0.05).sin(), 3.0 * a.sin());
         let dir = -eye.normalize();
-        let (t, surface) = volume.iso_hit(&[0.9, 0.5], eye, dir, (0.0, 10.0)).unwrap();
+        let (t, surface) = volume
+            .iso_hit(&[0.9, 0.5], (eye, dir), (0.0, 10.0), &mut Replicated)
+            .unwrap();
         // The nearer surface (0.9) is found first; trilinear interpolation of |p| is within a
         // hundredth of a spacing (1/16) of the sphere.
         assert_eq!(surface, 0);
         assert!((t - (eye.length() - 0.9)).abs() < 0.01, "ray {k}: t = {t}");
-        let normal = volume.normal_at(eye + dir * t, Vec3::X);
+        let normal = volume.normal_at(eye + dir * t, Vec3::X, &mut Replicated);
         assert!(normal.dot(-dir) > 0.99, "ray {k}: normal {normal}");
     }
 }
@@ -261,11 +279,14 @@ fn a_thin_crossing_inside_one_cell_is_found() {
     let origin = Vec3::splat(-1.0);
     let dir = Vec3::ONE.normalize();
     let (t, _) = volume
-        .iso_hit(&[0.7], origin, dir, (0.0, 10.0))
+        .iso_hit(&[0.7], (origin, dir), (0.0, 10.0), &mut Replicated)
         .expect("thin crossing");
     let s = (1.0 - (1.0f32 - 4.0 * 0.7 / 3.0).sqrt()) / 2.0;
     assert!((t - 3f32.sqrt() * (1.0 + s)).abs() < 1e-5, "t {t}");
-    assert_eq!(volume.iso_hit(&[0.76], origin, dir, (0.0, 10.0)), None);
+    assert_eq!(
+        volume.iso_hit(&[0.76], (origin, dir), (0.0, 10.0), &mut Replicated),
+        None
+    );
 }
 
 /// Triangles of the iso-surface of `volume` at `iso`, by marching tetrahedra (six per cell,

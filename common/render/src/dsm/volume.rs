@@ -1,0 +1,117 @@
+//! A volume in distributed shared memory: its bricks, one a block after the triangles' blocks,
+//! and what every render node holds whole of it (where it lies, its min/max grid: 1/512 of the
+//! samples) in `volume.bin` beside the blocks, checked against the manifest's checksum.
+
+use super::layout::Block;
+use super::prepare::{checksum, PrepareError};
+use crate::volume::{Bricks, PreparedVolume, SharedVolume};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What the manifest says of `volume.bin`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct VolumeEntry {
+    /// Its length in bytes.
+    pub bytes: u64,
+    /// [`checksum`] of its bytes.
+    pub checksum: u64,
+}
+
+/// The file holding what every render node keeps of a shared volume.
+pub fn volume_path(dir: &Path) -> PathBuf {
+    dir.join("volume.bin")
+}
+
+/// A shared volume as `volume.bin` holds it, and the manifest's entry for it.
+pub fn encode(volume: &SharedVolume) -> (Vec<u8>, VolumeEntry) {
+    let bytes = postcard::to_stdvec(volume).expect("a shared volume serializes");
+    let entry = VolumeEntry {
+        bytes: bytes.len() as u64,
+        checksum: checksum(&bytes),
+    };
+    (bytes, entry)
+}
+
+/// Bytes of the largest brick of `bricks`.
+pub fn largest_brick_bytes(bricks: &Bricks) -> u32 {
+    let samples = (0..bricks.count()).map(|i| bricks.brick_len(i)).max();
+    (samples.unwrap_or(0) * std::mem::size_of::<f32>()) as u32
+}
+
+/// The blocks of `volume`'s bricks, brick `i` at the start of the `i`-th, the rest zero.
+pub fn brick_blocks(volume: PreparedVolume, block_bytes: u32) -> impl Iterator<Item = Block> {
+    (0..volume.bricks().count()).map(move |i| {
+        let bricks = volume.bricks();
+        let samples = &bricks.local_samples(i)[..bricks.brick_len(i)];
+        let mut block = Block::zeroed(block_bytes);
+        block.bytes_mut()[..std::mem::size_of_val(samples)]
+            .copy_from_slice(bytemuck::cast_slice(samples));
+        block
+    })
+}
+
+/// What `dir`'s `volume.bin` holds, checked against `entry`.
+///
+/// # Errors
+/// The file cannot be read, or is not what the manifest says.
+pub fn load(dir: &Path, entry: &VolumeEntry) -> Result<SharedVolume, PrepareError> {
+    let path = volume_path(dir);
+    let bytes = std::fs::read(&path).map_err(|reason| PrepareError::Io {
+        path: path.clone(),
+        reason,
+    })?;
+    let bad = |reason: String| PrepareError::BadManifest {
+        path: path.clone(),
+        reason,
+    };
+    if bytes.len() as u64 != entry.bytes || checksum(&bytes) != entry.checksum {
+        return Err(bad(format!(
+            "{} bytes that do not match the manifest's checksum: prepare the scene again",
+            bytes.len()
+        )));
+    }
+    postcard::from_bytes(&bytes).map_err(|e| bad(e.to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::Accel;
+    use crate::dsm::prepare::{load_manifest, prepare, BlockFile};
+    use crate::scene::Scene;
+
+    #[test]
+    fn a_prepared_volume_reads_back_brick_for_brick_and_a_flipped_bit_is_caught() {
+        let dir = tempfile::tempdir().unwrap();
+        let volume = crate::volume::render_tests::field(40, |p| p.x * p.y + p.z);
+        let replicated = PreparedVolume::new(&volume, &Default::default());
+        let scene = Scene {
+            volume: Some(volume),
+            ..Scene::default()
+        };
+        let accel = Accel::build(&scene);
+        let block_bytes =
+            crate::dsm::layout::brick_block_bytes(largest_brick_bytes(replicated.bricks()));
+        let too_small = prepare(&scene, &accel, dir.path(), 8192, &mut |_, _| {});
+        assert!(too_small.unwrap_err().to_string().contains("volume brick"));
+        let manifest = prepare(&scene, &accel, dir.path(), block_bytes, &mut |_, _| {}).unwrap();
+        let layout = load_manifest(dir.path(), None).unwrap().layout;
+        assert_eq!(layout.brick_blocks, 8);
+        let entry = manifest.volume.expect("the manifest names the volume");
+        assert_eq!(load(dir.path(), &entry).unwrap(), replicated.to_shared());
+        let mut file = BlockFile::open(dir.path(), &manifest).unwrap();
+        for i in 0..8 {
+            let block = file.read(layout.first_brick_block() + i as u32).unwrap();
+            let samples: &[f32] = bytemuck::cast_slice(block.bytes());
+            let bricks = replicated.bricks();
+            let want = &bricks.local_samples(i)[..bricks.brick_len(i)];
+            assert_eq!(&samples[..want.len()], want, "brick {i}");
+        }
+        let path = volume_path(dir.path());
+        let mut bytes = std::fs::read(&path).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 4;
+        std::fs::write(&path, bytes).unwrap();
+        assert!(load(dir.path(), &entry).is_err());
+    }
+}
