@@ -1,5 +1,6 @@
 //! Local walls whose render nodes share the scene in distributed shared memory (`--data dsm`):
-//! the wall equals the single-process reference pixel for pixel, every render node stays
+//! the wall equals the single-process reference pixel for pixel (a mesh, and a volume drawn
+//! through a transfer function and as an iso-surface), every render node stays
 //! within its memory budget, and a render node's death loses no block.
 
 use std::path::Path;
@@ -91,6 +92,79 @@ fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
         summary["remote_read_p99_us"].as_f64().unwrap(),
         summary["round_trip_us"].as_f64().unwrap(),
     );
+}
+
+/// Writes `DIR/blobs.vol.toml`: 72 x 40 x 40 u8 voxels (12 bricks) of two soft blobs.
+fn write_blob_volume(dir: &Path) -> String {
+    let (nx, ny, nz) = (72usize, 40usize, 40usize);
+    let mut values = Vec::with_capacity(nx * ny * nz);
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let d = |cx: f32, cy: f32, cz: f32, s: f32| {
+                    let (dx, dy, dz) = (x as f32 - cx, y as f32 - cy, z as f32 - cz);
+                    (-(dx * dx + dy * dy + dz * dz) / (s * s)).exp()
+                };
+                let v = d(24.0, 20.0, 18.0, 11.0) + d(50.0, 18.0, 22.0, 9.0);
+                values.push((v.min(1.0) * 250.0) as u8);
+            }
+        }
+    }
+    std::fs::write(dir.join("blobs.raw"), values).unwrap();
+    let sidecar = dir.join("blobs.vol.toml");
+    std::fs::write(
+        &sidecar,
+        "data = \"blobs.raw\"\ndims = [72, 40, 40]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    sidecar.to_str().unwrap().to_string()
+}
+
+#[test]
+fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_and_as_iso() {
+    let dir = tempfile::tempdir().unwrap();
+    let volume = write_blob_volume(dir.path());
+    let view = ["--eye", "36,-22,40", "--target", "36,20,20"];
+    for (name, looks) in [
+        ("dvr", vec!["--transfer", "ramp"]),
+        ("iso", vec!["--iso", "120", "--ao", "4"]),
+    ] {
+        let run_dir = dir.path().join(name);
+        let mut rest = vec![
+            "--frames",
+            "3",
+            "--save-frame",
+            "2",
+            "--cache-fraction",
+            "0.25",
+        ];
+        rest.extend(&looks);
+        rest.extend(view);
+        let o = dsm_wall(&run_dir, &volume, 3, &rest).wait(Duration::from_secs(180));
+        o.assert_success("the shared volume wall");
+        let ref_dir = run_dir.join("reference");
+        let mut reference = vec![
+            "render", "--wall", "2x1", "--screen", "160x90", "--scene", &volume, "--frame", "2",
+        ];
+        reference.extend(["--out", ref_dir.to_str().unwrap()]);
+        reference.extend(&looks);
+        reference.extend(view);
+        run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
+        assert_same_pixels(
+            &run_dir.join("out/wall.png"),
+            &ref_dir.join("wall.png"),
+            &format!("the shared volume ({name}) against the reference"),
+        );
+        let report = read_json(&run_dir.join("out/report.json"));
+        assert_eq!(report["data"], "dsm", "{report}");
+        let fetched: u64 = report["render_nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|n| n["dsm"]["fetched"].as_u64().unwrap())
+            .sum();
+        assert!(fetched > 0, "{name}: no brick was fetched: {report}");
+    }
 }
 
 #[test]

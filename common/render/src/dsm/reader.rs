@@ -30,11 +30,15 @@ use tessera_core::dsm::BlockId;
 const NODE_HOLDS: usize = 64;
 /// Triangle blocks a reader keeps (a power of two).
 const TRIANGLE_HOLDS: usize = 32;
-/// Volume bricks a reader keeps (a power of two): a ray marches one brick at a time, and an
-/// iso-surface's shading reads the brick of its hit again.
-const BRICK_HOLDS: usize = 4;
+/// Volume bricks a reader keeps (a power of two), any brick in any entry, the oldest entry
+/// replaced. A packet's rays are marched one after the other, each through a row of up to
+/// 20 bricks, and the next ray through much the same row: with 4 entries the CT head read
+/// 564 000 bricks a frame from the cache (a lock and a reference count each) and ran at a
+/// third of the replicated rate; 32 entries mapped by brick number still thrashed, as 25
+/// bricks in 32 places collide.
+const BRICK_HOLDS: usize = 32;
 
-/// The blocks a reader entered, block k in entry k mod `N`.
+/// The blocks a reader entered: node or triangle block k in entry k mod `N`, a brick in any.
 struct Holds<'s, const N: usize> {
     /// Each entry's block, and in the high half the trace it was entered or found in (see
     /// `Parking::trace`).
@@ -74,6 +78,10 @@ pub struct DsmReader<'s> {
     /// The first block of volume bricks, brick `i` in block `first_brick + i`.
     first_brick: BlockId,
     bricks: Holds<'s, BRICK_HOLDS>,
+    /// The entry of the brick read last (a march reads the same brick for several
+    /// macro-cells), and the entry a brick not in the table goes to next.
+    brick_last: usize,
+    brick_next: usize,
     tally: Tally,
     parking: Parking,
 }
@@ -153,6 +161,8 @@ impl<'s> DsmReader<'s> {
             tris: Holds::new(),
             first_brick: layout.first_brick_block(),
             bricks: Holds::new(),
+            brick_last: 0,
+            brick_next: 0,
             tally: Tally::default(),
             parking: Parking::default(),
         }
@@ -195,7 +205,22 @@ impl<'s> DsmReader<'s> {
         k: BlockId,
         (tally, parking): (&mut Tally, &mut Parking),
     ) -> *const Chunk {
-        let i = k as usize & Holds::<N>::MASK;
+        Self::base_at(
+            tree,
+            holds,
+            (k as usize & Holds::<N>::MASK, k),
+            (tally, parking),
+        )
+    }
+
+    /// [`DsmReader::base_of`] with block `k` in entry `i`.
+    #[inline(always)]
+    fn base_at<const N: usize>(
+        tree: &'s DsmTree,
+        holds: &mut Holds<'s, N>,
+        (i, k): (usize, BlockId),
+        (tally, parking): (&mut Tally, &mut Parking),
+    ) -> *const Chunk {
         if holds.ids[i] == parking.trace | k as u64 {
             return holds.bases[i];
         }
@@ -257,13 +282,25 @@ impl BrickSource for DsmReader<'_> {
     #[inline]
     fn samples<'a>(&'a mut self, _: &'a Bricks, index: usize) -> Option<&'a [f32]> {
         let k = self.first_brick + index as BlockId;
-        Self::base_of(
+        let ids = &self.bricks.ids;
+        // An entry's low half is its block whatever trace it was read in (`base_at` looks
+        // again at one from an earlier trace).
+        let i = if ids[self.brick_last] as BlockId == k {
+            self.brick_last
+        } else if let Some(i) = ids.iter().position(|&id| id as BlockId == k) {
+            i
+        } else {
+            self.brick_next = (self.brick_next + 1) % BRICK_HOLDS;
+            self.brick_next
+        };
+        self.brick_last = i;
+        Self::base_at(
             self.tree,
             &mut self.bricks,
-            k,
+            (i, k),
             (&mut self.tally, &mut self.parking),
         );
-        match &self.bricks.held[k as usize & (BRICK_HOLDS - 1)] {
+        match &self.bricks.held[i] {
             Hold::Absent(_) | Hold::Nothing => None,
             held => Some(bytemuck::cast_slice(held.chunks())),
         }
