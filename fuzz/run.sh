@@ -7,7 +7,7 @@ usage() {
     cat <<'USAGE'
 usage: fuzz/run.sh [--time SECONDS | --runs N] [--seeds] [TARGET...]
 
-  (default)     smoke run: every target for 5 s (under 2 minutes in all), as CI runs it
+  (default)     smoke run: every target for 2 s (under a minute in all), as CI runs it
   --time S      run each target for S seconds
   --runs N      run each target for N executions (the long run: --runs 1000000)
   --seeds       rewrite fuzz/corpus/ from examples/seeds.rs first
@@ -25,7 +25,7 @@ USAGE
 cd "$(dirname "$0")"
 # The smoke run is seeded: the same binary explores the same inputs on every CI run, so CI
 # fails on a regression, not on the luck of the draw (new finds are the long run's job).
-limit=(-max_total_time=5 -seed=1)
+limit=(-max_total_time=2 -seed=1)
 seeds=false
 targets=()
 while [ $# -gt 0 ]; do
