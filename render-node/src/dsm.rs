@@ -14,9 +14,12 @@ use tessera_cli::bytes::show_bytes;
 use tessera_core::dsm::{BlockCache, BlockId, Residency};
 use tessera_model::wall::TileId;
 use tessera_protocol::dsm::{BlockHolder, DsmSpec, DsmStats};
+use tessera_render::dsm::layout::DEFAULT_BLOCK_BYTES;
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
-use tessera_render::dsm::{Block, BlockFetch, DsmTree, Landing, PinLimits, NODE_OVERHEAD_BYTES};
+use tessera_render::dsm::{
+    Block, BlockFetch, BlockLayout, DsmReader, DsmTree, Landing, PinLimits, NODE_OVERHEAD_BYTES,
+};
 use tessera_render::PreparedScene;
 use tokio::sync::mpsc;
 
@@ -276,23 +279,48 @@ fn cache_lines(
     Ok(((budget - held) / layout.block_bytes as u64) as usize)
 }
 
-/// Blocks one packet's traces may keep alive (what they read and missed; see [`PinLimits`]).
+/// Blocks of 8 KiB one packet's traces may keep alive (what they read and missed; see
+/// [`PinLimits`]).
 const PACKET_PIN_BLOCKS: u64 = 64;
-/// Distinct blocks all the packets set aside at once may keep alive or wait for, under a
-/// memory budget (without one, as many as the cache has lines if that is more).
+/// Distinct blocks of 8 KiB all the packets set aside at once may keep alive or wait for,
+/// under a memory budget (without one, as many as the cache has lines if that is more).
 const PARKED_BLOCKS: u64 = 256;
 
-/// Blocks a node may hold besides its cache's: those its render threads keep
-/// ([`DsmReader::HOLDS`] each, some evicted from the cache meanwhile, and the pins of the
-/// packet each traces), those the packets set aside keep and wait for, and those fetched
-/// ahead. Without this room a node with every block parked for ran 2.4 MiB over a 48 MiB
-/// budget.
-fn spare_blocks(threads: usize) -> u64 {
-    let per_thread = tessera_render::dsm::DsmReader::HOLDS as u64 + 1 + PACKET_PIN_BLOCKS;
-    threads as u64 * per_thread
-        + PARKED_BLOCKS
-        + crate::fetch_driver::PREFETCH_IN_FLIGHT as u64
-        + 64
+/// The spare room's counts, which are of 8 KiB blocks: of larger ones (a volume's bricks are
+/// 140.5 KiB), as many bytes' worth, but no fewer than a packet or a batch needs of them.
+/// Counted in blocks whatever their size, the room for a volume's was 105 MiB for one thread,
+/// three times the CT head itself.
+#[derive(Clone, Copy, Debug)]
+struct Spare {
+    packet_pins: u64,
+    parked: u64,
+    prefetch: u64,
+    slack: u64,
+}
+
+impl Spare {
+    fn for_blocks(block_bytes: u32) -> Spare {
+        let scaled = |blocks: u64, floor: u64| {
+            (blocks * DEFAULT_BLOCK_BYTES as u64 / block_bytes as u64).max(floor)
+        };
+        Spare {
+            packet_pins: scaled(PACKET_PIN_BLOCKS, 16),
+            parked: scaled(PARKED_BLOCKS, 64),
+            prefetch: scaled(crate::fetch_driver::PREFETCH_IN_FLIGHT as u64, 32),
+            slack: scaled(64, 8),
+        }
+    }
+}
+
+/// Blocks a node may hold besides its cache's: those its render threads keep (what
+/// [`DsmReader::holds`] says each reader holds of this scene, some evicted from the cache
+/// meanwhile, and the pins of the packet each traces), those the packets set aside keep and
+/// wait for, and those fetched ahead. Without this room a node with every block parked for
+/// ran 2.4 MiB over a 48 MiB budget.
+fn spare_blocks(threads: usize, layout: &BlockLayout) -> u64 {
+    let spare = Spare::for_blocks(layout.block_bytes);
+    let per_thread = DsmReader::holds(layout) as u64 + 1 + spare.packet_pins;
+    threads as u64 * per_thread + spare.parked + spare.prefetch + spare.slack
 }
 
 /// Bounds what packets set aside keep: under a memory budget to the room [`spare_blocks`]
@@ -302,15 +330,16 @@ fn spare_blocks(threads: usize) -> u64 {
 /// set, none is set aside.
 fn park_within_spare(tree: &DsmTree, budgeted: bool) {
     let block_bytes = tree.layout().block_bytes as u64;
+    let spare = Spare::for_blocks(tree.layout().block_bytes);
     let lines = tree.cache().lines() as u64;
     let limits = if budgeted {
         PinLimits {
-            per_packet: (PACKET_PIN_BLOCKS * block_bytes) as usize,
-            parked: (PARKED_BLOCKS * block_bytes) as usize,
+            per_packet: (spare.packet_pins * block_bytes) as usize,
+            parked: (spare.parked * block_bytes) as usize,
         }
     } else {
         PinLimits {
-            parked: (PARKED_BLOCKS.max(lines) * block_bytes) as usize,
+            parked: (spare.parked.max(lines) * block_bytes) as usize,
             ..PinLimits::default()
         }
     };
@@ -353,7 +382,7 @@ pub async fn start(
     };
     let resident = ((share.0.len() + share.1.len()) * 64) as u64;
     let budget = options.memory_budget.or(spec.memory_budget);
-    let spare = spare_blocks(options.threads);
+    let spare = spare_blocks(options.threads, &layout);
     let lines = cache_lines(&manifest, spec, budget, (resident, spare))?;
     let pool = BlockPool::new((lines as u64 + spare).try_into()?, layout.block_bytes);
     tracing::info!(
@@ -392,6 +421,7 @@ pub async fn start(
         file,
         endpoint,
         client,
+        prefetch_in_flight: Spare::for_blocks(layout.block_bytes).prefetch as usize,
     });
     Ok((
         prepared,

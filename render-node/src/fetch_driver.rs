@@ -20,9 +20,9 @@ use tessera_render::dsm::prepare::BlockFile;
 use tessera_render::dsm::Block;
 use tokio::sync::{mpsc, oneshot, OnceCell};
 
-/// Most blocks in flight that a prefetch may add to: blocks fetched ahead wait in buffers and
-/// channels until the loop takes them, memory a budget must hold (unbounded, prefetches took
-/// 30 MiB of a thrashing node's budget).
+/// Most blocks of 8 KiB in flight that a prefetch may add to (of larger blocks, as many bytes'
+/// worth): blocks fetched ahead wait in buffers and channels until the loop takes them, memory
+/// a budget must hold (unbounded, prefetches took 30 MiB of a thrashing node's budget).
 pub const PREFETCH_IN_FLIGHT: usize = 256;
 
 /// How often the round trip to a peer is measured.
@@ -41,6 +41,8 @@ pub struct Setup {
     pub endpoint: quinn::Endpoint,
     /// How it connects to other render nodes (block traffic's windows).
     pub client: quinn::ClientConfig,
+    /// Most blocks in flight a prefetch may add to ([`PREFETCH_IN_FLIGHT`] for the block size).
+    pub prefetch_in_flight: usize,
 }
 
 /// The loop's figures.
@@ -145,6 +147,7 @@ async fn run(
         file,
         endpoint,
         client,
+        prefetch_in_flight,
     } = setup;
     let (arrivals, mut arrived) = mpsc::unbounded_channel();
     let mut l = Loop {
@@ -181,7 +184,7 @@ async fn run(
             }
             Some(blocks) = prefetch.recv() => {
                 let now = Instant::now();
-                let room = PREFETCH_IN_FLIGHT.saturating_sub(l.fetcher.in_flight());
+                let room = prefetch_in_flight.saturating_sub(l.fetcher.in_flight());
                 for k in blocks.into_iter().take(room) {
                     l.fetcher.handle_prefetch(k, now);
                 }

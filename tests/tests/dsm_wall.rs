@@ -1,7 +1,8 @@
 //! Local walls whose render nodes share the scene in distributed shared memory (`--data dsm`):
 //! the wall equals the single-process reference pixel for pixel (a mesh, and a volume drawn
-//! through a transfer function and as an iso-surface), every render node stays
-//! within its memory budget, and a render node's death loses no block.
+//! through a transfer function and as an iso-surface), every render node stays within its
+//! memory budget (a mesh and a volume), and a render node's death loses no block (of a mesh,
+//! or a volume's bricks).
 
 use std::path::Path;
 use std::time::Duration;
@@ -94,9 +95,8 @@ fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
     );
 }
 
-/// Writes `DIR/blobs.vol.toml`: 72 x 40 x 40 u8 voxels (12 bricks) of two soft blobs.
-fn write_blob_volume(dir: &Path) -> String {
-    let (nx, ny, nz) = (72usize, 40usize, 40usize);
+/// Writes `DIR/blobs.vol.toml`: `nx` x `ny` x `nz` u8 voxels of two soft blobs.
+fn write_blob_volume(dir: &Path, [nx, ny, nz]: [usize; 3]) -> String {
     let mut values = Vec::with_capacity(nx * ny * nz);
     for z in 0..nz {
         for y in 0..ny {
@@ -105,7 +105,9 @@ fn write_blob_volume(dir: &Path) -> String {
                     let (dx, dy, dz) = (x as f32 - cx, y as f32 - cy, z as f32 - cz);
                     (-(dx * dx + dy * dy + dz * dz) / (s * s)).exp()
                 };
-                let v = d(24.0, 20.0, 18.0, 11.0) + d(50.0, 18.0, 22.0, 9.0);
+                let (sx, sy) = (nx as f32 / 72.0, ny as f32 / 40.0);
+                let v = d(24.0 * sx, 20.0 * sy, 18.0 * sy, 11.0 * sy)
+                    + d(50.0 * sx, 18.0 * sy, 22.0 * sy, 9.0 * sy);
                 values.push((v.min(1.0) * 250.0) as u8);
             }
         }
@@ -114,7 +116,9 @@ fn write_blob_volume(dir: &Path) -> String {
     let sidecar = dir.join("blobs.vol.toml");
     std::fs::write(
         &sidecar,
-        "data = \"blobs.raw\"\ndims = [72, 40, 40]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n",
+        format!(
+            "data = \"blobs.raw\"\ndims = [{nx}, {ny}, {nz}]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n"
+        ),
     )
     .unwrap();
     sidecar.to_str().unwrap().to_string()
@@ -123,7 +127,8 @@ fn write_blob_volume(dir: &Path) -> String {
 #[test]
 fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_and_as_iso() {
     let dir = tempfile::tempdir().unwrap();
-    let volume = write_blob_volume(dir.path());
+    // 12 bricks.
+    let volume = write_blob_volume(dir.path(), [72, 40, 40]);
     let view = ["--eye", "36,-22,40", "--target", "36,20,20"];
     for (name, looks) in [
         ("dvr", vec!["--transfer", "ramp"]),
@@ -164,6 +169,46 @@ fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_an
             .map(|n| n["dsm"]["fetched"].as_u64().unwrap())
             .sum();
         assert!(fetched > 0, "{name}: no brick was fetched: {report}");
+    }
+}
+
+#[test]
+fn a_shared_volume_stays_within_each_render_nodes_memory_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    // 80 bricks (11 MiB of blocks) over 3 nodes with room for about half of them in a cache.
+    let volume = write_blob_volume(dir.path(), [160, 128, 128]);
+    let budget_mib = 64;
+    let budget = format!("{budget_mib}MiB");
+    let rest = [
+        "--frames",
+        "6",
+        "--memory-budget",
+        &budget,
+        "--transfer",
+        "ramp",
+    ];
+    let o = dsm_wall(dir.path(), &volume, 3, &rest).wait(Duration::from_secs(300));
+    o.assert_success("the volume wall within a budget");
+    let report = read_json(&dir.path().join("out/report.json"));
+    let nodes = report["render_nodes"].as_array().unwrap();
+    assert_eq!(nodes.len(), 3);
+    for node in nodes {
+        let (dsm, rss) = (&node["dsm"], node["max_rss_bytes"].as_u64().unwrap());
+        eprintln!(
+            "volume, render node {}: peak resident {:.1} MiB of a {budget_mib} MiB budget (holds {:.1} MiB, caches {:.1} MiB)",
+            node["id"],
+            rss as f64 / 1048576.0,
+            dsm["resident_bytes"].as_u64().unwrap() as f64 / 1048576.0,
+            dsm["cache_bytes"].as_u64().unwrap() as f64 / 1048576.0,
+        );
+        assert!(rss <= budget_mib << 20, "{node}");
+        assert_eq!(node["within_budget"], true, "{node}");
+        let cache = dsm["cache_bytes"].as_u64().unwrap();
+        assert!(
+            cache > 0 && cache < 11 << 20,
+            "the cache must hold part of the volume: {node}"
+        );
+        assert!(dsm["fetched"].as_u64().unwrap() > 0, "{node}");
     }
 }
 
@@ -211,7 +256,18 @@ fn every_render_node_stays_within_its_memory_budget() {
 /// Runs a shared wall of 3 render nodes with `replicas`, SIGKILLs one once frame 3 is
 /// presented, and returns the report of its 60 frames.
 fn kill_a_holder(dir: &Path, replicas: &str) -> (serde_json::Value, String) {
-    let rest = [
+    let view = ["--eye", "0,0.5,3.5", "--target", "0,0,0"];
+    kill_a_holder_of(dir, "knot:600:40", &view, replicas)
+}
+
+/// [`kill_a_holder`] of `scene` seen with `looks`.
+fn kill_a_holder_of(
+    dir: &Path,
+    scene: &str,
+    looks: &[&str],
+    replicas: &str,
+) -> (serde_json::Value, String) {
+    let mut rest = vec![
         "--frames",
         "60",
         "--save-frame",
@@ -220,12 +276,9 @@ fn kill_a_holder(dir: &Path, replicas: &str) -> (serde_json::Value, String) {
         replicas,
         "--cache-fraction",
         "0.125",
-        "--eye",
-        "0,0.5,3.5",
-        "--target",
-        "0,0,0",
     ];
-    let master = dsm_wall(dir, "knot:600:40", 3, &rest);
+    rest.extend(looks);
+    let master = dsm_wall(dir, scene, 3, &rest);
     let saved = dir.join("out/display-1.png");
     assert!(
         wait_for(Duration::from_secs(120), || saved.exists()
@@ -269,6 +322,30 @@ fn with_two_replicas_a_killed_render_node_loses_no_block() {
 fn without_replicas_a_killed_holders_blocks_are_read_from_the_prepared_files() {
     let dir = tempfile::tempdir().unwrap();
     let (report, log) = kill_a_holder(dir.path(), "1");
+    assert_every_frame_complete(&report);
+    assert!(
+        log.contains("the other render nodes read them from the prepared files"),
+        "{log}"
+    );
+    assert!(
+        report["dsm"]["read_locally"].as_u64().unwrap() > 0,
+        "{report}"
+    );
+}
+
+#[test]
+fn a_killed_holder_of_a_volumes_bricks_loses_none_of_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let volume = write_blob_volume(dir.path(), [160, 128, 128]);
+    let looks = [
+        "--transfer",
+        "ramp",
+        "--eye",
+        "80,-60,100",
+        "--target",
+        "80,64,64",
+    ];
+    let (report, log) = kill_a_holder_of(dir.path(), &volume, &looks, "1");
     assert_every_frame_complete(&report);
     assert!(
         log.contains("the other render nodes read them from the prepared files"),

@@ -16,7 +16,7 @@
 //! traversal runs to its end with a result the caller throws away; the caller traces the same
 //! rays again once the blocks have landed, handing them back as pins (`crate::parking`).
 
-use super::layout::{nodes_of, Chunk, FastDiv};
+use super::layout::{nodes_of, BlockLayout, Chunk, FastDiv};
 use super::tree::{DsmTree, Hold, Landing};
 use super::Block;
 use crate::bvh::memory::{NoPrefetch, TreeMemory};
@@ -148,6 +148,21 @@ struct Tally {
 impl<'s> DsmReader<'s> {
     /// Blocks a reader keeps at most (they stay alive while it does, whatever the cache).
     pub const HOLDS: usize = NODE_HOLDS + TRIANGLE_HOLDS + BRICK_HOLDS;
+
+    /// Blocks a reader of a scene laid out as `layout` keeps at most: its tables of nodes and
+    /// triangles if it has triangles, of bricks if it has a volume.
+    pub fn holds(layout: &BlockLayout) -> usize {
+        let mesh = if layout.node_count > 0 {
+            NODE_HOLDS + TRIANGLE_HOLDS
+        } else {
+            0
+        };
+        mesh + if layout.brick_blocks > 0 {
+            BRICK_HOLDS
+        } else {
+            0
+        }
+    }
 
     pub(super) fn new(tree: &'s DsmTree) -> Self {
         let layout = tree.layout();
