@@ -48,6 +48,12 @@ pub struct DataArgs {
     /// 1), in place of what --memory-budget leaves; the knob of `bench dsm`.
     #[arg(long, value_name = "F")]
     pub cache_fraction: Option<f32>,
+    /// With --data dsm: out of core. No render node holds a share of the blocks: each reads
+    /// what it misses from the prepared files into its cache (every render node must see the
+    /// files: one machine, or a shared filesystem). For a scene whose shares would not fit
+    /// the nodes' --memory-budget; --data auto chooses it when they would not.
+    #[arg(long)]
+    pub out_of_core: bool,
 }
 
 /// `tessera-master prepare`: the scene in blocks, for `--data dsm`.
@@ -175,6 +181,42 @@ pub fn prepare_command(args: PrepareArgs) -> Result<()> {
     Ok(())
 }
 
+/// What `--data auto` makes of a scene prepared as `manifest` under `budget` with
+/// `render_nodes` nodes holding `replicas` of each block: None where it fits whole
+/// (replicated), else whether it goes out of core (a node's share, with the fixed overhead,
+/// would take more than half the budget, leaving too little for a cache); says why, in sizes.
+fn auto_choice(
+    manifest: &Manifest,
+    budget: u64,
+    (render_nodes, replicas): (u32, u32),
+) -> Option<bool> {
+    let total = manifest.layout.total_bytes();
+    let overhead = tessera_render::dsm::NODE_OVERHEAD_BYTES;
+    if total + overhead <= budget {
+        tracing::info!(
+            "--data auto: the scene ({}) fits the budget of {}: replicated",
+            show_bytes(total),
+            show_bytes(budget)
+        );
+        return None;
+    }
+    let share = total.div_ceil(render_nodes as u64) * replicas as u64;
+    let out_of_core = share + overhead > budget / 2;
+    let how = if out_of_core {
+        "out of core: each node's share with its overhead would take more than half of it, so every node reads blocks from the prepared files into its cache"
+    } else {
+        "distributed shared memory, each node holding its share"
+    };
+    tracing::info!(
+        "--data auto: the scene ({}) does not fit the budget of {}; a node's share is {} beside {} of overhead: {how}",
+        show_bytes(total),
+        show_bytes(budget),
+        show_bytes(share),
+        show_bytes(overhead)
+    );
+    Some(out_of_core)
+}
+
 /// How the run's render nodes hold `scene`: as `args` ask, preparing it first when it is
 /// shared, and for `auto` by whether it fits the budget.
 pub fn data_spec(
@@ -210,26 +252,17 @@ pub fn data_spec(
         None => default_dir(&scene.content_hash(), bytes)?,
     };
     let manifest = ensure_prepared(scene, &dir, bytes, show_progress)?;
+    let mut out_of_core = args.out_of_core;
     if let (DataMode::Auto, Some(budget)) = (args.data, budget) {
-        let whole = manifest.layout.total_bytes() + tessera_render::dsm::NODE_OVERHEAD_BYTES;
-        if whole <= budget {
-            tracing::info!(
-                "--data auto: the scene ({}) fits the budget of {}: replicated",
-                show_bytes(manifest.layout.total_bytes()),
-                show_bytes(budget)
-            );
+        let Some(out) = auto_choice(&manifest, budget, (render_nodes, args.replicas)) else {
             return Ok(DataSpec::Replicated);
-        }
-        tracing::info!(
-            "--data auto: the scene ({}) does not fit the budget of {}: distributed shared memory",
-            show_bytes(manifest.layout.total_bytes()),
-            show_bytes(budget)
-        );
+        };
+        out_of_core |= out;
     }
     let spec = DsmSpec {
         dir,
         block_bytes: bytes,
-        ranks: render_nodes,
+        ranks: if out_of_core { 0 } else { render_nodes },
         replicas: args.replicas,
         memory_budget: budget,
         cache_fraction: args.cache_fraction,

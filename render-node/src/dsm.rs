@@ -370,7 +370,8 @@ pub async fn start(
             )
         })?;
     let layout = manifest.layout;
-    let residency = Residency::new(layout.total(), spec.ranks, rank, spec.replicas)?;
+    // Out of core (no ranks): one rank nobody holds, whose blocks are read from the files.
+    let residency = Residency::new(layout.total(), spec.ranks.max(1), rank, spec.replicas)?;
     let (share, file, fallback) = {
         let (dir, manifest, residency) = (dir.clone(), manifest.clone(), residency.clone());
         tokio::task::spawn_blocking(move || -> Result<_> {
@@ -380,7 +381,13 @@ pub async fn start(
         })
         .await??
     };
-    let resident = ((share.0.len() + share.1.len()) * 64) as u64;
+    let volume = match &manifest.volume {
+        Some(entry) => Some(tessera_render::dsm::volume::load(&dir, entry)?),
+        None => None,
+    };
+    let blocks_held = ((share.0.len() + share.1.len()) * 64) as u64;
+    // What a node holds of a volume besides its bricks counts as its own, as blocks do.
+    let resident = blocks_held + volume.as_ref().map_or(0, |v| v.held_besides_bricks());
     let budget = options.memory_budget.or(spec.memory_budget);
     let spare = spare_blocks(options.threads, &layout);
     let lines = cache_lines(&manifest, spec, budget, (resident, spare))?;
@@ -406,10 +413,6 @@ pub async fn start(
         hub.clone(),
     )?;
     park_within_spare(&tree, budget.is_some());
-    let volume = match &manifest.volume {
-        Some(entry) => Some(tessera_render::dsm::volume::load(&dir, entry)?),
-        None => None,
-    };
     let prepared = PreparedScene::from_shared(&manifest, tree, volume);
     let driver = fetch_driver::spawn(fetch_driver::Setup {
         residency,

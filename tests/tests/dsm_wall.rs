@@ -356,3 +356,52 @@ fn a_killed_holder_of_a_volumes_bricks_loses_none_of_them() {
         "{report}"
     );
 }
+
+#[test]
+fn out_of_core_every_block_is_read_from_the_prepared_files_within_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    // 80 bricks; no node holds any, each caches about 70 of them.
+    let volume = write_blob_volume(dir.path(), [160, 128, 128]);
+    let looks = [
+        "--transfer",
+        "ramp",
+        "--eye",
+        "80,-60,100",
+        "--target",
+        "80,64,64",
+    ];
+    let mut rest = vec![
+        "--out-of-core",
+        "--memory-budget",
+        "64MiB",
+        "--frames",
+        "4",
+        "--save-frame",
+        "3",
+    ];
+    rest.extend(looks);
+    let o = dsm_wall(dir.path(), &volume, 3, &rest).wait(Duration::from_secs(300));
+    o.assert_success("the out-of-core wall");
+    let ref_dir = dir.path().join("reference");
+    let mut reference = vec![
+        "render", "--wall", "2x1", "--screen", "160x90", "--scene", &volume, "--frame", "3",
+    ];
+    reference.extend(["--out", ref_dir.to_str().unwrap()]);
+    reference.extend(looks);
+    run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
+    assert_same_pixels(
+        &dir.path().join("out/wall.png"),
+        &ref_dir.join("wall.png"),
+        "the out-of-core wall against the reference",
+    );
+    let report = read_json(&dir.path().join("out/report.json"));
+    assert_eq!(report["dsm"]["ranks"], 0, "{report}");
+    assert!(
+        report["dsm"]["read_locally"].as_u64().unwrap() > 0,
+        "{report}"
+    );
+    for node in report["render_nodes"].as_array().unwrap() {
+        assert_eq!(node["dsm"]["resident_bytes"], 0, "{node}");
+        assert_eq!(node["within_budget"], true, "{node}");
+    }
+}

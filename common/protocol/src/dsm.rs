@@ -32,7 +32,9 @@ pub struct DsmSpec {
     pub dir: PathBuf,
     /// Size of one block in bytes: the unit of sharing, fetching and caching.
     pub block_bytes: u32,
-    /// Render nodes that hold blocks (the first to join); more render nodes hold none.
+    /// Render nodes that hold blocks (the first to join); more render nodes hold none. 0:
+    /// none holds any, each reads the blocks it misses from the prepared files into its cache
+    /// (out of core: the files on one machine or a shared filesystem).
     pub ranks: u32,
     /// Nodes that hold each block (2: a second owner, so a death loses nothing).
     pub replicas: u32,
@@ -46,8 +48,8 @@ pub struct DsmSpec {
 /// Why a shared scene's spread was refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum DsmSpecError {
-    /// No render node was to hold blocks, or more than [`MAX_RANKS`].
-    #[error("{0} ranks (1 to {MAX_RANKS})")]
+    /// More render nodes were to hold blocks than [`MAX_RANKS`].
+    #[error("{0} ranks (0 to {MAX_RANKS})")]
     Ranks(u32),
     /// Each block was to have no holder, or more holders than there are ranks.
     #[error("{replicas} replicas of {ranks} ranks")]
@@ -66,13 +68,13 @@ impl DsmSpec {
     /// Checks the spread.
     ///
     /// # Errors
-    /// No ranks or more than [`MAX_RANKS`], replicas not within 1..=ranks, a cache fraction
-    /// not in (0, 1].
+    /// More ranks than [`MAX_RANKS`], replicas not within 1..=ranks (1 out of core), a cache
+    /// fraction not in (0, 1].
     pub fn check(&self) -> Result<(), DsmSpecError> {
-        if !(1..=MAX_RANKS).contains(&self.ranks) {
+        if self.ranks > MAX_RANKS {
             return Err(DsmSpecError::Ranks(self.ranks));
         }
-        if !(1..=self.ranks).contains(&self.replicas) {
+        if !(1..=self.ranks.max(1)).contains(&self.replicas) {
             return Err(DsmSpecError::Replicas {
                 replicas: self.replicas,
                 ranks: self.ranks,
@@ -249,7 +251,17 @@ mod tests {
             cache_fraction: Some(0.125),
         };
         assert!(ok.check().is_ok());
+        let out_of_core = DsmSpec {
+            ranks: 0,
+            replicas: 1,
+            ..ok.clone()
+        };
+        assert!(out_of_core.check().is_ok());
         for bad in [
+            DsmSpec {
+                ranks: MAX_RANKS + 1,
+                ..ok.clone()
+            },
             DsmSpec {
                 ranks: 0,
                 ..ok.clone()

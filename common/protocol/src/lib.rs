@@ -34,7 +34,7 @@ use tessera_model::wall::{DisplayId, TileId, WallLayout};
 use tessera_model::window::WindowPlacement;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 9;
+pub const PROTOCOL_VERSION: u32 = 10;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
