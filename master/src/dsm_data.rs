@@ -59,13 +59,15 @@ pub struct DataArgs {
 /// `tessera-master prepare`: the scene in blocks, for `--data dsm`.
 #[derive(clap::Args)]
 pub struct PrepareArgs {
-    /// The scene: `builtin`, `gallery`, `knot:SEGMENTS:SIDES` or a mesh (OBJ, PLY, glTF/GLB).
+    /// The scene: `builtin`, `gallery`, `knot:SEGMENTS:SIDES`, a mesh (OBJ, PLY, glTF/GLB), a
+    /// volume (.nrrd, .nhdr, .nii, .nii.gz, .vol.toml) or a .scene.toml of meshes and a volume.
     #[arg(long)]
     pub scene: String,
     /// The folder to write (default: ~/.cache/tessera/dsm/<scene hash>-<block size>).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Block size (a multiple of 256 bytes, 2KiB to 1MiB).
+    /// Block size (a multiple of 256 bytes, 2KiB to 1MiB); a scene with a volume uses at
+    /// least a brick's (140.5KiB).
     #[arg(long, default_value = "8KiB", value_parser = parse_bytes, value_name = "SIZE")]
     pub block_size: u64,
 }
