@@ -6,7 +6,7 @@
 use crate::fetch_driver::{self, DriverHandle};
 use anyhow::{bail, Context, Result};
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
@@ -16,10 +16,11 @@ use tessera_model::wall::TileId;
 use tessera_protocol::dsm::{BlockHolder, DsmSpec, DsmStats};
 use tessera_render::dsm::layout::DEFAULT_BLOCK_BYTES;
 use tessera_render::dsm::pool::BlockPool;
-use tessera_render::dsm::prepare::{self, BlockFile, Manifest};
+use tessera_render::dsm::prepare::{self, BlockFile, Manifest, Share};
 use tessera_render::dsm::{
     Block, BlockFetch, BlockLayout, DsmReader, DsmTree, Landing, PinLimits, NODE_OVERHEAD_BYTES,
 };
+use tessera_render::volume::SharedVolume;
 use tessera_render::PreparedScene;
 use tokio::sync::mpsc;
 
@@ -355,6 +356,30 @@ fn park_within_spare(tree: &DsmTree, budgeted: bool) {
     }
 }
 
+/// This node's share of the scene prepared in `dir`, the files it reads blocks from (one for
+/// its fetch loop, one for its render threads' blocks no owner can send), and what it holds
+/// whole of the scene's volume.
+async fn read_prepared(
+    dir: &Path,
+    manifest: &Manifest,
+    residency: &Residency,
+) -> Result<(Share, (BlockFile, BlockFile), Option<SharedVolume>)> {
+    let (share, file, fallback) = {
+        let (dir, manifest, residency) = (dir.to_path_buf(), manifest.clone(), residency.clone());
+        tokio::task::spawn_blocking(move || -> Result<_> {
+            let mut file = BlockFile::open(&dir, &manifest)?;
+            let share = file.read_share(&residency, &mut |_, _| {})?;
+            Ok((share, file, BlockFile::open(&dir, &manifest)?))
+        })
+        .await??
+    };
+    let volume = match &manifest.volume {
+        Some(entry) => Some(tessera_render::dsm::volume::load(dir, entry)?),
+        None => None,
+    };
+    Ok((share, (file, fallback), volume))
+}
+
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
 /// and starts fetching: the scene to render, and the handle that keeps it fed.
 pub async fn start(
@@ -377,19 +402,7 @@ pub async fn start(
     let layout = manifest.layout;
     // Out of core (no ranks): one rank nobody holds, whose blocks are read from the files.
     let residency = Residency::new(layout.total(), spec.ranks.max(1), rank, spec.replicas)?;
-    let (share, file, fallback) = {
-        let (dir, manifest, residency) = (dir.clone(), manifest.clone(), residency.clone());
-        tokio::task::spawn_blocking(move || -> Result<_> {
-            let mut file = BlockFile::open(&dir, &manifest)?;
-            let share = file.read_share(&residency, &mut |_, _| {})?;
-            Ok((share, file, BlockFile::open(&dir, &manifest)?))
-        })
-        .await??
-    };
-    let volume = match &manifest.volume {
-        Some(entry) => Some(tessera_render::dsm::volume::load(&dir, entry)?),
-        None => None,
-    };
+    let (share, (file, fallback), volume) = read_prepared(&dir, &manifest, &residency).await?;
     let blocks_held = ((share.0.len() + share.1.len()) * 64) as u64;
     // What a node holds of a volume besides its bricks counts as its own, as blocks do.
     let resident = blocks_held + volume.as_ref().map_or(0, |v| v.held_besides_bricks());

@@ -167,27 +167,7 @@ pub fn blocks_of<'a>(
     .with_bricks(bricks, largest)?;
     let shared = volume.as_ref().map(PreparedVolume::to_shared);
     let wide = reorder_for_blocks(&accel.wide, layout.nodes_per_block() as usize);
-    let per_slot: Vec<u16> = accel
-        .scene_index
-        .iter()
-        .map(|&i| scene.triangle_material[i as usize])
-        .collect();
-    let bounds = scene.bounds();
-    let manifest = Manifest {
-        format: FORMAT,
-        scene_hash: hash_hex(&scene.content_hash()),
-        layout,
-        max_depth: accel.max_depth() as u32,
-        bounds_min: bounds.min.to_array(),
-        bounds_max: bounds.max.to_array(),
-        diagonal: bounds.diagonal().length(),
-        render_from_world: scene.render_from_world,
-        materials: scene.materials.clone(),
-        lights: scene.lights.clone(),
-        slot_materials: SlotMaterials::runs_of(&per_slot),
-        blends: scene.has_transparency(),
-        volume: shared.as_ref().map(|v| encode(v).1),
-    };
+    let manifest = manifest_of(scene, accel, layout, shared.as_ref());
     let per_node = layout.nodes_per_block() as usize;
     let per_tri = layout.triangles_per_block() as usize;
     let node_blocks = (0..layout.node_blocks as usize).map(move |b| {
@@ -213,6 +193,36 @@ pub fn blocks_of<'a>(
         shared,
         node_blocks.chain(tri_blocks).chain(bricks),
     ))
+}
+
+/// The manifest of `scene` laid out as `layout`, its volume (if any) shared as `volume`.
+fn manifest_of(
+    scene: &Scene,
+    accel: &Accel,
+    layout: BlockLayout,
+    volume: Option<&SharedVolume>,
+) -> Manifest {
+    let per_slot: Vec<u16> = accel
+        .scene_index
+        .iter()
+        .map(|&i| scene.triangle_material[i as usize])
+        .collect();
+    let bounds = scene.bounds();
+    Manifest {
+        format: FORMAT,
+        scene_hash: hash_hex(&scene.content_hash()),
+        layout,
+        max_depth: accel.max_depth() as u32,
+        bounds_min: bounds.min.to_array(),
+        bounds_max: bounds.max.to_array(),
+        diagonal: bounds.diagonal().length(),
+        render_from_world: scene.render_from_world,
+        materials: scene.materials.clone(),
+        lights: scene.lights.clone(),
+        slot_materials: SlotMaterials::runs_of(&per_slot),
+        blends: scene.has_transparency(),
+        volume: volume.map(|v| encode(v).1),
+    }
 }
 
 fn block_from(block_bytes: u32, bytes: &[u8]) -> Block {

@@ -310,14 +310,23 @@ fn with_volume(mesh: bool) -> Scene {
 }
 
 /// Iso-surfaces shaded, shadowed and ambient-occluded, or the transfer function, with the
-/// other ray kinds of [`every_ray_kind`].
-fn volume_params(iso: bool) -> RenderParams {
+/// other ray kinds of [`every_ray_kind`]; `cut`: a cut plane through the volume, and the
+/// second pass of progressive refinement.
+fn volume_params(iso: bool, cut: bool) -> RenderParams {
+    use tessera_model::cut::CutPlanes;
     use tessera_model::volume_params::{IsoValues, VolumeParams};
     let iso = if iso { &[0.3, 0.6][..] } else { &[] };
+    let cuts = if cut {
+        CutPlanes::new(&[(glam::Vec3::new(1.0, 0.2, 0.0), 0.1)]).unwrap()
+    } else {
+        CutPlanes::default()
+    };
     RenderParamsSpec {
         shadows: true,
         ao_samples: 4,
         spp: 2,
+        cuts,
+        first_sample: if cut { 2 } else { 0 },
         volume: VolumeParams {
             iso: IsoValues::new(iso).unwrap(),
             ..VolumeParams::DEFAULT
@@ -334,9 +343,21 @@ fn a_shared_volume_gives_the_replicated_pixels_with_blocks_late_and_out_of_order
     let block_bytes = super::layout::brick_block_bytes(brick as u32);
     let wall = WallSpec::grid(2, 1, 48, 32).tile_size(16).build().unwrap();
     let grid = TileGrid::new(wall.clone());
-    for (mesh, iso) in [(false, false), (false, true), (true, false), (true, true)] {
+    let cases = [
+        (false, false, false),
+        (false, true, false),
+        (true, false, false),
+        (true, true, false),
+        (false, false, true),
+        (true, true, true),
+    ];
+    for (mesh, iso, cut) in cases {
         let scene = with_volume(mesh);
-        let view = view_of(&scene, volume_params(iso), (wall.width(), wall.height()));
+        let view = view_of(
+            &scene,
+            volume_params(iso, cut),
+            (wall.width(), wall.height()),
+        );
         let replicated = crate::PreparedScene::new(&scene);
         let (want, want_rays) = render_tiles(&replicated, &view, grid.tiles());
         let without = Scene {
@@ -350,7 +371,7 @@ fn a_shared_volume_gives_the_replicated_pixels_with_blocks_late_and_out_of_order
         assert_eq!(manifest.layout.brick_blocks, 27);
         let blocks: Vec<_> = blocks.map(Arc::new).collect();
         for lines in [0, 4, 64] {
-            let case = format!("mesh {mesh}, iso {iso}, {lines} lines");
+            let case = format!("mesh {mesh}, iso {iso}, cut {cut}, {lines} lines");
             let late = Arc::new(LateBlocks {
                 blocks: blocks.clone(),
                 first_counted: manifest.layout.first_brick_block(),
