@@ -36,6 +36,28 @@ fn dsm_wall(dir: &Path, scene: &str, render_nodes: u32, rest: &[&str]) -> Proc {
     Proc::start("tessera-master", &args)
 }
 
+/// The wall saved in `dir/out` equals `tessera-master render` of frame `frame` of `scene` seen
+/// with `looks`, pixel for pixel.
+fn assert_wall_is_the_reference(
+    dir: &Path,
+    (scene, frame): (&str, &str),
+    looks: &[&str],
+    what: &str,
+) {
+    let ref_dir = dir.join("reference");
+    let mut reference = vec![
+        "render", "--wall", "2x1", "--screen", "160x90", "--scene", scene, "--frame", frame,
+    ];
+    reference.extend(["--out", ref_dir.to_str().unwrap()]);
+    reference.extend(looks);
+    run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
+    assert_same_pixels(
+        &dir.join("out/wall.png"),
+        &ref_dir.join("wall.png"),
+        &format!("{what} against the reference"),
+    );
+}
+
 #[test]
 fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
     let dir = tempfile::tempdir().unwrap();
@@ -54,18 +76,7 @@ fn a_shared_scene_renders_the_reference_pixels_with_every_ray_kind() {
     rest.extend(quality);
     let o = dsm_wall(dir.path(), "gallery", 3, &rest).wait(Duration::from_secs(180));
     o.assert_success("the shared wall");
-    let mut reference = vec![
-        "render", "--wall", "2x1", "--screen", "160x90", "--scene", "gallery", "--frame", "2",
-    ];
-    let ref_dir = dir.path().join("reference");
-    reference.extend(["--out", ref_dir.to_str().unwrap()]);
-    reference.extend(quality);
-    run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
-    assert_same_pixels(
-        &dir.path().join("out/wall.png"),
-        &ref_dir.join("wall.png"),
-        "the shared wall against the reference",
-    );
+    assert_wall_is_the_reference(dir.path(), ("gallery", "2"), &quality, "the shared wall");
     let report = read_json(&dir.path().join("out/report.json"));
     assert_eq!(report["data"], "dsm", "{report}");
     for node in report["render_nodes"].as_array().unwrap() {
@@ -147,19 +158,9 @@ fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_an
         rest.extend(view);
         let o = dsm_wall(&run_dir, &volume, 3, &rest).wait(Duration::from_secs(180));
         o.assert_success("the shared volume wall");
-        let ref_dir = run_dir.join("reference");
-        let mut reference = vec![
-            "render", "--wall", "2x1", "--screen", "160x90", "--scene", &volume, "--frame", "2",
-        ];
-        reference.extend(["--out", ref_dir.to_str().unwrap()]);
-        reference.extend(&looks);
-        reference.extend(view);
-        run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
-        assert_same_pixels(
-            &run_dir.join("out/wall.png"),
-            &ref_dir.join("wall.png"),
-            &format!("the shared volume ({name}) against the reference"),
-        );
+        let what = format!("the shared volume ({name})");
+        let all: Vec<&str> = looks.iter().chain(&view).copied().collect();
+        assert_wall_is_the_reference(&run_dir, (&volume, "2"), &all, &what);
         let report = read_json(&run_dir.join("out/report.json"));
         assert_eq!(report["data"], "dsm", "{report}");
         let fetched: u64 = report["render_nodes"]
@@ -297,6 +298,29 @@ fn kill_a_holder_of(
     (read_json(&dir.join("out/report.json")), o.stderr)
 }
 
+/// The 160 x 128 x 128 blob volume through the ramp, seen whole.
+const BIG_VOLUME_LOOKS: [&str; 6] = [
+    "--transfer",
+    "ramp",
+    "--eye",
+    "80,-60,100",
+    "--target",
+    "80,64,64",
+];
+
+/// Every frame came, and a killed holder's blocks were read from the prepared files.
+fn assert_blocks_came_from_the_prepared_files(report: &serde_json::Value, log: &str) {
+    assert_every_frame_complete(report);
+    assert!(
+        log.contains("the other render nodes read them from the prepared files"),
+        "{log}"
+    );
+    assert!(
+        report["dsm"]["read_locally"].as_u64().unwrap() > 0,
+        "{report}"
+    );
+}
+
 fn assert_every_frame_complete(report: &serde_json::Value) {
     assert_eq!(report["frames"], 60, "{report}");
     assert_eq!(report["render_nodes_lost"], 1, "{report}");
@@ -322,39 +346,16 @@ fn with_two_replicas_a_killed_render_node_loses_no_block() {
 fn without_replicas_a_killed_holders_blocks_are_read_from_the_prepared_files() {
     let dir = tempfile::tempdir().unwrap();
     let (report, log) = kill_a_holder(dir.path(), "1");
-    assert_every_frame_complete(&report);
-    assert!(
-        log.contains("the other render nodes read them from the prepared files"),
-        "{log}"
-    );
-    assert!(
-        report["dsm"]["read_locally"].as_u64().unwrap() > 0,
-        "{report}"
-    );
+    assert_blocks_came_from_the_prepared_files(&report, &log);
 }
 
 #[test]
 fn a_killed_holder_of_a_volumes_bricks_loses_none_of_them() {
     let dir = tempfile::tempdir().unwrap();
     let volume = write_blob_volume(dir.path(), [160, 128, 128]);
-    let looks = [
-        "--transfer",
-        "ramp",
-        "--eye",
-        "80,-60,100",
-        "--target",
-        "80,64,64",
-    ];
+    let looks = BIG_VOLUME_LOOKS;
     let (report, log) = kill_a_holder_of(dir.path(), &volume, &looks, "1");
-    assert_every_frame_complete(&report);
-    assert!(
-        log.contains("the other render nodes read them from the prepared files"),
-        "{log}"
-    );
-    assert!(
-        report["dsm"]["read_locally"].as_u64().unwrap() > 0,
-        "{report}"
-    );
+    assert_blocks_came_from_the_prepared_files(&report, &log);
 }
 
 #[test]
@@ -362,14 +363,7 @@ fn out_of_core_every_block_is_read_from_the_prepared_files_within_the_budget() {
     let dir = tempfile::tempdir().unwrap();
     // 80 bricks; no node holds any, each caches about 70 of them.
     let volume = write_blob_volume(dir.path(), [160, 128, 128]);
-    let looks = [
-        "--transfer",
-        "ramp",
-        "--eye",
-        "80,-60,100",
-        "--target",
-        "80,64,64",
-    ];
+    let looks = BIG_VOLUME_LOOKS;
     let mut rest = vec![
         "--out-of-core",
         "--memory-budget",
@@ -382,18 +376,7 @@ fn out_of_core_every_block_is_read_from_the_prepared_files_within_the_budget() {
     rest.extend(looks);
     let o = dsm_wall(dir.path(), &volume, 3, &rest).wait(Duration::from_secs(300));
     o.assert_success("the out-of-core wall");
-    let ref_dir = dir.path().join("reference");
-    let mut reference = vec![
-        "render", "--wall", "2x1", "--screen", "160x90", "--scene", &volume, "--frame", "3",
-    ];
-    reference.extend(["--out", ref_dir.to_str().unwrap()]);
-    reference.extend(looks);
-    run("tessera-master", &reference, Duration::from_secs(120)).assert_success("render");
-    assert_same_pixels(
-        &dir.path().join("out/wall.png"),
-        &ref_dir.join("wall.png"),
-        "the out-of-core wall against the reference",
-    );
+    assert_wall_is_the_reference(dir.path(), (&volume, "3"), &looks, "the out-of-core wall");
     let report = read_json(&dir.path().join("out/report.json"));
     assert_eq!(report["dsm"]["ranks"], 0, "{report}");
     assert!(
