@@ -62,53 +62,52 @@ impl BrickSource for Replicated {
 impl Bricks {
     /// Bricks of `values`, `dims` samples in x-fastest order (each dimension at least 2).
     pub fn new(dims: [usize; 3], values: &[f32]) -> Self {
-        assert!(dims.iter().all(|&d| d >= 2) && values.len() == dims.iter().product::<usize>());
-        let cells = dims.map(|d| d - 1);
-        let bricks = cells.map(|c| c.div_ceil(BRICK_CELLS));
-        let mut slots = Vec::with_capacity(bricks.iter().product());
-        let mut samples = Vec::with_capacity(values.len() + values.len() / 8);
-        for bz in 0..bricks[2] {
-            for by in 0..bricks[1] {
-                for bx in 0..bricks[0] {
-                    let first = [bx, by, bz].map(|b| b * BRICK_CELLS);
-                    let n = brick_extent(cells, [bx, by, bz]);
-                    slots.push(BrickSlot {
-                        offset: samples.len(),
-                        nx: n[0] as u32,
-                        ny: n[1] as u32,
-                    });
-                    for z in first[2]..first[2] + n[2] {
-                        for y in first[1]..first[1] + n[1] {
-                            let row = (z * dims[1] + y) * dims[0];
-                            samples
-                                .extend_from_slice(&values[row + first[0]..row + first[0] + n[0]]);
-                        }
-                    }
+        assert!(values.len() == dims.iter().product::<usize>());
+        let mut laid = Bricks::laid_out(dims);
+        laid.samples.reserve_exact(values.len() + values.len() / 8);
+        for (index, slot) in laid.slots.iter().enumerate() {
+            let [bx, by] = [
+                index % laid.bricks[0],
+                index / laid.bricks[0] % laid.bricks[1],
+            ];
+            let b = [bx, by, index / (laid.bricks[0] * laid.bricks[1])];
+            let first = b.map(|b| b * BRICK_CELLS);
+            let n = brick_extent(laid.cells, b);
+            debug_assert_eq!(slot.offset, laid.samples.len());
+            for z in first[2]..first[2] + n[2] {
+                for y in first[1]..first[1] + n[1] {
+                    let row = (z * dims[1] + y) * dims[0] + first[0];
+                    laid.samples.extend_from_slice(&values[row..row + n[0]]);
                 }
             }
         }
-        Bricks {
-            cells,
-            bricks,
-            slots,
-            samples,
-            shared: false,
-        }
+        laid
     }
 
     /// The bricks of a grid of `dims` samples whose samples are in shared memory, brick `i`
     /// at the start of a block of its own, laid out as [`Bricks::new`] lays them out.
     pub fn shared(dims: [usize; 3]) -> Self {
+        Bricks {
+            shared: true,
+            ..Bricks::laid_out(dims)
+        }
+    }
+
+    /// The bricks of a grid of `dims` samples, each slot at the offset its samples take in
+    /// order, no sample held yet.
+    fn laid_out(dims: [usize; 3]) -> Self {
         assert!(dims.iter().all(|&d| d >= 2));
         let cells = dims.map(|d| d - 1);
         let bricks = cells.map(|c| c.div_ceil(BRICK_CELLS));
         let mut slots = Vec::with_capacity(bricks.iter().product());
+        let mut offset = 0;
         for bz in 0..bricks[2] {
             for by in 0..bricks[1] {
                 for bx in 0..bricks[0] {
                     let n = brick_extent(cells, [bx, by, bz]);
                     let (nx, ny) = (n[0] as u32, n[1] as u32);
-                    slots.push(BrickSlot { offset: 0, nx, ny });
+                    slots.push(BrickSlot { offset, nx, ny });
+                    offset += n.iter().product::<usize>();
                 }
             }
         }
@@ -117,7 +116,7 @@ impl Bricks {
             bricks,
             slots,
             samples: Vec::new(),
-            shared: true,
+            shared: false,
         }
     }
 
