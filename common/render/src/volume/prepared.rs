@@ -129,16 +129,16 @@ impl Placement {
 }
 
 impl SharedVolume {
-    /// [`PreparedVolume::held_besides_bricks`] of the volume this makes.
+    /// Bytes a render node holds of this volume besides its bricks, at most: the min/max grid
+    /// and the per-frame leap table (9 and 1 bytes a macro-cell), and a cell mask per brick
+    /// (one bit a cell, made as rays reach the brick). A 2 GiB volume's came to 74 MiB, which
+    /// out of core took its render nodes 10-20 MiB past their budgets until it was counted.
     pub fn held_besides_bricks(&self) -> u64 {
-        let bricks = Bricks::shared(self.placement.dims).count();
-        held_besides_bricks(self.minmax.ranges().len(), bricks)
+        let cells = self.placement.dims.map(|d| d - 1);
+        let bricks: usize = cells.iter().map(|c| c.div_ceil(BRICK_CELLS)).product();
+        let per_brick = (super::bricks::CELL_WORDS * 8 + 16) as u64;
+        self.minmax.ranges().len() as u64 * 10 + bricks as u64 * per_brick
     }
-}
-
-fn held_besides_bricks(macro_cells: usize, bricks: usize) -> u64 {
-    let per_brick = (super::bricks::CELL_WORDS * 8 + 16) as u64;
-    macro_cells as u64 * 10 + bricks as u64 * per_brick
 }
 
 impl PreparedVolume {
@@ -157,14 +157,6 @@ impl PreparedVolume {
     pub fn shared(volume: SharedVolume) -> Self {
         let bricks = Bricks::shared(volume.placement.dims);
         PreparedVolume::from_parts(bricks, volume.minmax, volume.placement)
-    }
-
-    /// Bytes a render node holds of this volume besides its bricks, at most: the min/max grid
-    /// and the per-frame leap table (9 and 1 bytes a macro-cell), and a cell mask per brick
-    /// (one bit a cell, made as rays reach the brick). A 2 GiB volume's came to 74 MiB, which
-    /// out of core took its render nodes 10-20 MiB past their budgets until it was counted.
-    pub fn held_besides_bricks(&self) -> u64 {
-        held_besides_bricks(self.minmax.ranges().len(), self.bricks.count())
     }
 
     /// What a render node of this volume in shared memory holds whole.
