@@ -1,7 +1,8 @@
 //! Local walls whose render nodes share the scene in distributed shared memory (`--data dsm`):
 //! the wall equals the single-process reference pixel for pixel (a mesh, and a volume drawn
-//! through a transfer function and as an iso-surface), every render node stays within its
-//! memory budget (a mesh and a volume), and a render node's death loses no block (of a mesh,
+//! through a transfer function and as an iso-surface, and a scene of a mesh, a volume and
+//! particles), every render node stays within its memory budget (a mesh, a volume, the mixed
+//! scene), and a render node's death loses no block (of a mesh,
 //! or a volume's bricks).
 
 use std::path::Path;
@@ -170,6 +171,71 @@ fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_an
             .map(|n| n["dsm"]["fetched"].as_u64().unwrap())
             .sum();
         assert!(fetched > 0, "{name}: no brick was fetched: {report}");
+    }
+}
+
+/// Writes `DIR/mixed.scene.toml`: the blobs of [`write_blob_volume`] (72x40x40), 400 particles
+/// among them and a backdrop quad behind them.
+fn write_mixed_scene(dir: &Path) -> String {
+    write_blob_volume(dir, [72, 40, 40]);
+    std::fs::write(
+        dir.join("backdrop.obj"),
+        "v -10 -10 -3\nv 82 -10 -3\nv 82 50 -3\nv -10 50 -3\nf 1 2 3\nf 1 3 4\n",
+    )
+    .unwrap();
+    let mut csv = String::from("x,y,z,radius,attribute\n");
+    for i in 0..400u32 {
+        // A low-discrepancy scatter through the volume's box.
+        let u = |k: u32| ((i * k) % 997) as f32 / 997.0;
+        let (x, y, z) = (u(409) * 72.0, u(613) * 40.0, u(787) * 40.0);
+        let r = 0.8 + 1.2 * u(211);
+        csv += &format!("{x},{y},{z},{r},{}\n", i % 10);
+    }
+    std::fs::write(dir.join("dots.csv"), csv).unwrap();
+    let scene = dir.join("mixed.scene.toml");
+    std::fs::write(
+        &scene,
+        "meshes = [\"backdrop.obj\"]\nvolume = \"blobs.vol.toml\"\nparticles = \"dots.csv\"\n",
+    )
+    .unwrap();
+    scene.to_str().unwrap().to_string()
+}
+
+#[test]
+fn a_shared_mixed_scene_renders_the_reference_pixels_within_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_mixed_scene(dir.path());
+    let looks = [
+        "--iso",
+        "120",
+        "--ao",
+        "2",
+        "--eye",
+        "36,-22,40",
+        "--target",
+        "36,20,20",
+    ];
+    let budget_mib = 64;
+    let budget = format!("{budget_mib}MiB");
+    let mut rest = vec![
+        "--frames",
+        "3",
+        "--save-frame",
+        "2",
+        "--cache-fraction",
+        "0.25",
+        "--memory-budget",
+        &budget,
+    ];
+    rest.extend(looks);
+    let o = dsm_wall(dir.path(), &scene, 3, &rest).wait(Duration::from_secs(180));
+    o.assert_success("the shared mixed scene");
+    assert_wall_is_the_reference(dir.path(), (&scene, "2"), &looks, "the shared mixed scene");
+    let report = read_json(&dir.path().join("out/report.json"));
+    assert_eq!(report["data"], "dsm", "{report}");
+    for node in report["render_nodes"].as_array().unwrap() {
+        assert_eq!(node["within_budget"], true, "{node}");
+        assert!(node["dsm"]["fetched"].as_u64().unwrap() > 0, "{node}");
     }
 }
 

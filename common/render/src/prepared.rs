@@ -56,12 +56,6 @@ impl PreparedScene {
                 .map(|&i| scene.triangle_material[i as usize])
                 .collect(),
         );
-        let range = scene
-            .particles
-            .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| {
-                (lo.min(p.attribute), hi.max(p.attribute))
-            });
         PreparedScene {
             diagonal: scene.bounds().diagonal().length(),
             accel,
@@ -71,7 +65,7 @@ impl PreparedScene {
             blends: scene.has_transparency(),
             lights: scene.lights.clone(),
             spheres: SphereAccel::build(&scene.particles),
-            attribute_range: range,
+            attribute_range: scene.attribute_range(),
             volume: scene
                 .volume
                 .as_ref()

@@ -137,13 +137,8 @@ impl Shader<'_, '_> {
         let scene = self.scene;
         self.tracer.occluded(ray, t_min, t_max)
             || scene.spheres.as_ref().is_some_and(|s| {
-                s.occluded(
-                    ray,
-                    t_min,
-                    t_max,
-                    self.view.params.crop(),
-                    &mut self.tracer.stack,
-                )
+                let crop = self.view.params.crop();
+                self.tracer.sphere_occluded(s, (ray, t_min, t_max), crop)
             })
             || iso_occludes(scene, self.view, ray, (t_min, t_max), self.tracer)
     }
@@ -286,8 +281,7 @@ impl PreparedScene {
     pub fn material_of(&self, hit: SurfaceHit, view: &FrameView) -> Material {
         match hit {
             SurfaceHit::Triangle(h) => self.materials[self.slot_material.of(h.slot) as usize],
-            SurfaceHit::Sphere { slot, .. } => {
-                let s = &self.spheres().spheres[slot as usize];
+            SurfaceHit::Sphere { sphere: s, .. } => {
                 if s.attribute.is_nan() {
                     let color = view.params.volume().missing_color;
                     return Material::lambert(color.map_or(MISSING_COLOR, Vec3::from_array));

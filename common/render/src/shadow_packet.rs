@@ -89,12 +89,10 @@ fn blocked(
             let (t_min, t_max) = (packet.t_min[j], packet.t_max[j]);
             if occluded >> j & 1 == 0
                 && t_min <= t_max
-                && spheres.occluded(
-                    &Ray::new(start, towards),
-                    t_min,
-                    t_max,
+                && tracer.sphere_occluded(
+                    spheres,
+                    (&Ray::new(start, towards), t_min, t_max),
                     view.params.crop(),
-                    &mut tracer.stack,
                 )
             {
                 occluded |= 1 << j;

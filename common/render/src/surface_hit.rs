@@ -7,6 +7,7 @@ use crate::bvh::node::Hit;
 use crate::geometry::{triangle_normal, Ray};
 use crate::packet::PacketHit;
 use crate::prepared::{FrameView, PreparedScene};
+use crate::scene::particles::Particle;
 use crate::scene::Light;
 use crate::tracer::Tracer;
 use glam::Vec3;
@@ -63,6 +64,8 @@ pub enum SurfaceHit {
         /// Index of the sphere in the sphere BVH's order
         /// ([`crate::spheres::SphereAccel::spheres`]).
         slot: u32,
+        /// The sphere, as the trace read it (particles in shared memory are not at hand).
+        sphere: Particle,
     },
     /// A volume's direct iso-surface: `surface` indexes the frame's iso-values.
     Iso {
@@ -102,12 +105,15 @@ impl SurfaceHit {
                 .expect("AOVs need the scene index, which render nodes drop")
                 as u64,
             SurfaceHit::Sphere { slot, .. } => {
-                scene.accel.triangles.len() as u64
-                    + scene.spheres().scene_index[slot as usize] as u64
+                let index = scene.spheres().scene_index.get(slot as usize);
+                let index = index.expect(
+                    "AOVs need the particles' scene index, which shared memory does not hold",
+                );
+                scene.accel.triangles.len() as u64 + *index as u64
             }
             // After the triangles and particles, one index per iso-value.
             SurfaceHit::Iso { surface, .. } => {
-                let spheres = scene.spheres.as_ref().map_or(0, |s| s.spheres.len());
+                let spheres = scene.spheres.as_ref().map_or(0, |s| s.len());
                 (scene.accel.triangles.len() + spheres) as u64 + surface as u64
             }
         }
@@ -138,14 +144,9 @@ pub fn nearest_surface(
     let mut nearest = SurfaceHit::of_triangle(triangle);
     if let Some(spheres) = &scene.spheres {
         let t_max = triangle.t.min(interval.1);
-        if let Some((t, slot)) = spheres.closest_hit(
-            &Ray::new(origin, dir),
-            interval.0,
-            t_max,
-            view.params.crop(),
-            &mut tracer.stack,
-        ) {
-            nearest = Some(SurfaceHit::Sphere { t, slot });
+        let ray = (&Ray::new(origin, dir), interval.0, t_max);
+        if let Some((t, slot, sphere)) = tracer.sphere_hit(spheres, ray, view.params.crop()) {
+            nearest = Some(SurfaceHit::Sphere { t, slot, sphere });
         }
     }
     if let Some(volume) = &scene.volume {
@@ -170,8 +171,7 @@ pub fn hit_frame(
 ) -> (Vec3, Vec3) {
     match hit {
         SurfaceHit::Triangle(h) => surface(tracer, origin, dir, h),
-        SurfaceHit::Sphere { t, slot } => {
-            let s = &scene.spheres().spheres[slot as usize];
+        SurfaceHit::Sphere { t, sphere: s, .. } => {
             let p = origin + dir * t;
             let mut n = ((p - s.center) / s.radius).normalize_or_zero();
             if n.dot(dir) > 0.0 {

@@ -3,8 +3,11 @@
 //! memory, where the thread keeps the blocks it is in (see `dsm::DsmReader`).
 
 use crate::bvh::memory::TreeMemory;
+use crate::bvh::node::BvhNode;
 use crate::bvh::node::{Hit, LeafTriangle};
 use crate::dsm::{DsmReader, Landing, Pins};
+use crate::scene::particles::Particle;
+use crate::spheres::{Replicated, SphereAccel, SphereSource};
 use crate::volume::{BrickSource, Bricks};
 use tessera_core::dsm::BlockId;
 
@@ -124,7 +127,52 @@ impl BrickSource for Tracer<'_> {
     }
 }
 
+/// A tracer's memory read as particles: the structure's own arrays, or shared ones through the
+/// thread's reader.
+struct SphereReads<'a, 's>(&'a mut Memory<'s>);
+
+impl SphereSource for SphereReads<'_, '_> {
+    #[inline]
+    fn sphere_node(&mut self, accel: &SphereAccel, index: u32) -> Option<BvhNode> {
+        match self.0 {
+            Memory::Dsm(reader) if accel.is_shared() => reader.sphere_node(index),
+            _ => Replicated.sphere_node(accel, index),
+        }
+    }
+
+    #[inline]
+    fn sphere(&mut self, accel: &SphereAccel, slot: u32) -> Option<Particle> {
+        match self.0 {
+            Memory::Dsm(reader) if accel.is_shared() => reader.sphere(slot),
+            _ => Replicated.sphere(accel, slot),
+        }
+    }
+}
+
 impl<'s> Tracer<'s> {
+    /// The nearest particle hit in `(t_min, t_max)` among those whose attribute is in `crop`
+    /// (see [`SphereAccel::closest_hit`]).
+    pub fn sphere_hit(
+        &mut self,
+        spheres: &SphereAccel,
+        (ray, t_min, t_max): (&Ray, f32, f32),
+        crop: Option<(f32, f32)>,
+    ) -> Option<(f32, u32, Particle)> {
+        let Tracer { stack, memory, .. } = self;
+        spheres.closest_hit(&mut SphereReads(memory), (ray, t_min, t_max), crop, stack)
+    }
+
+    /// Whether a particle whose attribute is in `crop` blocks the ray in `(t_min, t_max)`.
+    pub fn sphere_occluded(
+        &mut self,
+        spheres: &SphereAccel,
+        (ray, t_min, t_max): (&Ray, f32, f32),
+        crop: Option<(f32, f32)>,
+    ) -> bool {
+        let Tracer { stack, memory, .. } = self;
+        spheres.occluded(&mut SphereReads(memory), (ray, t_min, t_max), crop, stack)
+    }
+
     pub(crate) fn new(scene: &'s PreparedScene) -> Self {
         let memory = match &scene.shared {
             Some(tree) => Memory::Dsm(tree.reader()),

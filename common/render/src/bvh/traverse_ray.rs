@@ -1,14 +1,13 @@
 //! Single rays through the 8-wide tree (shadow, ambient-occlusion, reflected rays, and packets
 //! without a common origin): each node's children tested at once (`node_test_ray`), entered
 //! ones pushed nearest last and prefetched, leaves tested 8 triangles at a time (`leaf_ray`).
-//! Also the walk of any binary tree of ours, which the particles' spheres use.
 //!
 //! Closest hits are order-independent: of two hits at the same distance the lower slot wins,
 //! so this traversal and the packet traversal agree bit for bit.
 
 use crate::bvh::leaf_ray;
 use crate::bvh::memory::{ChildPrefetch, TreeMemory};
-use crate::bvh::node::{BvhNode, Hit, WideNode, WIDTH};
+use crate::bvh::node::{Hit, WideNode, WIDTH};
 #[cfg(target_arch = "x86_64")]
 use crate::bvh::node_test_ray::enter_mask_avx2;
 use crate::bvh::node_test_ray::{enter_mask, finite_inverse, NodeTest};
@@ -181,50 +180,6 @@ fn node_test<B: Build>(_: B) -> impl NodeTest {
 
 /// Whether occlusion rays visit nearer children first (see `traverse_wide`).
 const ORDERED_OCCLUSION: bool = false;
-
-/// Single-ray traversal of any of our binary BVHs (triangles or spheres): visits the leaf slots
-/// whose boxes the ray enters before `t_far`, nearer child first. `visit` may shrink `t_far`
-/// and returns `true` to stop.
-#[inline(always)]
-pub(crate) fn traverse_nodes(
-    nodes: &[BvhNode],
-    ray: &Ray,
-    stack: &mut Vec<u32>,
-    t_far: &mut f32,
-    mut visit: impl FnMut(u32, &mut f32) -> bool,
-) {
-    stack.clear();
-    let Some(root) = nodes.first() else {
-        return;
-    };
-    if ray.box_entry(root.min, root.max, *t_far).is_infinite() {
-        return;
-    }
-    stack.push(0);
-    while let Some(index) = stack.pop() {
-        let node = &nodes[index as usize];
-        if node.count > 0 {
-            for slot in node.first..node.first + node.count {
-                if visit(slot, t_far) {
-                    return;
-                }
-            }
-            continue;
-        }
-        let (l, r) = (node.first, node.first + 1);
-        let (ln, rn) = (&nodes[l as usize], &nodes[r as usize]);
-        let tl = ray.box_entry(ln.min, ln.max, *t_far);
-        let tr = ray.box_entry(rn.min, rn.max, *t_far);
-        // Push the farther child first so the nearer one is popped next.
-        match (tl.is_finite(), tr.is_finite()) {
-            (true, true) if tl <= tr => stack.extend([r, l]),
-            (true, true) => stack.extend([l, r]),
-            (true, false) => stack.push(l),
-            (false, true) => stack.push(r),
-            (false, false) => {}
-        }
-    }
-}
 
 /// Visits the leaves whose boxes `ray` enters before `t_far` (nearer children first when
 /// `ORDERED`: closest hits want that, any-hit rays do not); `visit` gets the memory and a

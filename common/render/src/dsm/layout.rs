@@ -1,7 +1,9 @@
-//! Block geometry: blocks of a fixed size hold either 8-wide tree nodes or leaf triangles,
-//! node blocks first; a block's bytes are 64-byte aligned so that nodes are read in place.
+//! Block geometry: blocks of a fixed size hold 8-wide tree nodes, leaf triangles, a volume
+//! brick, the particles' binary tree nodes or particles, in that order; a block's bytes are
+//! 64-byte aligned so that nodes are read in place.
 
-use crate::bvh::node::{LeafTriangle, WideNode};
+use crate::bvh::node::{BvhNode, LeafTriangle, WideNode};
+use crate::scene::particles::Particle;
 use serde::{Deserialize, Serialize};
 use tessera_core::dsm::BlockId;
 
@@ -113,9 +115,10 @@ pub fn brick_block_bytes(brick: u32) -> u32 {
     brick.div_ceil(256) * 256
 }
 
-/// Where the tree's nodes, the triangles and a volume's bricks sit in blocks: nodes
-/// `0..node_count` in blocks `0..node_blocks`, [`BlockLayout::nodes_per_block`] to a block,
-/// then triangles in the following `triangle_blocks`, then one brick a block. The first
+/// Where the tree's nodes, the triangles, a volume's bricks and the particles sit in blocks:
+/// nodes `0..node_count` in blocks `0..node_blocks`, [`BlockLayout::nodes_per_block`] to a
+/// block, then triangles in the following `triangle_blocks`, then one brick a block, then the
+/// particles' tree nodes and the particles (see [`BlockLayout::with_spheres`]). The first
 /// `top_blocks` node blocks (the top of the tree, which every ray walks) are held by every
 /// node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -136,6 +139,18 @@ pub struct BlockLayout {
     /// Blocks holding a volume's bricks, one each, following the triangle blocks.
     #[serde(default)]
     pub brick_blocks: u32,
+    /// Nodes of the particles' binary tree in all.
+    #[serde(default)]
+    pub sphere_node_count: u32,
+    /// Particles in all, in the tree's leaf order.
+    #[serde(default)]
+    pub sphere_count: u32,
+    /// Blocks holding the particles' tree nodes, following the bricks.
+    #[serde(default)]
+    pub sphere_node_blocks: u32,
+    /// Blocks holding the particles, following their tree's nodes.
+    #[serde(default)]
+    pub sphere_blocks: u32,
 }
 
 impl BlockLayout {
@@ -170,6 +185,10 @@ impl BlockLayout {
             triangle_blocks,
             top_blocks: top_blocks.min(node_blocks),
             brick_blocks: 0,
+            sphere_node_count: 0,
+            sphere_count: 0,
+            sphere_node_blocks: 0,
+            sphere_blocks: 0,
         })
     }
 
@@ -185,14 +204,73 @@ impl BlockLayout {
                 brick: brick_bytes,
             });
         }
-        let total = self.node_blocks as u64 + self.triangle_blocks as u64 + bricks as u64;
+        BlockLayout {
+            brick_blocks: bricks,
+            ..self
+        }
+        .counted()
+    }
+
+    /// This layout with a binary tree of `node_count` nodes over `sphere_count` particles
+    /// after the bricks: [`BlockLayout::sphere_nodes_per_block`] nodes a block, then
+    /// [`BlockLayout::spheres_per_block`] particles a block.
+    ///
+    /// # Errors
+    /// More blocks than ids.
+    pub fn with_spheres(
+        self,
+        node_count: u32,
+        sphere_count: u32,
+    ) -> Result<BlockLayout, LayoutError> {
+        let laid = BlockLayout {
+            sphere_node_count: node_count,
+            sphere_count,
+            ..self
+        };
+        BlockLayout {
+            sphere_node_blocks: node_count.div_ceil(laid.sphere_nodes_per_block()),
+            sphere_blocks: sphere_count.div_ceil(laid.spheres_per_block()),
+            ..laid
+        }
+        .counted()
+    }
+
+    /// This layout, if its blocks can all be numbered.
+    fn counted(self) -> Result<BlockLayout, LayoutError> {
+        let total = [
+            self.node_blocks,
+            self.triangle_blocks,
+            self.brick_blocks,
+            self.sphere_node_blocks,
+            self.sphere_blocks,
+        ]
+        .iter()
+        .map(|&b| b as u64)
+        .sum::<u64>();
         if total >= u32::MAX as u64 {
             return Err(LayoutError::TooManyBlocks(total));
         }
-        Ok(BlockLayout {
-            brick_blocks: bricks,
-            ..self
-        })
+        Ok(self)
+    }
+
+    /// The block of the particles' tree node 0.
+    pub fn first_sphere_node_block(&self) -> BlockId {
+        self.first_brick_block() + self.brick_blocks
+    }
+
+    /// The block of particle 0 (in leaf order).
+    pub fn first_sphere_block(&self) -> BlockId {
+        self.first_sphere_node_block() + self.sphere_node_blocks
+    }
+
+    /// How many of the particles' binary tree nodes a block holds.
+    pub fn sphere_nodes_per_block(&self) -> u32 {
+        self.block_bytes / std::mem::size_of::<BvhNode>() as u32
+    }
+
+    /// How many particles a block holds.
+    pub fn spheres_per_block(&self) -> u32 {
+        self.block_bytes / std::mem::size_of::<Particle>() as u32
     }
 
     /// The block of brick 0.
@@ -212,7 +290,7 @@ impl BlockLayout {
 
     /// Blocks in all.
     pub fn total(&self) -> u32 {
-        self.node_blocks + self.triangle_blocks + self.brick_blocks
+        self.first_sphere_block() + self.sphere_blocks
     }
 
     /// Bytes of every block together.

@@ -18,10 +18,13 @@
 //!   march passes), and the trace is void.
 //! * [`volume`]: a volume's bricks, one a block after the triangles, and what every node holds
 //!   whole of it (where it lies, its min/max grid) in a file of its own.
+//! * [`particles`]: the particles' binary tree and the particles, two regions of blocks after
+//!   the bricks, read through [`crate::spheres::SphereSource`].
 //!
-//! Particles and volume series are not shared: a scene with either is rendered replicated.
+//! Volume series are not shared: a scene with one is rendered replicated.
 
 pub mod layout;
+pub mod particles;
 pub mod pool;
 pub mod prepare;
 mod reader;
@@ -45,9 +48,10 @@ use crate::bvh::Accel;
 use crate::PreparedScene;
 
 impl PreparedScene {
-    /// A scene whose triangles, tree and volume bricks are in shared memory: what its manifest
-    /// holds whole (materials, lights, the slots' materials), what `volume.bin` holds of its
-    /// volume, and its blocks as this node holds them.
+    /// A scene whose triangles, tree, volume bricks and particles are in shared memory: what
+    /// its manifest holds whole (materials, lights, the slots' materials, the particles'
+    /// attribute range), what `volume.bin` holds of its volume, and its blocks as this node
+    /// holds them.
     pub fn from_shared(
         manifest: &Manifest,
         tree: DsmTree,
@@ -67,8 +71,12 @@ impl PreparedScene {
             blends: manifest.blends,
             lights: manifest.lights.clone(),
             diagonal: manifest.diagonal,
-            spheres: None,
-            attribute_range: (f32::INFINITY, f32::NEG_INFINITY),
+            spheres: manifest
+                .particles
+                .map(|_| crate::spheres::SphereAccel::shared(manifest.layout.sphere_count)),
+            attribute_range: manifest
+                .particles
+                .map_or((f32::INFINITY, f32::NEG_INFINITY), |p| p.range()),
             volume: volume.map(|v| std::sync::Arc::new(crate::volume::PreparedVolume::shared(v))),
         }
     }

@@ -9,12 +9,14 @@
 //! scene content hash, format and block size.
 
 use super::layout::{Block, BlockLayout, Chunk, LayoutError};
+use super::particles::{sphere_blocks, ParticleEntry};
 use super::reorder::reorder_for_blocks;
 use super::volume::{brick_blocks, encode, largest_brick_bytes, volume_path, VolumeEntry};
 use crate::bvh::node::{LeafTriangle, WideNode};
 use crate::bvh::Accel;
 use crate::scene::{Light, Material, Scene};
 use crate::slot_materials::SlotMaterials;
+use crate::spheres::SphereAccel;
 use crate::volume::{PreparedVolume, SharedVolume};
 use serde::{Deserialize, Serialize};
 use std::io::{Read, Seek, SeekFrom, Write};
@@ -23,7 +25,7 @@ use tessera_core::dsm::{BlockId, Residency};
 use tessera_model::local_origin::RenderFromWorld;
 
 /// Bumped whenever the block contents or the files change.
-pub const FORMAT: u32 = 2;
+pub const FORMAT: u32 = 3;
 
 /// Blocks at the top of the tree that every node holds: 8 KB, the root and its first levels
 /// (Ize et al. replicate the same, since every ray starts there).
@@ -60,13 +62,17 @@ pub struct Manifest {
     /// every node holds whole of it is in `volume.bin`.
     #[serde(default)]
     pub volume: Option<VolumeEntry>,
+    /// The scene's particles, if it has any: their tree and themselves are the layout's
+    /// sphere blocks.
+    #[serde(default)]
+    pub particles: Option<ParticleEntry>,
 }
 
 /// Why a scene could not be prepared, or a prepared one not read.
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
-    /// The scene has what is never shared (named by the text): particles or a volume series.
-    #[error("distributed shared memory holds triangle meshes and a volume; this scene has {0}, render it replicated (--data replicated)")]
+    /// The scene has what is never shared (named by the text): a volume series.
+    #[error("distributed shared memory holds triangle meshes, a volume and particles; this scene has {0}, render it replicated (--data replicated)")]
     NotAMesh(&'static str),
     /// The block size is out of range, or the scene needs too many blocks.
     #[error(transparent)]
@@ -131,8 +137,7 @@ pub fn checksum(bytes: &[u8]) -> u64 {
 /// what [`prepare`] writes, in memory.
 ///
 /// # Errors
-/// A scene with particles or a volume series; a block size out of range, or smaller than a
-/// volume's bricks.
+/// A scene with a volume series; a block size out of range, or smaller than a volume's bricks.
 pub fn blocks_of<'a>(
     scene: &Scene,
     accel: &'a Accel,
@@ -145,9 +150,6 @@ pub fn blocks_of<'a>(
     ),
     PrepareError,
 > {
-    if !scene.particles.is_empty() {
-        return Err(PrepareError::NotAMesh("particles"));
-    }
     if !scene.series.is_empty() {
         return Err(PrepareError::NotAMesh("a volume series"));
     }
@@ -158,13 +160,18 @@ pub fn blocks_of<'a>(
     let (bricks, largest) = volume.as_ref().map_or((0, 0), |v| {
         (v.bricks().count() as u32, largest_brick_bytes(v.bricks()))
     });
+    let spheres = SphereAccel::build(&scene.particles);
+    let (sphere_nodes, sphere_count) = spheres
+        .as_ref()
+        .map_or((0, 0), |s| (s.nodes().len() as u32, s.len() as u32));
     let layout = BlockLayout::new(
         block_bytes,
         accel.wide.len() as u32,
         accel.triangles.len() as u32,
         TOP_BLOCKS,
     )?
-    .with_bricks(bricks, largest)?;
+    .with_bricks(bricks, largest)?
+    .with_spheres(sphere_nodes, sphere_count)?;
     let shared = volume.as_ref().map(PreparedVolume::to_shared);
     let wide = reorder_for_blocks(&accel.wide, layout.nodes_per_block() as usize);
     let manifest = manifest_of(scene, accel, layout, shared.as_ref());
@@ -188,10 +195,13 @@ pub fn blocks_of<'a>(
     let bricks = volume
         .into_iter()
         .flat_map(move |v| brick_blocks(v, block_bytes));
+    let particles = spheres
+        .into_iter()
+        .flat_map(move |s| sphere_blocks(s, layout));
     Ok((
         manifest,
         shared,
-        node_blocks.chain(tri_blocks).chain(bricks),
+        node_blocks.chain(tri_blocks).chain(bricks).chain(particles),
     ))
 }
 
@@ -222,6 +232,8 @@ fn manifest_of(
         slot_materials: SlotMaterials::runs_of(&per_slot),
         blends: scene.has_transparency(),
         volume: volume.map(|v| encode(v).1),
+        particles: (!scene.particles.is_empty())
+            .then(|| ParticleEntry::of_range(scene.attribute_range())),
     }
 }
 
@@ -304,9 +316,17 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     let l = manifest.layout;
     let again = BlockLayout::new(l.block_bytes, l.node_count, l.triangle_count, l.top_blocks)
         .and_then(|again| again.with_bricks(l.brick_blocks, 0))
+        .and_then(|again| again.with_spheres(l.sphere_node_count, l.sphere_count))
         .map_err(|e| e.to_string())?;
     if (l.brick_blocks > 0) != manifest.volume.is_some() {
         return Err("its brick blocks and its volume do not go together".into());
+    }
+    let particles_ok = match manifest.particles {
+        Some(p) => p.is_valid() && l.sphere_count > 0 && l.sphere_node_count > 0,
+        None => l.sphere_count == 0 && l.sphere_node_count == 0,
+    };
+    if !particles_ok {
+        return Err("its particle blocks and its particles do not go together".into());
     }
     if again != l {
         return Err("its block counts do not follow from its sizes".into());
@@ -580,17 +600,31 @@ mod tests {
     }
 
     #[test]
-    fn particles_are_not_shared() {
+    fn particles_are_laid_out_after_the_triangles_and_their_range_kept() {
         let mut scene = knot_scene(16, 4);
-        scene.particles.push(crate::scene::particles::Particle {
-            center: glam::Vec3::ZERO,
-            radius: 1.0,
-            attribute: 0.0,
-        });
+        scene.particles = (0..1000)
+            .map(|i| crate::scene::particles::Particle {
+                center: glam::Vec3::new(i as f32, 0.0, 0.0),
+                radius: 0.5,
+                attribute: if i == 3 { f32::NAN } else { i as f32 },
+            })
+            .collect();
         let accel = Accel::build(&scene);
-        assert!(matches!(
-            blocks_of(&scene, &accel, 8192),
-            Err(PrepareError::NotAMesh("particles"))
-        ));
+        let (manifest, _, blocks) = blocks_of(&scene, &accel, 2048).unwrap();
+        let l = manifest.layout;
+        assert_eq!((l.sphere_count, l.spheres_per_block()), (1000, 102));
+        assert_eq!(l.sphere_blocks, 10);
+        assert_eq!(
+            l.first_sphere_node_block(),
+            l.node_blocks + l.triangle_blocks
+        );
+        assert_eq!(blocks.count() as u32, l.total());
+        let entry = manifest.particles.unwrap();
+        assert_eq!(entry.range(), (0.0, 999.0));
+        let text = serde_json::to_string(&manifest).unwrap();
+        assert_eq!(parse_manifest(&text).unwrap(), manifest);
+        let mut unpaired = manifest.clone();
+        unpaired.particles = None;
+        assert!(parse_manifest(&serde_json::to_string(&unpaired).unwrap()).is_err());
     }
 }

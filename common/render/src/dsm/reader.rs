@@ -20,7 +20,8 @@ use super::layout::{nodes_of, BlockLayout, Chunk, FastDiv};
 use super::tree::{DsmTree, Hold, Landing};
 use super::Block;
 use crate::bvh::memory::{NoPrefetch, TreeMemory};
-use crate::bvh::node::{LeafTriangle, WideNode};
+use crate::bvh::node::{BvhNode, LeafTriangle, WideNode};
+use crate::scene::particles::Particle;
 use crate::volume::{BrickSource, Bricks};
 use std::ops::Range;
 use std::sync::Arc;
@@ -37,6 +38,11 @@ const TRIANGLE_HOLDS: usize = 32;
 /// third of the replicated rate; 32 entries mapped by brick number still thrashed, as 25
 /// bricks in 32 places collide.
 const BRICK_HOLDS: usize = 32;
+/// Blocks of the particles' tree nodes and of particles a reader keeps (powers of two). A
+/// block holds 256 nodes or 409 particles of 8 KiB, and a walk reads a few hundred bytes of
+/// each block it enters.
+const SPHERE_NODE_HOLDS: usize = 16;
+const SPHERE_HOLDS: usize = 16;
 
 /// The blocks a reader entered: node or triangle block k in entry k mod `N`, a brick in any.
 struct Holds<'s, const N: usize> {
@@ -78,12 +84,26 @@ pub struct DsmReader<'s> {
     /// The first block of volume bricks, brick `i` in block `first_brick + i`.
     first_brick: BlockId,
     bricks: Holds<'s, BRICK_HOLDS>,
+    spheres: SphereReads<'s>,
     /// The entry of the brick read last (a march reads the same brick for several
     /// macro-cells), and the entry a brick not in the table goes to next.
     brick_last: usize,
     brick_next: usize,
     tally: Tally,
     parking: Parking,
+}
+
+/// What a reader reads of the particles: their tree's nodes and the particles, each a region
+/// of blocks with a table of its own.
+struct SphereReads<'s> {
+    nodes: Holds<'s, SPHERE_NODE_HOLDS>,
+    spheres: Holds<'s, SPHERE_HOLDS>,
+    per_node_block: FastDiv,
+    per_sphere_block: FastDiv,
+    first_node_block: BlockId,
+    first_sphere_block: BlockId,
+    node_count: u32,
+    sphere_count: u32,
 }
 
 /// Blocks a trace reads as if held, whatever the cache holds: those an earlier trace of the
@@ -147,21 +167,17 @@ struct Tally {
 
 impl<'s> DsmReader<'s> {
     /// Blocks a reader keeps at most (they stay alive while it does, whatever the cache).
-    pub const HOLDS: usize = NODE_HOLDS + TRIANGLE_HOLDS + BRICK_HOLDS;
+    pub const HOLDS: usize =
+        NODE_HOLDS + TRIANGLE_HOLDS + BRICK_HOLDS + SPHERE_NODE_HOLDS + SPHERE_HOLDS;
 
     /// Blocks a reader of a scene laid out as `layout` keeps at most: its tables of nodes and
-    /// triangles if it has triangles, of bricks if it has a volume.
+    /// triangles if it has triangles, of bricks if it has a volume, of the particles' tree
+    /// and particles if it has particles.
     pub fn holds(layout: &BlockLayout) -> usize {
-        let mesh = if layout.node_count > 0 {
-            NODE_HOLDS + TRIANGLE_HOLDS
-        } else {
-            0
-        };
-        mesh + if layout.brick_blocks > 0 {
-            BRICK_HOLDS
-        } else {
-            0
-        }
+        let table = |has: bool, entries: usize| if has { entries } else { 0 };
+        table(layout.node_count > 0, NODE_HOLDS + TRIANGLE_HOLDS)
+            + table(layout.brick_blocks > 0, BRICK_HOLDS)
+            + table(layout.sphere_count > 0, SPHERE_NODE_HOLDS + SPHERE_HOLDS)
     }
 
     pub(super) fn new(tree: &'s DsmTree) -> Self {
@@ -176,6 +192,16 @@ impl<'s> DsmReader<'s> {
             tris: Holds::new(),
             first_brick: layout.first_brick_block(),
             bricks: Holds::new(),
+            spheres: SphereReads {
+                nodes: Holds::new(),
+                spheres: Holds::new(),
+                per_node_block: FastDiv::new(layout.sphere_nodes_per_block()),
+                per_sphere_block: FastDiv::new(layout.spheres_per_block()),
+                first_node_block: layout.first_sphere_node_block(),
+                first_sphere_block: layout.first_sphere_block(),
+                node_count: layout.sphere_node_count,
+                sphere_count: layout.sphere_count,
+            },
             brick_last: 0,
             brick_next: 0,
             tally: Tally::default(),
@@ -284,6 +310,65 @@ impl<'s> DsmReader<'s> {
             Hold::Absent(_) | Hold::Nothing => {}
         }
         holds.bases[i]
+    }
+}
+
+impl<'s> DsmReader<'s> {
+    /// Node `index` of the particles' tree, or `None` while its block is not here (see
+    /// [`crate::spheres::SphereSource`]) or past the tree's end.
+    #[inline]
+    pub fn sphere_node(&mut self, index: u32) -> Option<BvhNode> {
+        let reads = &mut self.spheres;
+        if index >= reads.node_count {
+            return None;
+        }
+        let (b, at) = reads.per_node_block.div_rem(index);
+        let k = reads.first_node_block + b;
+        let held = Self::read_held(
+            self.tree,
+            &mut reads.nodes,
+            k,
+            (&mut self.tally, &mut self.parking),
+        )?;
+        let nodes: &[BvhNode] = bytemuck::cast_slice(held);
+        Some(nodes[at as usize])
+    }
+
+    /// The particle in leaf slot `slot`, or `None` while its block is not here or past the
+    /// last particle.
+    #[inline]
+    pub fn sphere(&mut self, slot: u32) -> Option<Particle> {
+        let reads = &mut self.spheres;
+        if slot >= reads.sphere_count {
+            return None;
+        }
+        let (b, at) = reads.per_sphere_block.div_rem(slot);
+        let k = reads.first_sphere_block + b;
+        let held = Self::read_held(
+            self.tree,
+            &mut reads.spheres,
+            k,
+            (&mut self.tally, &mut self.parking),
+        )?;
+        let size = std::mem::size_of::<Particle>();
+        let bytes: &[u8] = bytemuck::cast_slice(held);
+        let at = at as usize * size;
+        Some(bytemuck::pod_read_unaligned(&bytes[at..at + size]))
+    }
+
+    /// Block `k` from a direct-mapped table, or `None` while it is not here.
+    #[inline(always)]
+    fn read_held<'h, const N: usize>(
+        tree: &'s DsmTree,
+        holds: &'h mut Holds<'s, N>,
+        k: BlockId,
+        (tally, parking): (&mut Tally, &mut Parking),
+    ) -> Option<&'h [Chunk]> {
+        Self::base_of(tree, holds, k, (tally, parking));
+        match &holds.held[k as usize & Holds::<N>::MASK] {
+            Hold::Absent(_) | Hold::Nothing => None,
+            held => Some(held.chunks()),
+        }
     }
 }
 

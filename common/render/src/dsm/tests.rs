@@ -2,6 +2,7 @@
 //! however small the cache.
 
 use super::*;
+use crate::scene::particles::Particle;
 use crate::scene::{gallery_scene, knot_scene, Scene};
 use crate::volume::SharedVolume;
 use crate::{orbit_of, render_tiles, FrameView};
@@ -313,6 +314,11 @@ fn with_volume(mesh: bool) -> Scene {
 /// other ray kinds of [`every_ray_kind`]; `cut`: a cut plane through the volume, and the
 /// second pass of progressive refinement.
 fn volume_params(iso: bool, cut: bool) -> RenderParams {
+    volume_spec(iso, cut).build().unwrap()
+}
+
+/// The parameters of [`volume_params`], to be changed.
+fn volume_spec(iso: bool, cut: bool) -> RenderParamsSpec {
     use tessera_model::cut::CutPlanes;
     use tessera_model::volume_params::{IsoValues, VolumeParams};
     let iso = if iso { &[0.3, 0.6][..] } else { &[] };
@@ -333,8 +339,6 @@ fn volume_params(iso: bool, cut: bool) -> RenderParams {
         },
         ..RenderParamsSpec::INTERACTIVE
     }
-    .build()
-    .unwrap()
 }
 
 #[test]
@@ -387,6 +391,99 @@ fn a_shared_volume_gives_the_replicated_pixels_with_blocks_late_and_out_of_order
             assert_eq!(late.waited_for.load(Ordering::Relaxed), 0, "{case}");
             let bricks_asked = late.asked_from_first.load(Ordering::Relaxed);
             assert!(bricks_asked > 0, "{case}: no brick was asked for");
+        }
+    }
+}
+
+/// `count` particles scattered through `around` (deterministically), of radii a hundredth to
+/// three hundredths of its diagonal, every 37th with its attribute missing.
+fn particles_in(around: &crate::geometry::Bounds, count: u32) -> Vec<Particle> {
+    let (center, size) = (around.center(), around.diagonal());
+    let mut seed = 0x2545_f491_u32;
+    let mut unit = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed as f32 / u32::MAX as f32
+    };
+    (0..count)
+        .map(|i| Particle {
+            center: center + (glam::Vec3::new(unit(), unit(), unit()) - 0.5) * size * 0.8,
+            radius: size.length() * (0.01 + 0.02 * unit()),
+            attribute: if i % 37 == 0 {
+                f32::NAN
+            } else {
+                (i % 17) as f32
+            },
+        })
+        .collect()
+}
+
+#[test]
+fn shared_particles_give_the_replicated_pixels_alone_and_mixed_with_blocks_late() {
+    let wall = WallSpec::grid(2, 1, 48, 32).tile_size(16).build().unwrap();
+    let grid = TileGrid::new(wall.clone());
+    let brick_block = super::layout::brick_block_bytes(crate::volume::BRICK_SAMPLES as u32 * 4);
+    // Particles alone in small blocks (many blocks of tree nodes and of particles), cropped
+    // or not; then the gallery with a volume and particles, iso-surfaces and a cut plane.
+    let cases = [(false, None), (false, Some((2.0, 9.0))), (true, None)];
+    for (mixed, crop) in cases {
+        let mut scene = if mixed {
+            with_volume(true)
+        } else {
+            Scene::default()
+        };
+        let around = if mixed {
+            scene.bounds()
+        } else {
+            crate::geometry::Bounds {
+                min: glam::Vec3::splat(-1.0),
+                max: glam::Vec3::splat(1.0),
+            }
+        };
+        scene.particles = particles_in(&around, if mixed { 300 } else { 3000 });
+        let params = RenderParamsSpec {
+            crop,
+            ..volume_spec(mixed, mixed)
+        }
+        .build()
+        .unwrap();
+        let view = view_of(&scene, params, (wall.width(), wall.height()));
+        let (want, want_rays) =
+            render_tiles(&crate::PreparedScene::new(&scene), &view, grid.tiles());
+        let without = Scene {
+            particles: Vec::new(),
+            ..scene.clone()
+        };
+        let (unseen, _) = render_tiles(&crate::PreparedScene::new(&without), &view, grid.tiles());
+        let differ = unseen.iter().flatten().zip(want.iter().flatten());
+        let changed = differ.filter(|(a, b)| a != b).count();
+        assert!(changed > 500, "{changed} bytes show particles");
+        let accel = crate::bvh::Accel::build(&scene);
+        let block_bytes = if mixed { brick_block } else { 2048 };
+        let (manifest, volume, blocks) = prepare::blocks_of(&scene, &accel, block_bytes).unwrap();
+        let layout = manifest.layout;
+        assert!(layout.sphere_blocks > 0 && layout.sphere_node_blocks > 0);
+        assert!(mixed || layout.sphere_blocks >= 20, "{layout:?}");
+        let blocks: Vec<_> = blocks.map(Arc::new).collect();
+        for lines in [0, 4, 64] {
+            let case = format!("mixed {mixed}, crop {crop:?}, {lines} lines");
+            let late = Arc::new(LateBlocks {
+                blocks: blocks.clone(),
+                first_counted: layout.first_sphere_node_block(),
+                ..LateBlocks::default()
+            });
+            let prepared = (&manifest, volume.clone());
+            let dsm = shared_from(prepared, &late.blocks, (1, 3), lines, late.clone());
+            let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
+            assert_eq!(rays, want_rays, "{case}");
+            assert!(got == want, "{case}: not the replicated pixels");
+            assert_eq!(late.waited_for.load(Ordering::Relaxed), 0, "{case}");
+            let particle_blocks_asked = late.asked_from_first.load(Ordering::Relaxed);
+            assert!(
+                particle_blocks_asked > 0,
+                "{case}: no particle block was asked for"
+            );
         }
     }
 }

@@ -377,6 +377,16 @@ impl Scene {
         particle.map(|i| format!("particle {i} has a missing attribute (NaN or infinite)"))
     }
 
+    /// The least and greatest particle attribute, NaN (missing) ignored: what the ends of the
+    /// colour map stand for. Infinite ends, the wrong way round, when no attribute is finite.
+    pub fn attribute_range(&self) -> (f32, f32) {
+        self.particles
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p.attribute), hi.max(p.attribute))
+            })
+    }
+
     /// The box, in render coordinates, around the triangles, the particles and the volume; empty
     /// for an empty scene.
     pub fn bounds(&self) -> Bounds {

@@ -12,8 +12,10 @@ use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 use tessera_model::local_origin::RenderFromWorld;
 
-/// One sphere and its scalar attribute.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// One sphere and its scalar attribute; plain bytes, so that particles can be shared as blocks
+/// (`crate::dsm::layout`).
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct Particle {
     /// The centre: world coordinates as the file gives it, render coordinates in a
     /// [`Scene`](super::Scene).
