@@ -283,7 +283,7 @@ fn shared(root: &Path) {
     }
     let scene = tessera_render::scene::knot_scene(24, 4);
     let accel = tessera_render::bvh::Accel::build(&scene);
-    let (manifest, _) = tessera_render::dsm::prepare::blocks_of(&scene, &accel, 2048).unwrap();
+    let (manifest, _, _) = tessera_render::dsm::prepare::blocks_of(&scene, &accel, 2048).unwrap();
     let text = serde_json::to_string_pretty(&manifest).unwrap();
     put(root, "dsm_manifest", "knot", text);
 }

@@ -21,8 +21,8 @@ pub enum DataMode {
 pub struct DataArgs {
     /// How render nodes hold the scene: `replicated` (each loads all of it), `dsm`
     /// (distributed shared memory: the scene is prepared in blocks, each render node holds
-    /// 1/N of them plus a cache and fetches the rest from their owners; triangle meshes, a
-    /// volume and particles, not a volume series), or `auto` (dsm when the prepared scene
+    /// 1/N of them plus a cache and fetches the rest from their owners; meshes, a volume or a
+    /// volume series, particles), or `auto` (dsm when the prepared scene
     /// does not fit --memory-budget).
     #[arg(long, value_enum, default_value_t = DataMode::Replicated)]
     pub data: DataMode,
@@ -150,9 +150,10 @@ pub fn ensure_prepared(
     }
     let layout = manifest.layout;
     tracing::info!(
-        "prepared {} triangles, {} volume bricks and {} particles in {} blocks of {} ({}) in {:.1} s: {}",
+        "prepared {} triangles, {} volume bricks ({} steps) and {} particles in {} blocks of {} ({}) in {:.1} s: {}",
         layout.triangle_count,
         layout.brick_blocks,
+        manifest.series_steps.max(manifest.volume.is_some() as u32),
         layout.sphere_count,
         layout.total(),
         show_bytes(layout.block_bytes as u64),
@@ -232,14 +233,8 @@ pub fn data_spec(
         return Ok(DataSpec::Replicated);
     }
     let budget = args.memory_budget;
-    if args.data == DataMode::Auto {
-        if budget.is_none() {
-            bail!("--data auto decides by --memory-budget: give one (such as 2GiB)");
-        }
-        if !scene.series.is_empty() {
-            tracing::info!("--data auto: the scene is a volume series, which is replicated");
-            return Ok(DataSpec::Replicated);
-        }
+    if args.data == DataMode::Auto && budget.is_none() {
+        bail!("--data auto decides by --memory-budget: give one (such as 2GiB)");
     }
     if args.replicas > render_nodes {
         bail!(

@@ -10,7 +10,8 @@ use tessera_model::state::StateId;
 use tessera_model::wall::{TileGrid, TileId};
 use tessera_protocol::pixels::Compression;
 use tessera_protocol::FrameId;
-use tessera_render::volume::{SeriesCache, VolumeError};
+use tessera_render::dsm::series::SharedSeries;
+use tessera_render::volume::{PreparedVolume, SeriesCache, SeriesStats, VolumeError};
 use tessera_render::{render_tiles_footprints, Cancel, FrameView, PreparedScene, RayCounts};
 
 pub(crate) fn read(scene: &RwLock<PreparedScene>) -> RwLockReadGuard<'_, PreparedScene> {
@@ -27,12 +28,46 @@ pub(crate) struct Renderer {
     /// Batches render one at a time: the lock is taken for writing only between them, when
     /// a time series moves to another step.
     pub prepared: Arc<RwLock<PreparedScene>>,
-    pub series: Option<Arc<SeriesCache>>,
+    pub series: Option<Series>,
     /// The step of the series `prepared` holds, kept across sessions with the scene.
     pub shown_step: Arc<AtomicUsize>,
     pub grid: Arc<TileGrid>,
     pub pool: Arc<rayon::ThreadPool>,
     pub compression: Compression,
+}
+
+/// A time series' steps: read from their files by each node ahead of the step shown, or
+/// shared, their bricks fetched ahead into the cache.
+#[derive(Clone)]
+pub(crate) enum Series {
+    Files(Arc<SeriesCache>),
+    Shared(Arc<SharedSeries>),
+}
+
+impl Series {
+    /// Steps in the series.
+    pub fn len(&self) -> usize {
+        match self {
+            Series::Files(files) => files.len(),
+            Series::Shared(shared) => shared.len(),
+        }
+    }
+
+    /// Step `step`, to be shown (see [`SeriesCache::get`], [`SharedSeries::get`]).
+    fn get(&self, step: usize) -> Result<Arc<PreparedVolume>, VolumeError> {
+        match self {
+            Series::Files(files) => files.get(step),
+            Series::Shared(shared) => Ok(shared.get(step)),
+        }
+    }
+
+    /// Steps on time and late (for files: loaded in time or waited for), and the wait.
+    pub fn stats(&self) -> SeriesStats {
+        match self {
+            Series::Files(files) => files.stats(),
+            Series::Shared(shared) => shared.stats(),
+        }
+    }
 }
 
 /// A batch the render threads finished.
@@ -88,6 +123,7 @@ impl Renderer {
             write(&self.prepared).set_volume(volume);
         }
         let prepared = read(&self.prepared);
+        let waited_before = prepared.shared.as_ref().map(|t| t.stats().fetch_wait_s);
         let geometry: Vec<_> = tiles
             .iter()
             .map(|t| {
@@ -105,6 +141,13 @@ impl Renderer {
         };
         // Rendering time alone, so rays/s does not depend on the compression.
         let took = t0.elapsed();
+        if let (Some(Series::Shared(series)), Some(before), Some(tree)) =
+            (&self.series, waited_before, &prepared.shared)
+        {
+            // Thread-seconds of idling, as wall-clock seconds of the batch.
+            let threads = self.pool.current_num_threads().max(1) as f64;
+            series.note_wait((tree.stats().fetch_wait_s - before) / threads);
+        }
         let compression = self.compression;
         let payloads = self.pool.install(|| {
             pixels

@@ -17,6 +17,7 @@ use tessera_protocol::dsm::{BlockHolder, DsmSpec, DsmStats};
 use tessera_render::dsm::layout::DEFAULT_BLOCK_BYTES;
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest, Share};
+use tessera_render::dsm::series::SharedSeries;
 use tessera_render::dsm::{
     Block, BlockFetch, BlockLayout, DsmReader, DsmTree, Landing, PinLimits, NODE_OVERHEAD_BYTES,
 };
@@ -173,6 +174,8 @@ pub struct DsmScene {
     budget: Option<u64>,
     /// The other nodes' blocks each tile read when this node last rendered it.
     footprints: HashMap<TileId, Vec<BlockId>>,
+    /// The scene's volume series, if it is one: every step's bricks are blocks.
+    pub series: Option<Arc<SharedSeries>>,
 }
 
 impl DsmScene {
@@ -187,20 +190,44 @@ impl DsmScene {
     /// last time that are neither held here nor cached now: a batch's misses then come in
     /// together instead of one render thread's stall at a time. At most a quarter of the cache
     /// is asked for at once, so that the blocks in use are not pushed out by those to come.
-    pub fn prefetch(&self, scene: &PreparedScene, tiles: impl Iterator<Item = TileId>) {
+    ///
+    /// For a series shown at `step`, the bricks read last time are taken to this step, and
+    /// then to the next, which is fetched while this one is shown (another quarter at most).
+    pub fn prefetch(
+        &self,
+        scene: &PreparedScene,
+        tiles: impl Iterator<Item = TileId>,
+        step: Option<usize>,
+    ) {
         let Some(tree) = scene.shared.as_ref() else {
             return;
         };
         let most = self.cache_lines / 4;
-        let mut wanted: Vec<BlockId> = tiles
+        let read: Vec<BlockId> = tiles
             .filter_map(|t| self.footprints.get(&t))
             .flatten()
             .copied()
             .collect();
-        wanted.sort_unstable();
-        wanted.dedup();
-        wanted.retain(|&k| !tree.is_here(k));
-        wanted.truncate(most);
+        let needed = |to: Option<usize>| {
+            let mut wanted: Vec<BlockId> = match (&self.series, to) {
+                (Some(series), Some(to)) => read
+                    .iter()
+                    .map(|&k| series.same_brick_at(k, to).unwrap_or(k))
+                    .collect(),
+                _ => read.clone(),
+            };
+            wanted.sort_unstable();
+            wanted.dedup();
+            wanted.retain(|&k| !tree.is_here(k));
+            wanted.truncate(most);
+            wanted
+        };
+        let mut wanted = needed(step);
+        if let (Some(_), Some(step)) = (&self.series, step) {
+            let now: std::collections::HashSet<BlockId> = wanted.iter().copied().collect();
+            let ahead = needed(Some(step + 1));
+            wanted.extend(ahead.into_iter().filter(|k| !now.contains(k)));
+        }
         self.driver.prefetch(wanted);
     }
 
@@ -358,12 +385,12 @@ fn park_within_spare(tree: &DsmTree, budgeted: bool) {
 
 /// This node's share of the scene prepared in `dir`, the files it reads blocks from (one for
 /// its fetch loop, one for its render threads' blocks no owner can send), and what it holds
-/// whole of the scene's volume.
+/// whole of the scene's volume (a step each for a series; none without a volume).
 async fn read_prepared(
     dir: &Path,
     manifest: &Manifest,
     residency: &Residency,
-) -> Result<(Share, (BlockFile, BlockFile), Option<SharedVolume>)> {
+) -> Result<(Share, (BlockFile, BlockFile), Vec<SharedVolume>)> {
     let (share, file, fallback) = {
         let (dir, manifest, residency) = (dir.to_path_buf(), manifest.clone(), residency.clone());
         tokio::task::spawn_blocking(move || -> Result<_> {
@@ -374,8 +401,8 @@ async fn read_prepared(
         .await??
     };
     let volume = match &manifest.volume {
-        Some(entry) => Some(tessera_render::dsm::volume::load(dir, entry)?),
-        None => None,
+        Some(entry) => tessera_render::dsm::volume::load(dir, entry)?,
+        None => Vec::new(),
     };
     Ok((share, (file, fallback), volume))
 }
@@ -404,8 +431,19 @@ pub async fn start(
     let residency = Residency::new(layout.total(), spec.ranks.max(1), rank, spec.replicas)?;
     let (share, (file, fallback), volume) = read_prepared(&dir, &manifest, &residency).await?;
     let blocks_held = ((share.0.len() + share.1.len()) * 64) as u64;
+    let series = (manifest.series_steps > 0 && !volume.is_empty()).then(|| {
+        Arc::new(SharedSeries::new(
+            volume.clone(),
+            layout.first_brick_block(),
+        ))
+    });
     // What a node holds of a volume besides its bricks counts as its own, as blocks do.
-    let resident = blocks_held + volume.as_ref().map_or(0, |v| v.held_besides_bricks());
+    let volume_held = match (&series, volume.first()) {
+        (Some(series), _) => series.held_besides_bricks(),
+        (None, Some(v)) => v.held_besides_bricks(),
+        (None, None) => 0,
+    };
+    let resident = blocks_held + volume_held;
     let budget = options.memory_budget.or(spec.memory_budget);
     let spare = spare_blocks(options.threads, &layout);
     let lines = cache_lines(&manifest, spec, budget, (resident, spare))?;
@@ -431,7 +469,7 @@ pub async fn start(
         hub.clone(),
     )?;
     park_within_spare(&tree, budget.is_some());
-    let prepared = PreparedScene::from_shared(&manifest, tree, volume);
+    let prepared = PreparedScene::from_shared(&manifest, tree, volume.into_iter().next());
     let driver = fetch_driver::spawn(fetch_driver::Setup {
         residency,
         holders,
@@ -455,6 +493,7 @@ pub async fn start(
             threads: options.threads,
             budget,
             footprints: HashMap::new(),
+            series,
         },
     ))
 }

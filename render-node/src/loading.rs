@@ -2,6 +2,7 @@
 //! later session of the same scene), or its share of a shared scene read from the prepared
 //! files, with the block server and fetch loop that go with it.
 
+use crate::batch::Series;
 use crate::dsm::DsmScene;
 use crate::node::NodeSide;
 use anyhow::{bail, Context, Result};
@@ -25,7 +26,7 @@ pub struct Loaded {
     /// Batches render one at a time: the lock is taken for writing only between them, when a
     /// time series moves to another step.
     prepared: Arc<RwLock<PreparedScene>>,
-    series: Option<Arc<SeriesCache>>,
+    series: Option<Series>,
     /// The step of the series `prepared` holds.
     shown_step: Arc<AtomicUsize>,
 }
@@ -42,7 +43,7 @@ impl Drop for AbortOnDrop {
 /// The scene of one session.
 pub struct SceneHere {
     pub prepared: Arc<RwLock<PreparedScene>>,
-    pub series: Option<Arc<SeriesCache>>,
+    pub series: Option<Series>,
     pub shown_step: Arc<AtomicUsize>,
     /// For a shared scene: its fetching, and the server of this node's blocks.
     pub shared: Option<DsmScene>,
@@ -145,7 +146,7 @@ async fn shared_here(
     }
     Ok(SceneHere {
         prepared,
-        series: None,
+        series: shared.series.clone().map(Series::Shared),
         shown_step: Arc::new(AtomicUsize::new(0)),
         shared: Some(shared),
         _server: Some(server),
@@ -180,7 +181,7 @@ pub(crate) fn fits_in_memory(spec: &SceneSpec, budget: Option<u64>) -> Result<()
 }
 
 /// The scene, prepared, and for a time series the cache its steps are read through.
-type Prepared = (PreparedScene, Option<Arc<SeriesCache>>);
+type Prepared = (PreparedScene, Option<Series>);
 
 /// Loads and prepares the session's scene on a blocking thread, off the driver's runtime,
 /// and tells the master how far it is every [`LOAD_REPORT_INTERVAL`] until it is done (a
@@ -259,12 +260,12 @@ fn load(
     prepared.slim_for_rendering();
     // Two readers: one step ahead while the next loads, on a node whose cores render.
     let series = (!scene.series.is_empty()).then(|| {
-        Arc::new(SeriesCache::new(
+        Series::Files(Arc::new(SeriesCache::new(
             scene.series.clone(),
             scene.render_from_world,
             volume_cache_bytes,
             2,
-        ))
+        )))
     });
     // The loaded copy goes, and with it the loader's and the build's peak (see `memory`).
     drop(scene);

@@ -364,6 +364,7 @@ impl Driver {
             shared.prefetch(
                 &read(&self.renderer.prepared),
                 order.prefetch.iter().copied(),
+                order.volume_step,
             );
         }
         let (renderer, done) = (self.renderer.clone(), self.done.tx.clone());

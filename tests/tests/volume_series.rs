@@ -8,14 +8,21 @@ use tessera_tests::*;
 
 /// Three 16³ steps, each a ball of a different size, and a scene file naming them by pattern.
 fn write_series(dir: &Path) -> std::path::PathBuf {
+    write_series_of(dir, 16)
+}
+
+/// Three `n`³ steps, each a ball of a different size, and a scene file naming them.
+fn write_series_of(dir: &Path, n: usize) -> std::path::PathBuf {
+    let middle = (n as f32 - 1.0) / 2.0;
+    let scale = n as f32 / 16.0;
     for step in 0..3usize {
-        let radius = 3.0 + 2.0 * step as f32;
-        let values: Vec<u8> = (0..16 * 16 * 16)
+        let radius = (3.0 + 2.0 * step as f32) * scale;
+        let values: Vec<u8> = (0..n * n * n)
             .map(|i| {
-                let (x, y, z) = (i % 16, i / 16 % 16, i / 256);
-                let d = ((x as f32 - 7.5).powi(2)
-                    + (y as f32 - 7.5).powi(2)
-                    + (z as f32 - 7.5).powi(2))
+                let (x, y, z) = (i % n, i / n % n, i / (n * n));
+                let d = ((x as f32 - middle).powi(2)
+                    + (y as f32 - middle).powi(2)
+                    + (z as f32 - middle).powi(2))
                 .sqrt();
                 if d < radius {
                     200
@@ -27,7 +34,7 @@ fn write_series(dir: &Path) -> std::path::PathBuf {
         std::fs::write(dir.join(format!("ball{step}.raw")), values).unwrap();
         std::fs::write(
             dir.join(format!("ball{step}.vol.toml")),
-            format!("data = \"ball{step}.raw\"\ndims = [16, 16, 16]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n"),
+            format!("data = \"ball{step}.raw\"\ndims = [{n}, {n}, {n}]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n"),
         )
         .unwrap();
     }
@@ -101,6 +108,74 @@ fn a_played_series_changes_at_the_barrier_and_is_read_ahead() {
     let (_, _, played) = load_rgb(&out.join("wall.png"));
     let (_, _, step0) = load_rgb(&still.join("wall.png"));
     assert_ne!(played, step0, "frame 7 shows a later step than 0");
+}
+
+#[test]
+fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
+    let dir = tempfile::tempdir().unwrap();
+    // 40³ steps: 8 bricks each, 24 in all over 2 render nodes.
+    let scene = write_series_of(dir.path(), 40);
+    let (out, record) = (dir.path().join("out"), dir.path().join("session.jsonl"));
+    let prepared = dir.path().join("prepared");
+    let wall = [
+        "--wall",
+        "1x1",
+        "--screen",
+        "96x64",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--iso",
+        "100",
+    ];
+    let mut args = vec!["local"];
+    args.extend(wall);
+    args.extend([
+        "--render-nodes",
+        "2",
+        "--threads",
+        "1",
+        "--data",
+        "dsm",
+        "--prepared",
+        prepared.to_str().unwrap(),
+        "--cache-fraction",
+        "0.5",
+        "--frames",
+        "12",
+        "--play",
+        "--save-frame",
+        "7",
+        "--record",
+        record.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let o = run("tessera-master", &args, Duration::from_secs(180));
+    o.assert_success("local --play --data dsm");
+    let manifest = read_json(&prepared.join("manifest.json"));
+    assert_eq!(manifest["series_steps"], 3, "{manifest}");
+    assert_eq!(manifest["layout"]["brick_blocks"], 24, "{manifest}");
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["data"], "dsm", "{report}");
+    let mut prefetched = 0;
+    for node in report["render_nodes"].as_array().unwrap() {
+        let (on_time, late) = (
+            node["prefetch_hits"].as_u64().unwrap(),
+            node["prefetch_misses"].as_u64().unwrap(),
+        );
+        let late_s = node["volume_stall_s"].as_f64().unwrap();
+        eprintln!("shared series, render node {}: {on_time} steps on time, {late} late by {late_s:.4} s in all", node["id"]);
+        // Every frame shows a step: those it rendered tiles of are on time or late.
+        assert!(on_time + late >= 2 && on_time + late <= 12, "{node}");
+        assert!(late_s >= 0.0 && (late > 0 || late_s == 0.0), "{node}");
+        assert!(
+            node["volume_load_s"].as_array().unwrap().is_empty(),
+            "{node}"
+        );
+        prefetched += node["dsm"]["prefetched"].as_u64().unwrap();
+    }
+    assert!(prefetched > 0, "no brick was fetched ahead: {report}");
+    assert_shows_replayed_frame(&wall, &record, 7, &out.join("wall.png"), dir.path());
 }
 
 #[test]

@@ -654,11 +654,13 @@ pub struct RenderStats {
     pub elapsed_s: f64,
     /// A time series' steps this node loaded, and the seconds each took (load and brick).
     pub volume_load_s: Vec<f64>,
-    /// Step changes of a time series whose step the readers had ready.
+    /// Step changes of a time series whose step the readers had ready; of a shared series,
+    /// steps shown whose bricks were all here in time.
     pub prefetch_hits: u64,
-    /// Step changes of a time series the node had to wait for.
+    /// Step changes of a time series the node had to wait for; of a shared series, steps
+    /// late: the render threads idled waiting for their bricks.
     pub prefetch_misses: u64,
-    /// Seconds the node waited for steps not yet loaded.
+    /// Seconds the node waited for steps not yet loaded (of a shared series, for bricks).
     pub volume_stall_s: f64,
     /// The node's peak resident memory (VmHWM), in bytes; 0 where the OS does not say.
     pub max_rss_bytes: u64,

@@ -21,7 +21,8 @@
 //! * [`particles`]: the particles' binary tree and the particles, two regions of blocks after
 //!   the bricks, read through [`crate::spheres::SphereSource`].
 //!
-//! Volume series are not shared: a scene with one is rendered replicated.
+//! * [`series`]: a time series, every step's bricks one step after the other, the next
+//!   step's fetched ahead while one is shown.
 
 pub mod layout;
 pub mod particles;
@@ -29,6 +30,7 @@ pub mod pool;
 pub mod prepare;
 mod reader;
 pub mod reorder;
+pub mod series;
 pub mod tree;
 pub mod volume;
 

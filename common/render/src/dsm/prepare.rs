@@ -11,7 +11,10 @@
 use super::layout::{Block, BlockLayout, Chunk, LayoutError};
 use super::particles::{sphere_blocks, ParticleEntry};
 use super::reorder::reorder_for_blocks;
-use super::volume::{brick_blocks, encode, largest_brick_bytes, volume_path, VolumeEntry};
+use super::volume::{
+    brick_blocks, encode, largest_brick_bytes, series_blocks, series_steps, volume_path,
+    VolumeEntry,
+};
 use crate::bvh::node::{LeafTriangle, WideNode};
 use crate::bvh::Accel;
 use crate::scene::{Light, Material, Scene};
@@ -62,6 +65,10 @@ pub struct Manifest {
     /// every node holds whole of it is in `volume.bin`.
     #[serde(default)]
     pub volume: Option<VolumeEntry>,
+    /// Steps of the volume when it is a time series (0 when it is not): `volume.bin` holds
+    /// each, their bricks one step after the other.
+    #[serde(default)]
+    pub series_steps: u32,
     /// The scene's particles, if it has any: their tree and themselves are the layout's
     /// sphere blocks.
     #[serde(default)]
@@ -71,9 +78,14 @@ pub struct Manifest {
 /// Why a scene could not be prepared, or a prepared one not read.
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
-    /// The scene has what is never shared (named by the text): a volume series.
-    #[error("distributed shared memory holds triangle meshes, a volume and particles; this scene has {0}, render it replicated (--data replicated)")]
-    NotAMesh(&'static str),
+    /// A step of a volume series could not be loaded.
+    #[error("{path}: {reason}")]
+    Step {
+        /// The step's file.
+        path: PathBuf,
+        /// Why, in words.
+        reason: String,
+    },
     /// The block size is out of range, or the scene needs too many blocks.
     #[error(transparent)]
     Layout(#[from] LayoutError),
@@ -133,33 +145,24 @@ pub fn checksum(bytes: &[u8]) -> u64 {
     u64::from_le_bytes(hash.as_bytes()[..8].try_into().expect("8 bytes"))
 }
 
-/// The scene's blocks, in order, its manifest and its volume's part every node holds whole:
-/// what [`prepare`] writes, in memory.
+/// The blocks of a prepared scene, in order, each of them or why it could not be made.
+pub type Blocks<'a> = Box<dyn Iterator<Item = Result<Block, PrepareError>> + 'a>;
+
+/// The scene's blocks, in order, its manifest and what every node holds whole of its volume
+/// (a step each for a series, none without a volume): what [`prepare`] writes, in memory. A
+/// series' steps are loaded one at a time, once for the manifest and again as its blocks are
+/// taken.
 ///
 /// # Errors
-/// A scene with a volume series; a block size out of range, or smaller than a volume's bricks.
+/// A block size out of range, or smaller than a volume's bricks; a series step that cannot
+/// be loaded (also as a block's error).
 pub fn blocks_of<'a>(
     scene: &Scene,
     accel: &'a Accel,
     block_bytes: u32,
-) -> Result<
-    (
-        Manifest,
-        Option<SharedVolume>,
-        impl Iterator<Item = Block> + 'a,
-    ),
-    PrepareError,
-> {
-    if !scene.series.is_empty() {
-        return Err(PrepareError::NotAMesh("a volume series"));
-    }
-    let volume = scene
-        .volume
-        .as_ref()
-        .map(|v| PreparedVolume::new(v, &scene.render_from_world));
-    let (bricks, largest) = volume.as_ref().map_or((0, 0), |v| {
-        (v.bricks().count() as u32, largest_brick_bytes(v.bricks()))
-    });
+) -> Result<(Manifest, Vec<SharedVolume>, Blocks<'a>), PrepareError> {
+    let (steps, volume_blocks) = volume_blocks(scene, block_bytes)?;
+    let bricks = steps.1;
     let spheres = SphereAccel::build(&scene.particles);
     let (sphere_nodes, sphere_count) = spheres
         .as_ref()
@@ -170,11 +173,16 @@ pub fn blocks_of<'a>(
         accel.triangles.len() as u32,
         TOP_BLOCKS,
     )?
-    .with_bricks(bricks, largest)?
+    .with_bricks(bricks, steps.2)?
     .with_spheres(sphere_nodes, sphere_count)?;
-    let shared = volume.as_ref().map(PreparedVolume::to_shared);
+    let steps = steps.0;
     let wide = reorder_for_blocks(&accel.wide, layout.nodes_per_block() as usize);
-    let manifest = manifest_of(scene, accel, layout, shared.as_ref());
+    let mut manifest = manifest_of(scene, accel, layout, &steps);
+    manifest.series_steps = if scene.series.is_empty() {
+        0
+    } else {
+        steps.len() as u32
+    };
     let per_node = layout.nodes_per_block() as usize;
     let per_tri = layout.triangles_per_block() as usize;
     let node_blocks = (0..layout.node_blocks as usize).map(move |b| {
@@ -192,25 +200,46 @@ pub fn blocks_of<'a>(
             bytemuck::cast_slice(&triangles[b * per_tri..end]),
         )
     });
-    let bricks = volume
-        .into_iter()
-        .flat_map(move |v| brick_blocks(v, block_bytes));
     let particles = spheres
         .into_iter()
         .flat_map(move |s| sphere_blocks(s, layout));
-    Ok((
-        manifest,
-        shared,
-        node_blocks.chain(tri_blocks).chain(bricks).chain(particles),
-    ))
+    let blocks = node_blocks
+        .chain(tri_blocks)
+        .map(Ok)
+        .chain(volume_blocks)
+        .chain(particles.map(Ok));
+    Ok((manifest, steps, Box::new(blocks)))
 }
 
-/// The manifest of `scene` laid out as `layout`, its volume (if any) shared as `volume`.
+/// What a node holds whole of `scene`'s volume (a step each for a series), its bricks in all
+/// and the largest brick's bytes, and its brick blocks.
+type VolumeBlocks = ((Vec<SharedVolume>, u32, u32), Blocks<'static>);
+
+fn volume_blocks(scene: &Scene, block_bytes: u32) -> Result<VolumeBlocks, PrepareError> {
+    let frame = scene.render_from_world;
+    if !scene.series.is_empty() {
+        let steps = series_steps(&scene.series, &frame)?;
+        let blocks = series_blocks(scene.series.clone(), frame, block_bytes);
+        return Ok((steps, Box::new(blocks)));
+    }
+    let Some(volume) = &scene.volume else {
+        return Ok(((Vec::new(), 0, 0), Box::new(std::iter::empty())));
+    };
+    let volume = PreparedVolume::new(volume, &frame);
+    let counts = (
+        vec![volume.to_shared()],
+        volume.bricks().count() as u32,
+        largest_brick_bytes(volume.bricks()),
+    );
+    Ok((counts, Box::new(brick_blocks(volume, block_bytes).map(Ok))))
+}
+
+/// The manifest of `scene` laid out as `layout`, its volume (if any) shared as `steps`.
 fn manifest_of(
     scene: &Scene,
     accel: &Accel,
     layout: BlockLayout,
-    volume: Option<&SharedVolume>,
+    steps: &[SharedVolume],
 ) -> Manifest {
     let per_slot: Vec<u16> = accel
         .scene_index
@@ -231,7 +260,8 @@ fn manifest_of(
         lights: scene.lights.clone(),
         slot_materials: SlotMaterials::runs_of(&per_slot),
         blends: scene.has_transparency(),
-        volume: volume.map(|v| encode(v).1),
+        volume: (!steps.is_empty()).then(|| encode(steps).1),
+        series_steps: 0,
         particles: (!scene.particles.is_empty())
             .then(|| ParticleEntry::of_range(scene.attribute_range())),
     }
@@ -274,10 +304,10 @@ pub fn prepare(
     if manifest_file.exists() {
         std::fs::remove_file(&manifest_file).map_err(io(&manifest_file))?;
     }
-    let (manifest, volume, blocks) = blocks_of(scene, accel, block_bytes)?;
-    if let Some(volume) = &volume {
+    let (manifest, steps, blocks) = blocks_of(scene, accel, block_bytes)?;
+    if !steps.is_empty() {
         let path = volume_path(dir);
-        std::fs::write(&path, encode(volume).0).map_err(io(&path))?;
+        std::fs::write(&path, encode(&steps).0).map_err(io(&path))?;
     }
     let total = manifest.layout.total() as u64;
     let (blocks_file, sums_file) = (blocks_path(dir), checksums_path(dir));
@@ -285,6 +315,7 @@ pub fn prepare(
         std::io::BufWriter::new(std::fs::File::create(&blocks_file).map_err(io(&blocks_file))?);
     let mut sums = Vec::with_capacity(total as usize * 8);
     for (k, block) in blocks.enumerate() {
+        let block = block?;
         out.write_all(block.bytes()).map_err(io(&blocks_file))?;
         sums.extend_from_slice(&checksum(block.bytes()).to_le_bytes());
         if k % 256 == 0 {
@@ -320,6 +351,9 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
         .map_err(|e| e.to_string())?;
     if (l.brick_blocks > 0) != manifest.volume.is_some() {
         return Err("its brick blocks and its volume do not go together".into());
+    }
+    if manifest.series_steps > l.brick_blocks {
+        return Err("its series has more steps than bricks".into());
     }
     let particles_ok = match manifest.particles {
         Some(p) => p.is_valid() && l.sphere_count > 0 && l.sphere_node_count > 0,
@@ -532,7 +566,7 @@ mod tests {
             Err(PrepareError::OtherScene { .. })
         ));
         let (_, _, blocks) = blocks_of(&scene, &accel, 4096).unwrap();
-        let blocks: Vec<Block> = blocks.collect();
+        let blocks: Vec<Block> = blocks.map(Result::unwrap).collect();
         let mut file = BlockFile::open(dir.path(), &manifest).unwrap();
         for (k, block) in blocks.iter().enumerate() {
             assert_eq!(

@@ -160,8 +160,9 @@ struct Tally {
     /// Lookups of blocks it held none of, and of those, blocks this node holds itself.
     reads: u64,
     local: u64,
-    /// The other nodes' blocks read since [`DsmReader::take_footprint`]: what the same
-    /// pixels will read again next frame, to be fetched ahead of them.
+    /// The other nodes' blocks read since [`DsmReader::take_footprint`], and the bricks of
+    /// this node's: what the same pixels will read again next frame, to be fetched ahead of
+    /// them.
     footprint: Vec<BlockId>,
 }
 
@@ -302,6 +303,12 @@ impl<'s> DsmReader<'s> {
             Hold::Local(_) => {
                 tally.reads += 1;
                 tally.local += 1;
+                // A series' next step has the same brick in another block, maybe another
+                // node's: the footprint that fetches it ahead needs this node's bricks too.
+                let layout = tree.layout();
+                if (layout.first_brick_block()..layout.first_sphere_node_block()).contains(&k) {
+                    tally.footprint.push(k);
+                }
             }
             Hold::Cached(_) => {
                 tally.reads += 1;
@@ -380,8 +387,8 @@ impl Drop for DsmReader<'_> {
 
 impl BrickSource for DsmReader<'_> {
     #[inline]
-    fn samples<'a>(&'a mut self, _: &'a Bricks, index: usize) -> Option<&'a [f32]> {
-        let k = self.first_brick + index as BlockId;
+    fn samples<'a>(&'a mut self, bricks: &'a Bricks, index: usize) -> Option<&'a [f32]> {
+        let k = self.first_brick + bricks.first_shared() + index as BlockId;
         let ids = &self.bricks.ids;
         // An entry's low half is its block whatever trace it was read in (`base_at` looks
         // again at one from an earlier trace).

@@ -35,7 +35,7 @@ fn shared(
     let accel = crate::bvh::Accel::build(scene);
     let (manifest, volume, blocks) = prepare::blocks_of(scene, &accel, block_bytes).unwrap();
     let all = Arc::new(AllBlocks {
-        blocks: blocks.map(Arc::new).collect(),
+        blocks: blocks.map(|b| Arc::new(b.unwrap())).collect(),
         asked: AtomicU64::new(0),
     });
     let prepared = (&manifest, volume);
@@ -45,7 +45,7 @@ fn shared(
 
 /// A node's share of the blocks of `manifest`, fetching the rest with `fetch`.
 fn shared_from(
-    (manifest, volume): (&Manifest, Option<SharedVolume>),
+    (manifest, volume): (&Manifest, Vec<SharedVolume>),
     blocks: &[Arc<Block>],
     (rank, ranks): (u32, u32),
     lines: usize,
@@ -72,7 +72,7 @@ fn shared_from(
         fetch,
     )
     .unwrap();
-    PreparedScene::from_shared(manifest, tree, volume)
+    PreparedScene::from_shared(manifest, tree, volume.into_iter().next())
 }
 
 fn view_of(scene: &Scene, params: RenderParams, (w, h): (u32, u32)) -> FrameView {
@@ -177,7 +177,7 @@ fn parked_packets_finish_with_the_replicated_pixels_when_blocks_come_late_out_of
         let accel = crate::bvh::Accel::build(&scene);
         let (manifest, volume, blocks) = prepare::blocks_of(&scene, &accel, 2048).unwrap();
         let late = Arc::new(LateBlocks {
-            blocks: blocks.map(Arc::new).collect(),
+            blocks: blocks.map(|b| Arc::new(b.unwrap())).collect(),
             ..LateBlocks::default()
         });
         let dsm = shared_from(
@@ -373,7 +373,7 @@ fn a_shared_volume_gives_the_replicated_pixels_with_blocks_late_and_out_of_order
         let accel = crate::bvh::Accel::build(&scene);
         let (manifest, volume, blocks) = prepare::blocks_of(&scene, &accel, block_bytes).unwrap();
         assert_eq!(manifest.layout.brick_blocks, 27);
-        let blocks: Vec<_> = blocks.map(Arc::new).collect();
+        let blocks: Vec<_> = blocks.map(|b| Arc::new(b.unwrap())).collect();
         for lines in [0, 4, 64] {
             let case = format!("mesh {mesh}, iso {iso}, cut {cut}, {lines} lines");
             let late = Arc::new(LateBlocks {
@@ -465,7 +465,7 @@ fn shared_particles_give_the_replicated_pixels_alone_and_mixed_with_blocks_late(
         let layout = manifest.layout;
         assert!(layout.sphere_blocks > 0 && layout.sphere_node_blocks > 0);
         assert!(mixed || layout.sphere_blocks >= 20, "{layout:?}");
-        let blocks: Vec<_> = blocks.map(Arc::new).collect();
+        let blocks: Vec<_> = blocks.map(|b| Arc::new(b.unwrap())).collect();
         for lines in [0, 4, 64] {
             let case = format!("mixed {mixed}, crop {crop:?}, {lines} lines");
             let late = Arc::new(LateBlocks {

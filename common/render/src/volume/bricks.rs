@@ -36,6 +36,9 @@ pub struct Bricks {
     samples: Vec<f32>,
     /// Whether the samples are in shared memory (see [`Bricks::shared`]).
     shared: bool,
+    /// For bricks in shared memory, the brick of the layout's brick blocks that is brick 0
+    /// here: a series' step `s` of `b` bricks starts at `s × b`.
+    first_shared: u32,
 }
 
 /// Where a volume tracer reads a brick's samples: a replicated volume's own array
@@ -85,12 +88,20 @@ impl Bricks {
     }
 
     /// The bricks of a grid of `dims` samples whose samples are in shared memory, brick `i`
-    /// at the start of a block of its own, laid out as [`Bricks::new`] lays them out.
-    pub fn shared(dims: [usize; 3]) -> Self {
+    /// at the start of a block of its own (brick block `first + i`), laid out as
+    /// [`Bricks::new`] lays them out.
+    pub fn shared(dims: [usize; 3], first: u32) -> Self {
         Bricks {
             shared: true,
+            first_shared: first,
             ..Bricks::laid_out(dims)
         }
+    }
+
+    /// For bricks in shared memory, which of the layout's bricks is brick 0 here.
+    #[inline(always)]
+    pub fn first_shared(&self) -> u32 {
+        self.first_shared
     }
 
     /// The bricks of a grid of `dims` samples, each slot at the offset its samples take in
@@ -117,6 +128,7 @@ impl Bricks {
             slots,
             samples: Vec::new(),
             shared: false,
+            first_shared: 0,
         }
     }
 

@@ -96,9 +96,23 @@ pub struct SharedVolume {
     pub placement: Placement,
     /// The macro-cells' ranges, as the whole volume gives them.
     pub minmax: MinMaxGrid,
+    /// Which of the layout's bricks is this volume's brick 0: 0 for a volume, `s × b` for
+    /// step `s` of a series of `b` bricks a step.
+    #[serde(default)]
+    pub first_brick: u32,
 }
 
 impl Placement {
+    /// Samples along each axis.
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// Cells along each axis (one fewer than samples).
+    pub fn cells(&self) -> [usize; 3] {
+        self.dims.map(|d| d - 1)
+    }
+
     fn new(volume: &Volume, dims: [usize; 3], origin: [f64; 3], frame: &RenderFromWorld) -> Self {
         let axes = volume.axes().map(DVec3::from_array);
         let render_from_index = DMat3::from_cols(axes[0], axes[1], axes[2]);
@@ -134,10 +148,16 @@ impl SharedVolume {
     /// (one bit a cell, made as rays reach the brick). A 2 GiB volume's came to 74 MiB, which
     /// out of core took its render nodes 10-20 MiB past their budgets until it was counted.
     pub fn held_besides_bricks(&self) -> u64 {
-        let cells = self.placement.dims.map(|d| d - 1);
+        let cells = self.placement.cells();
         let bricks: usize = cells.iter().map(|c| c.div_ceil(BRICK_CELLS)).product();
         let per_brick = (super::bricks::CELL_WORDS * 8 + 16) as u64;
-        self.minmax.ranges().len() as u64 * 10 + bricks as u64 * per_brick
+        self.summary_bytes() + bricks as u64 * per_brick
+    }
+
+    /// Bytes of the min/max grid and the per-frame leap table (9 and 1 bytes a macro-cell):
+    /// what a node holds of a series' step it does not show.
+    pub fn summary_bytes(&self) -> u64 {
+        self.minmax.ranges().len() as u64 * 10
     }
 }
 
@@ -155,7 +175,7 @@ impl PreparedVolume {
     /// A volume whose bricks are in shared memory, read through a render thread's
     /// [`BrickSource`] (`crate::dsm::DsmReader`).
     pub fn shared(volume: SharedVolume) -> Self {
-        let bricks = Bricks::shared(volume.placement.dims);
+        let bricks = Bricks::shared(volume.placement.dims, volume.first_brick);
         PreparedVolume::from_parts(bricks, volume.minmax, volume.placement)
     }
 
@@ -164,6 +184,7 @@ impl PreparedVolume {
         SharedVolume {
             placement: self.placement.clone(),
             minmax: self.minmax.clone(),
+            first_brick: 0,
         }
     }
 
