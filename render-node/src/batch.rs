@@ -146,7 +146,8 @@ impl Renderer {
         {
             // Thread-seconds of idling, as wall-clock seconds of the batch.
             let threads = self.pool.current_num_threads().max(1) as f64;
-            series.note_wait((tree.stats().fetch_wait_s - before) / threads);
+            let waited = (tree.stats().fetch_wait_s - before) / threads;
+            series.note_batch(start.frame.0, waited);
         }
         let compression = self.compression;
         let payloads = self.pool.install(|| {

@@ -18,6 +18,7 @@ use tessera_render::dsm::layout::DEFAULT_BLOCK_BYTES;
 use tessera_render::dsm::pool::BlockPool;
 use tessera_render::dsm::prepare::{self, BlockFile, Manifest, Share};
 use tessera_render::dsm::series::SharedSeries;
+use tessera_render::dsm::tree::warm_cache;
 use tessera_render::dsm::{
     Block, BlockFetch, BlockLayout, DsmReader, DsmTree, Landing, PinLimits, NODE_OVERHEAD_BYTES,
 };
@@ -29,6 +30,11 @@ use tokio::sync::mpsc;
 /// miss instead of setting the packet aside: how shared scenes were rendered before, kept to
 /// measure the two against each other in one run (`deploy/bench/dsm-parking.sh`).
 pub const WAIT_FOR_BLOCKS: &str = "TESSERA_DSM_WAIT_FOR_BLOCKS";
+
+/// Set (to anything) in a render node's environment, it starts with an empty cache instead of
+/// filling it from the prepared files while it loads (`dsm::tree::warm_cache`): to measure
+/// the first frames' cost of fetching everything on demand.
+pub const COLD_CACHE: &str = "TESSERA_DSM_COLD_CACHE";
 
 /// What the node was told, by its own flags, about shared scenes.
 #[derive(Clone, Debug, Default)]
@@ -407,6 +413,32 @@ async fn read_prepared(
     Ok((share, (file, fallback), volume))
 }
 
+/// Fills `cache` from `file` (see [`tessera_render::dsm::tree::warm_cache`]) on a blocking
+/// thread, unless [`COLD_CACHE`] is set; gives the file back.
+async fn warm(
+    mut file: BlockFile,
+    (layout, residency): (&BlockLayout, &Residency),
+    cache: &Arc<BlockCache<Block>>,
+    pool: &Arc<BlockPool>,
+) -> Result<BlockFile> {
+    if std::env::var_os(COLD_CACHE).is_some() {
+        return Ok(file);
+    }
+    let (layout, residency, cache, pool) =
+        (*layout, residency.clone(), cache.clone(), pool.clone());
+    let t0 = std::time::Instant::now();
+    let (file, read) = tokio::task::spawn_blocking(move || -> Result<_> {
+        let read = warm_cache((&layout, &residency), &cache, &pool, &mut file)?;
+        Ok((file, read))
+    })
+    .await??;
+    tracing::info!(
+        "filled {read} cache lines from the prepared files in {:.2} s",
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(file)
+}
+
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
 /// and starts fetching: the scene to render, and the handle that keeps it fed.
 pub async fn start(
@@ -460,6 +492,7 @@ pub async fn start(
     let (miss_tx, miss_rx) = mpsc::unbounded_channel();
     let hub = Arc::new(FetchHub::new(miss_tx, fallback));
     let cache = Arc::new(BlockCache::new(lines));
+    let file = warm(file, (&layout, &residency), &cache, &pool).await?;
     let tree = DsmTree::new(
         layout,
         residency.clone(),

@@ -309,7 +309,13 @@ fn dsm_compares_shared_with_replicated_at_each_cache_size() {
         let dsm = &run["dsm"];
         positive(&dsm["blocks_read_per_frame"]);
         non_negative(&dsm["miss_percent"]);
-        assert!(positive(&dsm["remote_read_max_us"]) >= non_negative(&dsm["remote_read_min_us"]));
+        let max = non_negative(&dsm["remote_read_max_us"]);
+        assert!(max >= non_negative(&dsm["remote_read_min_us"]), "{run}");
+        // A whole-scene cache is filled from the prepared files before the first frame; an
+        // eighth cannot hold the other node's half, so blocks come from their owner.
+        if run["cache_fraction"].as_f64() == Some(0.125) {
+            assert!(max > 0.0, "no block came from its owner: {run}");
+        }
     }
     assert!(dir.path().join("fps-vs-nodes.svg").exists());
 }

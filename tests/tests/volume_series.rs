@@ -121,7 +121,7 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
         "--wall",
         "1x1",
         "--screen",
-        "96x64",
+        "256x128",
         "--scene",
         scene.to_str().unwrap(),
         "--iso",
@@ -138,8 +138,9 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
         "dsm",
         "--prepared",
         prepared.to_str().unwrap(),
+        // 6 lines: a step's bricks of the other node (4) fit, the whole series (12) does not.
         "--cache-fraction",
-        "0.5",
+        "0.25",
         "--frames",
         "12",
         "--play",
@@ -157,7 +158,7 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
     assert_eq!(manifest["layout"]["brick_blocks"], 24, "{manifest}");
     let report = read_json(&out.join("report.json"));
     assert_eq!(report["data"], "dsm", "{report}");
-    let mut prefetched = 0;
+    let (mut prefetched, mut shown) = (0, 0);
     for node in report["render_nodes"].as_array().unwrap() {
         let (on_time, late) = (
             node["prefetch_hits"].as_u64().unwrap(),
@@ -165,8 +166,9 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
         );
         let late_s = node["volume_stall_s"].as_f64().unwrap();
         eprintln!("shared series, render node {}: {on_time} steps on time, {late} late by {late_s:.4} s in all", node["id"]);
-        // Every frame shows a step: those it rendered tiles of are on time or late.
-        assert!(on_time + late >= 2 && on_time + late <= 12, "{node}");
+        // A node counts each step it rendered tiles of, on time or late.
+        assert!(on_time + late <= 12, "{node}");
+        shown += on_time + late;
         assert!(late_s >= 0.0 && (late > 0 || late_s == 0.0), "{node}");
         assert!(
             node["volume_load_s"].as_array().unwrap().is_empty(),
@@ -174,6 +176,9 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
         );
         prefetched += node["dsm"]["prefetched"].as_u64().unwrap();
     }
+    // Every frame's step was rendered by one node at least (a step shown again at once, as
+    // step 0 after step 2 of a node that skipped frames, counts once).
+    assert!(shown >= 10, "{shown} steps shown: {report}");
     assert!(prefetched > 0, "no brick was fetched ahead: {report}");
     assert_shows_replayed_frame(&wall, &record, 7, &out.join("wall.png"), dir.path());
 }

@@ -90,6 +90,14 @@ impl<B> BlockCache<B> {
         })
     }
 
+    /// Whether `line` holds no block yet.
+    pub fn is_vacant(&self, line: usize) -> bool {
+        self.line(line).is_some_and(|slot| {
+            let guard = slot.read().unwrap_or_else(PoisonError::into_inner);
+            guard.is_none()
+        })
+    }
+
     /// Puts block k in `line`, replacing whatever was there (an eviction if it was another
     /// block). Readers of the old block keep it until they drop it.
     pub fn insert(&self, k: BlockId, line: usize, block: Arc<B>) {

@@ -14,9 +14,6 @@ use std::ops::Range;
 /// Methods take `&mut self` because a shared memory moves its hold from block to block as the
 /// traversal goes; what they return is valid until the next call.
 pub trait TreeMemory {
-    /// What [`TreeMemory::prefetcher`] hands out.
-    type Prefetch: ChildPrefetch;
-
     /// Whether the tree has no node at all.
     fn is_empty(&self) -> bool;
 
@@ -31,15 +28,10 @@ pub trait TreeMemory {
     /// `slots` is not empty; callers loop until the range is done.
     fn triangles(&mut self, slots: Range<u32>) -> &[LeafTriangle];
 
-    /// A hint-giver for the children a traversal pushes (see [`ChildPrefetch`]); taken once
-    /// per traversal, since it must not borrow the memory while a node is held.
-    fn prefetcher(&self) -> Self::Prefetch;
-}
-
-/// Asks the CPU to start loading a child while its nearer siblings are traversed.
-pub trait ChildPrefetch: Copy {
-    /// Hints that child `k` of `node` (an inner node or a leaf's triangles) will be read soon.
-    fn prefetch_child(&self, node: &WideNode, k: usize);
+    /// Asks the CPU to start loading a child a traversal pushed, while its nearer siblings
+    /// are traversed: the 8-wide node `child` (`count` 0), or the leaf of `count` triangles
+    /// from slot `child`. A hint: memory that does not have the child at hand does nothing.
+    fn prefetch(&self, child: u32, count: u32);
 }
 
 /// The tree and triangles in this process's own memory: replicated data, or a whole-scene
@@ -53,8 +45,6 @@ pub struct Resident<'a> {
 }
 
 impl TreeMemory for Resident<'_> {
-    type Prefetch = Self;
-
     #[inline(always)]
     fn is_empty(&self) -> bool {
         self.wide.is_empty()
@@ -76,61 +66,28 @@ impl TreeMemory for Resident<'_> {
     }
 
     #[inline(always)]
-    fn prefetcher(&self) -> Self {
-        *self
+    fn prefetch(&self, child: u32, count: u32) {
+        if count == 0 {
+            prefetch_node(self.wide.as_ptr().wrapping_add(child as usize));
+        } else {
+            prefetch_leaf(self.triangles.as_ptr().wrapping_add(child as usize), count);
+        }
     }
 }
 
-impl ChildPrefetch for Resident<'_> {
-    #[inline(always)]
-    fn prefetch_child(&self, node: &WideNode, k: usize) {
-        prefetch_child(self.wide, leaf_bytes(self.triangles), node, k);
-    }
-}
-
-/// No hints: memory whose blocks may not be there (a prefetch of an address that is not the
-/// child's would only pollute the cache).
-#[derive(Clone, Copy)]
-pub struct NoPrefetch;
-
-impl ChildPrefetch for NoPrefetch {
-    #[inline(always)]
-    fn prefetch_child(&self, _: &WideNode, _: usize) {}
-}
-
-/// Asks the CPU to start loading what child `k` of `node` points to: its 8-wide node in
-/// `nodes`, or its leaf's first items (`leaves`: where the leaf items start and the bytes of
-/// one). On a mesh of millions of triangles these loads miss every cache; issued while the
-/// nearer siblings are traversed, they took the 4.2M knot's primary rays from 13.1 to 14.6
-/// Mrays/s (1 thread, AVX-512).
+/// Asks the CPU to start loading the 8-wide node at `node`. On a mesh of millions of
+/// triangles these loads miss every cache; issued while the nearer siblings are traversed,
+/// they took the 4.2M knot's primary rays from 13.1 to 14.6 Mrays/s (1 thread, AVX-512).
 #[inline(always)]
-pub(crate) fn prefetch_child(
-    nodes: &[WideNode],
-    (leaves, item_bytes): (*const u8, usize),
-    node: &WideNode,
-    k: usize,
-) {
-    let (child, count) = (node.child[k] as usize, node.count[k]);
-    let (start, bytes) = if count == 0 {
-        (
-            nodes.as_ptr().wrapping_add(child) as *const u8,
-            std::mem::size_of::<WideNode>(),
-        )
-    } else {
-        (
-            leaves.wrapping_add(child * item_bytes),
-            count as usize * item_bytes,
-        )
-    };
-    prefetch(start, bytes.min(PREFETCH_BYTES));
+pub(crate) fn prefetch_node(node: *const WideNode) {
+    prefetch(node as *const u8, std::mem::size_of::<WideNode>());
 }
 
-/// The leaf triangles as the prefetcher sees them: where they start and how big one is.
-pub(crate) fn leaf_bytes(triangles: &[LeafTriangle]) -> (*const u8, usize) {
-    (
-        triangles.as_ptr() as *const u8,
-        std::mem::size_of::<LeafTriangle>(),
-    )
+/// Asks the CPU to start loading the first of a leaf's `count` triangles from `first`.
+#[inline(always)]
+pub(crate) fn prefetch_leaf(first: *const LeafTriangle, count: u32) {
+    let bytes = count as usize * std::mem::size_of::<LeafTriangle>();
+    prefetch(first as *const u8, bytes.min(PREFETCH_BYTES));
 }
 
 /// At most this much of a child is prefetched: a node's boxes, or a leaf's first seven

@@ -18,7 +18,7 @@
 //! wall renders the same pixels whatever its CPU.
 
 use crate::bvh::leaf_packet::{self, ShearedLanes};
-use crate::bvh::memory::{ChildPrefetch, TreeMemory};
+use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, WIDTH};
 use crate::bvh::node_test_packet::{Frustum, Lanes};
 use crate::bvh::node_test_ray::{enter_wide, finite};
@@ -145,7 +145,6 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
     // Most packets of a view miss the whole scene (the sky around an object): they stop
     // here, before any per-lane set-up.
     let root_culled = frustum.misses_children(mem.node(0));
-    let hints = mem.prefetcher();
     if root_culled.iter().all(|&c| c) {
         return 0;
     }
@@ -175,14 +174,7 @@ fn traverse_packet<M: TreeMemory, const COMMON: bool, const ANY: bool>(
             }
             continue;
         }
-        walk.inner::<M, COMMON>(
-            mem,
-            (&frustum, hints),
-            stack,
-            first as usize,
-            (min, max),
-            child,
-        );
+        walk.inner::<M, COMMON>(mem, &frustum, stack, first as usize, (min, max), child);
     }
     if !ANY {
         walk.write_hits(hits);
@@ -375,7 +367,7 @@ impl<'a> PacketWalk<'a> {
     fn inner<M: TreeMemory, const COMMON: bool>(
         &mut self,
         mem: &mut M,
-        (frustum, hints): (&Frustum, M::Prefetch),
+        frustum: &Frustum,
         stack: &mut Vec<u32>,
         first: usize,
         (min, max): (Vec3, Vec3),
@@ -408,6 +400,9 @@ impl<'a> PacketWalk<'a> {
             f32::INFINITY,
         );
         let culled = frustum.misses_children(node);
+        // The node's children as it names them: the node is not read again once the hints
+        // below go out through the memory.
+        let (children, counts) = (node.child, node.count);
         stack.reserve(3 * WIDTH);
         let mut entered = [0usize; WIDTH];
         let mut n_entered = 0;
@@ -416,7 +411,7 @@ impl<'a> PacketWalk<'a> {
                 continue;
             }
             if t[k] == f32::INFINITY {
-                hints.prefetch_child(node, k);
+                mem.prefetch(children[k], counts[k]);
                 stack.extend([active as u32, child, k as u32]);
                 continue;
             }
@@ -429,7 +424,7 @@ impl<'a> PacketWalk<'a> {
             n_entered += 1;
         }
         for &k in &entered[..n_entered] {
-            hints.prefetch_child(node, k);
+            mem.prefetch(children[k], counts[k]);
             stack.extend([active as u32, child, k as u32]);
         }
     }

@@ -6,7 +6,7 @@
 //! so this traversal and the packet traversal agree bit for bit.
 
 use crate::bvh::leaf_ray;
-use crate::bvh::memory::{ChildPrefetch, TreeMemory};
+use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, WideNode, WIDTH};
 #[cfg(target_arch = "x86_64")]
 use crate::bvh::node_test_ray::enter_mask_avx2;
@@ -203,7 +203,6 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
         traverse_unordered(mem, enter, (origin, inv), stack, t_far, visit);
         return;
     }
-    let hints = mem.prefetcher();
     // Entries are (child, count) pairs: count 0 is an inner node.
     stack.extend([0, 0]);
     while let (Some(count), Some(child)) = (stack.pop(), stack.pop()) {
@@ -215,6 +214,7 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
         }
         let node = mem.node(child);
         let (t, mut entered) = enter(node, origin, inv, *t_far);
+        let (children, counts) = (node.child, node.count);
         // The entered children, nearest first (an insertion sort of at most WIDTH).
         let mut order = [0usize; WIDTH];
         let mut n = 0;
@@ -230,8 +230,8 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
             n += 1;
         }
         for &k in order[..n].iter().rev() {
-            hints.prefetch_child(node, k);
-            stack.extend([node.child[k], node.count[k]]);
+            mem.prefetch(children[k], counts[k]);
+            stack.extend([children[k], counts[k]]);
         }
     }
 }
@@ -249,7 +249,6 @@ fn traverse_unordered<M: TreeMemory>(
     t_far: &mut f32,
     mut visit: impl FnMut(&mut M, std::ops::Range<u32>, &mut f32) -> bool,
 ) {
-    let hints = mem.prefetcher();
     // (child, count): count 0 is an inner node.
     let (mut child, mut count) = (0u32, 0u32);
     loop {
@@ -260,16 +259,17 @@ fn traverse_unordered<M: TreeMemory>(
         } else {
             let node = mem.node(child);
             let (_, mut entered) = enter(node, origin, inv, *t_far);
+            let (children, counts) = (node.child, node.count);
             if entered != 0 {
                 let next = (u32::BITS - 1 - entered.leading_zeros()) as usize;
                 entered &= !(1 << next);
                 while entered != 0 {
                     let k = entered.trailing_zeros() as usize;
                     entered &= entered - 1;
-                    hints.prefetch_child(node, k);
-                    stack.extend([node.child[k], node.count[k]]);
+                    mem.prefetch(children[k], counts[k]);
+                    stack.extend([children[k], counts[k]]);
                 }
-                (child, count) = (node.child[next], node.count[next]);
+                (child, count) = (children[next], counts[next]);
                 continue;
             }
         }

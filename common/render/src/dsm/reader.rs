@@ -19,7 +19,7 @@
 use super::layout::{nodes_of, BlockLayout, Chunk, FastDiv};
 use super::tree::{DsmTree, Hold, Landing};
 use super::Block;
-use crate::bvh::memory::{NoPrefetch, TreeMemory};
+use crate::bvh::memory::{prefetch_leaf, prefetch_node, TreeMemory};
 use crate::bvh::node::{BvhNode, LeafTriangle, WideNode};
 use crate::scene::particles::Particle;
 use crate::volume::{BrickSource, Bricks};
@@ -415,8 +415,6 @@ impl BrickSource for DsmReader<'_> {
 }
 
 impl TreeMemory for DsmReader<'_> {
-    type Prefetch = NoPrefetch;
-
     fn is_empty(&self) -> bool {
         self.tree.layout().node_count == 0
     }
@@ -467,7 +465,28 @@ impl TreeMemory for DsmReader<'_> {
         unsafe { std::slice::from_raw_parts(base.cast::<LeafTriangle>().add(at as usize), len) }
     }
 
-    fn prefetcher(&self) -> NoPrefetch {
-        NoPrefetch
+    /// Only a child whose block is in the reader's table: any other is a lookup away (its
+    /// own memory, the cache, or a fetch), which a hint must not start.
+    #[inline(always)]
+    fn prefetch(&self, child: u32, count: u32) {
+        if count == 0 {
+            let (k, at) = self.per_node_block.div_rem(child);
+            let i = k as usize & (NODE_HOLDS - 1);
+            if self.nodes.ids[i] as BlockId == k {
+                prefetch_node(
+                    self.nodes.bases[i]
+                        .cast::<WideNode>()
+                        .wrapping_add(at as usize),
+                );
+            }
+        } else if count != crate::bvh::node::EMPTY {
+            let (b, at) = self.per_triangle_block.div_rem(child);
+            let k = self.node_blocks + b;
+            let i = k as usize & (TRIANGLE_HOLDS - 1);
+            if self.tris.ids[i] as BlockId == k {
+                let first = self.tris.bases[i].cast::<LeafTriangle>();
+                prefetch_leaf(first.wrapping_add(at as usize), count);
+            }
+        }
     }
 }

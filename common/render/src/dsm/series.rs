@@ -5,9 +5,10 @@
 //! fetched ahead into the cache while step `s` is shown (the streaming readers of TRex, here
 //! fetching from the owners rather than from disk).
 //!
-//! A step is *late* when rendering it idled a render thread waiting for blocks that were not
-//! here: the prefetch did not bring them in time. [`SharedSeries::stats`] counts late steps
-//! and the seconds they were late by.
+//! A step is *late* on a node when rendering its frame idled the node's render threads waiting
+//! for blocks that were not here: the prefetch did not bring them in time.
+//! [`SharedSeries::stats`] counts, over the frames the node rendered tiles of, the steps on
+//! time, the steps late and the seconds they were late by.
 
 use crate::volume::{PreparedVolume, SeriesStats, SharedVolume};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -21,14 +22,20 @@ pub struct SharedSeries {
     state: Mutex<Shown>,
 }
 
-/// The step shown and what its frames waited, and the tally of the steps shown before.
+/// The steps shown last, the frames still open and what they waited, and the tally of the
+/// frames before them.
 #[derive(Default)]
 struct Shown {
-    current: Option<(usize, Arc<PreparedVolume>)>,
-    /// Wall-clock seconds the current step's frames idled waiting for blocks.
-    waited_s: f64,
+    /// The last two steps asked for, the latest last: batches of two frames may alternate.
+    recent: Vec<(usize, Arc<PreparedVolume>)>,
+    /// Frames whose batches may still come, and the wall-clock seconds their batches idled
+    /// waiting for blocks.
+    open: std::collections::BTreeMap<u64, f64>,
     tally: SeriesStats,
 }
+
+/// Frames kept open: a batch of an older frame is counted as a frame of its own.
+const OPEN_FRAMES: usize = 4;
 
 impl SharedSeries {
     /// The series whose steps `volume.bin` held, its bricks from block `first_brick_block`.
@@ -81,38 +88,40 @@ impl SharedSeries {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Step `step` (modulo the series' length), to be shown from now on: the same volume while
-    /// the step stays, so its tables and cell masks are made once.
+    /// Step `step` (modulo the series' length), to be shown: the same volume while the step
+    /// stays (or comes back at once), so its tables and cell masks are made once.
     pub fn get(&self, step: usize) -> Arc<PreparedVolume> {
         let step = step % self.len();
         let mut shown = self.lock();
-        if let Some((at, volume)) = &shown.current {
-            if *at == step {
-                return volume.clone();
-            }
-        }
-        let waited = std::mem::take(&mut shown.waited_s);
-        if shown.current.is_some() {
-            close_step(&mut shown.tally, waited);
+        if let Some((_, volume)) = shown.recent.iter().find(|(at, _)| *at == step) {
+            return volume.clone();
         }
         let volume = Arc::new(PreparedVolume::shared(self.steps[step].clone()));
-        shown.current = Some((step, volume.clone()));
+        if shown.recent.len() == 2 {
+            shown.recent.remove(0);
+        }
+        shown.recent.push((step, volume.clone()));
         volume
     }
 
-    /// The render threads of a frame of the step shown idled `waited_s` seconds (wall clock)
-    /// for blocks that were not here.
-    pub fn note_wait(&self, waited_s: f64) {
-        self.lock().waited_s += waited_s;
+    /// A batch of frame `frame` (showing a step) idled its render threads `waited_s` seconds
+    /// (wall clock) for blocks that were not here.
+    pub fn note_batch(&self, frame: u64, waited_s: f64) {
+        let mut shown = self.lock();
+        *shown.open.entry(frame).or_default() += waited_s;
+        while shown.open.len() > OPEN_FRAMES {
+            let (_, waited) = shown.open.pop_first().expect("more than none open");
+            close_step(&mut shown.tally, waited);
+        }
     }
 
-    /// Steps on time (`hits`), late (`misses`) and the seconds they were late by in all
-    /// (`stall_seconds`), the step shown now included; nothing is loaded from files.
+    /// Frames of steps this node rendered: on time (`hits`), late (`misses`) and the seconds
+    /// they were late by in all (`stall_seconds`); nothing is loaded from files.
     pub fn stats(&self) -> SeriesStats {
         let shown = self.lock();
         let mut tally = shown.tally.clone();
-        if shown.current.is_some() {
-            close_step(&mut tally, shown.waited_s);
+        for &waited in shown.open.values() {
+            close_step(&mut tally, waited);
         }
         tally
     }
@@ -177,12 +186,17 @@ mod tests {
             "the same step, the same volume"
         );
         assert_eq!(shown.bricks().first_shared(), 0);
-        series.note_wait(0.25);
         assert_eq!(series.get(1).bricks().first_shared(), 8);
-        series.get(2);
-        series.note_wait(0.5);
+        assert!(Arc::ptr_eq(&shown, &series.get(0)), "the step before, kept");
+        // Frames 0-6, batches of frames 1 and 2 alternating; 1 and 6 waited.
+        for (frame, waited) in [(0, 0.0), (1, 0.25), (2, 0.0), (1, 0.0), (3, 0.0), (4, 0.0)] {
+            series.note_batch(frame, waited);
+        }
+        for (frame, waited) in [(5, 0.0), (6, 0.5), (6, 0.0)] {
+            series.note_batch(frame, waited);
+        }
         let stats = series.stats();
-        assert_eq!((stats.hits, stats.misses), (1, 2));
+        assert_eq!((stats.hits, stats.misses), (5, 2));
         assert!((stats.stall_seconds - 0.75).abs() < 1e-9);
         assert!(stats.load_seconds.is_empty());
     }

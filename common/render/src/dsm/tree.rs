@@ -395,3 +395,39 @@ impl Hold<'_> {
         }
     }
 }
+
+/// Fills `cache` from the prepared files before the first frame, as a replicated node loads
+/// its copy before it: every block this node does not hold (as `residency` and `layout`'s top
+/// blocks say), lowest first, into the lines still vacant, so the top of the tree and the
+/// nodes above the leaves win a line over the blocks that map to it after them. Without it a
+/// shared node's first frames fetch their whole working set on demand (with a whole-scene
+/// cache, the dragon's first 15 frames ran at 0.64 of replicated against 0.71 over 60).
+/// Returns the blocks read.
+///
+/// # Errors
+/// A block that cannot be read, or does not match its checksum.
+pub fn warm_cache(
+    (layout, residency): (&BlockLayout, &Residency),
+    cache: &BlockCache<Block>,
+    pool: &Arc<super::pool::BlockPool>,
+    file: &mut super::prepare::BlockFile,
+) -> Result<u64, super::PrepareError> {
+    let lines = cache.lines();
+    let mut read = 0;
+    for k in layout.top_blocks..layout.total() {
+        if read as usize >= lines {
+            break;
+        }
+        if residency.resident_slot(k).is_some() {
+            continue;
+        }
+        let line = residency.cache_line(k, lines);
+        if cache.is_vacant(line) {
+            let mut block = pool.take();
+            file.read_into(k, block.chunks_mut())?;
+            cache.insert(k, line, Arc::new(block));
+            read += 1;
+        }
+    }
+    Ok(read)
+}
