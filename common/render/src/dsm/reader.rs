@@ -129,12 +129,12 @@ struct Parking {
 }
 
 impl Parking {
-    /// Pins `held` (block `k`, leaving a reader's table) if it is another node's.
+    /// Pins `held` (block `k`, leaving a reader's table) if it is another node's. A block may
+    /// be pinned twice in a trace: the pins are made unique when the trace ends, rather than
+    /// searched at every block that leaves the table.
     fn keep(&mut self, k: BlockId, held: Hold<'_>) {
         if let Hold::Cached(block) = held {
-            if self.pins.iter().all(|(p, _)| *p != k) {
-                self.pins.push((k, block));
-            }
+            self.pins.push((k, block));
         }
     }
 
@@ -225,7 +225,12 @@ impl<'s> DsmReader<'s> {
     /// again, stand-ins included.
     pub fn take_missed(&mut self) -> (Vec<(BlockId, Landing)>, Pins) {
         let missed = std::mem::take(&mut self.parking.missed);
-        (missed, std::mem::take(&mut self.parking.pins))
+        let mut pins = std::mem::take(&mut self.parking.pins);
+        if !missed.is_empty() {
+            pins.sort_unstable_by_key(|(k, _)| *k);
+            pins.dedup_by_key(|(k, _)| *k);
+        }
+        (missed, pins)
     }
 
     /// Blocks this trace missed so far: after one, what it traces starts from void results.
