@@ -130,6 +130,12 @@ struct Loop {
     arrivals: mpsc::UnboundedSender<Arrival>,
     round_trip_us: f64,
     next_ping: u32,
+    /// Blocks asked for ahead that wait for room in flight: the last list asked for, sent as
+    /// earlier ones land, so that a list longer than the room (a series' next step) is
+    /// fetched whole, in batches, while frames render.
+    ahead: std::collections::VecDeque<BlockId>,
+    /// Most blocks in flight that prefetches may add to.
+    prefetch_in_flight: usize,
 }
 
 async fn run(
@@ -163,6 +169,8 @@ async fn run(
         arrivals,
         round_trip_us: f64::INFINITY,
         next_ping: 0,
+        ahead: std::collections::VecDeque::new(),
+        prefetch_in_flight,
     };
     l.set_holders(first);
     let mut ping = tokio::time::interval(PING_EVERY);
@@ -184,14 +192,15 @@ async fn run(
                 l.fetcher.flush(now);
             }
             Some(blocks) = prefetch.recv() => {
-                let now = Instant::now();
-                let room = prefetch_in_flight.saturating_sub(l.fetcher.in_flight());
-                for k in blocks.into_iter().take(room) {
-                    l.fetcher.handle_prefetch(k, now);
-                }
-                l.fetcher.flush(now);
+                // The newest wishes replace the older ones still waiting.
+                l.ahead = blocks.into();
+                l.send_ahead(0);
             }
-            Some(a) = arrived.recv() => l.arrival(a),
+            Some(a) = arrived.recv() => {
+                l.arrival(a);
+                // In batches: once half the room is free, not a request per landing.
+                l.send_ahead(l.prefetch_in_flight / 2);
+            }
             Some(list) = holders.recv() => l.set_holders(list),
             Some(reply) = stats.recv() => {
                 let _ = reply.send(DriverStats {
@@ -212,6 +221,32 @@ async fn run(
 }
 
 impl Loop {
+    /// Asks for waiting prefetches, when at most `below` blocks are in flight, up to the
+    /// room prefetches have, skipping those that have come meanwhile.
+    fn send_ahead(&mut self, below: usize) {
+        if self.ahead.is_empty() || self.fetcher.in_flight() > below {
+            return;
+        }
+        let now = Instant::now();
+        let lines = self.cache.lines();
+        let mut room = self
+            .prefetch_in_flight
+            .saturating_sub(self.fetcher.in_flight());
+        while room > 0 {
+            let Some(k) = self.ahead.pop_front() else {
+                break;
+            };
+            let residency = self.fetcher.residency();
+            let here = residency.resident_slot(k).is_some()
+                || (lines > 0 && self.cache.holds(k, residency.cache_line(k, lines)));
+            if !here {
+                self.fetcher.handle_prefetch(k, now);
+                room -= 1;
+            }
+        }
+        self.fetcher.flush(now);
+    }
+
     fn arrival(&mut self, a: Arrival) {
         match a {
             Arrival::Block(k, from, block) => {
