@@ -439,6 +439,20 @@ async fn warm(
     Ok(file)
 }
 
+/// The scene's series, if it is one, and the bytes a node holds of its volume besides the
+/// bricks (counted as its own, as blocks are).
+fn series_of(manifest: &Manifest, volume: &[SharedVolume]) -> (Option<Arc<SharedSeries>>, u64) {
+    let first_brick = manifest.layout.first_brick_block();
+    let series = (manifest.series_steps > 0 && !volume.is_empty())
+        .then(|| Arc::new(SharedSeries::new(volume.to_vec(), first_brick)));
+    let held = match (&series, volume.first()) {
+        (Some(series), _) => series.held_besides_bricks(),
+        (None, Some(v)) => v.held_besides_bricks(),
+        (None, None) => 0,
+    };
+    (series, held)
+}
+
 /// Loads this node's share of the scene `spec` describes (as rank `rank`), sizes its cache
 /// and starts fetching: the scene to render, and the handle that keeps it fed.
 pub async fn start(
@@ -463,18 +477,7 @@ pub async fn start(
     let residency = Residency::new(layout.total(), spec.ranks.max(1), rank, spec.replicas)?;
     let (share, (file, fallback), volume) = read_prepared(&dir, &manifest, &residency).await?;
     let blocks_held = ((share.0.len() + share.1.len()) * 64) as u64;
-    let series = (manifest.series_steps > 0 && !volume.is_empty()).then(|| {
-        Arc::new(SharedSeries::new(
-            volume.clone(),
-            layout.first_brick_block(),
-        ))
-    });
-    // What a node holds of a volume besides its bricks counts as its own, as blocks do.
-    let volume_held = match (&series, volume.first()) {
-        (Some(series), _) => series.held_besides_bricks(),
-        (None, Some(v)) => v.held_besides_bricks(),
-        (None, None) => 0,
-    };
+    let (series, volume_held) = series_of(&manifest, &volume);
     let resident = blocks_held + volume_held;
     let budget = options.memory_budget.or(spec.memory_budget);
     let spare = spare_blocks(options.threads, &layout);

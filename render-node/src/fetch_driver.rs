@@ -169,7 +169,7 @@ async fn run(
         arrivals,
         round_trip_us: f64::INFINITY,
         next_ping: 0,
-        ahead: std::collections::VecDeque::new(),
+        ahead: Default::default(),
         prefetch_in_flight,
     };
     l.set_holders(first);
@@ -183,13 +183,7 @@ async fn run(
         tokio::select! {
             k = misses.recv() => {
                 let Some(k) = k else { break };
-                let now = Instant::now();
-                l.fetcher.handle_miss(k, now);
-                // Everything missed meanwhile goes in the same requests.
-                while let Ok(k) = misses.try_recv() {
-                    l.fetcher.handle_miss(k, now);
-                }
-                l.fetcher.flush(now);
+                l.missed(k, &mut misses);
             }
             Some(blocks) = prefetch.recv() => {
                 // The newest wishes replace the older ones still waiting.
@@ -203,10 +197,7 @@ async fn run(
             }
             Some(list) = holders.recv() => l.set_holders(list),
             Some(reply) = stats.recv() => {
-                let _ = reply.send(DriverStats {
-                    fetch: l.fetcher.stats(),
-                    round_trip_us: if l.round_trip_us.is_finite() { l.round_trip_us } else { 0.0 },
-                });
+                let _ = reply.send(l.stats());
             }
             _ = tokio::time::sleep_until(timer_at), if timer.is_some() => {
                 l.fetcher.handle_timeout(Instant::now());
@@ -221,6 +212,27 @@ async fn run(
 }
 
 impl Loop {
+    /// Block `k` was missed: it and everything missed meanwhile go in the same requests.
+    fn missed(&mut self, k: BlockId, misses: &mut mpsc::UnboundedReceiver<BlockId>) {
+        let now = Instant::now();
+        self.fetcher.handle_miss(k, now);
+        while let Ok(k) = misses.try_recv() {
+            self.fetcher.handle_miss(k, now);
+        }
+        self.fetcher.flush(now);
+    }
+
+    fn stats(&self) -> DriverStats {
+        DriverStats {
+            fetch: self.fetcher.stats(),
+            round_trip_us: if self.round_trip_us.is_finite() {
+                self.round_trip_us
+            } else {
+                0.0
+            },
+        }
+    }
+
     /// Asks for waiting prefetches, when at most `below` blocks are in flight, up to the
     /// room prefetches have, skipping those that have come meanwhile.
     fn send_ahead(&mut self, below: usize) {

@@ -37,6 +37,16 @@ fn dsm_wall(dir: &Path, scene: &str, render_nodes: u32, rest: &[&str]) -> Proc {
     Proc::start("tessera-master", &args)
 }
 
+/// Three frames, the third saved, each render node caching a quarter of the scene.
+const SAVED_AT_A_QUARTER_CACHE: [&str; 6] = [
+    "--frames",
+    "3",
+    "--save-frame",
+    "2",
+    "--cache-fraction",
+    "0.25",
+];
+
 /// The wall saved in `dir/out` equals `tessera-master render` of frame `frame` of `scene` seen
 /// with `looks`, pixel for pixel.
 fn assert_wall_is_the_reference(
@@ -147,14 +157,7 @@ fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_an
         ("iso", vec!["--iso", "120", "--ao", "4"]),
     ] {
         let run_dir = dir.path().join(name);
-        let mut rest = vec![
-            "--frames",
-            "3",
-            "--save-frame",
-            "2",
-            "--cache-fraction",
-            "0.25",
-        ];
+        let mut rest = SAVED_AT_A_QUARTER_CACHE.to_vec();
         rest.extend(&looks);
         rest.extend(view);
         let o = dsm_wall(&run_dir, &volume, 3, &rest).wait(Duration::from_secs(180));
@@ -217,16 +220,8 @@ fn a_shared_mixed_scene_renders_the_reference_pixels_within_the_budget() {
     ];
     let budget_mib = 64;
     let budget = format!("{budget_mib}MiB");
-    let mut rest = vec![
-        "--frames",
-        "3",
-        "--save-frame",
-        "2",
-        "--cache-fraction",
-        "0.25",
-        "--memory-budget",
-        &budget,
-    ];
+    let mut rest = SAVED_AT_A_QUARTER_CACHE.to_vec();
+    rest.extend(["--memory-budget", &budget]);
     rest.extend(looks);
     let o = dsm_wall(dir.path(), &scene, 3, &rest).wait(Duration::from_secs(180));
     o.assert_success("the shared mixed scene");

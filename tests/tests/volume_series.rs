@@ -43,22 +43,20 @@ fn write_series_of(dir: &Path, n: usize) -> std::path::PathBuf {
     scene
 }
 
+/// One screen of `screen` pixels showing `scene`'s iso-surface at 100.
+fn wall_of<'a>(scene: &'a str, screen: &'a str) -> [&'a str; 8] {
+    [
+        "--wall", "1x1", "--screen", screen, "--scene", scene, "--iso", "100",
+    ]
+}
+
 #[test]
 fn a_played_series_changes_at_the_barrier_and_is_read_ahead() {
     let dir = tempfile::tempdir().unwrap();
     let scene = write_series(dir.path());
     let out = dir.path().join("out");
     let record = dir.path().join("session.jsonl");
-    let wall = [
-        "--wall",
-        "1x1",
-        "--screen",
-        "96x64",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--iso",
-        "100",
-    ];
+    let wall = wall_of(scene.to_str().unwrap(), "96x64");
     let mut args = vec!["local"];
     args.extend(wall);
     args.extend([
@@ -117,16 +115,7 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
     let scene = write_series_of(dir.path(), 40);
     let (out, record) = (dir.path().join("out"), dir.path().join("session.jsonl"));
     let prepared = dir.path().join("prepared");
-    let wall = [
-        "--wall",
-        "1x1",
-        "--screen",
-        "256x128",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--iso",
-        "100",
-    ];
+    let wall = wall_of(scene.to_str().unwrap(), "256x128");
     let mut args = vec!["local"];
     args.extend(wall);
     args.extend([

@@ -166,6 +166,22 @@ impl BlockFetch for LateBlocks {
     }
 }
 
+/// Rank 1 of 3 with a cache of `lines` lines, whose blocks come late and out of order (those
+/// from `first` on counted as they are asked for).
+fn shared_late(
+    prepared: (&Manifest, Vec<SharedVolume>),
+    blocks: &[Arc<Block>],
+    (first, lines): (BlockId, usize),
+) -> (PreparedScene, Arc<LateBlocks>) {
+    let late = Arc::new(LateBlocks {
+        blocks: blocks.to_vec(),
+        first_counted: first,
+        ..LateBlocks::default()
+    });
+    let dsm = shared_from(prepared, &late.blocks, (1, 3), lines, late.clone());
+    (dsm, late)
+}
+
 #[test]
 fn parked_packets_finish_with_the_replicated_pixels_when_blocks_come_late_out_of_order() {
     let scene = gallery_scene();
@@ -376,13 +392,9 @@ fn a_shared_volume_gives_the_replicated_pixels_with_blocks_late_and_out_of_order
         let blocks: Vec<_> = blocks.map(|b| Arc::new(b.unwrap())).collect();
         for lines in [0, 4, 64] {
             let case = format!("mesh {mesh}, iso {iso}, cut {cut}, {lines} lines");
-            let late = Arc::new(LateBlocks {
-                blocks: blocks.clone(),
-                first_counted: manifest.layout.first_brick_block(),
-                ..LateBlocks::default()
-            });
+            let first = manifest.layout.first_brick_block();
             let prepared = (&manifest, volume.clone());
-            let dsm = shared_from(prepared, &late.blocks, (1, 3), lines, late.clone());
+            let (dsm, late) = shared_late(prepared, &blocks, (first, lines));
             let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
             assert_eq!(rays, want_rays, "{case}");
             assert!(got == want, "{case}: not the replicated pixels");
@@ -468,13 +480,9 @@ fn shared_particles_give_the_replicated_pixels_alone_and_mixed_with_blocks_late(
         let blocks: Vec<_> = blocks.map(|b| Arc::new(b.unwrap())).collect();
         for lines in [0, 4, 64] {
             let case = format!("mixed {mixed}, crop {crop:?}, {lines} lines");
-            let late = Arc::new(LateBlocks {
-                blocks: blocks.clone(),
-                first_counted: layout.first_sphere_node_block(),
-                ..LateBlocks::default()
-            });
+            let first = layout.first_sphere_node_block();
             let prepared = (&manifest, volume.clone());
-            let dsm = shared_from(prepared, &late.blocks, (1, 3), lines, late.clone());
+            let (dsm, late) = shared_late(prepared, &blocks, (first, lines));
             let (got, rays) = render_tiles(&dsm, &view, grid.tiles());
             assert_eq!(rays, want_rays, "{case}");
             assert!(got == want, "{case}: not the replicated pixels");
