@@ -43,6 +43,21 @@ fn write_series_of(dir: &Path, n: usize) -> std::path::PathBuf {
     scene
 }
 
+/// 12 frames of `--play`, frame 7 saved, the session recorded to `record`, the report in `out`.
+fn played<'a>(record: &'a Path, out: &'a Path) -> [&'a str; 9] {
+    [
+        "--frames",
+        "12",
+        "--play",
+        "--save-frame",
+        "7",
+        "--record",
+        record.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]
+}
+
 /// One screen of `screen` pixels showing `scene`'s iso-surface at 100.
 fn wall_of<'a>(scene: &'a str, screen: &'a str) -> [&'a str; 8] {
     [
@@ -65,16 +80,8 @@ fn a_played_series_changes_at_the_barrier_and_is_read_ahead() {
         // A step is 16 KiB: 1 MiB holds the whole series ahead (the flag reaches the node).
         "--volume-cache-mb",
         "1",
-        "--frames",
-        "12",
-        "--play",
-        "--save-frame",
-        "7",
-        "--record",
-        record.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
     ]);
+    args.extend(played(&record, &out));
     let o = run("tessera-master", &args, Duration::from_secs(120));
     o.assert_success("local --play");
     let report = read_json(&out.join("report.json"));
@@ -130,16 +137,8 @@ fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
         // 6 lines: a step's bricks of the other node (4) fit, the whole series (12) does not.
         "--cache-fraction",
         "0.25",
-        "--frames",
-        "12",
-        "--play",
-        "--save-frame",
-        "7",
-        "--record",
-        record.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
     ]);
+    args.extend(played(&record, &out));
     let o = run("tessera-master", &args, Duration::from_secs(180));
     o.assert_success("local --play --data dsm");
     let manifest = read_json(&prepared.join("manifest.json"));

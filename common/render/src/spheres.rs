@@ -113,9 +113,14 @@ impl SphereAccel {
         self.count == 0
     }
 
-    /// The tree's nodes (for writing them as blocks).
+    /// The tree's nodes.
     pub fn nodes(&self) -> &[BvhNode] {
         &self.nodes
+    }
+
+    /// The tree's nodes and the particles in leaf order (for writing them as blocks).
+    pub fn into_parts(self) -> (Vec<BvhNode>, Vec<Particle>) {
+        (self.nodes, self.spheres)
     }
 
     /// The nearest sphere hit in `(t_min, t_max)` among spheres whose attribute is in `crop`:

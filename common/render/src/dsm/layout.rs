@@ -48,6 +48,13 @@ impl Block {
         }
     }
 
+    /// A block of `block_bytes` starting with `bytes`, the rest zero.
+    pub fn filled(block_bytes: u32, bytes: &[u8]) -> Block {
+        let mut block = Block::zeroed(block_bytes);
+        block.bytes_mut()[..bytes.len()].copy_from_slice(bytes);
+        block
+    }
+
     /// A block over a pool's slot (see [`super::pool::BlockPool::take`]).
     pub(super) fn pooled(
         chunks: Box<[Chunk]>,
@@ -86,6 +93,22 @@ impl Drop for Block {
             pool.give_back(std::mem::take(&mut self.chunks));
         }
     }
+}
+
+/// `items` in blocks of `block_bytes`, `per` of them a block (the last block's rest zero): how
+/// every region of items (tree nodes, triangles, particles) becomes blocks.
+pub fn item_blocks<T: bytemuck::Pod, S: AsRef<[T]>>(
+    items: S,
+    per: u32,
+    block_bytes: u32,
+) -> impl Iterator<Item = Block> {
+    let per = per as usize;
+    let blocks = items.as_ref().len().div_ceil(per);
+    (0..blocks).map(move |b| {
+        let items = items.as_ref();
+        let region = &items[b * per..((b + 1) * per).min(items.len())];
+        Block::filled(block_bytes, bytemuck::cast_slice(region))
+    })
 }
 
 /// A block size that cannot be used.

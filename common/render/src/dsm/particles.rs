@@ -2,7 +2,7 @@
 //! tree's leaf order, each a region of blocks after the volume's bricks; the manifest keeps the
 //! range of their attribute, which every node colours them by.
 
-use super::layout::{Block, BlockLayout};
+use super::layout::{item_blocks, Block, BlockLayout};
 use crate::spheres::SphereAccel;
 use serde::{Deserialize, Serialize};
 
@@ -38,26 +38,11 @@ impl ParticleEntry {
 
 /// The blocks of `spheres` laid out as `layout`: the tree's nodes, then the particles.
 pub fn sphere_blocks(spheres: SphereAccel, layout: BlockLayout) -> impl Iterator<Item = Block> {
+    let (nodes, particles) = spheres.into_parts();
     let bytes = layout.block_bytes;
-    let region = |per: u32, blocks: u32| (0..blocks as usize).map(move |b| (per as usize, b));
-    let nodes = region(layout.sphere_nodes_per_block(), layout.sphere_node_blocks);
-    let particles = region(layout.spheres_per_block(), layout.sphere_blocks);
-    let node_count = nodes.len();
-    nodes
-        .chain(particles)
-        .enumerate()
-        .map(move |(i, (per, b))| {
-            let items: &[u8] = if i < node_count {
-                bytemuck::cast_slice(
-                    &spheres.nodes()[b * per..((b + 1) * per).min(spheres.nodes().len())],
-                )
-            } else {
-                bytemuck::cast_slice(
-                    &spheres.spheres[b * per..((b + 1) * per).min(spheres.spheres.len())],
-                )
-            };
-            let mut block = Block::zeroed(bytes);
-            block.bytes_mut()[..items.len()].copy_from_slice(items);
-            block
-        })
+    item_blocks(nodes, layout.sphere_nodes_per_block(), bytes).chain(item_blocks(
+        particles,
+        layout.spheres_per_block(),
+        bytes,
+    ))
 }

@@ -8,14 +8,14 @@
 //! finished. It is reused while the manifest names the same
 //! scene content hash, format and block size.
 
-use super::layout::{Block, BlockLayout, Chunk, LayoutError};
+use super::layout::{item_blocks, Block, BlockLayout, Chunk, LayoutError};
 use super::particles::{sphere_blocks, ParticleEntry};
 use super::reorder::reorder_for_blocks;
 use super::volume::{
     brick_blocks, encode, largest_brick_bytes, series_blocks, series_steps, volume_path,
     VolumeEntry,
 };
-use crate::bvh::node::{LeafTriangle, WideNode};
+use crate::bvh::node::LeafTriangle;
 use crate::bvh::Accel;
 use crate::scene::{Light, Material, Scene};
 use crate::slot_materials::SlotMaterials;
@@ -161,8 +161,7 @@ pub fn blocks_of<'a>(
     accel: &'a Accel,
     block_bytes: u32,
 ) -> Result<(Manifest, Vec<SharedVolume>, Blocks<'a>), PrepareError> {
-    let (steps, volume_blocks) = volume_blocks(scene, block_bytes)?;
-    let bricks = steps.1;
+    let ((steps, bricks, largest), volume_blocks) = volume_blocks(scene, block_bytes)?;
     let spheres = SphereAccel::build(&scene.particles);
     let (sphere_nodes, sphere_count) = spheres
         .as_ref()
@@ -173,33 +172,13 @@ pub fn blocks_of<'a>(
         accel.triangles.len() as u32,
         TOP_BLOCKS,
     )?
-    .with_bricks(bricks, steps.2)?
+    .with_bricks(bricks, largest)?
     .with_spheres(sphere_nodes, sphere_count)?;
-    let steps = steps.0;
     let wide = reorder_for_blocks(&accel.wide, layout.nodes_per_block() as usize);
-    let mut manifest = manifest_of(scene, accel, layout, &steps);
-    manifest.series_steps = if scene.series.is_empty() {
-        0
-    } else {
-        steps.len() as u32
-    };
-    let per_node = layout.nodes_per_block() as usize;
-    let per_tri = layout.triangles_per_block() as usize;
-    let node_blocks = (0..layout.node_blocks as usize).map(move |b| {
-        let end = ((b + 1) * per_node).min(wide.len());
-        block_from(
-            block_bytes,
-            bytemuck::cast_slice::<WideNode, u8>(&wide[b * per_node..end]),
-        )
-    });
+    let manifest = manifest_of(scene, accel, layout, &steps);
+    let node_blocks = item_blocks(wide, layout.nodes_per_block(), block_bytes);
     let triangles: &[LeafTriangle] = &accel.triangles;
-    let tri_blocks = (0..layout.triangle_blocks as usize).map(move |b| {
-        let end = ((b + 1) * per_tri).min(triangles.len());
-        block_from(
-            block_bytes,
-            bytemuck::cast_slice(&triangles[b * per_tri..end]),
-        )
-    });
+    let tri_blocks = item_blocks(triangles, layout.triangles_per_block(), block_bytes);
     let particles = spheres
         .into_iter()
         .flat_map(move |s| sphere_blocks(s, layout));
@@ -261,16 +240,14 @@ fn manifest_of(
         slot_materials: SlotMaterials::runs_of(&per_slot),
         blends: scene.has_transparency(),
         volume: (!steps.is_empty()).then(|| encode(steps).1),
-        series_steps: 0,
+        series_steps: if scene.series.is_empty() {
+            0
+        } else {
+            steps.len() as u32
+        },
         particles: (!scene.particles.is_empty())
             .then(|| ParticleEntry::of_range(scene.attribute_range())),
     }
-}
-
-fn block_from(block_bytes: u32, bytes: &[u8]) -> Block {
-    let mut block = Block::zeroed(block_bytes);
-    block.bytes_mut()[..bytes.len()].copy_from_slice(bytes);
-    block
 }
 
 /// The files of a prepared scene in `dir`.

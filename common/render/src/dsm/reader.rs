@@ -61,6 +61,15 @@ impl<const N: usize> Holds<'_, N> {
         N - 1
     };
 
+    /// Entry `i`'s block, unless it is a stand-in or nothing.
+    #[inline(always)]
+    fn chunks_at(&self, i: usize) -> Option<&[Chunk]> {
+        match &self.held[i] {
+            Hold::Absent(_) | Hold::Nothing => None,
+            held => Some(held.chunks()),
+        }
+    }
+
     fn new() -> Self {
         Holds {
             ids: [u64::MAX; N],
@@ -377,10 +386,7 @@ impl<'s> DsmReader<'s> {
         (tally, parking): (&mut Tally, &mut Parking),
     ) -> Option<&'h [Chunk]> {
         Self::base_of(tree, holds, k, (tally, parking));
-        match &holds.held[k as usize & Holds::<N>::MASK] {
-            Hold::Absent(_) | Hold::Nothing => None,
-            held => Some(held.chunks()),
-        }
+        holds.chunks_at(k as usize & Holds::<N>::MASK)
     }
 }
 
@@ -412,10 +418,7 @@ impl BrickSource for DsmReader<'_> {
             (i, k),
             (&mut self.tally, &mut self.parking),
         );
-        match &self.bricks.held[i] {
-            Hold::Absent(_) | Hold::Nothing => None,
-            held => Some(bytemuck::cast_slice(held.chunks())),
-        }
+        self.bricks.chunks_at(i).map(bytemuck::cast_slice)
     }
 }
 

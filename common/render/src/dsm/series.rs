@@ -49,12 +49,7 @@ impl SharedSeries {
             .map(|s| first_brick_block + s.first_brick)
             .collect();
         let last = steps.last().expect("one step at least");
-        let cells = last.placement.cells();
-        let bricks: usize = cells
-            .iter()
-            .map(|c| c.div_ceil(crate::volume::BRICK_CELLS))
-            .product();
-        firsts.push(firsts[steps.len() - 1] + bricks as BlockId);
+        firsts.push(firsts[steps.len() - 1] + last.brick_count() as BlockId);
         SharedSeries {
             steps,
             firsts,
@@ -158,7 +153,7 @@ mod tests {
     fn steps(n: u32, field: fn(glam::Vec3) -> f32) -> Vec<SharedVolume> {
         let volume = crate::volume::render_tests::field(40, field);
         let one = PreparedVolume::new(&volume, &Default::default()).to_shared();
-        let bricks = crate::volume::Bricks::shared(one.placement.dims(), 0).count() as u32;
+        let bricks = one.brick_count() as u32;
         (0..n)
             .map(|s| SharedVolume {
                 first_brick: s * bricks,

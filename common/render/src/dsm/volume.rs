@@ -49,10 +49,7 @@ pub fn brick_blocks(volume: PreparedVolume, block_bytes: u32) -> impl Iterator<I
     (0..volume.bricks().count()).map(move |i| {
         let bricks = volume.bricks();
         let samples = &bricks.local_samples(i)[..bricks.brick_len(i)];
-        let mut block = Block::zeroed(block_bytes);
-        block.bytes_mut()[..std::mem::size_of_val(samples)]
-            .copy_from_slice(bytemuck::cast_slice(samples));
-        block
+        Block::filled(block_bytes, bytemuck::cast_slice(samples))
     })
 }
 

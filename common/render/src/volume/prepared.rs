@@ -148,10 +148,14 @@ impl SharedVolume {
     /// (one bit a cell, made as rays reach the brick). A 2 GiB volume's came to 74 MiB, which
     /// out of core took its render nodes 10-20 MiB past their budgets until it was counted.
     pub fn held_besides_bricks(&self) -> u64 {
-        let cells = self.placement.cells();
-        let bricks: usize = cells.iter().map(|c| c.div_ceil(BRICK_CELLS)).product();
         let per_brick = (super::bricks::CELL_WORDS * 8 + 16) as u64;
-        self.summary_bytes() + bricks as u64 * per_brick
+        self.summary_bytes() + self.brick_count() as u64 * per_brick
+    }
+
+    /// How many bricks the volume is cut into.
+    pub fn brick_count(&self) -> usize {
+        let cells = self.placement.cells();
+        cells.iter().map(|c| c.div_ceil(BRICK_CELLS)).product()
     }
 
     /// Bytes of the min/max grid and the per-frame leap table (9 and 1 bytes a macro-cell):
