@@ -18,6 +18,7 @@ mod node;
 pub mod overlay;
 mod pixels_in;
 mod present;
+pub mod still;
 pub mod window;
 
 use anyhow::{bail, Result};

@@ -187,6 +187,7 @@ async fn session(
         me,
         window,
         out: cli.out.clone(),
+        last_shown: None,
     };
     driver.drive(&mut link, tiles, window_io).await?;
     let stats = DisplayStats {
@@ -220,6 +221,8 @@ struct Driver {
     window: Option<WindowSender>,
     /// Where frames are saved.
     out: Option<PathBuf>,
+    /// The frame shown now: what a still wall's snapshot, overlay and thumbnail are of.
+    last_shown: Option<(FrameId, RgbImage)>,
 }
 
 impl Driver {
@@ -290,6 +293,21 @@ impl Driver {
                     link.send(&FromNode::Pong { seq, clock_ns }).await?;
                 }
                 DisplayEvent::Shutdown => return Ok(true),
+                DisplayEvent::SaveShown { frame, name } => {
+                    let ok = match &self.last_shown {
+                        Some((_, image)) => self.save(image.clone(), vec![name]).await,
+                        None => false,
+                    };
+                    link.send(&FromNode::Saved { frame, ok }).await?;
+                }
+                DisplayEvent::Thumbnail { factor } => {
+                    let thumbnail = match &self.last_shown {
+                        Some((frame, image)) => crate::still::thumbnail(*frame, image, factor),
+                        None => Default::default(),
+                    };
+                    link.send(&FromNode::Thumbnail(thumbnail)).await?;
+                }
+                DisplayEvent::Redraw => self.redraw(),
             }
         }
         Ok(false)
@@ -310,7 +328,15 @@ impl Driver {
             tokio::task::block_in_place(|| wait_until(at));
         }
         let overlay = self.session.handle_shown(&order, Instant::now());
-        let (shown, names) = (order.shown, order.save_as);
+        let (shown, names, snapshot) = (order.shown, order.save_as, order.snapshot);
+        self.last_shown = Some((
+            shown.frame,
+            RgbImage {
+                width: shown.width,
+                height: shown.height,
+                rgb: shown.rgb.clone(),
+            },
+        ));
         if let Some(w) = &self.window {
             // Reported once the window has really presented it.
             w.send(WindowCommand::Show(WindowFrame {
@@ -325,11 +351,54 @@ impl Driver {
             let frame = shown.frame;
             link.send(&FromNode::Presented { frame, clock_ns }).await?;
         }
-        if let (Some(image), Some(dir)) = (saved, &self.out) {
-            let paths: Vec<_> = names.iter().map(|n| dir.join(n)).collect();
-            tokio::task::spawn_blocking(move || paths.iter().try_for_each(|p| image.save_png(p)))
-                .await??;
+        if let Some(image) = saved {
+            let frame = shown.frame;
+            let ok = self.save(image, names).await;
+            if snapshot {
+                link.send(&FromNode::Saved { frame, ok }).await?;
+            }
         }
         Ok(())
+    }
+
+    /// Saves `image` under each of `names` in the `--out` folder; whether every file was
+    /// written (a failure is logged: the wall goes on).
+    async fn save(&self, image: RgbImage, names: Vec<String>) -> bool {
+        let Some(dir) = &self.out else {
+            tracing::warn!(
+                "display {}: asked to save {names:?}, but it was started without --out",
+                self.me.0
+            );
+            return false;
+        };
+        let paths: Vec<_> = names.iter().map(|n| dir.join(n)).collect();
+        let written =
+            tokio::task::spawn_blocking(move || paths.iter().try_for_each(|p| image.save_png(p)))
+                .await;
+        match written {
+            Ok(Ok(())) => true,
+            Ok(Err(e)) => {
+                tracing::error!("display {}: cannot save {names:?}: {e}", self.me.0);
+                false
+            }
+            Err(e) => {
+                tracing::error!("display {}: saving {names:?} failed: {e}", self.me.0);
+                false
+            }
+        }
+    }
+
+    /// Shows the frame shown now again, with the overlay as it is now.
+    fn redraw(&self) {
+        let (Some(w), Some((frame, image))) = (&self.window, &self.last_shown) else {
+            return;
+        };
+        w.send(WindowCommand::Show(WindowFrame {
+            frame: frame.0,
+            width: image.width,
+            height: image.height,
+            rgb: image.rgb.clone(),
+            overlay: self.session.overlay_now(Instant::now()),
+        }));
     }
 }

@@ -163,6 +163,14 @@ pub struct LocalArgs {
     /// 3600).
     #[arg(long, default_value_t = 0.0, value_parser = tessera_display_node::parse_linger)]
     pub linger: f64,
+    /// Serve the operator's console (a web page and a REST/JSON API) on this address; its
+    /// URL, with a token, is printed at start. Port 0 picks a free one. Anything but
+    /// loopback lets other hosts in (the token still guards it).
+    #[arg(long, default_value = "127.0.0.1:0", value_name = "ADDR")]
+    pub console: SocketAddr,
+    /// Serve no console.
+    #[arg(long)]
+    pub no_console: bool,
 }
 
 #[derive(clap::Args)]
@@ -343,8 +351,23 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     } else {
         (glam::Vec3::ZERO, 1.0)
     };
+    let volume = scene.volume.as_ref();
+    let operator = tessera_core::master::OperatorConfig {
+        series_steps: (!scene.series.is_empty()).then_some(scene.series.len() as u32),
+        play: run.play,
+        volume_range: volume.map(|v| {
+            let (lo, hi) = v.range();
+            [lo, hi]
+        }),
+        particle_range: (!scene.particles.is_empty()).then(|| {
+            let (lo, hi) = scene.attribute_range();
+            [lo, hi]
+        }),
+        picture_width: crate::console::PICTURE_WIDTH,
+    };
+    let histogram = volume.and_then(|v| crate::console::Histogram::of(v.values(), 256));
     let master = MasterConfig {
-        play_steps: run.play.then_some(scene.series.len() as u32),
+        operator,
         probe: crate::probe::Prober::of_scene(&scene)
             .map(|p| p as std::sync::Arc<dyn tessera_core::master::VolumeProbe>),
         wall,
@@ -374,6 +397,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
             .context("--present-margin-ms must be between 0 and 1000")?,
     };
     Ok(RunConfig {
+        histogram,
         master,
         show_progress,
         record: run.record.clone(),

@@ -17,17 +17,19 @@ use tessera_model::state::{StateChange, WallState};
 use tessera_model::volume_params::{IsoValues, VolumeParams};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::MasterLink;
-use tessera_protocol::control::{ControlReply, ControlRequest, ViewName};
+use tessera_protocol::control::{ControlReply, ControlRequest, Playback, ViewName};
 use tessera_protocol::{FromNode, Role, ToNode};
 
 #[derive(clap::Args, Debug)]
 pub struct ControlArgs {
-    /// The master's address, HOST:PORT (`local` prints it when it starts).
-    #[arg(long)]
-    connect: String,
+    /// The master's address, HOST:PORT. Without it (and --cert-dir), the local wall running
+    /// on this machine is found from the file `local` writes in the state folder
+    /// ($TESSERA_STATE_DIR, $XDG_STATE_HOME/tessera or ~/.local/state/tessera).
+    #[arg(long, requires = "cert_dir")]
+    connect: Option<String>,
     /// A control certificate's directory (`tessera-master issue-cert --role control`).
-    #[arg(long)]
-    cert_dir: PathBuf,
+    #[arg(long, requires = "connect")]
+    cert_dir: Option<PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -52,6 +54,8 @@ pub enum Command {
         #[arg(long, conflicts_with_all = ["eye", "target"])]
         orbit: bool,
     },
+    /// Frame the whole scene: a fixed camera looking at its middle from where it looks now.
+    Fit,
     /// Set quality knobs; those not given stay as they are.
     Quality {
         /// Shadow rays: on or off.
@@ -110,11 +114,26 @@ pub enum Command {
         /// A transfer-function preset (ramp, ct-bone, ct-skin) or TOML file.
         #[arg(long)]
         transfer: Option<String>,
-        /// Which step of a time series to show.
+        /// Which step of a time series to show (from 0).
         #[arg(long)]
         time_step: Option<u32>,
     },
-    /// Print the wall's state (now and after the next barrier) as JSON.
+    /// Play the time series (at --speed steps per second; by default a step each frame).
+    Play {
+        /// Steps per second, 0.1 to 60.
+        #[arg(long)]
+        speed: Option<f32>,
+    },
+    /// Pause the time series.
+    Pause,
+    /// Move the time series BY steps (default 1; negative goes back) and pause.
+    Step {
+        /// Steps to move by.
+        #[arg(default_value_t = 1, allow_hyphen_values = true)]
+        by: i32,
+    },
+    /// Print the wall's state as JSON: camera, quality, cuts, lights, views, and the volume
+    /// and particles where the scene has them (what the console's /api/status answers).
     State,
     /// Print live figures (fps, frame time, per node) as JSON.
     Figures,
@@ -136,8 +155,13 @@ pub enum Command {
         #[arg(value_parser = parse_on_off, action = clap::ArgAction::Set)]
         on: bool,
     },
-    /// Have the displays save the next frame; prints its number.
-    Snapshot,
+    /// Have the displays save the wall as it shows it now (a still wall) or its next frame,
+    /// as display-<id>-frame-<K>.png in their --out folder; prints K.
+    Snapshot {
+        /// First refine to the final quality (the camera must hold still), then save.
+        #[arg(long = "final")]
+        final_quality: bool,
+    },
     /// Print the volume's value and world position under wall pixel X Y (of the whole wall,
     /// bezels included, 0,0 at the top left) as JSON: null where the pixel shows no volume.
     Probe {
@@ -193,6 +217,9 @@ pub struct ControlClient {
     offset_ns: i64,
     /// The orbit the wall started with, for `camera --orbit`.
     home: Option<CameraMode>,
+    /// The wall, as the master's welcome said it.
+    wall: tessera_model::wall::WallLayout,
+    endpoint: quinn::Endpoint,
 }
 
 impl ControlClient {
@@ -208,7 +235,7 @@ impl ControlClient {
         }
         .parse()?;
         let endpoint = tessera_net::quic::endpoint(bind, &identity, false)?;
-        let (link, _welcome) = MasterLink::join(&endpoint, addr, Role::Control)
+        let (link, welcome) = MasterLink::join(&endpoint, addr, Role::Control)
             .await
             .context("is the wall running there? see --help")?;
         let mut client = ControlClient {
@@ -216,6 +243,8 @@ impl ControlClient {
             next_id: 0,
             offset_ns: 0,
             home: None,
+            wall: welcome.session.wall().clone(),
+            endpoint,
         };
         client.sync_clock().await?;
         if let ControlReply::State { current, .. } = client.ask(ControlRequest::State).await? {
@@ -251,6 +280,11 @@ impl ControlClient {
         let id = self.next_id;
         self.next_id = self.next_id.wrapping_add(1);
         let stamp_ns = (tessera_net::unix_ns() as i64 + self.offset_ns).max(1) as u64;
+        // A snapshot is answered once its files are written, which may take a final pass.
+        let limit = match request {
+            ControlRequest::Snapshot { .. } => Duration::from_secs(300),
+            _ => Duration::from_secs(10),
+        };
         self.link
             .send(&FromNode::Control {
                 id,
@@ -271,9 +305,9 @@ impl ControlClient {
                 }
             }
         };
-        tokio::time::timeout(Duration::from_secs(10), wait)
+        tokio::time::timeout(limit, wait)
             .await
-            .context("the master did not answer within 10 s")?
+            .with_context(|| format!("the master did not answer within {} s", limit.as_secs()))?
     }
 
     /// Turns a command into its request (reading the state where a change keeps what it does
@@ -310,13 +344,29 @@ impl ControlClient {
                 self.volume(iso, *no_iso, *step, transfer.as_deref(), *time_step)
                     .await?,
             )),
-            Command::State => ControlRequest::State,
+            Command::State => ControlRequest::Status,
             Command::Figures => ControlRequest::Figures,
             Command::SaveView { name } => ControlRequest::SaveView(ViewName::new(name)?),
             Command::View { name } => ControlRequest::GotoView(ViewName::new(name)?),
             Command::Views => ControlRequest::Views,
             Command::Overlay { on } => ControlRequest::Overlay(*on),
-            Command::Snapshot => ControlRequest::Snapshot,
+            Command::Snapshot { final_quality } => ControlRequest::Snapshot {
+                final_quality: *final_quality,
+            },
+            Command::Fit => ControlRequest::Fit,
+            Command::Play { speed } => ControlRequest::Playback(Playback {
+                playing: Some(true),
+                steps_per_second: *speed,
+                step_by: None,
+            }),
+            Command::Pause => ControlRequest::Playback(Playback {
+                playing: Some(false),
+                ..Playback::default()
+            }),
+            Command::Step { by } => ControlRequest::Playback(Playback {
+                step_by: Some(*by),
+                ..Playback::default()
+            }),
             Command::Probe { x, y } => ControlRequest::Probe { x: *x, y: *y },
             Command::Script { .. } => bail!("a script cannot run a script"),
         };
@@ -385,7 +435,11 @@ impl ControlClient {
 }
 
 /// The `quality` command's request: a change for each knob given.
-fn quality(shadows: Option<bool>, ao: Option<u32>, spp: Option<u32>) -> Result<ControlRequest> {
+pub(crate) fn quality(
+    shadows: Option<bool>,
+    ao: Option<u32>,
+    spp: Option<u32>,
+) -> Result<ControlRequest> {
     let mut changes = Vec::new();
     changes.extend(shadows.map(StateChange::Shadows));
     changes.extend(ao.map(StateChange::AoSamples));
@@ -397,7 +451,7 @@ fn quality(shadows: Option<bool>, ao: Option<u32>, spp: Option<u32>) -> Result<C
 }
 
 /// The `cut` command's change: its planes, or none with --clear.
-fn cuts(planes: &[(glam::Vec3, f64)], clear: bool) -> Result<StateChange> {
+pub(crate) fn cuts(planes: &[(glam::Vec3, f64)], clear: bool) -> Result<StateChange> {
     let planes: Vec<(glam::Vec3, f32)> = if clear {
         Vec::new()
     } else {
@@ -419,21 +473,55 @@ fn lights(directional: &[Light], point: &[Light], scene: bool) -> Result<StateCh
     Ok(StateChange::Lights(set))
 }
 
-/// Prints an answer: queries as JSON on stdout, refusals on stderr. Whether it was refused.
-fn print(reply: &ControlReply) -> Result<bool> {
+/// Prints an answer: queries as JSON on stdout, what a command did on stderr, refusals on
+/// stderr. Whether it was refused.
+fn print(reply: &ControlReply, wall: &tessera_model::wall::WallLayout) -> Result<bool> {
+    let json = |v: &dyn erased::Json| -> Result<()> {
+        println!("{}", v.pretty()?);
+        Ok(())
+    };
     match reply {
         ControlReply::Refused(why) => {
             eprintln!("tessera-master control: refused: {why}");
             return Ok(true);
         }
+        ControlReply::Status(s) => json(&crate::console::json::StatusView::of(s, wall))?,
         ControlReply::State { .. } | ControlReply::Figures(_) | ControlReply::Views(_) => {
-            println!("{}", serde_json::to_string_pretty(reply)?);
+            json(reply)?
         }
-        ControlReply::Snapshot { frame } => println!("{frame}"),
-        ControlReply::Probe(hit) => println!("{}", serde_json::to_string_pretty(hit)?),
-        ControlReply::Queued { .. } | ControlReply::Done | ControlReply::Clock { .. } => {}
+        ControlReply::Snapshot { frame, shown } => {
+            println!("{frame}");
+            eprintln!(
+                "snapshot of frame {frame} ({}): display-<id>-frame-{frame}.png in the displays' --out, wall-frame-{frame}.png in the master's",
+                if *shown { "as shown" } else { "rendered" }
+            );
+        }
+        ControlReply::Probe(hit) => json(hit)?,
+        ControlReply::Queued {
+            changes,
+            state_id,
+            frame,
+        } => eprintln!(
+            "queued {changes} change{}: state {} from frame {frame} on",
+            if *changes == 1 { "" } else { "s" },
+            state_id.0
+        ),
+        ControlReply::Done => eprintln!("done"),
+        ControlReply::Clock { .. } => {}
     }
     Ok(false)
+}
+
+/// Pretty JSON of anything serializable, behind a trait object.
+mod erased {
+    pub trait Json {
+        fn pretty(&self) -> serde_json::Result<String>;
+    }
+    impl<T: serde::Serialize> Json for T {
+        fn pretty(&self) -> serde_json::Result<String> {
+            serde_json::to_string_pretty(self)
+        }
+    }
 }
 
 /// The lines of a script, each parsed as a command.
@@ -469,13 +557,21 @@ pub async fn control(args: ControlArgs) -> Result<ExitCode> {
         Command::Script { file } => script(file)?,
         other => vec![other.clone()],
     };
-    let mut client = ControlClient::connect(&args.connect, &args.cert_dir).await?;
+    let (connect, cert_dir) = match (args.connect, args.cert_dir) {
+        (Some(c), Some(d)) => (c, d),
+        _ => {
+            let local = crate::console::credentials::LocalWall::read()?;
+            (local.connect, local.cert_dir)
+        }
+    };
+    let mut client = ControlClient::connect(&connect, &cert_dir).await?;
     let mut refused = 0;
     for command in &commands {
-        if print(&client.run(command).await?)? {
+        if print(&client.run(command).await?, &client.wall)? {
             refused += 1;
         }
     }
+    client.link.leave(&client.endpoint).await;
     Ok(if refused == 0 {
         ExitCode::SUCCESS
     } else {

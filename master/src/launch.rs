@@ -88,7 +88,7 @@ pub async fn launch(args: LaunchArgs) -> Result<ExitCode> {
             Err(e) => Err(e),
             Ok(()) => {
                 let signals = RunSignals::default();
-                run_wall(endpoint, cfg, signals, stop, watch(&mut nodes)).await
+                run_wall(endpoint, cfg, signals, stop, watch(&mut nodes), None).await
             }
         },
     };

@@ -12,6 +12,7 @@
 
 mod args;
 mod bench;
+mod console;
 mod control;
 mod dsm_data;
 mod launch;

@@ -3,6 +3,7 @@
 //! peer's bounded queue, connections closed, the recording, the progress bar). Every decision
 //! is the `Master`'s; this is the only place in the master with sockets and `Instant::now()`.
 
+use crate::console::Bridge;
 use crate::peers::{accept_peer, Event, PeerSender};
 use crate::record::Recorder;
 use anyhow::{Context, Result};
@@ -33,6 +34,8 @@ pub struct RunConfig {
     pub show_progress: bool,
     /// Where to record the session, if anywhere.
     pub record: Option<PathBuf>,
+    /// The volume's histogram, for the console; `None` without a volume.
+    pub histogram: Option<crate::console::Histogram>,
 }
 
 /// What the driver tells the tools around the run (the launcher) while the wall runs.
@@ -100,6 +103,8 @@ struct Driver {
     show_progress: bool,
     /// What the launcher is told (see [`RunSignals`]).
     signals: RunSignals,
+    /// The operator's console, if one is served.
+    console: Option<Bridge>,
 }
 
 /// This moment on both of the master's clocks, for the event about to be handed to it.
@@ -126,6 +131,7 @@ pub async fn run_wall(
     signals: RunSignals,
     mut stop: tokio::sync::watch::Receiver<bool>,
     fatal: impl Future<Output = anyhow::Error>,
+    console: Option<Bridge>,
 ) -> Result<RunEnd> {
     let (events_tx, mut events) = mpsc::channel(crate::peers::EVENT_QUEUE);
     let acceptor = {
@@ -151,6 +157,7 @@ pub async fn run_wall(
         progress: None,
         show_progress: cfg.show_progress,
         signals,
+        console,
     };
     let result = tokio::select! {
         result = driver.run(&mut events, &mut stop) => result,
@@ -189,6 +196,8 @@ impl Driver {
         // disable the branch before `changed()` ever reported it, and be lost (the wall then ran
         // on after Ctrl-C). `changed()` reports a value not yet seen whenever it is polled.
         let mut stopping = false;
+        let mut tick = tokio::time::interval(crate::console::TICK);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
             if let Some(outcome) = self.master.take_outcome() {
                 return Ok(outcome?);
@@ -213,6 +222,17 @@ impl Driver {
                     self.master.handle_timeout(now());
                 }
                 () = self.signals.exit_notify.notified() => self.processes_exited(),
+                Some(call) = async {
+                    match self.console.as_mut() {
+                        Some(c) => c.calls.recv().await,
+                        None => std::future::pending().await,
+                    }
+                } => {
+                    let reply = self.master.handle_local_control(call.request, now());
+                    // The console gave up waiting: nothing to tell.
+                    let _ = call.reply.send(reply);
+                }
+                _ = tick.tick(), if self.console.is_some() => self.console_tick(),
                 changed = stop.changed(), if !stopping => {
                     stopping = true;
                     // The interrupt watcher gone without an interrupt: nothing to stop.
@@ -259,6 +279,24 @@ impl Driver {
         }
     }
 
+    /// Tells the console what the wall is doing, and asks the displays for thumbnails when
+    /// there is something new to picture.
+    fn console_tick(&mut self) {
+        use tessera_protocol::control::ControlRequest;
+        let Some(console) = &mut self.console else {
+            return;
+        };
+        let status = self
+            .master
+            .handle_local_control(ControlRequest::Status, now());
+        let figures = self
+            .master
+            .handle_local_control(ControlRequest::Figures, now());
+        if console.publish(status, figures) {
+            self.master.ask_thumbnails();
+        }
+    }
+
     /// Node processes the launcher saw exit: their connections are closed now, as if the
     /// nodes had left, rather than waited out as silence.
     fn processes_exited(&mut self) {
@@ -295,6 +333,11 @@ impl Driver {
                 }
             } else if let Some(event) = self.master.poll_event() {
                 self.note(event)?;
+            } else if let Some(event) = self.master.poll_console() {
+                let factor = self.master.thumbnail_factor();
+                if let Some(console) = &mut self.console {
+                    console.handle(event, factor);
+                }
             } else {
                 return Ok(());
             }

@@ -90,10 +90,13 @@ pub async fn run_local_driven(
     let master_addr = endpoint.local_addr()?.to_string();
     // The control interface of this run: the same endpoint, with a certificate of its own.
     let control_dir = certs.issue("control", CertRole::Control)?;
+    // Tests and scripts read this line for the explicit form; a person uses the shorter one
+    // `start_console` prints next.
     eprintln!(
         "tessera-master: control with `tessera-master control --connect {master_addr} --cert-dir {}` (while the wall runs)",
         control_dir.display()
     );
+    let (console, _written) = start_console(args, &cfg, &certs, &master_addr).await?;
     let nodes = Nodes {
         args,
         this: &this,
@@ -109,7 +112,7 @@ pub async fn run_local_driven(
     let wall = cfg.master.wall.clone();
     let driving = driver.map(|d| tokio::spawn(d(master_addr.clone(), control_dir.clone())));
     let watching = watch(&mut children, signals.clone(), &mut lost);
-    let end = run_wall(endpoint, cfg, signals, stop, watching).await;
+    let end = run_wall(endpoint, cfg, signals, stop, watching, console).await;
     if let Some(task) = driving {
         task.abort();
     }
@@ -121,6 +124,62 @@ pub async fn run_local_driven(
     let mut ended = Ended::of(end, interrupted);
     ended.processes_failed = lost.into_iter().chain(failures).collect();
     Ok(LocalRun { ended, wall })
+}
+
+/// A local wall's console (unless --no-console), and the file that lets a second terminal
+/// find the wall, removed when the guard drops. A file that cannot be written is a warning:
+/// the wall runs anyway, its control command printed in full.
+async fn start_console(
+    args: &LocalArgs,
+    cfg: &crate::server::RunConfig,
+    certs: &LocalCerts,
+    master_addr: &str,
+) -> Result<(
+    Option<crate::console::Bridge>,
+    Option<crate::console::credentials::Written>,
+)> {
+    use crate::console::{self, credentials};
+    let (bridge, url, token) = if args.no_console {
+        (None, None, None)
+    } else {
+        let token = console::new_token()?;
+        let (bridge, addr) = console::start(console::ConsoleConfig {
+            bind: args.console,
+            token: token.clone(),
+            out: args.run.out.clone(),
+            histogram: cfg.histogram.clone(),
+            wall: cfg.master.wall.clone(),
+            home: cfg.master.camera,
+        })
+        .await?;
+        let url = format!("http://{addr}/?token={token}");
+        eprintln!("tessera-master: console at {url}");
+        (Some(bridge), Some(url), Some(token))
+    };
+    let written = credentials::local_paths().and_then(|(_, dir)| {
+        certs.ca.issue("control", &dir, Some(CertRole::Control))?;
+        credentials::LocalWall {
+            connect: master_addr.to_string(),
+            cert_dir: dir,
+            console_url: url,
+            token,
+            pid: std::process::id(),
+        }
+        .write()
+    });
+    match written {
+        Ok(w) => {
+            eprintln!(
+                "tessera-master: steer it from another terminal with `tessera-master control state` (it finds the wall in {})",
+                w.path.display()
+            );
+            Ok((bridge, Some(w)))
+        }
+        Err(e) => {
+            eprintln!("tessera-master: {e:#}: the control command needs --connect and --cert-dir");
+            Ok((bridge, None))
+        }
+    }
 }
 
 /// A local wall's certificates: a new CA in a temporary directory, removed when dropped.
@@ -295,16 +354,31 @@ fn write_images(
     if run.save_frame.is_some() {
         write_wall_png(dir, wall, "", "wall.png", false)?;
     }
-    for frame in &report.snapshots {
-        // A snapshot of a frame the run never presented (it ended first) has no images; one
-        // that a display away at the time (lost, or rejoining) did not show has a black screen.
-        let shown = |id: u32| dir.join(format!("display-{id}-frame-{frame}.png")).exists();
-        if wall.screens().any(|s| shown(s.id.0)) {
-            let suffix = format!("-frame-{frame}");
-            write_wall_png(dir, wall, &suffix, &format!("wall{suffix}.png"), true)?;
+    for &frame in &report.snapshots {
+        // Put together as soon as the displays wrote theirs, when the console asked for it.
+        if !dir.join(format!("wall-frame-{frame}.png")).exists() {
+            write_snapshot_png(dir, wall, frame)?;
         }
     }
     Ok(())
+}
+
+/// A snapshot's `wall-frame-<frame>.png` from the displays' images, if any display saved one:
+/// a snapshot of a frame the run never presented (it ended first) has no images; one that a
+/// display away at the time (lost, or rejoining) did not show has a black screen.
+pub(crate) fn write_snapshot_png(
+    dir: &Path,
+    wall: &WallLayout,
+    frame: u64,
+) -> Result<Option<PathBuf>> {
+    let shown = |id: u32| dir.join(format!("display-{id}-frame-{frame}.png")).exists();
+    if !wall.screens().any(|s| shown(s.id.0)) {
+        return Ok(None);
+    }
+    let suffix = format!("-frame-{frame}");
+    let name = format!("wall{suffix}.png");
+    write_wall_png(dir, wall, &suffix, &name, true)?;
+    Ok(Some(dir.join(name)))
 }
 
 /// `name`: the displays' saved images `display-<id><suffix>.png` put together, bezels black.
@@ -357,7 +431,7 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     let (stop, interrupted) = stop_on_ctrl_c();
     let wall = cfg.master.wall.clone();
     let signals = RunSignals::default();
-    let end = run_wall(endpoint, cfg, signals, stop, std::future::pending()).await;
+    let end = run_wall(endpoint, cfg, signals, stop, std::future::pending(), None).await;
     let interrupted = interrupted.load(std::sync::atomic::Ordering::SeqCst);
     let ended = Ended::of(end, interrupted);
     finish_run(ended, &args.run, &wall)

@@ -104,11 +104,7 @@ fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
     }
     let state = wall.control(&["state"]);
     state.assert_success("state");
-    assert!(
-        state.stdout.contains("\"ao_samples\": 2"),
-        "{}",
-        state.stdout
-    );
+    assert!(state.stdout.contains("\"ao\": 2"), "{}", state.stdout);
     let (out, record) = (wall.out.clone(), wall.record.clone());
     let report = wall.stop();
     assert_eq!(

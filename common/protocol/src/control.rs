@@ -7,6 +7,7 @@
 //! value comes back as [`ControlReply::Refused`] with the reason and the wall goes on.
 
 use serde::{Deserialize, Serialize};
+use tessera_model::input::InputEvent;
 use tessera_model::state::{StateChange, StateId, WallState};
 
 /// Longest name of a saved view.
@@ -83,9 +84,25 @@ pub enum ControlRequest {
     Views,
     /// Show or hide the displays' overlay (frame rate, who rendered each tile).
     Overlay(bool),
-    /// Have every display save the next frame to start as `display-<id>-frame-<K>.png` in
-    /// its `--out` directory (the master puts them together as `wall-frame-<K>.png`).
-    Snapshot,
+    /// Have every display save a frame as `display-<id>-frame-<K>.png` in its `--out`
+    /// directory (the master puts them together as `wall-frame-<K>.png`): the frame shown now
+    /// on a still (converged) wall, else the next frame to start; with `final_quality`, the
+    /// first frame at the final quality of progressive refinement.
+    Snapshot {
+        /// Wait for the final quality (the camera must hold still).
+        final_quality: bool,
+    },
+    /// Window input, as if a person had used a display's window (the console's picture):
+    /// drags orbit and pan, the wheel zooms, keys do what they do in a window.
+    Input(InputEvent),
+    /// A time series' playback: play or pause, its speed, or a step forward or back (which
+    /// pauses).
+    Playback(Playback),
+    /// The wall's state as an operator reads it: [`WallStatus`].
+    Status,
+    /// A fixed camera that frames the whole scene, looking at its middle from where the
+    /// camera looks now.
+    Fit,
     /// The volume's data value and world position under wall pixel `(x, y)` (the virtual wall,
     /// bezels included, row 0 at the top), as the frames starting now show it.
     Probe {
@@ -94,6 +111,54 @@ pub enum ControlRequest {
         /// Row, in pixels from the wall image's top edge.
         y: u32,
     },
+}
+
+/// Slowest and fastest playback of a time series, in steps per second.
+pub const PLAYBACK_SPEEDS: std::ops::RangeInclusive<f32> = 0.1..=60.0;
+
+/// A change to a time series' playback; what is `None` stays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Playback {
+    /// Play (`true`) or pause.
+    pub playing: Option<bool>,
+    /// Steps per second, within [`PLAYBACK_SPEEDS`]; `None` keeps it.
+    pub steps_per_second: Option<f32>,
+    /// Steps to move by, forward or back (wrapping around the series); pauses.
+    pub step_by: Option<i32>,
+}
+
+/// A time series' playback, as [`WallStatus`] reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SeriesStatus {
+    /// Steps in the series.
+    pub steps: u32,
+    /// Whether it plays.
+    pub playing: bool,
+    /// Steps per second while it plays; `None`: a step each frame.
+    pub steps_per_second: Option<f32>,
+}
+
+/// The wall as an operator reads it: what it shows, and what it is doing.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WallStatus {
+    /// The last frame started.
+    pub frame: u64,
+    /// The id of the state frames render with now.
+    pub state_id: StateId,
+    /// The state once every queued change is applied.
+    pub state: WallState,
+    /// Whether the wall reached the final quality and renders nothing until something changes.
+    pub converged: bool,
+    /// Whether the displays draw the overlay.
+    pub overlay: bool,
+    /// The saved views, sorted.
+    pub views: Vec<ViewName>,
+    /// The time series' playback; `None` without a series.
+    pub series: Option<SeriesStatus>,
+    /// The volume's value range, where the scene has a volume.
+    pub volume_range: Option<[f32; 2]>,
+    /// The particles' attribute range, where the scene has particles.
+    pub particle_range: Option<[f32; 2]>,
 }
 
 /// What a probe found under a pixel.
@@ -116,6 +181,10 @@ pub enum ControlReply {
     Queued {
         /// How many changes were queued: all those of the request.
         changes: u32,
+        /// The id the wall's state will have once they are applied.
+        state_id: StateId,
+        /// The first frame that can show them: the next to start.
+        frame: u64,
     },
     /// The answer to [`ControlRequest::Clock`].
     Clock {
@@ -137,11 +206,15 @@ pub enum ControlReply {
     Figures(LiveFigures),
     /// The answer to [`ControlRequest::Views`]: the saved views' names, sorted.
     Views(Vec<ViewName>),
-    /// The frame the displays will save.
+    /// The frame the displays save (or saved, on a still wall).
     Snapshot {
-        /// Its number: the next frame to start.
+        /// Its number.
         frame: u64,
+        /// Whether it is the frame shown now (a still wall); else a frame to come.
+        shown: bool,
     },
+    /// The answer to [`ControlRequest::Status`].
+    Status(WallStatus),
     /// What the probed pixel shows of the volume; None where its ray sees none.
     Probe(Option<ProbeHit>),
     /// Done, nothing to say.
@@ -168,6 +241,20 @@ pub enum Refusal {
         /// Snapshots the run takes at most.
         max: u32,
     },
+    /// Playback, but the scene is no time series.
+    #[error("the scene is not a time series: there is nothing to play")]
+    NoSeries,
+    /// A playback speed outside [`PLAYBACK_SPEEDS`].
+    #[error("a speed of {0} steps per second is outside 0.1 to 60")]
+    BadSpeed(f32),
+    /// A snapshot at the final quality, but the camera orbits and never holds still.
+    #[error(
+        "the camera orbits, so the wall never reaches its final quality; set a fixed camera first"
+    )]
+    NeverStill,
+    /// A window input event the navigator refused.
+    #[error("input refused: {0}")]
+    BadInput(String),
     /// A probe, but the scene has no volume (or the master cannot probe it).
     #[error("the scene has no volume to probe")]
     NoVolume,
@@ -201,8 +288,14 @@ pub enum Refusal {
 pub struct LiveFigures {
     /// Frames the wall has presented since the run began.
     pub frames_presented: u64,
-    /// Frames presented over the last second.
+    /// Frames presented over the last second of rendering: a still wall's idle time does not
+    /// count (see `idle`).
     pub fps: f64,
+    /// Whether the wall is still: at its final quality, rendering nothing until something
+    /// changes.
+    pub idle: bool,
+    /// Seconds the wall spent rendering since the run began: the time frames were in flight.
+    pub rendering_s: f64,
     /// Time between the last two presents, in milliseconds (0 before there are two).
     pub frame_ms_last: f64,
     /// Mean time between presents over the last second, in milliseconds.

@@ -34,13 +34,15 @@ use tessera_model::wall::{DisplayId, TileId, WallLayout};
 use tessera_model::window::WindowPlacement;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 10;
+pub const PROTOCOL_VERSION: u32 = 11;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
 
 /// A frame number; frames are numbered from 0 in the order they are presented.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
 pub struct FrameId(pub u64);
 
 /// Identifies a render node within one run, assigned by the master in join order.
@@ -448,6 +450,18 @@ pub enum ToNode {
         /// The frame to save.
         frame: FrameId,
     },
+    /// Save what the screen shows now as `display-<id>-frame-<K>.png`, `K` being `frame`, the
+    /// last frame presented (displays): a still wall renders nothing more to save.
+    SaveShown {
+        /// The frame presented last, which names the file.
+        frame: FrameId,
+    },
+    /// Send the frame shown now, shrunk `factor` times in each direction, as a
+    /// [`FromNode::Thumbnail`] (displays): the operator's console pictures the wall with it.
+    SendThumbnail {
+        /// Screen pixels per thumbnail pixel across and down, 1 to [`MAX_THUMBNAIL_FACTOR`].
+        factor: u32,
+    },
     /// A display (re)joined the running wall: its pixels go to `addr` now (render nodes).
     DisplayAt {
         /// The display that (re)joined.
@@ -492,6 +506,8 @@ impl ToNode {
             ToNode::ControlReply { .. } => "control reply",
             ToNode::Overlay { .. } => "overlay",
             ToNode::SaveFrame { .. } => "save frame",
+            ToNode::SaveShown { .. } => "save shown",
+            ToNode::SendThumbnail { .. } => "send thumbnail",
             ToNode::DisplayAt { .. } => "display at",
             ToNode::StartAt { .. } => "start at",
             ToNode::BlockHolders { .. } => "block holders",
@@ -559,6 +575,17 @@ pub enum FromNode {
         /// When, on the display's clock (ns since the Unix epoch).
         clock_ns: u64,
     },
+    /// Answer to [`ToNode::SendThumbnail`]: the frame a display shows, shrunk, as RGB8 rows
+    /// top down. Empty when it has shown nothing yet.
+    Thumbnail(Thumbnail),
+    /// A display wrote the files of a snapshot of `frame` (`ok`), or could not (`!ok`, and
+    /// its log says why).
+    Saved {
+        /// The frame the files are of.
+        frame: FrameId,
+        /// Whether every file was written.
+        ok: bool,
+    },
     /// A render node or display is alive. It never travels on the control stream: a node
     /// sends [`HEARTBEAT_DATAGRAM`] as a QUIC datagram every [`HEARTBEAT_INTERVAL`], and the
     /// master's driver hands each one to its state machine as this message.
@@ -586,6 +613,55 @@ pub enum FromNode {
         /// Where it answers block requests.
         addr: SocketAddr,
     },
+}
+
+/// Largest shrink factor of a thumbnail.
+pub const MAX_THUMBNAIL_FACTOR: u32 = 256;
+
+/// Most bytes of pixels a thumbnail carries: well under a control message's bound, and small
+/// enough not to hold a display's other messages up for long.
+pub const MAX_THUMBNAIL_BYTES: usize = 512 * 1024;
+
+/// A display's frame, shrunk for the operator's console (see [`ToNode::SendThumbnail`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Thumbnail {
+    /// The frame it shows; 0 with no pixels before the first present.
+    pub frame: FrameId,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// RGB8 rows, top down: `width * height * 3` bytes, at most [`MAX_THUMBNAIL_BYTES`].
+    pub rgb: Vec<u8>,
+}
+
+#[derive(Deserialize)]
+struct ThumbnailRaw {
+    frame: FrameId,
+    width: u32,
+    height: u32,
+    rgb: Vec<u8>,
+}
+
+impl<'de> Deserialize<'de> for Thumbnail {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let raw = ThumbnailRaw::deserialize(d)?;
+        let bytes = raw.width as u64 * raw.height as u64 * 3;
+        if bytes != raw.rgb.len() as u64 || raw.rgb.len() > MAX_THUMBNAIL_BYTES {
+            return Err(serde::de::Error::custom(format!(
+                "a {}x{} thumbnail with {} bytes (at most {MAX_THUMBNAIL_BYTES})",
+                raw.width,
+                raw.height,
+                raw.rgb.len()
+            )));
+        }
+        Ok(Thumbnail {
+            frame: raw.frame,
+            width: raw.width,
+            height: raw.height,
+            rgb: raw.rgb,
+        })
+    }
 }
 
 /// How often a render node says it is alive. The master's deadline for a silent node

@@ -268,6 +268,21 @@ impl Coordinator {
         self.next_frame
     }
 
+    /// Whether the wall reached its final quality and starts no frame until something changes.
+    pub fn is_converged(&self) -> bool {
+        self.converged
+    }
+
+    /// Frames started and not yet presented or cancelled.
+    pub fn frames_in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    /// Changes queued for the next barrier.
+    pub fn pending_changes(&self) -> usize {
+        self.pending_changes as usize
+    }
+
     /// Frames presented so far.
     pub fn presented(&self) -> u64 {
         self.next_present.0

@@ -38,11 +38,12 @@ impl Master {
             Output::FrameStarted(frame) => {
                 self.record.frame_started.insert(frame, now.instant);
                 self.record.timing.frame_started(frame, now.unix_ns);
-                if let Some(steps) = self.cfg.play_steps {
-                    self.advance_time_step(steps, now);
-                }
+                self.playing_frame_started(now);
             }
-            Output::FramePresented(frame) => self.presented(frame, now),
+            Output::FramePresented(frame) => {
+                self.presented(frame, now);
+                self.rendering_paused(now);
+            }
             Output::FrameCancelled { frame, ran, usual } => self.cancelled(frame, ran, usual),
             Output::FrameRendered(frame) => {
                 self.events.push_back(MasterEvent::FrameRendered(frame))
@@ -58,10 +59,13 @@ impl Master {
                 self.frame_state = wall;
                 self.record.timing.inputs_applied(frame, &stamps);
             }
-            Output::Converged(frame) => tracing::info!(
-                "frame {} is at the final quality; nothing renders until something changes",
-                frame.0
-            ),
+            Output::Converged(frame) => {
+                tracing::info!(
+                    "frame {} is at the final quality; nothing renders until something changes",
+                    frame.0
+                );
+                self.converged_at(frame);
+            }
             Output::Refused { frame, error } => {
                 tracing::warn!(
                     "a change replayed at frame {} was refused: {error}",

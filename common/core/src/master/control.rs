@@ -42,10 +42,14 @@ impl Master {
             Ok(reply) => reply,
             Err(why) => ControlReply::Refused(why),
         };
+        if matches!(reply, ControlReply::Snapshot { .. }) && !self.displays.is_empty() {
+            self.defer_snapshot_reply(peer, id, reply);
+            return;
+        }
         self.send(peer, ToNode::ControlReply { id, reply });
     }
 
-    fn answer(
+    pub(super) fn answer(
         &mut self,
         request: ControlRequest,
         stamp_ns: u64,
@@ -86,24 +90,25 @@ impl Master {
                     .ok_or_else(|| Refusal::NoSuchView(name.clone()))?;
                 self.queue_all(&[StateChange::Camera(camera)], stamp, now)?
             }
-            ControlRequest::Views => ControlReply::Views(self.live.views.keys().cloned().collect()),
+            ControlRequest::Views => ControlReply::Views(self.view_names()),
             ControlRequest::Overlay(on) => {
                 self.set_overlay(on);
                 ControlReply::Done
             }
-            ControlRequest::Snapshot => {
+            ControlRequest::Snapshot { final_quality } => {
                 if self.live.snapshots.len() >= MAX_SNAPSHOTS {
                     return Err(Refusal::SnapshotsFull {
                         max: MAX_SNAPSHOTS as u32,
                     });
                 }
-                let frame = self.coordinator.next_frame();
-                self.live.snapshots.push(frame);
-                let displays: Vec<PeerId> = self.displays.values().copied().collect();
-                for peer in displays {
-                    self.send(peer, ToNode::SaveFrame { frame });
-                }
-                ControlReply::Snapshot { frame: frame.0 }
+                self.snapshot(final_quality)?
+            }
+            ControlRequest::Input(event) => self.input_request(event, stamp, now)?,
+            ControlRequest::Playback(playback) => self.playback(playback, stamp, now)?,
+            ControlRequest::Status => ControlReply::Status(self.status()),
+            ControlRequest::Fit => {
+                let fit = self.fit_camera();
+                self.queue_all(&[StateChange::Camera(fit)], stamp, now)?
             }
             ControlRequest::Probe { x, y } => {
                 let prober = self.cfg.probe.as_ref().ok_or(Refusal::NoVolume)?;
@@ -172,7 +177,11 @@ impl Master {
         }
     }
 
-    fn set_overlay(&mut self, on: bool) {
+    pub(super) fn view_names(&self) -> Vec<ViewName> {
+        self.live.views.keys().cloned().collect()
+    }
+
+    pub(super) fn set_overlay(&mut self, on: bool) {
         self.live.overlay = on;
         let displays: Vec<PeerId> = self.displays.values().copied().collect();
         for peer in displays {
@@ -196,13 +205,31 @@ impl Master {
         for (i, change) in changes.iter().enumerate() {
             next = next.apply(change).map_err(|e| refusal(i, e.to_string()))?;
         }
+        if let (Some(steps), Some(i)) = (
+            self.cfg.operator.series_steps,
+            changes.iter().position(|c| match c {
+                StateChange::Volume(v) => {
+                    v.time_step >= self.cfg.operator.series_steps.unwrap_or(1)
+                }
+                _ => false,
+            }),
+        ) {
+            let reason = format!(
+                "time step outside the series' {steps} steps (0 to {})",
+                steps - 1
+            );
+            return Err(refusal(i, reason));
+        }
         for (i, change) in changes.iter().enumerate() {
             self.coordinator
                 .queue_change(*change, stamp, now.instant)
                 .map_err(|e| refusal(i, e.to_string()))?;
         }
+        let (id, _) = self.coordinator.state();
         Ok(ControlReply::Queued {
             changes: changes.len() as u32,
+            state_id: tessera_model::state::StateId(id.0 + 1),
+            frame: self.coordinator.next_frame().0,
         })
     }
 
@@ -231,21 +258,38 @@ impl Master {
 
     fn figures(&self, now: Now) -> LiveFigures {
         let now = now.instant;
+        let idle = self.coordinator.is_converged() && self.coordinator.frames_in_flight() == 0;
+        // A still wall's figures are those of its last second of rendering, not of its rest.
+        let until = match self.record.presents.last() {
+            Some(&(_, at)) if idle => at,
+            _ => now,
+        };
         let recent: Vec<Instant> = self
             .record
             .presents
             .iter()
             .rev()
             .map(|(_, at)| *at)
-            .take_while(|at| now.duration_since(*at) <= Duration::from_secs(1))
+            .take_while(|at| until.duration_since(*at) <= Duration::from_secs(1))
             .collect();
+        // A frame started after the wall rested took its own time, not the rest before it.
+        let gap = |(f0, at0): (FrameId, Instant), (f1, at1): (FrameId, Instant)| {
+            let _ = f0;
+            let since_start = self
+                .record
+                .frame_started
+                .get(&f1)
+                .map(|s| at1.duration_since(*s));
+            let gap = at1.duration_since(at0);
+            since_start.map_or(gap, |s| s.min(gap))
+        };
         let gaps: Vec<f64> = self
             .record
             .presents
             .windows(2)
             .rev()
             .take(recent.len().max(1))
-            .map(|w| w[1].1.duration_since(w[0].1).as_secs_f64() * 1000.0)
+            .map(|w| gap(w[0], w[1]).as_secs_f64() * 1000.0)
             .collect();
         let mean = |v: &[f64]| {
             if v.is_empty() {
@@ -285,6 +329,8 @@ impl Master {
             frame_ms_last: gaps.first().copied().unwrap_or(0.0),
             frame_ms_mean: mean(&gaps),
             changes_applied: self.record.changes_applied,
+            idle,
+            rendering_s: self.rendering_time(now).as_secs_f64(),
             render_nodes,
             displays,
         }

@@ -297,6 +297,7 @@ impl Master {
     fn lose_display(&mut self, d: DisplayId, who: &str, reason: &str, now: Now) {
         self.displays.remove(&d);
         self.display_since.remove(&d);
+        self.display_gone_from_snapshots(d);
         // Render nodes that join from now on do not try to reach it.
         self.display_endpoints.remove(&d);
         let policy = self.cfg.display_loss;

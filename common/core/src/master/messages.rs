@@ -125,6 +125,8 @@ impl Master {
                 }
                 self.note_timing(peer, &msg, now);
             }
+            FromNode::Thumbnail(thumbnail) => self.thumbnail(d, thumbnail),
+            FromNode::Saved { frame, ok } => self.display_saved(d, frame, ok),
             FromNode::Input { event, clock_ns } => {
                 // On the master's clock, as present stamps are mapped.
                 let stamp = (clock_ns as i64 - self.record.timing.offset(d)).max(1) as u64;

@@ -55,6 +55,10 @@ mod membership;
 pub use membership::JoinRefusal;
 mod messages;
 pub mod navigate;
+mod operate;
+#[cfg(test)]
+mod operate_tests;
+pub use operate::{ConsoleEvent, OperatorConfig};
 mod ranks;
 pub mod report;
 mod report_of;
@@ -351,8 +355,8 @@ pub struct MasterConfig {
     /// The scene's size (half its diagonal), in scene units: the unit of a fly step and of the
     /// closest zoom; a size that is not positive and finite counts as 1.
     pub scene_size: f32,
-    /// Steps of the time series the wall plays, one a frame (None: it does not play).
-    pub play_steps: Option<u32>,
+    /// What operators see of the scene, and whether its series plays from the start.
+    pub operator: OperatorConfig,
     /// The scene's volume, for the control interface's probe (None: no volume).
     pub probe: Option<Arc<dyn VolumeProbe>>,
 }
@@ -385,7 +389,7 @@ impl MasterConfig {
             replay: Vec::new(),
             pivot: glam::Vec3::ZERO,
             scene_size: 1.0,
-            play_steps: None,
+            operator: OperatorConfig::default(),
             probe: None,
         }
     }
@@ -464,6 +468,9 @@ pub struct Master {
     next_render_id: u32,
     record: RunRecord,
     live: control::Live,
+    operating: operate::Operating,
+    /// What the console is told (see [`ConsoleEvent`]).
+    console_events: VecDeque<ConsoleEvent>,
     navigator: Navigator,
     /// The state of the frames starting now (as the last `StateApplied` said).
     frame_state: WallState,
@@ -518,6 +525,8 @@ impl Master {
             next_render_id: 0,
             record: RunRecord::default(),
             live: control::Live::default(),
+            operating: operate::Operating::new(&cfg.operator),
+            console_events: VecDeque::new(),
             navigator: Navigator::new(cfg.camera, cfg.pivot, cfg.scene_size),
             frame_state,
             ranks: ranks::Ranks::default(),
@@ -593,6 +602,7 @@ impl Master {
             }
             Phase::Running => {
                 self.coordinator.handle_timeout(now.instant);
+                self.series_timeout(now);
                 self.pump(now);
             }
             _ => {}
@@ -636,7 +646,10 @@ impl Master {
     pub fn poll_timeout(&self) -> Option<Instant> {
         match self.phase {
             Phase::Joining { deadline } | Phase::Collecting { deadline } => Some(deadline),
-            Phase::Running => self.coordinator.poll_timeout(),
+            Phase::Running => match (self.coordinator.poll_timeout(), self.series_timer()) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            },
             Phase::Done => None,
         }
     }

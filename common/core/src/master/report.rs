@@ -18,8 +18,13 @@ pub struct Report {
     pub displays: Vec<DisplayReport>,
     /// Each render node that sent its figures at shutdown, by id.
     pub render_nodes: Vec<RenderNodeReport>,
-    /// Frames presented per second, from the first frame start to the last present.
+    /// Frames presented per second of rendering: the time frames were in flight, from the
+    /// first frame start to the last present, less the time the wall rested at its final
+    /// quality.
     pub fps: f64,
+    /// Seconds the wall spent rendering (frames in flight); `elapsed_s` less its rests.
+    #[serde(default)]
+    pub rendering_s: f64,
     /// Time between consecutive presents (the first frame: from its start to its present).
     pub frame_ms: Percentiles,
     /// From a frame's start (camera applied) to its present on all displays.

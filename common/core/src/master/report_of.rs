@@ -116,11 +116,15 @@ impl Master {
         let mut frame_ms = Vec::new();
         let mut start_to_present = Vec::new();
         for (frame, at) in &record.presents {
-            frame_ms.push(at.duration_since(previous).as_secs_f64() * 1000.0);
+            let mut gap = at.duration_since(previous);
             previous = *at;
             if let Some(s) = record.frame_started.get(frame) {
-                start_to_present.push(at.duration_since(*s).as_secs_f64() * 1000.0);
+                let took = at.duration_since(*s);
+                start_to_present.push(took.as_secs_f64() * 1000.0);
+                // A frame started after the wall rested took its own time, not the rest.
+                gap = gap.min(took);
             }
+            frame_ms.push(gap.as_secs_f64() * 1000.0);
         }
         self.report_of_frames(last.duration_since(start), frame_ms, start_to_present)
     }
@@ -135,6 +139,8 @@ impl Master {
     ) -> Report {
         let elapsed = elapsed.as_secs_f64();
         let record = &self.record;
+        let last = record.presents.last().map(|(_, at)| *at);
+        let rendering = last.map_or(0.0, |at| self.rendering_time(at).as_secs_f64());
         let displays = self.display_reports();
         let render_nodes = self.render_node_reports();
         let frames = record.presents.len() as u64;
@@ -145,11 +151,12 @@ impl Master {
             wall: WallReport::of(&self.cfg.wall),
             displays,
             render_nodes,
-            fps: if elapsed > 0.0 {
-                frames as f64 / elapsed
+            fps: if rendering > 0.0 {
+                frames as f64 / rendering
             } else {
                 0.0
             },
+            rendering_s: rendering,
             frame_ms: Percentiles::of_ms(&frame_ms),
             start_to_present_ms: Percentiles::of_ms(&start_to_present),
             frame_period_ms: if frames > 0 {

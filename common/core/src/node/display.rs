@@ -74,6 +74,9 @@ pub struct PresentOrder {
     /// The file names to save it under (the session's frame, snapshots a control client
     /// asked for), in the folder the node was given; none if it is not to be saved.
     pub save_as: Vec<String>,
+    /// Whether a snapshot is among `save_as`: the master is told once it is written
+    /// ([`FromNode::Saved`]).
+    pub snapshot: bool,
     /// Who rendered each tile of it, for the overlay.
     sources: BTreeMap<TileId, BatchSource>,
 }
@@ -93,6 +96,22 @@ pub enum DisplayEvent {
     /// The master ended the wall: send [`DisplaySession::stats`] (with the bytes received
     /// added) and leave.
     Shutdown,
+    /// Save the frame shown now as `name` and tell the master ([`FromNode::Saved`] of
+    /// `frame`): a still wall's snapshot.
+    SaveShown {
+        /// The last frame presented.
+        frame: FrameId,
+        /// The file name, in the folder the node was given.
+        name: String,
+    },
+    /// Send the master the frame shown now, shrunk `factor` times ([`FromNode::Thumbnail`]).
+    Thumbnail {
+        /// Screen pixels per thumbnail pixel across and down.
+        factor: u32,
+    },
+    /// The overlay was turned on or off: show the frame shown now again, with
+    /// [`DisplaySession::overlay_now`] over it, so that a still wall shows the change.
+    Redraw,
 }
 
 /// A display's side of one master's wall, from its `Ready` to the shutdown.
@@ -147,6 +166,8 @@ pub struct DisplaySession {
     overlay: bool,
     /// Who rendered each tile of the frames under assembly, for the overlay.
     sources: BTreeMap<FrameId, BTreeMap<TileId, BatchSource>>,
+    /// The last frame presented, and who rendered its tiles: what a still wall shows.
+    last_shown: Option<(FrameId, BTreeMap<TileId, BatchSource>)>,
     /// When the last presents happened, for the overlay's frame rate.
     present_times: VecDeque<Instant>,
     transmit: VecDeque<FromNode>,
@@ -167,6 +188,7 @@ impl DisplaySession {
             presented: 0,
             overlay: false,
             sources: BTreeMap::new(),
+            last_shown: None,
             present_times: VecDeque::new(),
             transmit: VecDeque::new(),
             events: VecDeque::new(),
@@ -206,8 +228,19 @@ impl DisplaySession {
                 // The frame after may be here already, complete.
                 self.report_next_complete();
             }
-            ToNode::Overlay { on } => self.overlay = on,
+            ToNode::Overlay { on } => {
+                self.overlay = on;
+                self.events.push_back(DisplayEvent::Redraw);
+            }
             ToNode::SaveFrame { frame } => self.snapshots.push(frame),
+            ToNode::SaveShown { frame } => {
+                let name = format!("display-{}-frame-{}.png", self.screen.id.0, frame.0);
+                self.events
+                    .push_back(DisplayEvent::SaveShown { frame, name });
+            }
+            ToNode::SendThumbnail { factor } => {
+                self.events.push_back(DisplayEvent::Thumbnail { factor })
+            }
             other @ (ToNode::Assign { .. }
             | ToNode::Welcome { .. }
             | ToNode::Refused { .. }
@@ -246,11 +279,18 @@ impl DisplaySession {
     /// draw over it, if the overlay is on, timed against the presents before it.
     pub fn handle_shown(&mut self, order: &PresentOrder, now: Instant) -> Option<Overlay> {
         let overlay = self.overlay.then(|| self.overlay_of(&order.sources, now));
+        self.last_shown = Some((order.shown.frame, order.sources.clone()));
         self.present_times.push_back(now);
         while self.present_times.len() > PRESENTS_TIMED {
             self.present_times.pop_front();
         }
         overlay
+    }
+
+    /// The overlay over the frame shown now, timed now, if the overlay is on.
+    pub fn overlay_now(&self, now: Instant) -> Option<Overlay> {
+        let (_, sources) = self.last_shown.as_ref()?;
+        self.overlay.then(|| self.overlay_of(sources, now))
     }
 
     /// The next message for the master.
@@ -289,11 +329,13 @@ impl DisplaySession {
         self.report_next_complete();
         let sources = self.sources.remove(&frame).unwrap_or_default();
         self.sources.retain(|f, _| *f > frame);
+        let snapshot = self.snapshots.contains(&frame);
         let save_as = self.save_names(frame);
         self.events.push_back(DisplayEvent::Present(PresentOrder {
             shown,
             deadline,
             save_as,
+            snapshot,
             sources,
         }));
         Ok(())

@@ -138,6 +138,8 @@ fn the_overlay_times_presents_on_the_clock_and_places_tiles_on_the_screen() {
         assemble(&mut s, tiles, frame);
         if frame == 1 {
             s.handle_message(ToNode::Overlay { on: true }).unwrap();
+            // A still wall shows the overlay too: the frame shown now is drawn again.
+            assert!(matches!(s.poll_event(), Some(DisplayEvent::Redraw)));
         }
         s.handle_message(ToNode::Present {
             frame: FrameId(frame),
@@ -159,6 +161,42 @@ fn the_overlay_times_presents_on_the_clock_and_places_tiles_on_the_screen() {
             }
         }
     }
+}
+
+#[test]
+fn a_still_display_saves_redraws_and_pictures_the_frame_it_shows_now() {
+    let (mut s, tiles) = display(None);
+    assert_eq!(s.overlay_now(at_ms(0)), None, "nothing shown yet");
+    s.handle_message(ToNode::SaveFrame { frame: FrameId(0) })
+        .unwrap();
+    assemble(&mut s, tiles, 0);
+    s.handle_message(ToNode::Present { frame: FrameId(0) })
+        .unwrap();
+    let order = present_order(&mut s);
+    assert!(
+        order.snapshot,
+        "a snapshot is told to the master once written"
+    );
+    s.handle_shown(&order, at_ms(0));
+    // No frame renders any more; the master asks for what is on screen.
+    s.handle_message(ToNode::SaveShown { frame: FrameId(0) })
+        .unwrap();
+    s.handle_message(ToNode::SendThumbnail { factor: 4 })
+        .unwrap();
+    s.handle_message(ToNode::Overlay { on: true }).unwrap();
+    let events: Vec<String> = std::iter::from_fn(|| s.poll_event())
+        .map(|e| format!("{e:?}"))
+        .collect();
+    assert_eq!(
+        events,
+        [
+            "SaveShown { frame: FrameId(0), name: \"display-1-frame-0.png\" }",
+            "Thumbnail { factor: 4 }",
+            "Redraw"
+        ]
+    );
+    let overlay = s.overlay_now(at_ms(10)).expect("the overlay is on");
+    assert_eq!(overlay.tiles.len(), 2, "the shown frame's tiles");
 }
 
 #[test]
