@@ -3,6 +3,7 @@
 
 #![warn(missing_docs)]
 
+pub mod http;
 pub mod xvfb;
 
 use std::io::{BufRead, BufReader, Read};
