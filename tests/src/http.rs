@@ -57,8 +57,7 @@ pub fn request(
     head.push_str("\r\n");
     stream.write_all(head.as_bytes()).unwrap();
     stream.write_all(body.as_bytes()).unwrap();
-    let mut raw = Vec::new();
-    stream.read_to_end(&mut raw).unwrap();
+    let raw = read_answer(&mut stream);
     let split = raw
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
@@ -77,6 +76,36 @@ pub fn request(
         body = unchunk(&body);
     }
     Answer { status, body }
+}
+
+/// Reads an answer whole: to the end its Content-Length or last chunk says, not to the
+/// connection's end, which a server that keeps connections open (chromedriver) never sends.
+fn read_answer(stream: &mut TcpStream) -> Vec<u8> {
+    let mut raw = Vec::new();
+    let mut buf = [0u8; 64 * 1024];
+    loop {
+        let n = stream.read(&mut buf).expect("an answer within 30 s");
+        raw.extend_from_slice(&buf[..n]);
+        if n == 0 || is_whole(&raw) {
+            return raw;
+        }
+    }
+}
+
+fn is_whole(raw: &[u8]) -> bool {
+    let Some(split) = raw.windows(4).position(|w| w == b"\r\n\r\n") else {
+        return false;
+    };
+    let headers = String::from_utf8_lossy(&raw[..split]).to_ascii_lowercase();
+    let body = &raw[split + 4..];
+    if let Some(len) = headers
+        .lines()
+        .find_map(|l| l.strip_prefix("content-length:"))
+        .and_then(|v| v.trim().parse::<usize>().ok())
+    {
+        return body.len() >= len;
+    }
+    headers.contains("transfer-encoding: chunked") && body.ends_with(b"0\r\n\r\n")
 }
 
 fn unchunk(mut data: &[u8]) -> Vec<u8> {

@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod http;
+pub mod webdriver;
 pub mod xvfb;
 
 use std::io::{BufRead, BufReader, Read};
