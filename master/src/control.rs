@@ -486,9 +486,10 @@ fn print(reply: &ControlReply, wall: &tessera_model::wall::WallLayout) -> Result
             return Ok(true);
         }
         ControlReply::Status(s) => json(&crate::console::json::StatusView::of(s, wall))?,
-        ControlReply::State { .. } | ControlReply::Figures(_) | ControlReply::Views(_) => {
-            json(reply)?
-        }
+        ControlReply::State { .. }
+        | ControlReply::Figures(_)
+        | ControlReply::Views(_)
+        | ControlReply::TileOwners(_) => json(reply)?,
         ControlReply::Snapshot { frame, shown } => {
             println!("{frame}");
             eprintln!(

@@ -6,7 +6,9 @@
 //! (`tessera-master render-node ...`, `tessera-master display-node ...`, the very code of
 //! `tessera-render-node` and `tessera-display-node`), so a local wall needs nothing but the
 //! master's executable. The driver loop (`server`) moves bytes and reads clocks for the
-//! sans-IO [`tessera_core::master::Master`], which makes every decision of the run.
+//! sans-IO [`tessera_core::master::Master`], which makes every decision of the run. The
+//! operator's console (`console`: a web page and a REST/JSON API, axum) hands its requests to
+//! that loop as control requests and reads what it publishes, never the other way round.
 
 #![warn(missing_docs)]
 

@@ -241,6 +241,12 @@ fn a_converged_wall_snapshots_what_it_shows_and_says_it_is_idle() {
     let picture = wall.get("/api/wall.png");
     assert_eq!(picture.status, 200);
     assert!(picture.body.starts_with(b"\x89PNG"), "a PNG");
+    // The heatmap paints every tile in its render node's colour: none is left black.
+    let heat = wall.get("/api/heatmap.png");
+    assert_eq!(heat.status, 200, "{}", heat.text());
+    let heat = image::load_from_memory(&heat.body).expect("a PNG").to_rgb8();
+    let black = heat.pixels().filter(|p| p.0 == [0, 0, 0]).count();
+    assert_eq!(black, 0, "tiles no render node rendered");
     wall.master.signal(libc::SIGINT);
     let o = wall.master.wait(LIMIT);
     assert_eq!(o.status.code(), Some(130), "{}", o.stderr);

@@ -100,6 +100,8 @@ pub enum ControlRequest {
     Playback(Playback),
     /// The wall's state as an operator reads it: [`WallStatus`].
     Status,
+    /// Which render node rendered each tile last: [`ControlReply::TileOwners`].
+    TileOwners,
     /// A fixed camera that frames the whole scene, looking at its middle from where the
     /// camera looks now.
     Fit,
@@ -112,6 +114,9 @@ pub enum ControlRequest {
         y: u32,
     },
 }
+
+/// A tile no render node has rendered yet, in [`ControlReply::TileOwners`].
+pub const NO_OWNER: u32 = u32::MAX;
 
 /// Slowest and fastest playback of a time series, in steps per second.
 pub const PLAYBACK_SPEEDS: std::ops::RangeInclusive<f32> = 0.1..=60.0;
@@ -215,6 +220,9 @@ pub enum ControlReply {
     },
     /// The answer to [`ControlRequest::Status`].
     Status(WallStatus),
+    /// The render node that last rendered each tile, by tile id; [`NO_OWNER`] for a tile
+    /// not rendered yet.
+    TileOwners(Vec<u32>),
     /// What the probed pixel shows of the volume; None where its ray sees none.
     Probe(Option<ProbeHit>),
     /// Done, nothing to say.

@@ -273,6 +273,26 @@ async fn wall_png(State(shared): State<Shared>) -> Response {
         picture.lock().unwrap_or_else(|e| e.into_inner()).png()
     })
     .await;
+    png_answer(png)
+}
+
+/// Which render node rendered each tile last, over the picture's size.
+async fn heatmap_png(State(shared): State<Shared>) -> Response {
+    let owners = match ask(&shared, ControlRequest::TileOwners).await {
+        Ok(ControlReply::TileOwners(owners)) => owners,
+        Ok(_) => return bad("the master answered with something else").into_response(),
+        Err(e) => return e.into_response(),
+    };
+    let (picture, cfg) = (shared.picture.clone(), shared.cfg.clone());
+    let png = tokio::task::spawn_blocking(move || {
+        let picture = picture.lock().unwrap_or_else(|e| e.into_inner());
+        picture.heatmap(&cfg.wall, &owners).png()
+    })
+    .await;
+    png_answer(png)
+}
+
+fn png_answer(png: Result<Vec<u8>, tokio::task::JoinError>) -> Response {
     match png {
         Ok(bytes) => (
             [
@@ -284,13 +304,6 @@ async fn wall_png(State(shared): State<Shared>) -> Response {
             .into_response(),
         Err(e) => bad(e).into_response(),
     }
-}
-
-async fn heatmap_png() -> ApiError {
-    ApiError(
-        StatusCode::NOT_IMPLEMENTED,
-        "the heatmap is drawn on the displays: turn the overlay on".into(),
-    )
 }
 
 async fn not_here() -> ApiError {

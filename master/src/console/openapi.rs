@@ -53,7 +53,7 @@ pub fn document() -> Value {
             "/api/figures": { "get": op("Live figures: fps, frame times, idle, per node", None) },
             "/api/events": { "get": op("Server-sent events: status, figures, picture", None) },
             "/api/wall.png": { "get": op("The whole wall, shrunk, bezels included", None) },
-            "/api/heatmap.png": { "get": op("Who rendered each tile (not available: turn the overlay on)", None) },
+            "/api/heatmap.png": { "get": op("Which render node rendered each tile last, in the overlay's colours", None) },
             "/api/histogram": { "get": op("The volume's histogram: range and 256 counts", None) },
             "/api/openapi.json": { "get": op("This document", None) },
             "/api/input": { "post": op("Window input: Drag, Scroll or Key, as a window sends it", Some(json!({ "type": "object" }))) },

@@ -63,6 +63,32 @@ impl WallPicture {
         self.version += 1;
     }
 
+    /// The heatmap of the same size: each tile in the colour of the render node that rendered
+    /// it last (the displays' overlay colours), black where none has, bezels dark.
+    pub fn heatmap(&self, wall: &WallLayout, owners: &[u32]) -> WallPicture {
+        let mut map = WallPicture::new(wall, self.factor);
+        let grid = tessera_model::wall::TileGrid::new(wall.clone());
+        let f = self.factor;
+        for tile in grid.tiles() {
+            let colour = match owners.get(tile.id.0 as usize) {
+                Some(&node) if node != tessera_protocol::control::NO_OWNER => {
+                    tessera_display_node::overlay::node_colour(node)
+                }
+                _ => [0, 0, 0],
+            };
+            let (x0, y0) = (tile.x / f, tile.y / f);
+            let x1 = (tile.x + tile.width).div_ceil(f).min(map.width);
+            let y1 = (tile.y + tile.height).div_ceil(f).min(map.height);
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let at = (y * map.width + x) as usize * 3;
+                    map.rgb[at..at + 3].copy_from_slice(&colour);
+                }
+            }
+        }
+        map
+    }
+
     /// The picture as PNG bytes.
     pub fn png(&self) -> Vec<u8> {
         use image::ImageEncoder;

@@ -27,6 +27,8 @@ pub(super) struct Live {
     pub(super) overlay: bool,
     /// Frames a control client asked the displays to save, for `wall-frame-<K>.png`.
     pub(super) snapshots: Vec<FrameId>,
+    /// The render node that last reported each tile done, by tile id.
+    pub(super) tile_owners: Vec<u32>,
 }
 
 impl Master {
@@ -106,6 +108,7 @@ impl Master {
             ControlRequest::Input(event) => self.input_request(event, stamp, now)?,
             ControlRequest::Playback(playback) => self.playback(playback, stamp, now)?,
             ControlRequest::Status => ControlReply::Status(self.status()),
+            ControlRequest::TileOwners => ControlReply::TileOwners(self.live.tile_owners.clone()),
             ControlRequest::Fit => {
                 let fit = self.fit_camera();
                 self.queue_all(&[StateChange::Camera(fit)], stamp, now)?

@@ -73,6 +73,7 @@ impl Master {
                     .handle_tiles_done(node, frame, &tiles, want_more, now.instant)?;
                 let done: usize = tiles.iter().map(|r| r.len()).sum();
                 *self.live.tiles.entry(node).or_default() += done as u64;
+                self.note_tile_owners(node, &tiles);
             }
             FromNode::Heartbeat => {
                 // From a node not (or no longer) in the run, a beat in flight when it was

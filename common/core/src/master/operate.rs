@@ -171,6 +171,22 @@ impl Master {
         }
     }
 
+    /// `node` rendered `tiles`: the console's heatmap says so. Tile ids were checked by the
+    /// coordinator against the grid before this.
+    pub(super) fn note_tile_owners(
+        &mut self,
+        node: RenderNodeId,
+        tiles: &[tessera_protocol::TileRange],
+    ) {
+        let owners = &mut self.live.tile_owners;
+        for range in tiles {
+            if owners.len() < range.end() as usize {
+                owners.resize(range.end() as usize, tessera_protocol::control::NO_OWNER);
+            }
+            owners[range.start() as usize..range.end() as usize].fill(node.0);
+        }
+    }
+
     /// A console's window input: what the navigator makes of it, queued like a command.
     pub(super) fn input_request(
         &mut self,
