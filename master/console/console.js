@@ -441,6 +441,13 @@ on('btn-record', 'click', async (e) => {
   btn.classList.toggle('active', recording);
 });
 
+// A session recorded before (a file name in the wall's --out folder) plays from the next frame.
+on('btn-replay', 'click', (e) => {
+  const path = $('record-path').value.trim();
+  if (!path) return say(actionsMsg, 'name a recorded session file to replay', 'err');
+  return act(e.currentTarget, '/api/replay', { path }, actionsMsg, `replaying ${path}`);
+});
+
 // ---- quality, views, cut planes, lights ----------------------------------------------------
 const qualityMsg = $('msg-quality');
 on('q-shadows', 'change', (e) => act(null, '/api/quality', { shadows: e.target.checked }, qualityMsg));

@@ -61,6 +61,11 @@ pub struct RunArgs {
     /// its tiles until it reports them or its deadline passes, and no tile is sent twice.
     #[arg(long)]
     pub no_speculation: bool,
+    /// Keep two frames in flight while someone steers too (more frames a second, input shown
+    /// a frame later). By default the next frame waits for the one in flight while changes
+    /// keep coming, so that it carries the newest one.
+    #[arg(long)]
+    pub pipeline_while_steering: bool,
     /// What a display's loss (its connection closed, or silent past --node-deadline-ms) does:
     /// `go-on` presents on the other displays (the lost display's tiles are no longer
     /// rendered); `wait` pauses the wall, every screen holding its last frame, until the
@@ -186,6 +191,12 @@ pub struct ServeArgs {
     /// Cluster directory: the CA (created on first start) and the master's certificate.
     #[arg(long, default_value = "tessera-cluster")]
     pub cluster_dir: PathBuf,
+    /// Serve the operator's console over HTTPS on this address (the master's cluster
+    /// certificate; a browser shows the printed token, a script may show a control
+    /// certificate instead). Loopback keeps it on this host; 0.0.0.0:PORT opens it to the
+    /// wall's network.
+    #[arg(long, value_name = "ADDR")]
+    pub console: Option<SocketAddr>,
 }
 
 #[derive(clap::Args)]
@@ -297,6 +308,7 @@ fn balance_config(run: &RunArgs) -> BalanceConfig {
             ..DeathDetector::default()
         },
         speculate: !run.no_speculation,
+        hold_while_steering: !run.pipeline_while_steering,
         ..BalanceConfig::default()
     }
 }

@@ -3,7 +3,7 @@
 //! peer's bounded queue, connections closed, the recording, the progress bar). Every decision
 //! is the `Master`'s; this is the only place in the master with sockets and `Instant::now()`.
 
-use crate::console::Bridge;
+use crate::console::{Bridge, Incoming};
 use crate::peers::{accept_peer, Event, PeerSender};
 use crate::record::Recorder;
 use anyhow::{Context, Result};
@@ -105,6 +105,8 @@ struct Driver {
     signals: RunSignals,
     /// The operator's console, if one is served.
     console: Option<Bridge>,
+    /// Where the session is being recorded, by `--record` or from the console.
+    recording: Option<PathBuf>,
 }
 
 /// This moment on both of the master's clocks, for the event about to be handed to it.
@@ -158,6 +160,7 @@ pub async fn run_wall(
         show_progress: cfg.show_progress,
         signals,
         console,
+        recording: cfg.record.clone(),
     };
     let result = tokio::select! {
         result = driver.run(&mut events, &mut stop) => result,
@@ -222,16 +225,21 @@ impl Driver {
                     self.master.handle_timeout(now());
                 }
                 () = self.signals.exit_notify.notified() => self.processes_exited(),
-                Some(call) = async {
+                Some(incoming) = async {
                     match self.console.as_mut() {
-                        Some(c) => c.calls.recv().await,
+                        Some(c) => c.next().await,
                         None => std::future::pending().await,
                     }
-                } => {
-                    let reply = self.master.handle_local_control(call.request, now());
-                    // The console gave up waiting: nothing to tell.
-                    let _ = call.reply.send(reply);
-                }
+                } => match incoming {
+                    // A console that gave up waiting has nothing to be told.
+                    Incoming::Call(call) => {
+                        let reply = self.master.handle_local_control(call.request, now());
+                        let _ = call.reply.send(reply);
+                    }
+                    Incoming::Record(call) => {
+                        let _ = call.reply.send(self.record_from_console(call.start));
+                    }
+                },
                 _ = tick.tick(), if self.console.is_some() => self.console_tick(),
                 changed = stop.changed(), if !stopping => {
                     stopping = true;
@@ -275,6 +283,28 @@ impl Driver {
             Event::Closed(peer, reason) => {
                 self.links.remove(&peer);
                 self.master.handle_closed(peer, &reason, now());
+            }
+        }
+    }
+
+    /// Starts recording the session into `start`, or stops (`None`): the console's Record.
+    /// The file being written, or why not.
+    fn record_from_console(&mut self, start: Option<PathBuf>) -> Result<Option<PathBuf>, String> {
+        match (start, &self.recording) {
+            (Some(_), Some(now)) => Err(format!("already recording to {}", now.display())),
+            (Some(path), None) => {
+                self.recorder = Some(Recorder::create(&path).map_err(|e| format!("{e:#}"))?);
+                tracing::info!("recording the session to {}", path.display());
+                self.recording = Some(path.clone());
+                Ok(Some(path))
+            }
+            (None, _) => {
+                // Dropping the recorder writes what it holds and closes the file.
+                self.recorder = None;
+                if let Some(path) = self.recording.take() {
+                    tracing::info!("recorded the session to {}", path.display());
+                }
+                Ok(None)
             }
         }
     }

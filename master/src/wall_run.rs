@@ -143,14 +143,17 @@ async fn start_console(
         (None, None, None)
     } else {
         let token = console::new_token()?;
-        let (bridge, addr) = console::start(console::ConsoleConfig {
-            bind: args.console,
-            token: token.clone(),
-            out: args.run.out.clone(),
-            histogram: cfg.histogram.clone(),
-            wall: cfg.master.wall.clone(),
-            home: cfg.master.camera,
-        })
+        let (bridge, addr) = console::start(
+            console::ConsoleConfig {
+                bind: args.console,
+                token: token.clone(),
+                out: args.run.out.clone(),
+                histogram: cfg.histogram.clone(),
+                wall: cfg.master.wall.clone(),
+                home: cfg.master.camera,
+            },
+            None,
+        )
         .await?;
         let url = format!("http://{addr}/?token={token}");
         eprintln!("tessera-master: console at {url}");
@@ -416,6 +419,31 @@ fn write_wall_png(
     Ok(())
 }
 
+/// A served wall's console, over HTTPS with the master's cluster certificate.
+async fn serve_console(
+    bind: std::net::SocketAddr,
+    cfg: &crate::server::RunConfig,
+    identity: &NodeIdentity,
+    ca: &ClusterCa,
+) -> Result<crate::console::Bridge> {
+    use crate::console;
+    let token = console::new_token()?;
+    let config = console::ConsoleConfig {
+        bind,
+        token: token.clone(),
+        out: None,
+        histogram: cfg.histogram.clone(),
+        wall: cfg.master.wall.clone(),
+        home: cfg.master.camera,
+    };
+    let (bridge, addr) = console::start(config, Some(identity)).await?;
+    eprintln!(
+        "tessera-master: console at https://{addr}/?token={token} (its certificate is signed by the cluster CA in {}: import it in the browser, or accept the warning; a control certificate needs no token)",
+        ca.dir().display()
+    );
+    Ok(bridge)
+}
+
 pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     let cfg = prepare_run(&args.run, args.render_nodes, true)?;
     let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
@@ -428,10 +456,22 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     // Read back, not echoed: with port 0 the kernel picks the port, and scripts and tests
     // wait for this line to learn it.
     eprintln!("tessera-master: listening on {}", endpoint.local_addr()?);
+    let console = match args.console {
+        Some(bind) => Some(serve_console(bind, &cfg, &identity, &ca).await?),
+        None => None,
+    };
     let (stop, interrupted) = stop_on_ctrl_c();
     let wall = cfg.master.wall.clone();
     let signals = RunSignals::default();
-    let end = run_wall(endpoint, cfg, signals, stop, std::future::pending(), None).await;
+    let end = run_wall(
+        endpoint,
+        cfg,
+        signals,
+        stop,
+        std::future::pending(),
+        console,
+    )
+    .await;
     let interrupted = interrupted.load(std::sync::atomic::Ordering::SeqCst);
     let ended = Ended::of(end, interrupted);
     finish_run(ended, &args.run, &wall)

@@ -11,7 +11,7 @@ const LIMIT: Duration = Duration::from_secs(120);
 const CAMERA: [&str; 4] = ["--eye", "3,2.5,6", "--target", "0,0.4,0"];
 
 /// Every route of the API: method, path and a body that would be accepted.
-const ROUTES: [(&str, &str, &str); 21] = [
+const ROUTES: [(&str, &str, &str); 22] = [
     ("GET", "/api/status", ""),
     ("GET", "/api/figures", ""),
     ("GET", "/api/wall.png", ""),
@@ -31,6 +31,7 @@ const ROUTES: [(&str, &str, &str); 21] = [
     ("POST", "/api/overlay", r#"{"on":true}"#),
     ("POST", "/api/snapshot", r#"{"final":false}"#),
     ("POST", "/api/record", r#"{"on":true}"#),
+    ("POST", "/api/replay", r#"{"path":"session.jsonl"}"#),
     ("POST", "/api/particles", r#"{"colormap":"magma"}"#),
     ("GET", "/api/heatmap.png", ""),
 ];
@@ -45,7 +46,9 @@ fn state_id(wall: &ConsoleWall) -> u64 {
 fn every_route_refuses_without_the_token_and_bad_values_with_the_reason() {
     let dir = tempfile::tempdir().unwrap();
     let volume = write_ramp_volume(dir.path());
+    let out = dir.path().join("out");
     let mut args = vec!["--wall", "2x1", "--screen", "160x90", "--frames", "0"];
+    args.extend(["--out", out.to_str().unwrap()]);
     args.extend(["--scene", volume.to_str().unwrap(), "--eye", "20,3.5,3.5"]);
     args.extend(["--target", "3.5,3.5,3.5"]);
     let wall = ConsoleWall::start(dir.path(), &args, LIMIT);
@@ -130,6 +133,18 @@ fn every_route_refuses_without_the_token_and_bad_values_with_the_reason() {
             "either",
         ),
         ("/api/overlay", r#"{"on":"yes"}"#, 400, "on"),
+        (
+            "/api/record",
+            r#"{"on":true,"path":"../escape.jsonl"}"#,
+            400,
+            "plain name",
+        ),
+        (
+            "/api/replay",
+            r#"{"path":"never-recorded.jsonl"}"#,
+            400,
+            "never-recorded",
+        ),
     ];
     for (path, body, status, words) in refused {
         let a = wall.post(path, body);
@@ -173,6 +188,28 @@ fn every_route_refuses_without_the_token_and_bad_values_with_the_reason() {
     assert!(
         wait_for(LIMIT, || state_id(&wall) == before + 1),
         "the change never reached the wall"
+    );
+
+    // Recorded from the console, then replayed: the recorded iso-value comes back.
+    let rec = wall.post("/api/record", r#"{"on":true,"path":"s.jsonl"}"#);
+    assert_eq!(rec.status, 200, "{}", rec.text());
+    assert_eq!(wall.post("/api/volume", r#"{"iso":[50]}"#).status, 200);
+    let iso = |v: f64| {
+        move |w: &ConsoleWall| {
+            w.get("/api/status").json()["volume"]["iso"] == serde_json::json!([v])
+        }
+    };
+    assert!(wait_for(LIMIT, || iso(50.0)(&wall)), "iso 50 never applied");
+    assert_eq!(wall.post("/api/record", r#"{"on":false}"#).status, 200);
+    let recorded = std::fs::read_to_string(out.join("s.jsonl")).unwrap();
+    assert!(recorded.contains("50.0"), "{recorded}");
+    assert_eq!(wall.post("/api/volume", r#"{"iso":[10]}"#).status, 200);
+    assert!(wait_for(LIMIT, || iso(10.0)(&wall)), "iso 10 never applied");
+    let replay = wall.post("/api/replay", r#"{"path":"s.jsonl"}"#);
+    assert_eq!(replay.status, 200, "{}", replay.text());
+    assert!(
+        wait_for(LIMIT, || iso(50.0)(&wall)),
+        "the replayed session never showed"
     );
     wall.master.signal(libc::SIGINT);
     let o = wall.master.wait(LIMIT);
@@ -244,7 +281,9 @@ fn a_converged_wall_snapshots_what_it_shows_and_says_it_is_idle() {
     // The heatmap paints every tile in its render node's colour: none is left black.
     let heat = wall.get("/api/heatmap.png");
     assert_eq!(heat.status, 200, "{}", heat.text());
-    let heat = image::load_from_memory(&heat.body).expect("a PNG").to_rgb8();
+    let heat = image::load_from_memory(&heat.body)
+        .expect("a PNG")
+        .to_rgb8();
     let black = heat.pixels().filter(|p| p.0 == [0, 0, 0]).count();
     assert_eq!(black, 0, "tiles no render node rendered");
     wall.master.signal(libc::SIGINT);

@@ -133,6 +133,24 @@ fn server_config_with(
     Ok(config)
 }
 
+/// The server side of the operator's console over HTTPS: `id`'s certificate, and a client
+/// certificate asked for but not required (a browser has none and shows the console's token;
+/// one the cluster CA signed is verified, and the console reads its role).
+pub fn https_server_config(id: &NodeIdentity) -> Result<rustls::ServerConfig> {
+    let verifier = WebPkiClientVerifier::builder_with_provider(roots(id)?, provider())
+        .allow_unauthenticated()
+        .build()
+        .map_err(|e| NetError::Tls(format!("cannot build the client certificate verifier: {e}")))?;
+    let mut tls = rustls::ServerConfig::builder_with_provider(provider())
+        .with_safe_default_protocol_versions()
+        .map_err(|e| NetError::Tls(e.to_string()))?
+        .with_client_cert_verifier(verifier)
+        .with_single_cert(vec![id.cert.clone()], id.key.clone_key())
+        .map_err(NetError::KeyMismatch)?;
+    tls.alpn_protocols = vec![b"http/1.1".to_vec()];
+    Ok(tls)
+}
+
 /// The client side of control and pixel connections: it presents `id`'s certificate and trusts
 /// only servers whose certificate the cluster CA signed.
 pub fn client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {

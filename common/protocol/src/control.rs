@@ -102,6 +102,9 @@ pub enum ControlRequest {
     Status,
     /// Which render node rendered each tile last: [`ControlReply::TileOwners`].
     TileOwners,
+    /// Replay a recorded session from the next frame on: each state at its frame's offset
+    /// from the session's first, at most [`MAX_REPLAYED`].
+    Replay(Vec<(u64, WallState)>),
     /// A fixed camera that frames the whole scene, looking at its middle from where the
     /// camera looks now.
     Fit,
@@ -114,6 +117,9 @@ pub enum ControlRequest {
         y: u32,
     },
 }
+
+/// Most states a replayed session may hold.
+pub const MAX_REPLAYED: usize = 100_000;
 
 /// A tile no render node has rendered yet, in [`ControlReply::TileOwners`].
 pub const NO_OWNER: u32 = u32::MAX;
@@ -249,6 +255,9 @@ pub enum Refusal {
         /// Snapshots the run takes at most.
         max: u32,
     },
+    /// A replayed session with more than [`MAX_REPLAYED`] states.
+    #[error("a replayed session holds at most {MAX_REPLAYED} states")]
+    ReplayTooLong,
     /// Playback, but the scene is no time series.
     #[error("the scene is not a time series: there is nothing to play")]
     NoSeries,

@@ -123,7 +123,10 @@ fn parse_transport_seconds(text: &str) -> Result<f64, String> {
     }
 }
 
-pub async fn bench(args: BenchArgs) -> Result<ExitCode> {
+pub async fn bench(mut args: BenchArgs) -> Result<ExitCode> {
+    // A measurement has nobody at a console, and its picture and figures would cost the
+    // nodes work the run measures.
+    args.local.no_console = true;
     let Some(out) = args.local.run.out.clone() else {
         bail!("bench needs --out DIR for its report, CSV and plot");
     };
@@ -369,19 +372,27 @@ fn latency_plot(t: &crate::timing::TimingSummary) -> Plot<'static> {
 /// The percentiles of latency, input latency and skew, then the latency in frame periods.
 fn print_latency(t: &crate::timing::TimingSummary, period: f64, in_periods: f64) {
     println!(
-        "{:<10} {:>8} {:>8} {:>8} {:>8}",
+        "{:<20} {:>8} {:>8} {:>8} {:>8}",
         "ms", "p50", "p95", "p99", "max"
     );
+    let parts = &t.input_parts;
     for (name, p) in [
         ("latency", &t.latency_ms),
         ("input", &t.input_latency_ms),
+        ("  entry -> master", &parts.entry_to_master_ms),
+        ("  master -> barrier", &parts.master_to_barrier_ms),
+        ("  barrier -> present", &parts.barrier_to_present_ms),
         ("skew", &t.skew_ms),
     ] {
         println!(
-            "{name:<10} {:>8.3} {:>8.3} {:>8.3} {:>8.3}",
+            "{name:<20} {:>8.3} {:>8.3} {:>8.3} {:>8.3}",
             p.p50, p.p95, p.p99, p.max
         );
     }
+    println!(
+        "input p95 = {:.2} frame periods",
+        in_frame_periods(t.input_latency_ms.p95, period)
+    );
     println!(
         "frame period {period:.2} ms; latency p95 = {in_periods:.2} frame periods; {} frames measured",
         t.frames_measured

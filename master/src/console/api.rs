@@ -78,7 +78,8 @@ pub fn router(shared: Shared) -> Router {
         .route("/overlay", post(overlay))
         .route("/snapshot", post(snapshot))
         .route("/probe", get(probe))
-        .route("/record", post(not_here))
+        .route("/record", post(record))
+        .route("/replay", post(replay))
         .route("/particles", post(not_here))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such API route".into()) })
         .route_layer(middleware::from_fn_with_state(shared.clone(), authorise));
@@ -155,9 +156,21 @@ fn authorised(headers: &HeaderMap, token: &str) -> bool {
 }
 
 async fn authorise(State(shared): State<Shared>, request: Request, next: Next) -> Response {
-    if authorised(request.headers(), &shared.cfg.token) {
+    // Over HTTPS, a control certificate the cluster CA signed is as good as the token.
+    let peer = request
+        .extensions()
+        .get::<axum::extract::ConnectInfo<super::tls::TlsPeer>>()
+        .map(|p| p.0.clone());
+    let certified = peer.as_ref().is_some_and(|p| p.control);
+    if certified || authorised(request.headers(), &shared.cfg.token) {
         next.run(request).await
     } else {
+        if let Some(p) = peer {
+            tracing::info!(
+                "console: refused {} without a token or a control certificate",
+                p.addr
+            );
+        }
         ApiError(
             StatusCode::UNAUTHORIZED,
             "not authorised: open the console with the address tessera-master printed (its token), or send Authorization: Bearer TOKEN".into(),
@@ -478,6 +491,82 @@ async fn snapshot(
             ),
         )),
     }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RecordBody {
+    on: bool,
+    /// A file name in the sessions' folder (`--out`, else the working directory).
+    path: Option<String>,
+}
+
+/// A plain file name: the console writes and reads sessions in one folder only.
+fn session_name(name: &str) -> Result<&str, ApiError> {
+    let plain = !name.is_empty()
+        && name.len() <= 128
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+        && !name.starts_with('.');
+    if plain {
+        Ok(name)
+    } else {
+        Err(bad(format!(
+            "session file {name:?} must be a plain name (letters, digits, '-', '_', '.')"
+        )))
+    }
+}
+
+/// Starts or stops recording the session, in the sessions' folder.
+async fn record(
+    State(shared): State<Shared>,
+    parsed: Result<Json<RecordBody>, JsonRejection>,
+) -> ApiResult {
+    let b = body(parsed)?;
+    let start = if b.on {
+        let default = format!("session-{}.jsonl", tessera_net::unix_ns() / 1_000_000_000);
+        let name = session_name(b.path.as_deref().unwrap_or(&default))?;
+        Some(shared.sessions.join(name))
+    } else {
+        None
+    };
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let busy = || {
+        ApiError(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the wall is busy or over".into(),
+        )
+    };
+    shared
+        .records
+        .try_send(super::RecordCall { start, reply: tx })
+        .map_err(|_| busy())?;
+    match tokio::time::timeout(ANSWER_WAIT, rx).await {
+        Ok(Ok(Ok(path))) => Ok(Json(json!({ "recording": path.is_some(), "path": path }))),
+        Ok(Ok(Err(why))) => Err(ApiError(StatusCode::UNPROCESSABLE_ENTITY, why)),
+        _ => Err(busy()),
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ReplayBody {
+    path: String,
+}
+
+/// Replays a recorded session from the sessions' folder, from the next frame on.
+async fn replay(
+    State(shared): State<Shared>,
+    parsed: Result<Json<ReplayBody>, JsonRejection>,
+) -> ApiResult {
+    let b = body(parsed)?;
+    let path = shared.sessions.join(session_name(&b.path)?);
+    let session = crate::record::Session::load(&path).map_err(bad_chain)?;
+    let changes = session.changes();
+    let first = changes.first().map_or(0, |(f, _)| f.0);
+    let states = changes.into_iter().map(|(f, s)| (f.0 - first, s)).collect();
+    change(&shared, ControlRequest::Replay(states)).await
 }
 
 #[derive(Deserialize)]

@@ -12,6 +12,7 @@ pub mod credentials;
 pub mod json;
 mod openapi;
 mod picture;
+pub mod tls;
 
 use anyhow::{Context, Result};
 use std::net::SocketAddr;
@@ -105,6 +106,13 @@ pub struct Call {
     pub reply: oneshot::Sender<ControlReply>,
 }
 
+/// A recording to start (into `start`) or stop (`None`), and where its answer goes: the
+/// file being written, or why not.
+pub struct RecordCall {
+    pub start: Option<PathBuf>,
+    pub reply: oneshot::Sender<Result<Option<PathBuf>, String>>,
+}
+
 /// What the browser watches, published by the driver every [`TICK`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Live {
@@ -124,17 +132,22 @@ pub struct SnapshotDone {
 #[derive(Clone)]
 pub struct Shared {
     calls: mpsc::Sender<Call>,
+    records: mpsc::Sender<RecordCall>,
     live: watch::Receiver<Live>,
     picture: Arc<Mutex<WallPicture>>,
     picture_frame: watch::Receiver<u64>,
     snapshots: broadcast::Sender<SnapshotDone>,
     cfg: Arc<ConsoleConfig>,
+    /// Where recordings go and replayed sessions come from.
+    sessions: PathBuf,
 }
 
 /// The driver's side of the console.
 pub struct Bridge {
     /// Requests from the web server.
-    pub calls: mpsc::Receiver<Call>,
+    calls: mpsc::Receiver<Call>,
+    /// Recordings to start or stop.
+    records: mpsc::Receiver<RecordCall>,
     live: watch::Sender<Live>,
     picture: Arc<Mutex<WallPicture>>,
     picture_frame: watch::Sender<u64>,
@@ -144,37 +157,58 @@ pub struct Bridge {
     asked: Option<(u64, bool, Instant)>,
 }
 
-/// A console listening on `cfg.bind`: its bridge for the driver, and the address it got.
+/// A console listening on `cfg.bind`, over HTTPS with `tls`'s certificate if given: its
+/// bridge for the driver, and the address it got.
 ///
 /// # Errors
-/// The address cannot be bound.
-pub async fn start(cfg: ConsoleConfig) -> Result<(Bridge, SocketAddr)> {
+/// The address cannot be bound, or the certificate cannot serve HTTPS.
+pub async fn start(
+    cfg: ConsoleConfig,
+    tls: Option<&tessera_net::cluster::NodeIdentity>,
+) -> Result<(Bridge, SocketAddr)> {
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
         .with_context(|| format!("cannot listen for the console on {}", cfg.bind))?;
     let addr = listener.local_addr()?;
     let cfg = Arc::new(cfg);
     let (calls_tx, calls) = mpsc::channel(CALL_QUEUE);
+    let (records_tx, records) = mpsc::channel(4);
     let (live_tx, live_rx) = watch::channel(Live::default());
     let (frame_tx, frame_rx) = watch::channel(0);
     let (snapshots, _) = broadcast::channel(16);
     let picture = Arc::new(Mutex::new(WallPicture::new(&cfg.wall, 1)));
     let shared = Shared {
         calls: calls_tx,
+        records: records_tx,
         live: live_rx,
         picture: picture.clone(),
         picture_frame: frame_rx,
         snapshots: snapshots.clone(),
+        sessions: cfg.out.clone().unwrap_or_else(|| PathBuf::from(".")),
         cfg: cfg.clone(),
     };
     let app = api::router(shared);
-    tokio::spawn(async move {
-        if let Err(e) = axum::serve(listener, app).await {
-            tracing::error!("the console stopped serving: {e}");
+    match tls {
+        Some(identity) => {
+            let listener = tls::listen(listener, identity)?;
+            let service = app.into_make_service_with_connect_info::<tls::TlsPeer>();
+            tokio::spawn(async move {
+                if let Err(e) = axum::serve(listener, service).await {
+                    tracing::error!("the console stopped serving: {e}");
+                }
+            });
         }
-    });
+        None => {
+            tokio::spawn(async move {
+                if let Err(e) = axum::serve(listener, app).await {
+                    tracing::error!("the console stopped serving: {e}");
+                }
+            });
+        }
+    }
     let bridge = Bridge {
         calls,
+        records,
         live: live_tx,
         picture,
         picture_frame: frame_tx,
@@ -185,7 +219,24 @@ pub async fn start(cfg: ConsoleConfig) -> Result<(Bridge, SocketAddr)> {
     Ok((bridge, addr))
 }
 
+/// A request of the web server for the driver.
+pub enum Incoming {
+    /// A control request.
+    Call(Call),
+    /// A recording to start or stop.
+    Record(RecordCall),
+}
+
 impl Bridge {
+    /// The next request of the web server; `None` once it is gone.
+    pub async fn next(&mut self) -> Option<Incoming> {
+        tokio::select! {
+            Some(call) = self.calls.recv() => Some(Incoming::Call(call)),
+            Some(call) = self.records.recv() => Some(Incoming::Record(call)),
+            else => None,
+        }
+    }
+
     /// Publishes the status and figures; whether to ask the displays for thumbnails now
     /// (something new was presented, or the wall just came to rest, or a while has passed).
     pub fn publish(&mut self, status: ControlReply, figures: ControlReply) -> bool {

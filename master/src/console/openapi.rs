@@ -84,7 +84,12 @@ pub fn document() -> Value {
             "/api/overlay": { "post": op("The displays' overlay on or off", Some(obj(json!({ "on": boolean })))) },
             "/api/snapshot": { "post": op("Save the wall as the displays show it; answered with the files once written", Some(obj(json!({ "final": boolean })))) },
             "/api/probe": { "get": op("The volume under wall pixel x,y (query)", None) },
-            "/api/record": { "post": op("Record the session (not available in this version)", None) },
+            "/api/record": { "post": op("Start or stop recording the session into a file of the --out folder", Some(obj(json!({
+                "on": boolean, "path": { "type": "string" }
+            })))) },
+            "/api/replay": { "post": op("Replay a recorded session of the --out folder from the next frame on", Some(obj(json!({
+                "path": { "type": "string" }
+            })))) },
             "/api/particles": { "post": op("Particle colour map (not available in this version)", None) }
         }
     })

@@ -36,6 +36,7 @@ mod output;
 mod refine;
 mod shares;
 mod speculate;
+mod steering;
 
 pub use cancel::{INTERRUPT_GRACE, MIN_RUNAWAY, RUNAWAY_FACTOR};
 pub use liveness::DeathDetector;
@@ -67,6 +68,9 @@ pub struct BalanceConfig {
     /// Whether idle nodes get copies of the tiles of a node late past its lease (off: they
     /// wait for the deadline, and no tile is ever rendered twice).
     pub speculate: bool,
+    /// While someone steers, start the next frame only once the one in flight is rendered
+    /// (lower input latency, a little less throughput); see `steering`.
+    pub hold_while_steering: bool,
     /// What a lost display does to the wall. `None`: the others go on without it. `Some(at
     /// most)`: the wall pauses, no frame starts until it rejoins, and if it is not back within
     /// `at most`, [`Output::DisplayNotBack`] ends the wait (the driver ends the run).
@@ -89,6 +93,7 @@ impl Default for BalanceConfig {
             node_deadline: DEFAULT_NODE_DEADLINE,
             death: DeathDetector::default(),
             speculate: true,
+            hold_while_steering: true,
             wait_for_lost_displays: None,
         }
     }
@@ -171,6 +176,8 @@ pub struct Coordinator {
     next: WallState,
     /// Changes folded into `next`, and the stamps they came with.
     pending_changes: u64,
+    /// When the last change was queued: someone steering (see `steering`).
+    last_change_at: Option<Instant>,
     pending_stamps: Vec<u64>,
     /// Changes to apply at the barrier of a given frame (a replayed session).
     scheduled: BTreeMap<FrameId, Vec<StateChange>>,
@@ -234,6 +241,7 @@ impl Coordinator {
                 lights: None,
             },
             pending_changes: 0,
+            last_change_at: None,
             pending_stamps: Vec::new(),
             scheduled: BTreeMap::new(),
             refinement: None,
@@ -345,10 +353,11 @@ impl Coordinator {
         self.next = self.next.apply(&change)?;
         self.pending_changes += 1;
         self.pending_stamps.push(stamp);
-        // A converged wall renders again once something changed.
-        if std::mem::take(&mut self.converged) {
-            self.try_start_frames(now);
-        }
+        self.last_change_at = Some(now);
+        // A converged wall renders again once something changed, and a frame held back while
+        // someone steers starts now to carry the change.
+        self.converged = false;
+        self.try_start_frames(now);
         Ok(())
     }
 
@@ -551,7 +560,7 @@ impl Coordinator {
         params
     }
 
-    fn can_start_next(&self) -> bool {
+    fn can_start_next(&self, now: Instant) -> bool {
         if !self.running || self.nodes.is_empty() {
             return false;
         }
@@ -564,20 +573,22 @@ impl Coordinator {
         if self.converged || !self.awaited_displays.is_empty() {
             return false;
         }
-        // At most two frames in flight, and every tile of the newer one handed out.
+        // At most two frames in flight, and every tile of the newer one handed out; while
+        // someone steers, every tile of it rendered (see `steering`).
+        let holds = self.holds_next_frame(now);
         match self.in_flight.len() {
             0 => true,
             1 => self
                 .in_flight
                 .values()
                 .next()
-                .is_some_and(InFlight::pool_is_empty),
+                .is_some_and(|f| f.pool_is_empty() && (!holds || f.all_rendered())),
             _ => false,
         }
     }
 
     fn try_start_frames(&mut self, now: Instant) {
-        while self.can_start_next() {
+        while self.can_start_next(now) {
             let frame = self.next_frame;
             self.next_frame = FrameId(frame.0 + 1);
             for change in self.scheduled.remove(&frame).unwrap_or_default() {

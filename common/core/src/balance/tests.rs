@@ -276,6 +276,40 @@ fn the_next_frame_starts_when_every_tile_is_handed_out_not_when_the_last_is_rend
 }
 
 #[test]
+fn while_someone_steers_the_next_frame_waits_for_the_rendered_one_or_carries_a_change() {
+    let now = Instant::now();
+    let held = |hold_while_steering: bool| {
+        let mut c = coordinator(8, 1, 10);
+        c.config.hold_while_steering = hold_while_steering;
+        c.handle_render_joined(RenderNodeId(0), now);
+        // Someone steered: frame 0 starts with the change.
+        c.queue_change(StateChange::Spp(2), 1, now).unwrap();
+        c.start(now);
+        let _ = drain(&mut c);
+        // Node 0 takes frame 0's whole pool, rendering none of it yet.
+        for _ in 0..8 {
+            c.handle_tiles_done(RenderNodeId(0), FrameId(0), &[], true, now)
+                .unwrap();
+        }
+        let _ = drain(&mut c);
+        c
+    };
+    let mut c = held(true);
+    assert_eq!(c.frames_in_flight(), 1, "frame 1 waits for the next change");
+    c.queue_change(StateChange::Spp(1), 2, now).unwrap();
+    assert_eq!(
+        c.frames_in_flight(),
+        2,
+        "a waiting change starts it at once"
+    );
+    assert_eq!(
+        held(false).frames_in_flight(),
+        2,
+        "pipelined as always when asked"
+    );
+}
+
+#[test]
 fn a_node_that_joins_mid_frame_gets_the_start_and_an_empty_share() {
     let mut c = coordinator(40, 1, 2);
     let now = Instant::now();

@@ -108,6 +108,7 @@ impl Master {
             ControlRequest::Input(event) => self.input_request(event, stamp, now)?,
             ControlRequest::Playback(playback) => self.playback(playback, stamp, now)?,
             ControlRequest::Status => ControlReply::Status(self.status()),
+            ControlRequest::Replay(states) => self.replay(states)?,
             ControlRequest::TileOwners => ControlReply::TileOwners(self.live.tile_owners.clone()),
             ControlRequest::Fit => {
                 let fit = self.fit_camera();
@@ -147,6 +148,7 @@ impl Master {
         tracing::debug!("input {event:?} at frame {frame}: {action:?}");
         match action {
             Some(NavAction::Change(change)) => {
+                self.record.timing.input_arrived(stamp, now.unix_ns);
                 if let Err(e) = self.coordinator.queue_change(change, stamp, now.instant) {
                     tracing::warn!("input {event:?} refused: {e}");
                 }
@@ -208,6 +210,7 @@ impl Master {
         for (i, change) in changes.iter().enumerate() {
             next = next.apply(change).map_err(|e| refusal(i, e.to_string()))?;
         }
+        self.record.timing.input_arrived(stamp, now.unix_ns);
         if let (Some(steps), Some(i)) = (
             self.cfg.operator.series_steps,
             changes.iter().position(|c| match c {

@@ -187,6 +187,26 @@ impl Master {
         }
     }
 
+    /// A recorded session replayed from the next frame on: each state lands on the frame
+    /// its offset says, as a session replayed from the start would.
+    pub(super) fn replay(
+        &mut self,
+        states: Vec<(u64, WallState)>,
+    ) -> Result<ControlReply, Refusal> {
+        if states.len() > tessera_protocol::control::MAX_REPLAYED {
+            return Err(Refusal::ReplayTooLong);
+        }
+        let first = self.coordinator.next_frame().0;
+        for (offset, state) in states {
+            let frame = FrameId(first.saturating_add(offset));
+            // The next frame or later: never a frame already started.
+            let _ = self
+                .coordinator
+                .schedule_change(frame, StateChange::All(state));
+        }
+        Ok(ControlReply::Done)
+    }
+
     /// A console's window input: what the navigator makes of it, queued like a command.
     pub(super) fn input_request(
         &mut self,

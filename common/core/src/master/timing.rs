@@ -42,6 +42,19 @@ pub struct Timing {
     presents: BTreeMap<FrameId, Vec<(DisplayId, u64)>>,
     /// Entry stamps (master clock) of the inputs and commands that a frame's state applied.
     inputs: BTreeMap<FrameId, Vec<u64>>,
+    /// When each input or command (by its entry stamp) reached the master, master clock.
+    arrivals: HashMap<u64, u64>,
+}
+
+/// Where input latency goes, each part over the inputs `input_latency_ms` measured.
+#[derive(Debug, Default, Serialize)]
+pub struct InputParts {
+    /// Entry (the window or client, mapped onto the master's clock) → the master has it.
+    pub entry_to_master_ms: Percentiles,
+    /// The master has it → the barrier that applies it starts a frame.
+    pub master_to_barrier_ms: Percentiles,
+    /// That frame's start → presented on every display.
+    pub barrier_to_present_ms: Percentiles,
 }
 
 /// One frame's figures, for the per-frame CSV.
@@ -72,6 +85,8 @@ pub struct TimingSummary {
     /// Each display's clock estimate, by display id (none for a display that answered no
     /// ping).
     pub clocks: BTreeMap<u32, ClockEstimate>,
+    /// Where input latency goes.
+    pub input_parts: InputParts,
     /// The figures of each frame measured, in frame order (for the CSV, not the report).
     #[serde(skip)]
     pub per_frame: Vec<FrameTiming>,
@@ -121,6 +136,13 @@ impl Timing {
         }
     }
 
+    /// The input or command stamped `stamp` reached the master at `master_ns`.
+    pub fn input_arrived(&mut self, stamp: u64, master_ns: u64) {
+        if stamp > 0 {
+            self.arrivals.insert(stamp, master_ns);
+        }
+    }
+
     /// `frame` started at `master_ns` (master clock).
     pub fn frame_started(&mut self, frame: FrameId, master_ns: u64) {
         self.starts.insert(frame, master_ns);
@@ -155,6 +177,39 @@ impl Timing {
         out
     }
 
+    /// Each measured input's entry → master, master → barrier and barrier → present, ms.
+    fn input_parts(&self, displays: u32) -> InputParts {
+        let mut parts: [Vec<f64>; 3] = Default::default();
+        for (frame, stamps) in &self.inputs {
+            let (Some(presents), Some(&start)) = (self.presents.get(frame), self.starts.get(frame))
+            else {
+                continue;
+            };
+            if presents.len() < displays as usize {
+                continue;
+            }
+            let last = presents
+                .iter()
+                .map(|&(d, ns)| ns as i128 - self.offset(d) as i128)
+                .max()
+                .expect("at least one present");
+            for s in stamps {
+                let Some(&arrived) = self.arrivals.get(s) else {
+                    continue;
+                };
+                let ms = |a: i128, b: i128| (b - a) as f64 / 1e6;
+                parts[0].push(ms(*s as i128, arrived as i128));
+                parts[1].push(ms(arrived as i128, start as i128));
+                parts[2].push(ms(start as i128, last));
+            }
+        }
+        InputParts {
+            entry_to_master_ms: Percentiles::of_ms(&parts[0]),
+            master_to_barrier_ms: Percentiles::of_ms(&parts[1]),
+            barrier_to_present_ms: Percentiles::of_ms(&parts[2]),
+        }
+    }
+
     /// Figures over the frames that every one of `displays` presented.
     pub fn summary(&self, displays: u32) -> TimingSummary {
         let mut per_frame = Vec::new();
@@ -185,6 +240,7 @@ impl Timing {
             input_latency_ms: Percentiles::of_ms(&input_latency),
             inputs_measured: input_latency.len() as u64,
             skew_ms: Percentiles::of_ms(&skew),
+            input_parts: self.input_parts(displays),
             frames_measured: per_frame.len() as u64,
             clocks: self
                 .clocks
@@ -259,6 +315,8 @@ mod tests {
         t.same_host(b);
         // Two inputs (at 1 ms and 3 ms) and a replayed change (0) land in frame 7.
         t.inputs_applied(FrameId(7), &[1_000_000, 3_000_000, 0]);
+        t.input_arrived(1_000_000, 1_500_000);
+        t.input_arrived(3_000_000, 3_200_000);
         t.frame_started(FrameId(7), 4_000_000);
         t.presented(a, FrameId(7), 9_000_000);
         let s = t.summary(2);
@@ -276,5 +334,11 @@ mod tests {
             "{:?}",
             s.input_latency_ms
         );
+        // The parts: 0.5 and 0.2 ms to reach the master, then to the barrier at 4 ms, then
+        // 6 ms to the last present.
+        let p = &s.input_parts;
+        assert!((p.entry_to_master_ms.max - 0.5).abs() < 0.01, "{p:?}");
+        assert!((p.master_to_barrier_ms.max - 2.5).abs() < 0.01, "{p:?}");
+        assert!((p.barrier_to_present_ms.p50 - 6.0).abs() < 0.01, "{p:?}");
     }
 }
