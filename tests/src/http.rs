@@ -38,11 +38,44 @@ pub fn request(
     token: Option<&str>,
     body: Option<&str>,
 ) -> Answer {
-    let mut stream =
-        TcpStream::connect(addr).unwrap_or_else(|e| panic!("cannot reach {addr}: {e}"));
+    let mut stream = connect(addr);
+    request_on(&mut stream, addr, method, path, token, body)
+}
+
+fn connect(addr: &str) -> TcpStream {
+    let stream = TcpStream::connect(addr).unwrap_or_else(|e| panic!("cannot reach {addr}: {e}"));
     stream
         .set_read_timeout(Some(Duration::from_secs(30)))
         .unwrap();
+    stream
+}
+
+/// A `GET` of `path` over HTTPS, trusting the cluster CA of the node certificate in
+/// `cert_dir` and presenting that certificate if `present`.
+pub fn request_tls(
+    addr: &str,
+    cert_dir: &Path,
+    present: bool,
+    path: &str,
+    token: Option<&str>,
+) -> Answer {
+    let id = tessera_net::cluster::NodeIdentity::load(cert_dir).expect("a node certificate");
+    let config = tessera_net::quic::https_client_config(&id, present).expect("a TLS client");
+    let name =
+        rustls::pki_types::ServerName::try_from(tessera_net::cluster::CLUSTER_SERVER_NAME).unwrap();
+    let conn = rustls::ClientConnection::new(std::sync::Arc::new(config), name).unwrap();
+    let mut tls = rustls::StreamOwned::new(conn, connect(addr));
+    request_on(&mut tls, addr, "GET", path, token, None)
+}
+
+fn request_on<S: Read + Write>(
+    stream: &mut S,
+    addr: &str,
+    method: &str,
+    path: &str,
+    token: Option<&str>,
+    body: Option<&str>,
+) -> Answer {
     let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
     if let Some(t) = token {
         head.push_str(&format!("Authorization: Bearer {t}\r\n"));
@@ -57,7 +90,7 @@ pub fn request(
     head.push_str("\r\n");
     stream.write_all(head.as_bytes()).unwrap();
     stream.write_all(body.as_bytes()).unwrap();
-    let raw = read_answer(&mut stream);
+    let raw = read_answer(stream);
     let split = raw
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
@@ -80,7 +113,7 @@ pub fn request(
 
 /// Reads an answer whole: to the end its Content-Length or last chunk says, not to the
 /// connection's end, which a server that keeps connections open (chromedriver) never sends.
-fn read_answer(stream: &mut TcpStream) -> Vec<u8> {
+fn read_answer(stream: &mut impl Read) -> Vec<u8> {
     let mut raw = Vec::new();
     let mut buf = [0u8; 64 * 1024];
     loop {

@@ -3,6 +3,7 @@
 //! what it shows (the final quality, pixel for pixel), turns its overlay on and says it is
 //! idle, with no camera move; `control` finds the local wall without being told where.
 
+use std::path::Path;
 use std::time::Duration;
 use tessera_tests::http::{request, ConsoleWall};
 use tessera_tests::*;
@@ -309,4 +310,52 @@ fn a_converged_wall_snapshots_what_it_shows_and_says_it_is_idle() {
         &reference.join("wall.png"),
         "the still wall's snapshot",
     );
+}
+
+#[test]
+fn a_served_console_speaks_https_and_admits_a_control_certificate_without_the_token() {
+    use tessera_tests::http::request_tls;
+    let dir = tempfile::tempdir().unwrap();
+    let cluster = dir.path().join("cluster");
+    let control = issue_cert(&cluster, "control-1");
+    let render = issue_cert(&cluster, "render-1");
+    let mut args = vec![
+        "serve",
+        "--listen",
+        "127.0.0.1:0",
+        "--console",
+        "127.0.0.1:0",
+    ];
+    args.extend(["--cluster-dir", cluster.to_str().unwrap(), "--frames", "0"]);
+    args.extend(["--wall", "1x1", "--screen", "64x64"]);
+    let master = Proc::start("tessera-master", &args);
+    let line = master.wait_for_stderr("console at https://", LIMIT);
+    let url = line
+        .split_whitespace()
+        .find(|w| w.starts_with("https://"))
+        .unwrap();
+    let addr = url
+        .trim_start_matches("https://")
+        .split('/')
+        .next()
+        .unwrap();
+    let token = url.split("token=").nth(1).unwrap();
+    let (control, render) = (Path::new(&control), Path::new(&render));
+    let status = |cert: &Path, present: bool, token: Option<&str>| {
+        request_tls(addr, cert, present, "/api/status", token).status
+    };
+    assert_eq!(
+        status(render, false, None),
+        401,
+        "a browser without the token"
+    );
+    assert_eq!(status(render, false, Some(token)), 200, "a browser with it");
+    assert_eq!(status(control, true, None), 200, "a control certificate");
+    assert_eq!(
+        status(render, true, None),
+        401,
+        "a render node's certificate"
+    );
+    master.signal(libc::SIGINT);
+    let _ = master.wait(LIMIT);
 }

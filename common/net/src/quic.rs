@@ -151,6 +151,24 @@ pub fn https_server_config(id: &NodeIdentity) -> Result<rustls::ServerConfig> {
     Ok(tls)
 }
 
+/// An HTTPS client of the console (for scripts and tests): it trusts only the cluster CA of
+/// `id`, and presents `id`'s certificate if `present`.
+pub fn https_client_config(id: &NodeIdentity, present: bool) -> Result<rustls::ClientConfig> {
+    let builder = rustls::ClientConfig::builder_with_provider(provider())
+        .with_safe_default_protocol_versions()
+        .map_err(|e| NetError::Tls(e.to_string()))?
+        .with_root_certificates(roots(id)?);
+    let mut tls = if present {
+        builder
+            .with_client_auth_cert(vec![id.cert.clone()], id.key.clone_key())
+            .map_err(NetError::KeyMismatch)?
+    } else {
+        builder.with_no_client_auth()
+    };
+    tls.alpn_protocols = vec![b"http/1.1".to_vec()];
+    Ok(tls)
+}
+
 /// The client side of control and pixel connections: it presents `id`'s certificate and trusts
 /// only servers whose certificate the cluster CA signed.
 pub fn client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
