@@ -324,6 +324,23 @@ pub fn load_scene(args: &SceneArgs) -> Result<Scene> {
     Ok(scene)
 }
 
+/// What operators see of `scene` (its ranges, its series), and whether it plays from the start.
+fn operator_config(scene: &Scene, play: bool) -> tessera_core::master::OperatorConfig {
+    tessera_core::master::OperatorConfig {
+        series_steps: (!scene.series.is_empty()).then_some(scene.series.len() as u32),
+        play,
+        volume_range: scene.volume.as_ref().map(|v| {
+            let (lo, hi) = v.range();
+            [lo, hi]
+        }),
+        particle_range: (!scene.particles.is_empty()).then(|| {
+            let (lo, hi) = scene.attribute_range();
+            [lo, hi]
+        }),
+        picture_width: crate::console::PICTURE_WIDTH,
+    }
+}
+
 /// Loads what the master itself needs of the scene: its bounds (for the orbit) and its hash.
 pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Result<RunConfig> {
     // Every flag is checked before the scene, which can take long to load.
@@ -363,23 +380,12 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     } else {
         (glam::Vec3::ZERO, 1.0)
     };
-    let volume = scene.volume.as_ref();
-    let operator = tessera_core::master::OperatorConfig {
-        series_steps: (!scene.series.is_empty()).then_some(scene.series.len() as u32),
-        play: run.play,
-        volume_range: volume.map(|v| {
-            let (lo, hi) = v.range();
-            [lo, hi]
-        }),
-        particle_range: (!scene.particles.is_empty()).then(|| {
-            let (lo, hi) = scene.attribute_range();
-            [lo, hi]
-        }),
-        picture_width: crate::console::PICTURE_WIDTH,
-    };
-    let histogram = volume.and_then(|v| crate::console::Histogram::of(v.values(), 256));
+    let histogram = scene
+        .volume
+        .as_ref()
+        .and_then(|v| crate::console::Histogram::of(v.values(), 256));
     let master = MasterConfig {
-        operator,
+        operator: operator_config(&scene, run.play),
         probe: crate::probe::Prober::of_scene(&scene)
             .map(|p| p as std::sync::Arc<dyn tessera_core::master::VolumeProbe>),
         wall,

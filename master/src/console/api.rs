@@ -29,6 +29,7 @@ const COOKIE: &str = "tessera_console";
 
 const INDEX: &str = include_str!("../../console/index.html");
 const SCRIPT: &str = include_str!("../../console/console.js");
+const UTIL: &str = include_str!("../../console/util.js");
 const STYLE: &str = include_str!("../../console/console.css");
 
 /// An answer that is not a success: its status and reason, as `{"error": reason}`.
@@ -86,6 +87,7 @@ pub fn router(shared: Shared) -> Router {
     Router::new()
         .route("/", get(index))
         .route("/console.js", get(|| async { asset(SCRIPT, "text/javascript") }))
+        .route("/util.js", get(|| async { asset(UTIL, "text/javascript") }))
         .route("/console.css", get(|| async { asset(STYLE, "text/css") }))
         .nest("/api", api)
         .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
