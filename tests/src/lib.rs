@@ -462,6 +462,39 @@ pub fn write_ramp_volume(dir: &Path) -> PathBuf {
     sidecar
 }
 
+/// Writes three `n`³ u8 steps into `dir`, each a ball (200) of a different size in 0, and
+/// `balls.scene.toml` naming them by pattern; returns the scene file.
+pub fn write_ball_series(dir: &Path, n: usize) -> std::path::PathBuf {
+    let middle = (n as f32 - 1.0) / 2.0;
+    let scale = n as f32 / 16.0;
+    for step in 0..3usize {
+        let radius = (3.0 + 2.0 * step as f32) * scale;
+        let values: Vec<u8> = (0..n * n * n)
+            .map(|i| {
+                let (x, y, z) = (i % n, i / n % n, i / (n * n));
+                let d = ((x as f32 - middle).powi(2)
+                    + (y as f32 - middle).powi(2)
+                    + (z as f32 - middle).powi(2))
+                .sqrt();
+                if d < radius {
+                    200
+                } else {
+                    0
+                }
+            })
+            .collect();
+        std::fs::write(dir.join(format!("ball{step}.raw")), values).unwrap();
+        std::fs::write(
+            dir.join(format!("ball{step}.vol.toml")),
+            format!("data = \"ball{step}.raw\"\ndims = [{n}, {n}, {n}]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n"),
+        )
+        .unwrap();
+    }
+    let scene = dir.join("balls.scene.toml");
+    std::fs::write(&scene, "series = \"ball*.vol.toml\"\n").unwrap();
+    scene
+}
+
 /// Issues the certificate of node `name` from the cluster CA in `cluster` with
 /// `tessera-master issue-cert`, its role read from the name: `display-N` is display N's,
 /// `control...` a control client's, anything else a render node's. Returns its directory.

@@ -5,7 +5,7 @@
 //! A screenshot of the page is kept as a CI artifact (`target/ci-artifacts/console.png`).
 
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 use tessera_tests::http::ConsoleWall;
 use tessera_tests::webdriver::Browser;
@@ -13,36 +13,6 @@ use tessera_tests::*;
 
 const LIMIT: Duration = Duration::from_secs(120);
 const WALL: [&str; 4] = ["--wall", "2x1", "--screen", "160x90"];
-
-/// Three 16³ steps, each a ball of another size, and a scene file naming them.
-fn write_series(dir: &Path) -> PathBuf {
-    for step in 0..3usize {
-        let radius = 3.0 + 2.0 * step as f32;
-        let values: Vec<u8> = (0..16 * 16 * 16)
-            .map(|i| {
-                let d = [i % 16, i / 16 % 16, i / 256]
-                    .map(|c| (c as f32 - 7.5).powi(2))
-                    .iter()
-                    .sum::<f32>()
-                    .sqrt();
-                if d < radius {
-                    200
-                } else {
-                    20
-                }
-            })
-            .collect();
-        std::fs::write(dir.join(format!("ball{step}.raw")), values).unwrap();
-        std::fs::write(
-            dir.join(format!("ball{step}.vol.toml")),
-            format!("data = \"ball{step}.raw\"\ndims = [16, 16, 16]\ntype = \"u8\"\n"),
-        )
-        .unwrap();
-    }
-    let scene = dir.join("balls.scene.toml");
-    std::fs::write(&scene, "series = \"ball*.vol.toml\"\n").unwrap();
-    scene
-}
 
 /// Where CI keeps what a person would look at: `$TESSERA_ARTIFACTS`, or `target/ci-artifacts`.
 fn artifacts() -> PathBuf {
@@ -81,7 +51,7 @@ fn a_browser_steers_the_wall_edits_its_look_steps_its_series_and_snapshots_it() 
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let scene = write_series(dir.path());
+    let scene = write_ball_series(dir.path(), 16);
     let (out, record) = (dir.path().join("out"), dir.path().join("session.jsonl"));
     let mut args = WALL.to_vec();
     args.extend([

@@ -8,39 +8,7 @@ use tessera_tests::*;
 
 /// Three 16³ steps, each a ball of a different size, and a scene file naming them by pattern.
 fn write_series(dir: &Path) -> std::path::PathBuf {
-    write_series_of(dir, 16)
-}
-
-/// Three `n`³ steps, each a ball of a different size, and a scene file naming them.
-fn write_series_of(dir: &Path, n: usize) -> std::path::PathBuf {
-    let middle = (n as f32 - 1.0) / 2.0;
-    let scale = n as f32 / 16.0;
-    for step in 0..3usize {
-        let radius = (3.0 + 2.0 * step as f32) * scale;
-        let values: Vec<u8> = (0..n * n * n)
-            .map(|i| {
-                let (x, y, z) = (i % n, i / n % n, i / (n * n));
-                let d = ((x as f32 - middle).powi(2)
-                    + (y as f32 - middle).powi(2)
-                    + (z as f32 - middle).powi(2))
-                .sqrt();
-                if d < radius {
-                    200
-                } else {
-                    0
-                }
-            })
-            .collect();
-        std::fs::write(dir.join(format!("ball{step}.raw")), values).unwrap();
-        std::fs::write(
-            dir.join(format!("ball{step}.vol.toml")),
-            format!("data = \"ball{step}.raw\"\ndims = [{n}, {n}, {n}]\ntype = \"u8\"\nspacing = [1.0, 1.0, 1.0]\n"),
-        )
-        .unwrap();
-    }
-    let scene = dir.join("balls.scene.toml");
-    std::fs::write(&scene, "series = \"ball*.vol.toml\"\n").unwrap();
-    scene
+    write_ball_series(dir, 16)
 }
 
 /// 12 frames of `--play`, frame 7 saved, the session recorded to `record`, the report in `out`.
@@ -119,7 +87,7 @@ fn a_played_series_changes_at_the_barrier_and_is_read_ahead() {
 fn a_shared_series_plays_with_the_next_step_fetched_ahead() {
     let dir = tempfile::tempdir().unwrap();
     // 40³ steps: 8 bricks each, 24 in all over 2 render nodes.
-    let scene = write_series_of(dir.path(), 40);
+    let scene = write_ball_series(dir.path(), 40);
     let (out, record) = (dir.path().join("out"), dir.path().join("session.jsonl"));
     let prepared = dir.path().join("prepared");
     let wall = wall_of(scene.to_str().unwrap(), "256x128");

@@ -2,6 +2,7 @@
 //! and answers once the files are written, a final snapshot waits for the last pass, a series
 //! plays on its own clock, and figures tell rest from rendering.
 
+use super::tests::{at, join};
 use super::*;
 use crate::balance::Refinement;
 use tessera_protocol::control::{ControlReply, ControlRequest, Playback};
@@ -9,26 +10,6 @@ use tessera_protocol::control::{ControlReply, ControlRequest, Playback};
 const DISPLAY: PeerId = PeerId(1);
 const RENDER: PeerId = PeerId(2);
 const CONTROL: PeerId = PeerId(3);
-
-fn at(base: Instant, ms: u64) -> Now {
-    Now {
-        instant: base + Duration::from_millis(ms),
-        unix_ns: 1_000_000_000_000 + ms * 1_000_000,
-    }
-}
-
-fn join(peer: PeerId, role: Role) -> Join {
-    Join {
-        peer,
-        credentials: Credentials::for_role(&role),
-        hello: Hello {
-            version: tessera_protocol::PROTOCOL_VERSION,
-            role,
-            host: "test".into(),
-        },
-        remote: "10.0.0.9:4000".parse().unwrap(),
-    }
-}
 
 /// A one-display, one-tile wall with a fixed camera that refines to 4 spp after one still
 /// frame, its display, render node and a control client joined and ready at `base`.
@@ -56,9 +37,9 @@ fn still_wall(base: Instant, operator: OperatorConfig) -> Master {
         display: DisplayId(0),
         pixel_addr: "0.0.0.0:9100".parse().unwrap(),
     };
-    master.handle_join(join(DISPLAY, display), at(base, 0));
-    master.handle_join(join(RENDER, Role::Render { cores: 1 }), at(base, 0));
-    master.handle_join(join(CONTROL, Role::Control), at(base, 0));
+    master.handle_join(join(DISPLAY.0, display), at(base, 0));
+    master.handle_join(join(RENDER.0, Role::Render { cores: 1 }), at(base, 0));
+    master.handle_join(join(CONTROL.0, Role::Control), at(base, 0));
     master.handle_message(DISPLAY, FromNode::Ready, at(base, 0));
     master.handle_message(RENDER, FromNode::Ready, at(base, 0));
     master

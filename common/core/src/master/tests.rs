@@ -36,14 +36,14 @@ fn wall(displays: u32) -> WallLayout {
         .unwrap()
 }
 
-fn at(base: Instant, ms: u64) -> Now {
+pub(super) fn at(base: Instant, ms: u64) -> Now {
     Now {
         instant: base + Duration::from_millis(ms),
         unix_ns: 1_000_000_000_000 + ms * 1_000_000,
     }
 }
 
-fn join(peer: u64, role: Role) -> Join {
+pub(super) fn join(peer: u64, role: Role) -> Join {
     Join {
         peer: PeerId(peer),
         credentials: Credentials::for_role(&role),

@@ -156,22 +156,27 @@ impl Timing {
             .push((display, display_ns));
     }
 
+    /// When the last of `displays` presented `frame`, on the master's clock; `None` until
+    /// every one did.
+    fn last_present(&self, frame: FrameId, displays: u32) -> Option<i128> {
+        let presents = self.presents.get(&frame)?;
+        if presents.len() < displays as usize {
+            return None;
+        }
+        presents
+            .iter()
+            .map(|&(d, ns)| ns as i128 - self.offset(d) as i128)
+            .max()
+    }
+
     /// Input → present on every display, ms, for each stamped input whose frame every display
     /// presented.
     fn input_latencies(&self, displays: u32) -> Vec<f64> {
         let mut out = Vec::new();
         for (frame, stamps) in &self.inputs {
-            let Some(presents) = self.presents.get(frame) else {
+            let Some(last) = self.last_present(*frame, displays) else {
                 continue;
             };
-            if presents.len() < displays as usize {
-                continue;
-            }
-            let last = presents
-                .iter()
-                .map(|&(d, ns)| ns as i128 - self.offset(d) as i128)
-                .max()
-                .expect("at least one present");
             out.extend(stamps.iter().map(|&s| (last - s as i128) as f64 / 1e6));
         }
         out
@@ -181,18 +186,11 @@ impl Timing {
     fn input_parts(&self, displays: u32) -> InputParts {
         let mut parts: [Vec<f64>; 3] = Default::default();
         for (frame, stamps) in &self.inputs {
-            let (Some(presents), Some(&start)) = (self.presents.get(frame), self.starts.get(frame))
+            let (Some(last), Some(&start)) =
+                (self.last_present(*frame, displays), self.starts.get(frame))
             else {
                 continue;
             };
-            if presents.len() < displays as usize {
-                continue;
-            }
-            let last = presents
-                .iter()
-                .map(|&(d, ns)| ns as i128 - self.offset(d) as i128)
-                .max()
-                .expect("at least one present");
             for s in stamps {
                 let Some(&arrived) = self.arrivals.get(s) else {
                     continue;
