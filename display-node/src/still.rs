@@ -6,8 +6,10 @@ use tessera_model::image::RgbImage;
 use tessera_protocol::{FrameId, Thumbnail, MAX_THUMBNAIL_BYTES, MAX_THUMBNAIL_FACTOR};
 
 /// `image` shrunk `factor` times across and down, each pixel the mean of the block it covers
-/// (blocks at the right and bottom edges clipped); `factor` is raised if the result would be
-/// over [`MAX_THUMBNAIL_BYTES`].
+/// (blocks at the right and bottom edges clipped), or of at most 2×2 evenly spaced pixels of
+/// it for a larger block: a thumbnail costs at most four reads a pixel, whatever the screen,
+/// since the display's loop waits for it. `factor` is raised if the result would be over
+/// [`MAX_THUMBNAIL_BYTES`].
 ///
 /// # Examples
 /// ```
@@ -30,12 +32,12 @@ pub fn thumbnail(frame: FrameId, image: &RgbImage, factor: u32) -> Thumbnail {
     let (width, height) = size(factor);
     let mut rgb = Vec::with_capacity(width as usize * height as usize * 3);
     for ty in 0..height {
-        let rows = ty * factor..((ty + 1) * factor).min(image.height);
+        let rows = samples(ty * factor, ((ty + 1) * factor).min(image.height));
         for tx in 0..width {
-            let cols = tx * factor..((tx + 1) * factor).min(image.width);
+            let cols = samples(tx * factor, ((tx + 1) * factor).min(image.width));
             let mut sum = [0u64; 3];
-            for y in rows.clone() {
-                for x in cols.clone() {
+            for &y in &rows {
+                for &x in &cols {
                     let at = (y as usize * image.width as usize + x as usize) * 3;
                     for (s, &v) in sum.iter_mut().zip(&image.rgb[at..at + 3]) {
                         *s += v as u64;
@@ -51,6 +53,15 @@ pub fn thumbnail(frame: FrameId, image: &RgbImage, factor: u32) -> Thumbnail {
         width,
         height,
         rgb,
+    }
+}
+
+/// The pixels of `start..end` a thumbnail reads: all of one or two, else two a quarter of the
+/// way in from each end.
+fn samples(start: u32, end: u32) -> Vec<u32> {
+    match end - start {
+        0..=2 => (start..end).collect(),
+        n => vec![start + n / 4, end - 1 - n / 4],
     }
 }
 

@@ -221,6 +221,8 @@ enum End {
 #[allow(clippy::large_enum_variant)]
 enum Input {
     Master(Result<ToNode, LinkError>),
+    /// Time to tell the master how far this node is.
+    Progress,
     Rendered(Result<Option<Rendered>, VolumeError>),
     Reached(DisplayId, DisplayConn),
     Delivered(Delivery),
@@ -290,6 +292,8 @@ impl Driver {
     /// Moves messages, batches and timers between the session and the world until the
     /// session ends.
     async fn drive(&mut self, endpoint: &quinn::Endpoint, link: &mut MasterLink) -> Result<End> {
+        let mut progress = tokio::time::interval(tessera_protocol::PROGRESS_INTERVAL);
+        progress.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
             if let Some(order) = self.session.poll_batch(Instant::now()) {
                 self.start(order);
@@ -300,7 +304,18 @@ impl Driver {
                 Some(done) = self.done.rx.recv() => Input::Rendered(done),
                 Some((display, conn)) = self.reached.rx.recv() => Input::Reached(display, conn),
                 Some(delivery) = self.delivered.rx.recv() => Input::Delivered(delivery),
+                _ = progress.tick() => Input::Progress,
             };
+            if let Input::Progress = input {
+                let stats = self.stats().await;
+                let progress = tessera_protocol::Progress {
+                    rays: stats.rays,
+                    max_rss_bytes: stats.max_rss_bytes,
+                    dsm_misses: stats.dsm.map(|d| d.cache_misses),
+                };
+                link.send(&FromNode::Progress(progress)).await?;
+                continue;
+            }
             if let Some(end) = self.handle(input)? {
                 return Ok(end);
             }
@@ -325,6 +340,7 @@ impl Driver {
                 ))))
             }
             Input::Reached(moved, reached) => self.reached(moved, reached),
+            Input::Progress => {}
             Input::Delivered(d) => {
                 self.session.handle_delivery(
                     d.frame,

@@ -233,6 +233,21 @@ fn a_converged_wall_snapshots_what_it_shows_and_says_it_is_idle() {
         wait_for(LIMIT, idle),
         "the converged wall never said it was idle"
     );
+    // Each render node's running figures come within a second or so.
+    let traced = |f: &serde_json::Value| {
+        f["render_nodes"].as_array().is_some_and(|nodes| {
+            nodes.len() == 2
+                && nodes.iter().all(|n| {
+                    n["rays"].as_u64().is_some_and(|r| r > 0)
+                        && n["peak_mib"].as_f64().is_some_and(|m| m > 1.0)
+                })
+        })
+    };
+    assert!(
+        wait_for(LIMIT, || traced(&wall.get("/api/figures").json())),
+        "render nodes never reported rays and memory: {}",
+        wall.get("/api/figures").json()
+    );
     let figures = wall.get("/api/figures").json();
     let presented = figures["frames_presented"].as_u64().unwrap();
     assert!(

@@ -336,6 +336,12 @@ pub struct NodeFigures {
     pub cores: u32,
     /// Tiles it reported rendered since it joined.
     pub tiles: u64,
+    /// Rays it traced, as its last progress said.
+    pub rays: Option<u64>,
+    /// Its peak resident memory in MiB, as its last progress said.
+    pub peak_mib: Option<f64>,
+    /// Reads of a shared scene that missed its memory, as its last progress said.
+    pub dsm_misses: Option<u64>,
 }
 
 /// A display's figures, as [`LiveFigures`] reports them.

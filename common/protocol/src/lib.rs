@@ -577,6 +577,9 @@ pub enum FromNode {
         /// When, on the display's clock (ns since the Unix epoch).
         clock_ns: u64,
     },
+    /// A render node's running figures, every [`PROGRESS_INTERVAL`]: what an operator's
+    /// console shows of it while the wall runs.
+    Progress(Progress),
     /// Answer to [`ToNode::SendThumbnail`]: the frame a display shows, shrunk, as RGB8 rows
     /// top down. Empty when it has shown nothing yet.
     Thumbnail(Thumbnail),
@@ -615,6 +618,20 @@ pub enum FromNode {
         /// Where it answers block requests.
         addr: SocketAddr,
     },
+}
+
+/// How often a render node sends its [`Progress`].
+pub const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// A render node's figures so far (see [`FromNode::Progress`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    /// Rays traced since the node joined.
+    pub rays: u64,
+    /// Its peak resident memory, bytes (0 where the system does not say).
+    pub max_rss_bytes: u64,
+    /// Reads of a shared scene that missed this node's memory; `None` for replicated data.
+    pub dsm_misses: Option<u64>,
 }
 
 /// How often a render node says it is alive. The master's deadline for a silent node

@@ -29,6 +29,8 @@ pub(super) struct Live {
     pub(super) snapshots: Vec<FrameId>,
     /// The render node that last reported each tile done, by tile id.
     pub(super) tile_owners: Vec<u32>,
+    /// Each render node's last progress.
+    pub(super) progress: BTreeMap<RenderNodeId, tessera_protocol::Progress>,
 }
 
 impl Master {
@@ -308,12 +310,20 @@ impl Master {
             .peers
             .values()
             .filter_map(|p| match p.role {
-                PeerRole::Render { node, cores } => Some(NodeFigures {
-                    id: node.0,
-                    host: p.host.clone(),
-                    cores,
-                    tiles: self.live.tiles.get(&node).copied().unwrap_or(0),
-                }),
+                PeerRole::Render { node, cores } => {
+                    let progress = self.live.progress.get(&node);
+                    Some(NodeFigures {
+                        id: node.0,
+                        host: p.host.clone(),
+                        cores,
+                        tiles: self.live.tiles.get(&node).copied().unwrap_or(0),
+                        rays: progress.map(|p| p.rays),
+                        peak_mib: progress
+                            .filter(|p| p.max_rss_bytes > 0)
+                            .map(|p| p.max_rss_bytes as f64 / (1024.0 * 1024.0)),
+                        dsm_misses: progress.and_then(|p| p.dsm_misses),
+                    })
+                }
                 _ => None,
             })
             .collect();

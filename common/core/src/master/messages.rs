@@ -87,6 +87,9 @@ impl Master {
                 self.coordinator
                     .handle_tiles_returned(node, frame, &tiles, now.instant)?;
             }
+            FromNode::Progress(progress) => {
+                self.live.progress.insert(node, progress);
+            }
             FromNode::BlocksAt { addr } => {
                 let remote = self.peers[&peer].remote;
                 self.blocks_at(node, addr, remote)?;
