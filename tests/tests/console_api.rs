@@ -200,7 +200,12 @@ fn every_route_refuses_without_the_token_and_bad_values_with_the_reason() {
             w.get("/api/status").json()["volume"]["iso"] == serde_json::json!([v])
         }
     };
-    assert!(wait_for(LIMIT, || iso(50.0)(&wall)), "iso 50 never applied");
+    assert!(wait_for(LIMIT, || iso(50.0)(&wall)), "iso 50 never queued");
+    // A recording holds what frames rendered: stopped once a frame started with iso 50.
+    assert!(
+        wait_for(LIMIT, || state_id(&wall) == before + 2),
+        "iso 50 never reached a frame"
+    );
     assert_eq!(wall.post("/api/record", r#"{"on":false}"#).status, 200);
     let recorded = std::fs::read_to_string(out.join("s.jsonl")).unwrap();
     assert!(recorded.contains("50.0"), "{recorded}");

@@ -47,13 +47,14 @@ impl Coordinator {
     /// Cancels the frames in flight if their time is up (see [`Coordinator::next_cancel`]).
     pub(super) fn cancel_runaways(&mut self, now: Instant) {
         if self.next_cancel().is_some_and(|at| at <= now) {
-            self.cancel_in_flight(now);
+            self.cancel_in_flight(now, false);
         }
     }
 
     /// Abandons every frame in flight: render nodes stop them, displays never show them, and
-    /// the next frame starts with whatever state waits.
-    fn cancel_in_flight(&mut self, now: Instant) {
+    /// the next frame starts with whatever state waits. `refinement`: they are refinement
+    /// passes a change made stale (see `steering`).
+    pub(super) fn cancel_in_flight(&mut self, now: Instant, refinement: bool) {
         let Some(&last) = self.in_flight.keys().next_back() else {
             return;
         };
@@ -62,8 +63,12 @@ impl Coordinator {
             let ran = state
                 .started_at
                 .map_or(Duration::ZERO, |s| now.saturating_duration_since(s));
-            self.outputs
-                .push_back(Output::FrameCancelled { frame, ran, usual });
+            self.outputs.push_back(Output::FrameCancelled {
+                frame,
+                ran,
+                usual,
+                refinement,
+            });
         }
         let cancel = ToNode::Cancel { frame: last };
         self.outputs.push_back(Output::ToDisplays(cancel.clone()));

@@ -25,6 +25,8 @@ pub(super) struct InFlight {
     pub displays_expected: BTreeSet<DisplayId>,
     /// When it started, by the coordinator's clock.
     pub started_at: Option<Instant>,
+    /// It renders a refinement pass: more samples or ambient-occlusion rays than its state.
+    pub refinement_pass: bool,
 }
 
 impl InFlight {
@@ -40,6 +42,7 @@ impl InFlight {
             displays_complete: BTreeSet::new(),
             displays_expected: BTreeSet::new(),
             started_at: None,
+            refinement_pass: false,
         }
     }
 

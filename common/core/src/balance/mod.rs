@@ -355,9 +355,9 @@ impl Coordinator {
         self.pending_stamps.push(stamp);
         self.last_change_at = Some(now);
         // A converged wall renders again once something changed, and a frame held back while
-        // someone steers starts now to carry the change.
+        // someone steers (or a refinement pass's successor) starts now to carry the change.
         self.converged = false;
-        self.try_start_frames(now);
+        self.on_change(now);
         Ok(())
     }
 
@@ -622,8 +622,11 @@ impl Coordinator {
                 params,
                 lights: self.state.lights,
             };
+            let own = self.state.params;
             let mut state = InFlight::new(start, self.tile_count);
             state.started_at = Some(now);
+            state.refinement_pass =
+                params.spp() > own.spp() || params.ao_samples() > own.ao_samples();
             state.displays_expected = self.live_displays.clone();
             for d in 0..self.display_count {
                 let display = DisplayId(d);

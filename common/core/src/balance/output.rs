@@ -50,6 +50,9 @@ pub enum Output {
         ran: Duration,
         /// The smoothed start-to-present time of the frames before it, if any was shown.
         usual: Option<Duration>,
+        /// It was a refinement pass made stale by a change: cancelled at once, as a matter of
+        /// course, rather than as a runaway.
+        refinement: bool,
     },
     /// The last frame of the run was presented.
     Finished,

@@ -310,6 +310,49 @@ fn while_someone_steers_the_next_frame_waits_for_the_rendered_one_or_carries_a_c
 }
 
 #[test]
+fn a_change_drops_the_refinement_pass_in_flight_and_starts_its_frame_at_once() {
+    let now = Instant::now();
+    let mut c = coordinator(8, 1, 10);
+    // Refining from the first frame: frame 0 is a pass of twice the samples.
+    c.set_refinement(Some(Refinement::new(0, 8, 0).unwrap()));
+    c.handle_render_joined(RenderNodeId(0), now);
+    c.start(now);
+    let first = drain(&mut c);
+    assert!(first.contains(&Output::FrameStarted(FrameId(0))));
+    c.queue_change(StateChange::Shadows(false), 1, now).unwrap();
+    let out = drain(&mut c);
+    assert!(
+        out.iter().any(|o| matches!(
+            o,
+            Output::FrameCancelled {
+                frame: FrameId(0),
+                refinement: true,
+                ..
+            }
+        )),
+        "the stale pass is dropped: {out:?}"
+    );
+    assert!(
+        out.contains(&Output::FrameStarted(FrameId(1))),
+        "the change's frame starts at once"
+    );
+    // A frame at the state's own quality is not dropped by a change.
+    let mut plain = coordinator(8, 1, 10);
+    plain.handle_render_joined(RenderNodeId(0), now);
+    plain.start(now);
+    let _ = drain(&mut plain);
+    plain
+        .queue_change(StateChange::Shadows(false), 1, now)
+        .unwrap();
+    let out = drain(&mut plain);
+    assert!(
+        !out.iter()
+            .any(|o| matches!(o, Output::FrameCancelled { .. })),
+        "{out:?}"
+    );
+}
+
+#[test]
 fn a_node_that_joins_mid_frame_gets_the_start_and_an_empty_share() {
     let mut c = coordinator(40, 1, 2);
     let now = Instant::now();

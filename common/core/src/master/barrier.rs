@@ -44,7 +44,12 @@ impl Master {
                 self.presented(frame, now);
                 self.rendering_paused(now);
             }
-            Output::FrameCancelled { frame, ran, usual } => self.cancelled(frame, ran, usual),
+            Output::FrameCancelled {
+                frame,
+                ran,
+                usual,
+                refinement,
+            } => self.cancelled(frame, ran, usual, refinement),
             Output::FrameRendered(frame) => {
                 self.events.push_back(MasterEvent::FrameRendered(frame))
             }
@@ -129,9 +134,15 @@ impl Master {
     }
 
     /// A frame was abandoned in flight: counted, and said.
-    fn cancelled(&mut self, frame: FrameId, ran: Duration, usual: Option<Duration>) {
-        self.record.frames_cancelled += 1;
+    fn cancelled(&mut self, frame: FrameId, ran: Duration, usual: Option<Duration>, pass: bool) {
         self.record.frame_started.remove(&frame);
+        if pass {
+            // Stale refinement passes are dropped as a matter of course: nothing to warn of.
+            tracing::debug!("refinement pass {} dropped for a change", frame.0);
+            self.record.refinement_passes_dropped += 1;
+            return;
+        }
+        self.record.frames_cancelled += 1;
         let usual = usual.map_or("none shown yet".to_string(), |u| {
             format!("{} ms", u.as_millis())
         });

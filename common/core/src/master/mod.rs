@@ -445,6 +445,8 @@ struct RunRecord {
     changes_applied: u64,
     /// Frames abandoned in flight (runaways, or at an interrupt).
     frames_cancelled: u32,
+    /// Refinement passes dropped because a change made them stale.
+    refinement_passes_dropped: u32,
     /// Nodes found silent past the suspicion deadline (each time).
     suspicions: u32,
     /// Times the master woke later than it asked to, and the longest.

@@ -47,6 +47,10 @@ pub struct Report {
     /// grace.
     #[serde(default)]
     pub frames_cancelled: u32,
+    /// Refinement passes dropped in flight because a change made them stale (not counted in
+    /// `frames_cancelled`).
+    #[serde(default)]
+    pub refinement_passes_dropped: u32,
     /// Times a render node or display was silent past the suspicion deadline and kept (its
     /// tiles copied to others); those that spoke again were simply back.
     #[serde(default)]

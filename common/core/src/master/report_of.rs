@@ -169,6 +169,7 @@ impl Master {
             render_nodes_lost: record.lost_render_nodes,
             displays_lost: record.lost_displays,
             frames_cancelled: record.frames_cancelled,
+            refinement_passes_dropped: record.refinement_passes_dropped,
             nodes_suspected: record.suspicions,
             master_pauses: record.master_pauses,
             longest_master_pause_ms: record.longest_master_pause.as_secs_f64() * 1000.0,
