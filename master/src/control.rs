@@ -78,6 +78,12 @@ pub enum Command {
         #[arg(long, conflicts_with = "planes")]
         clear: bool,
     },
+    /// Colour particles' attributes with this map: viridis, magma, coolwarm or greys.
+    Colormap {
+        /// The map's name.
+        #[arg(value_parser = tessera_cli::parse_colormap)]
+        map: tessera_model::colormap::ColorMap,
+    },
     /// Draw only particles whose attribute is in LO,HI, or --off.
     Crop {
         /// The attribute's range kept, LO,HI.
@@ -326,6 +332,7 @@ impl ControlClient {
             )),
             Command::Quality { shadows, ao, spp } => quality(*shadows, *ao, *spp)?,
             Command::Cut { planes, clear } => change(cuts(planes, *clear)?),
+            Command::Colormap { map } => change(StateChange::ColorMap(*map)),
             Command::Crop { range, off } => {
                 change(StateChange::Crop(if *off { None } else { *range }))
             }

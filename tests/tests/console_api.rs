@@ -146,6 +146,7 @@ fn every_route_refuses_without_the_token_and_bad_values_with_the_reason() {
             400,
             "never-recorded",
         ),
+        ("/api/particles", r#"{"colormap":"magma"}"#, 422, "no particles"),
     ];
     for (path, body, status, words) in refused {
         let a = wall.post(path, body);
@@ -378,4 +379,60 @@ fn a_served_console_speaks_https_and_admits_a_control_certificate_without_the_to
     );
     master.signal(libc::SIGINT);
     let _ = master.wait(LIMIT);
+}
+
+#[test]
+fn particles_take_the_colour_map_chosen_and_the_wall_shows_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut csv = String::from("x,y,z,radius,attribute\n");
+    for i in 0..40 {
+        let t = i as f32 / 39.0;
+        csv.push_str(&format!(
+            "{},{},0,0.12,{t}\n",
+            (t - 0.5) * 4.0,
+            (t * 9.0).sin() * 0.5
+        ));
+    }
+    let scene = dir.path().join("dots.csv");
+    std::fs::write(&scene, csv).unwrap();
+    let out = dir.path().join("out");
+    let mut args = vec!["--wall", "2x1", "--screen", "160x90", "--frames", "0"];
+    args.extend([
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    args.extend(["--eye", "0,0,6", "--target", "0,0,0", "--refine", "off"]);
+    let wall = ConsoleWall::start(dir.path(), &args, LIMIT);
+    let status = wall.get("/api/status").json();
+    assert_eq!(status["particles"]["colormap"], "viridis", "{status}");
+    assert_eq!(
+        status["volume"],
+        serde_json::Value::Null,
+        "no volume, no volume settings"
+    );
+    let shot = |wall: &ConsoleWall| {
+        let snap = wall.post("/api/snapshot", r#"{"final":false}"#).json();
+        load_rgb(&out.join(format!("wall-frame-{}.png", snap["frame"]))).2
+    };
+    let viridis = shot(&wall);
+    let bad = wall.post("/api/particles", r#"{"colormap":"rainbow"}"#);
+    assert_eq!(bad.status, 400, "{}", bad.text());
+    assert!(bad.text().contains("viridis, magma"), "{}", bad.text());
+    let a = wall.post("/api/particles", r#"{"colormap":"magma"}"#);
+    assert_eq!(a.status, 200, "{}", a.text());
+    let id = a.json()["state_id"].as_u64().unwrap();
+    assert!(
+        wait_for(LIMIT, || state_id(&wall) >= id),
+        "the colour map never reached a frame"
+    );
+    assert_eq!(
+        wall.get("/api/status").json()["particles"]["colormap"],
+        "magma"
+    );
+    assert_ne!(shot(&wall), viridis, "the wall shows the new colours");
+    wall.master.signal(libc::SIGINT);
+    let o = wall.master.wait(LIMIT);
+    assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
 }

@@ -283,6 +283,9 @@ pub struct QualityArgs {
     /// Draw only particles whose attribute is in LO,HI.
     #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
     pub crop: Option<(f32, f32)>,
+    /// Particles: the colour map of their attribute (viridis, magma, coolwarm, greys).
+    #[arg(long, default_value = "viridis", value_parser = parse_colormap)]
+    pub colormap: tessera_model::colormap::ColorMap,
     /// Cut away everything on the side NX,NY,NZ points to of the plane at distance D from the
     /// origin (points with N·p > D), to look inside a mesh. Repeat for up to 4 planes; e.g.
     /// `--cut 0,0,1,0` removes all with z > 0.
@@ -313,6 +316,12 @@ pub struct QualityArgs {
     pub nan_color: Option<Vec3>,
 }
 
+/// Parses a colour map's name.
+pub fn parse_colormap(text: &str) -> Result<tessera_model::colormap::ColorMap, String> {
+    text.parse()
+        .map_err(|e: tessera_model::colormap::UnknownColorMap| e.to_string())
+}
+
 /// Parses `R,G,B`, each component from 0 to 1.
 fn parse_color(text: &str) -> Result<Vec3, BadValue> {
     let c = parse_vec3(text)?;
@@ -337,6 +346,7 @@ impl QualityArgs {
             shadows: !self.no_shadows,
             ao_samples: self.ao,
             crop: self.crop,
+            colormap: self.colormap,
             cuts: CutPlanes::new(&cuts)?,
             spp: self.spp,
             volume: VolumeParams {

@@ -21,6 +21,7 @@
 
 pub mod camera;
 pub mod checked;
+pub mod colormap;
 pub mod cut;
 pub mod image;
 pub mod input;

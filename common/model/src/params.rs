@@ -57,6 +57,9 @@ pub struct RenderParamsSpec {
     pub first_sample: u32,
     /// How volumes are drawn (ignored by scenes without one).
     pub volume: VolumeParams,
+    /// The colours of particles' attributes (ignored by scenes without particles).
+    #[serde(default)]
+    pub colormap: crate::colormap::ColorMap,
 }
 
 /// Why render parameters were refused.
@@ -110,6 +113,7 @@ impl RenderParamsSpec {
         spp: 1,
         first_sample: 0,
         volume: VolumeParams::DEFAULT,
+        colormap: crate::colormap::ColorMap::Viridis,
     };
 
     /// Checks every knob.
@@ -239,6 +243,12 @@ impl RenderParams {
     #[inline]
     pub const fn volume(&self) -> &VolumeParams {
         &self.0.volume
+    }
+
+    /// The colours of particles' attributes.
+    #[inline]
+    pub const fn colormap(&self) -> crate::colormap::ColorMap {
+        self.0.colormap
     }
 }
 

@@ -54,6 +54,8 @@ pub enum StateChange {
     Lights(Option<Lights>),
     /// How volumes are drawn: step, iso-values, transfer function.
     Volume(VolumeParams),
+    /// The colour map of particles' attributes.
+    ColorMap(crate::colormap::ColorMap),
     /// A whole state at once (a replayed session, a saved view).
     All(WallState),
 }
@@ -76,6 +78,7 @@ impl WallState {
             StateChange::Crop(crop) => spec.crop = crop,
             StateChange::Lights(lights) => next.lights = lights,
             StateChange::Volume(volume) => spec.volume = volume,
+            StateChange::ColorMap(map) => spec.colormap = map,
             StateChange::All(state) => return Ok(state),
         }
         next.params = spec.build()?;

@@ -12,7 +12,6 @@ use crate::packet::PacketHit;
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::Material;
-use crate::spheres::colormap;
 use crate::surface_hit::{
     faces_light, hit_frame, iso_occludes, leaving_point, nearest_surface, offset_origin,
     towards_light, PrimaryHit, SurfaceHit,
@@ -293,7 +292,7 @@ impl PreparedScene {
                 } else {
                     0.5
                 };
-                Material::lambert(colormap(x))
+                Material::lambert(Vec3::from_array(view.params.colormap().eval(x)))
             }
             SurfaceHit::Iso { surface, .. } => {
                 Material::lambert(ISO_ALBEDO[surface as usize % ISO_ALBEDO.len()])

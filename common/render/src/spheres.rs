@@ -243,21 +243,7 @@ pub fn hit_sphere(ray: &Ray, s: &Particle, t_min: f32, t_max: f32) -> Option<f32
 /// Colour of an attribute value normalized to [0, 1]: a perceptually ordered ramp from deep
 /// blue through teal and yellow-green to yellow (close to viridis).
 pub fn colormap(x: f32) -> Vec3 {
-    const STOPS: [[f32; 3]; 5] = [
-        [0.267, 0.005, 0.329],
-        [0.230, 0.322, 0.546],
-        [0.128, 0.567, 0.551],
-        [0.369, 0.789, 0.383],
-        [0.993, 0.906, 0.144],
-    ];
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    } * 4.0;
-    let i = (x as usize).min(3);
-    let f = x - i as f32;
-    Vec3::from_array(STOPS[i]).lerp(Vec3::from_array(STOPS[i + 1]), f)
+    Vec3::from_array(tessera_model::colormap::ColorMap::Viridis.eval(x))
 }
 
 #[cfg(test)]

@@ -81,7 +81,7 @@ pub fn router(shared: Shared) -> Router {
         .route("/probe", get(probe))
         .route("/record", post(record))
         .route("/replay", post(replay))
-        .route("/particles", post(not_here))
+        .route("/particles", post(particles))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such API route".into()) })
         .route_layer(middleware::from_fn_with_state(shared.clone(), authorise));
     Router::new()
@@ -321,11 +321,25 @@ fn png_answer(png: Result<Vec<u8>, tokio::task::JoinError>) -> Response {
     }
 }
 
-async fn not_here() -> ApiError {
-    ApiError(
-        StatusCode::NOT_IMPLEMENTED,
-        "not available in this version".into(),
-    )
+/// The colour map of particles' attributes.
+async fn particles(
+    State(shared): State<Shared>,
+    parsed: Result<Json<json::ParticlesBody>, JsonRejection>,
+) -> ApiResult {
+    let map = tessera_cli::parse_colormap(&body(parsed)?.colormap).map_err(bad)?;
+    let ControlReply::Status(status) = ask(&shared, ControlRequest::Status).await? else {
+        return Err(bad(
+            "the master answered a status request with something else",
+        ));
+    };
+    if status.particle_range.is_none() {
+        return Err(ApiError(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "the scene has no particles to colour".into(),
+        ));
+    }
+    let colour = tessera_model::state::StateChange::ColorMap(map);
+    change(&shared, ControlRequest::Change(vec![colour])).await
 }
 
 async fn histogram(State(shared): State<Shared>) -> Response {

@@ -91,6 +91,7 @@ pub struct TransferView {
 pub struct ParticlesView {
     pub range: [f32; 2],
     pub crop: Option<[f32; 2]>,
+    pub colormap: &'static str,
 }
 
 fn v3(v: Vec3) -> [f32; 3] {
@@ -166,6 +167,7 @@ impl StatusView {
             particles: status.particle_range.map(|range| ParticlesView {
                 range,
                 crop: params.crop().map(|(a, b)| [a, b]),
+                colormap: params.colormap().name(),
             }),
         }
     }
@@ -237,6 +239,13 @@ pub struct VolumeBody {
     pub time_step: Option<u32>,
     pub transfer: Option<TransferView>,
     pub preset: Option<String>,
+}
+
+/// `POST /api/particles`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParticlesBody {
+    pub colormap: String,
 }
 
 /// `POST /api/playback`.

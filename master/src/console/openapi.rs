@@ -90,7 +90,9 @@ pub fn document() -> Value {
             "/api/replay": { "post": op("Replay a recorded session of the --out folder from the next frame on", Some(obj(json!({
                 "path": { "type": "string" }
             })))) },
-            "/api/particles": { "post": op("Particle colour map (not available in this version)", None) }
+            "/api/particles": { "post": op("The colour map of particles' attributes", Some(obj(json!({
+                "colormap": { "enum": ["viridis", "magma", "coolwarm", "greys"] }
+            })))) }
         }
     })
 }
