@@ -146,7 +146,12 @@ fn every_route_refuses_without_the_token_and_bad_values_with_the_reason() {
             400,
             "never-recorded",
         ),
-        ("/api/particles", r#"{"colormap":"magma"}"#, 422, "no particles"),
+        (
+            "/api/particles",
+            r#"{"colormap":"magma"}"#,
+            422,
+            "no particles",
+        ),
     ];
     for (path, body, status, words) in refused {
         let a = wall.post(path, body);

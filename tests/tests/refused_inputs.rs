@@ -223,6 +223,7 @@ struct RawParams {
     spp: u32,
     first_sample: u32,
     volume: tessera_model::volume_params::VolumeParams,
+    colormap: tessera_model::colormap::ColorMap,
 }
 
 impl RawParams {
@@ -237,6 +238,7 @@ impl RawParams {
             spp: i.spp,
             first_sample: i.first_sample,
             volume: i.volume,
+            colormap: i.colormap,
         }
     }
 }

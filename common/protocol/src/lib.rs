@@ -16,9 +16,9 @@ pub mod codec;
 pub mod control;
 pub mod dsm;
 mod error;
+mod live;
 pub mod pixels;
-mod thumbnail;
-pub use thumbnail::{Thumbnail, MAX_THUMBNAIL_BYTES, MAX_THUMBNAIL_FACTOR};
+pub use live::{Progress, Thumbnail, MAX_THUMBNAIL_BYTES, MAX_THUMBNAIL_FACTOR, PROGRESS_INTERVAL};
 
 pub use error::ProtocolError;
 
@@ -618,20 +618,6 @@ pub enum FromNode {
         /// Where it answers block requests.
         addr: SocketAddr,
     },
-}
-
-/// How often a render node sends its [`Progress`].
-pub const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
-
-/// A render node's figures so far (see [`FromNode::Progress`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Progress {
-    /// Rays traced since the node joined.
-    pub rays: u64,
-    /// Its peak resident memory, bytes (0 where the system does not say).
-    pub max_rss_bytes: u64,
-    /// Reads of a shared scene that missed this node's memory; `None` for replicated data.
-    pub dsm_misses: Option<u64>,
 }
 
 /// How often a render node says it is alive. The master's deadline for a silent node

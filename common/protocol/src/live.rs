@@ -1,4 +1,5 @@
-//! A display's frame shrunk for the operator's console: bounded on arrival like every message.
+//! What running nodes tell an operator's console: a display's frame shrunk (bounded on
+//! arrival like every message) and a render node's figures so far.
 
 use crate::FrameId;
 use serde::{Deserialize, Serialize};
@@ -50,4 +51,18 @@ impl<'de> Deserialize<'de> for Thumbnail {
             rgb: raw.rgb,
         })
     }
+}
+
+/// How often a render node sends its [`Progress`].
+pub const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// A render node's figures so far (see [`FromNode::Progress`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    /// Rays traced since the node joined.
+    pub rays: u64,
+    /// Its peak resident memory, bytes (0 where the system does not say).
+    pub max_rss_bytes: u64,
+    /// Reads of a shared scene that missed this node's memory; `None` for replicated data.
+    pub dsm_misses: Option<u64>,
 }
