@@ -11,7 +11,7 @@ pub const MAX_THUMBNAIL_FACTOR: u32 = 256;
 /// enough not to hold a display's other messages up for long.
 pub const MAX_THUMBNAIL_BYTES: usize = 512 * 1024;
 
-/// A display's frame, shrunk for the operator's console (see [`ToNode::SendThumbnail`]).
+/// A display's frame, shrunk for the operator's console (see [`crate::ToNode::SendThumbnail`]).
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Thumbnail {
     /// The frame it shows; 0 with no pixels before the first present.
@@ -56,7 +56,7 @@ impl<'de> Deserialize<'de> for Thumbnail {
 /// How often a render node sends its [`Progress`].
 pub const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
 
-/// A render node's figures so far (see [`FromNode::Progress`]).
+/// A render node's figures so far (see [`crate::FromNode::Progress`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Progress {
     /// Rays traced since the node joined.

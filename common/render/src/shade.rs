@@ -276,7 +276,7 @@ impl Shader<'_, '_> {
 
 impl PreparedScene {
     /// The material a hit is shaded with in frame `view` (a particle whose attribute is
-    /// missing takes the frame's missing-data colour, else [`MISSING_COLOR`]).
+    /// missing takes the frame's missing-data colour, else `MISSING_COLOR`).
     pub fn material_of(&self, hit: SurfaceHit, view: &FrameView) -> Material {
         match hit {
             SurfaceHit::Triangle(h) => self.materials[self.slot_material.of(h.slot) as usize],
