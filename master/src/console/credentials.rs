@@ -51,6 +51,7 @@ impl LocalWall {
         let (path, _) = local_paths()?;
         let dir = path.parent().expect("a file in a folder");
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        sweep_stale(dir);
         let text = serde_json::to_string_pretty(self)?;
         let mut file = std::fs::OpenOptions::new()
             .write(true)
@@ -93,6 +94,27 @@ impl LocalWall {
     }
 }
 
+/// Removes the control certificates of local walls whose master is gone without cleaning up
+/// (killed): `control-<pid>` folders whose process no longer runs.
+fn sweep_stale(dir: &std::path::Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name
+            .to_str()
+            .and_then(|n| n.strip_prefix("control-"))
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if !std::path::Path::new(&format!("/proc/{pid}")).exists() {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
 /// Removes the file when dropped, if it is still this process's.
 pub struct Written {
     pub path: PathBuf,
@@ -110,5 +132,25 @@ impl Drop for Written {
         if ours {
             let _ = std::fs::remove_file(&self.path);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_killed_walls_control_certificate_is_swept_and_a_live_ones_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        // Above any kernel's pid_max: never a live process.
+        let dead = dir.path().join("control-999999999");
+        let live = dir.path().join(format!("control-{}", std::process::id()));
+        let other = dir.path().join("wall.json");
+        for d in [&dead, &live] {
+            std::fs::create_dir_all(d).unwrap();
+        }
+        std::fs::write(&other, "{}").unwrap();
+        sweep_stale(dir.path());
+        assert!(!dead.exists() && live.exists() && other.exists());
     }
 }
