@@ -316,12 +316,6 @@ impl Driver {
     /// The swap barrier: shows the frame (at the deadline, if the master gave one), saves it
     /// where asked, and reports the present.
     async fn present(&mut self, order: PresentOrder, link: &mut MasterLink) -> Result<()> {
-        let shown = &order.shown;
-        let saved = (!order.save_as.is_empty()).then(|| RgbImage {
-            width: shown.width,
-            height: shown.height,
-            rgb: shown.rgb.clone(),
-        });
         if let Some(at) = order.deadline {
             // A precise wait (tokio's timer has 1 ms steps), kept off the async workers' queue
             // so pixel intake goes on meanwhile.
@@ -329,35 +323,34 @@ impl Driver {
         }
         let overlay = self.session.handle_shown(&order, Instant::now());
         let (shown, names, snapshot) = (order.shown, order.save_as, order.snapshot);
-        self.last_shown = Some((
-            shown.frame,
-            RgbImage {
-                width: shown.width,
-                height: shown.height,
-                rgb: shown.rgb.clone(),
-            },
-        ));
+        let frame = shown.frame;
+        // Kept as the frame shown now (a still wall's snapshot, overlay and thumbnail): the
+        // window gets a copy, a headless display none.
+        let image = RgbImage {
+            width: shown.width,
+            height: shown.height,
+            rgb: shown.rgb,
+        };
         if let Some(w) = &self.window {
             // Reported once the window has really presented it.
             w.send(WindowCommand::Show(WindowFrame {
-                frame: shown.frame.0,
-                width: shown.width,
-                height: shown.height,
-                rgb: shown.rgb,
+                frame: frame.0,
+                width: image.width,
+                height: image.height,
+                rgb: image.rgb.clone(),
                 overlay,
             }));
         } else {
             let clock_ns = tessera_net::unix_ns();
-            let frame = shown.frame;
             link.send(&FromNode::Presented { frame, clock_ns }).await?;
         }
-        if let Some(image) = saved {
-            let frame = shown.frame;
-            let ok = self.save(image, names).await;
+        if !names.is_empty() {
+            let ok = self.save(image.clone(), names).await;
             if snapshot {
                 link.send(&FromNode::Saved { frame, ok }).await?;
             }
         }
+        self.last_shown = Some((frame, image));
         Ok(())
     }
 

@@ -483,10 +483,6 @@ fn lights(directional: &[Light], point: &[Light], scene: bool) -> Result<StateCh
 /// Prints an answer: queries as JSON on stdout, what a command did on stderr, refusals on
 /// stderr. Whether it was refused.
 fn print(reply: &ControlReply, wall: &tessera_model::wall::WallLayout) -> Result<bool> {
-    let json = |v: &dyn erased::Json| -> Result<()> {
-        println!("{}", v.pretty()?);
-        Ok(())
-    };
     match reply {
         ControlReply::Refused(why) => {
             eprintln!("tessera-master control: refused: {why}");
@@ -520,16 +516,10 @@ fn print(reply: &ControlReply, wall: &tessera_model::wall::WallLayout) -> Result
     Ok(false)
 }
 
-/// Pretty JSON of anything serializable, behind a trait object.
-mod erased {
-    pub trait Json {
-        fn pretty(&self) -> serde_json::Result<String>;
-    }
-    impl<T: serde::Serialize> Json for T {
-        fn pretty(&self) -> serde_json::Result<String> {
-            serde_json::to_string_pretty(self)
-        }
-    }
+/// Prints `value` as pretty JSON on stdout.
+fn json(value: &impl serde::Serialize) -> Result<()> {
+    println!("{}", serde_json::to_string_pretty(value)?);
+    Ok(())
 }
 
 /// The lines of a script, each parsed as a command.

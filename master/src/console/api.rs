@@ -16,7 +16,7 @@ use serde::Deserialize;
 use serde_json::{json, Value};
 use std::convert::Infallible;
 use std::time::Duration;
-use tessera_protocol::control::{ControlReply, ControlRequest, Playback, ViewName};
+use tessera_protocol::control::{ControlReply, ControlRequest, Playback, ViewName, WallStatus};
 
 /// Largest request body accepted.
 const MAX_BODY: usize = 64 * 1024;
@@ -115,19 +115,14 @@ struct TokenQuery {
 }
 
 /// The page; opened with the token, it sets the cookie and sends the browser to `/`.
-async fn index(
-    State(shared): State<Shared>,
-    Query(q): Query<TokenQuery>,
-    headers: HeaderMap,
-) -> Response {
+async fn index(State(shared): State<Shared>, Query(q): Query<TokenQuery>) -> Response {
     match q.token {
         Some(t) if token_matches(&t, &shared.cfg.token) => {
             let cookie = format!("{COOKIE}={t}; HttpOnly; SameSite=Strict; Path=/");
             ([(header::SET_COOKIE, cookie)], Redirect::to("/")).into_response()
         }
         Some(_) => ApiError(StatusCode::UNAUTHORIZED, "wrong token".into()).into_response(),
-        None if authorised(&headers, &shared.cfg.token) => asset(INDEX, "text/html; charset=utf-8"),
-        // The page still loads: it says how to get in.
+        // The page itself is no secret: without a cookie its API calls say how to get in.
         None => asset(INDEX, "text/html; charset=utf-8"),
     }
 }
@@ -216,13 +211,21 @@ async fn change(shared: &Shared, request: ControlRequest) -> ApiResult {
     answered(ask(shared, request).await?)
 }
 
-async fn current_status(shared: &Shared) -> Result<json::StatusView, ApiError> {
+/// The master's status of the wall.
+async fn wall_status(shared: &Shared) -> Result<WallStatus, ApiError> {
     match ask(shared, ControlRequest::Status).await? {
-        ControlReply::Status(s) => Ok(json::StatusView::of(&s, &shared.cfg.wall)),
+        ControlReply::Status(s) => Ok(s),
         _ => Err(bad(
             "the master answered a status request with something else",
         )),
     }
+}
+
+async fn current_status(shared: &Shared) -> Result<json::StatusView, ApiError> {
+    Ok(json::StatusView::of(
+        &wall_status(shared).await?,
+        &shared.cfg.wall,
+    ))
 }
 
 async fn status(State(shared): State<Shared>) -> ApiResult {
@@ -327,11 +330,7 @@ async fn particles(
     parsed: Result<Json<json::ParticlesBody>, JsonRejection>,
 ) -> ApiResult {
     let map = tessera_cli::parse_colormap(&body(parsed)?.colormap).map_err(bad)?;
-    let ControlReply::Status(status) = ask(&shared, ControlRequest::Status).await? else {
-        return Err(bad(
-            "the master answered a status request with something else",
-        ));
-    };
+    let status = wall_status(&shared).await?;
     if status.particle_range.is_none() {
         return Err(ApiError(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -406,11 +405,7 @@ async fn volume(
     parsed: Result<Json<VolumeBody>, JsonRejection>,
 ) -> ApiResult {
     let b = body(parsed)?;
-    let ControlReply::Status(status) = ask(&shared, ControlRequest::Status).await? else {
-        return Err(bad(
-            "the master answered a status request with something else",
-        ));
-    };
+    let status = wall_status(&shared).await?;
     if status.volume_range.is_none() && status.series.is_none() {
         return Err(ApiError(
             StatusCode::UNPROCESSABLE_ENTITY,

@@ -5,6 +5,7 @@
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
+use tessera_core::master::report::WallReport;
 use tessera_model::camera::{Camera, CameraMode};
 use tessera_model::light::{Light, Lights};
 use tessera_model::state::StateChange;
@@ -19,7 +20,7 @@ pub struct StatusView {
     pub state_id: u64,
     pub converged: bool,
     pub overlay: bool,
-    pub wall: WallView,
+    pub wall: WallReport,
     pub camera: CameraView,
     pub quality: QualityView,
     pub cuts: Vec<[f32; 4]>,
@@ -27,22 +28,6 @@ pub struct StatusView {
     pub views: Vec<String>,
     pub volume: Option<VolumeView>,
     pub particles: Option<ParticlesView>,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct WallView {
-    pub width: u32,
-    pub height: u32,
-    pub displays: Vec<ScreenView>,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct ScreenView {
-    pub id: u32,
-    pub x: u32,
-    pub y: u32,
-    pub width: u32,
-    pub height: u32,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -111,20 +96,7 @@ impl StatusView {
             state_id: status.state_id.0,
             converged: status.converged,
             overlay: status.overlay,
-            wall: WallView {
-                width: wall.width(),
-                height: wall.height(),
-                displays: wall
-                    .screens()
-                    .map(|s| ScreenView {
-                        id: s.id.0,
-                        x: s.x,
-                        y: s.y,
-                        width: s.width,
-                        height: s.height,
-                    })
-                    .collect(),
-            },
+            wall: WallReport::of(wall),
             camera: CameraView {
                 eye: v3(camera.eye()),
                 target: v3(camera.target()),

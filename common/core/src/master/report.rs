@@ -139,7 +139,7 @@ pub struct DsmSummary {
 }
 
 /// The wall's shape, as the report gives it.
-#[derive(Serialize, Debug)]
+#[derive(Clone, Serialize, Debug, PartialEq)]
 pub struct WallReport {
     /// Width in pixels of the image the wall's pixels are numbered in (a grid's virtual
     /// image, bezels included).
@@ -159,7 +159,7 @@ pub struct WallReport {
 }
 
 /// One display's screen in the wall's image, in pixels.
-#[derive(Serialize, Debug)]
+#[derive(Clone, Serialize, Debug, PartialEq)]
 pub struct DisplayRect {
     /// The display's id.
     pub id: u32,
