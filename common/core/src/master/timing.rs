@@ -90,6 +90,9 @@ pub struct TimingSummary {
     /// The figures of each frame measured, in frame order (for the CSV, not the report).
     #[serde(skip)]
     pub per_frame: Vec<FrameTiming>,
+    /// Each measured input's frame and its input latency in ms, in frame order (for plots).
+    #[serde(skip)]
+    pub per_input: Vec<(u64, f64)>,
 }
 
 impl Timing {
@@ -171,13 +174,17 @@ impl Timing {
 
     /// Input → present on every display, ms, for each stamped input whose frame every display
     /// presented.
-    fn input_latencies(&self, displays: u32) -> Vec<f64> {
+    fn input_latencies(&self, displays: u32) -> Vec<(u64, f64)> {
         let mut out = Vec::new();
         for (frame, stamps) in &self.inputs {
             let Some(last) = self.last_present(*frame, displays) else {
                 continue;
             };
-            out.extend(stamps.iter().map(|&s| (last - s as i128) as f64 / 1e6));
+            out.extend(
+                stamps
+                    .iter()
+                    .map(|&s| (frame.0, (last - s as i128) as f64 / 1e6)),
+            );
         }
         out
     }
@@ -232,7 +239,8 @@ impl Timing {
         }
         let latency: Vec<f64> = per_frame.iter().map(|f| f.latency_ms).collect();
         let skew: Vec<f64> = per_frame.iter().map(|f| f.skew_ms).collect();
-        let input_latency = self.input_latencies(displays);
+        let per_input = self.input_latencies(displays);
+        let input_latency: Vec<f64> = per_input.iter().map(|p| p.1).collect();
         TimingSummary {
             latency_ms: Percentiles::of_ms(&latency),
             input_latency_ms: Percentiles::of_ms(&input_latency),
@@ -255,6 +263,7 @@ impl Timing {
                 })
                 .collect(),
             per_frame,
+            per_input,
         }
     }
 }
@@ -322,6 +331,8 @@ mod tests {
         t.presented(b, FrameId(7), 10_000_000);
         let s = t.summary(2);
         assert_eq!(s.inputs_measured, 2);
+        // Each input at its frame, for the latency plot.
+        assert_eq!(s.per_input, [(7, 9.0), (7, 7.0)]);
         assert!(
             (s.input_latency_ms.max - 9.0).abs() < 0.01,
             "{:?}",

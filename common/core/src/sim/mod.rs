@@ -562,6 +562,12 @@ impl SimWall {
     /// Runs until nothing is left to happen (the last `Present` delivered) or a bound on
     /// simulated events is hit. Returns the number of frames presented.
     pub fn run_frames(&mut self, frames: u64) -> u64 {
+        self.run_frames_reporting(frames, |_| {})
+    }
+
+    /// [`SimWall::run_frames`], calling `progress` with the frames presented so far every
+    /// [`PROGRESS_EVERY`] events: a long run can show how far it is.
+    pub fn run_frames_reporting(&mut self, frames: u64, mut progress: impl FnMut(u64)) -> u64 {
         self.frames = frames;
         self.master.set_frame_limit(Some(frames));
         // Every node joins and is ready at once; the master starts the first frame when the
@@ -581,6 +587,9 @@ impl SimWall {
             self.processed += 1;
             if self.processed > budget {
                 break;
+            }
+            if self.processed.is_multiple_of(PROGRESS_EVERY) {
+                progress(self.master.frames_presented());
             }
             // The master's own timer is an event too, due before or with the next one.
             if let Some(due) = self.master_timeout_us().filter(|&due| due <= at) {
@@ -617,6 +626,9 @@ impl SimWall {
         self.master.frames_presented()
     }
 }
+
+/// Events between two calls of [`SimWall::run_frames_reporting`]'s progress.
+pub const PROGRESS_EVERY: u64 = 4096;
 
 /// Each render node's clock, its speed drawn from `config.speeds` (seeded).
 fn node_clocks(seed: u64, config: &SimConfig) -> Vec<NodeClock> {
