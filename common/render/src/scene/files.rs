@@ -1,5 +1,6 @@
-//! Mesh files: OBJ (via `tobj`), PLY ascii or binary (via `ply-rs-bw`), and glTF/GLB (in
-//! [`super::gltf`]). Every error names the file and, where the format has them, the line or the
+//! Mesh files: OBJ (via `tobj`), PLY ascii or binary (via `ply-rs-bw`), glTF/GLB (in
+//! [`super::gltf`]), STL binary or ASCII (in `super::stl`), and VTK legacy `.vtk` and XML
+//! `.vtp` / `.vtu` surfaces (in `super::vtk`). Every error names the file and, where the format has them, the line or the
 //! element at fault: a render node that cannot load a scene must say exactly why.
 
 use super::{Mesh, SceneError};
@@ -7,7 +8,8 @@ use glam::{DVec3, Vec3};
 use std::io::BufRead;
 use std::path::Path;
 
-/// Reads the triangles of an OBJ, PLY, glTF or GLB file; polygons are fan-triangulated.
+/// Reads the triangles of an OBJ, PLY, glTF, GLB, STL or VTK (`.vtk`, `.vtp`, `.vtu`) file;
+/// polygons are fan-triangulated.
 ///
 /// # Errors
 /// A [`SceneError`] naming the file and what is wrong with it.
@@ -20,6 +22,9 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh, SceneError> {
         Some("obj") => load_obj(path),
         Some("ply") => load_ply(path),
         Some("gltf" | "glb") => super::gltf::load_gltf(path),
+        Some("stl") => super::stl::load_stl(path),
+        Some("vtk") => super::vtk::load_legacy(path),
+        Some("vtp" | "vtu") => super::vtk::load_xml(path),
         _ => Err(SceneError::UnknownFormat {
             path: path.display().to_string(),
         }),
@@ -677,7 +682,7 @@ end_header\n";
             .unwrap_err()
             .to_string();
         assert!(err.contains("missing.obj"), "{err}");
-        let err = load_mesh_file(Path::new("x.stl")).unwrap_err().to_string();
-        assert!(err.contains("x.stl") && err.contains("extension"), "{err}");
+        let err = load_mesh_file(Path::new("x.3ds")).unwrap_err().to_string();
+        assert!(err.contains("x.3ds") && err.contains("extension"), "{err}");
     }
 }

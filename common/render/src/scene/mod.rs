@@ -11,7 +11,10 @@ mod files;
 pub mod footprint;
 pub mod gltf;
 pub mod particles;
+pub mod points;
 mod procedural;
+mod stl;
+pub(crate) mod vtk;
 
 use crate::geometry::Bounds;
 use crate::volume::{self, Volume, VolumeError};
@@ -162,7 +165,7 @@ pub enum SceneError {
         message: String,
     },
     /// The file's extension is none of the formats a scene is loaded from.
-    #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf, .glb, .csv, .tpart, .nrrd, .nhdr, .nii, .nii.gz, .vol.toml or .scene.toml)")]
+    #[error("scene file {path}: unsupported extension (expected .obj, .ply, .gltf, .glb, .stl, .vtk, .vtp, .vtu, .csv, .tpart, .nrrd, .nhdr, .nii, .nii.gz, .vti, .vol.toml or .scene.toml)")]
     UnknownFormat {
         /// The file as the user named it.
         path: String,
@@ -247,8 +250,10 @@ impl Scene {
             SceneSpec::Gallery => procedural::gallery_scene(),
             // Empty by design, so the check for something to draw does not apply.
             SceneSpec::Empty => return Ok(Scene::default()),
-            SceneSpec::File(path) if particles::is_particle_file(path) => {
-                let world = particles::load_particles(path)?;
+            SceneSpec::File(path)
+                if particles::is_particle_file(path) || points::is_point_cloud(path) =>
+            {
+                let world = points::load(path)?;
                 let render_from_world = particles::frame_of(&world);
                 Scene {
                     particles: particles::place(&world, render_from_world),

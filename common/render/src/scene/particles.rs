@@ -157,8 +157,9 @@ pub fn write_tpart_at(path: &Path, origin: DVec3, particles: &[Particle]) -> std
 }
 
 fn read_csv(reader: impl BufRead) -> Result<Vec<WorldParticle>, String> {
-    // Column of each of FIELDS, and the header's width, once the header is read.
-    let mut header: Option<([usize; 5], usize)> = None;
+    // Column of each of FIELDS (radius and attribute may be absent), and the header's width,
+    // once the header is read.
+    let mut header: Option<([Option<usize>; 5], usize)> = None;
     let mut particles = Vec::new();
     // Lines are split as bytes so that a non-UTF-8 line still gets its number.
     for (n, line) in reader.split(b'\n').enumerate() {
@@ -179,7 +180,7 @@ fn read_csv(reader: impl BufRead) -> Result<Vec<WorldParticle>, String> {
         let mut found = 0;
         for (column, cell) in cells.enumerate() {
             found += 1;
-            let Some(field) = columns.iter().position(|&c| c == column) else {
+            let Some(field) = columns.iter().position(|&c| c == Some(column)) else {
                 continue;
             };
             let at = || format!("line {number}, column {} ({})", column + 1, FIELDS[field]);
@@ -194,37 +195,51 @@ fn read_csv(reader: impl BufRead) -> Result<Vec<WorldParticle>, String> {
                 "line {number}: {found} columns, but the header has {width}"
             ));
         }
+        // A point cloud: the height is the attribute, the spacing sizes the spheres (below).
+        if columns[4].is_none() {
+            fields[4] = fields[1];
+        }
+        if columns[3].is_none() {
+            fields[3] = 1.0;
+        }
         particles.push(from_fields(DVec3::ZERO, fields));
     }
-    if header.is_none() {
+    let Some((columns, _)) = header else {
         return Err(format!(
-            "no header line: expected columns {}",
+            "no header line: expected columns {} (radius and attribute optional)",
             FIELDS.join(",")
         ));
+    };
+    if columns[3].is_none() {
+        let centres: Vec<DVec3> = particles.iter().map(|p| p.center).collect();
+        let radius = super::points::spacing_radius(&centres);
+        particles.iter_mut().for_each(|p| p.radius = radius);
     }
     Ok(particles)
 }
 
-/// Finds each of [`FIELDS`] among the header's column names, ignoring case.
-fn read_header(names: Vec<&str>, number: usize) -> Result<([usize; 5], usize), String> {
-    let mut columns = [0; 5];
-    for (field, column) in FIELDS.iter().zip(&mut columns) {
+/// Finds each of [`FIELDS`] among the header's column names, ignoring case; `radius` and
+/// `attribute` may be absent (a point cloud: see [`super::points`]).
+fn read_header(names: Vec<&str>, number: usize) -> Result<([Option<usize>; 5], usize), String> {
+    let mut columns = [None; 5];
+    for (index, (field, column)) in FIELDS.iter().zip(&mut columns).enumerate() {
         let mut matches = names
             .iter()
             .enumerate()
             .filter(|(_, name)| name.eq_ignore_ascii_case(field))
             .map(|(c, _)| c);
-        *column = matches.next().ok_or_else(|| {
-            format!(
+        *column = matches.next();
+        if column.is_none() && index < 3 {
+            return Err(format!(
                 "line {number}: header has no `{field}` column (has: {}); \
                  the first line must name the columns",
                 names.join(",")
-            )
-        })?;
-        if let Some(again) = matches.next() {
+            ));
+        }
+        if let (Some(first), Some(again)) = (*column, matches.next()) {
             return Err(format!(
                 "line {number}: header names `{field}` twice (columns {} and {})",
-                *column + 1,
+                first + 1,
                 again + 1
             ));
         }
@@ -436,8 +451,8 @@ mod tests {
         }
         for (text, want) in [
             (
-                "x,y,z,attribute\n",
-                "line 1: header has no `radius` column (has: x,y,z,attribute)",
+                "x,attribute,z\n",
+                "line 1: header has no `y` column (has: x,attribute,z)",
             ),
             ("1,2,3,4,5\n", "line 1: header has no `x` column"),
             (

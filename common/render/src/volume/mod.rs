@@ -31,6 +31,7 @@ mod prepared;
 mod raw;
 mod series;
 mod transfer;
+mod vti;
 
 pub use bricks::{
     BrickSource, Bricks, MinMaxGrid, Replicated, BRICK_CELLS, BRICK_SAMPLES, MACRO_CELLS,
@@ -138,7 +139,7 @@ pub enum VolumeError {
     },
     /// The name is none of the volume formats and not a folder (a DICOM series).
     #[error(
-        "volume {path}: unsupported extension (expected .nrrd, .nhdr, .nii, .nii.gz or .vol.toml)"
+        "volume {path}: unsupported extension (expected .nrrd, .nhdr, .nii, .nii.gz, .vti or .vol.toml)"
     )]
     UnknownFormat {
         /// The file as the user named it.
@@ -456,6 +457,8 @@ enum Format {
     Nifti,
     RawWithSidecar,
     DicomSeries,
+    /// VTK XML ImageData.
+    Vti,
 }
 
 /// The format `path`'s name says, if it names a volume this module loads.
@@ -471,6 +474,8 @@ fn format_of(path: &Path) -> Option<Format> {
         Some(Format::Nifti)
     } else if lower.ends_with(".vol.toml") {
         Some(Format::RawWithSidecar)
+    } else if lower.ends_with(".vti") {
+        Some(Format::Vti)
     } else {
         None
     }
@@ -488,14 +493,15 @@ pub fn declared_voxels(path: &Path) -> Option<u64> {
     match format_of(path)? {
         Format::Nrrd => nrrd::declared_voxels(path),
         Format::RawWithSidecar => raw::declared_voxels(path),
-        Format::Nifti | Format::DicomSeries => None,
+        Format::Nifti | Format::DicomSeries | Format::Vti => None,
     }
 }
 
 /// Loads the volume at `path`, choosing the reader by extension: `.nrrd` / `.nhdr` (NRRD,
 /// raw or gzip encoding, data attached or in a detached file), `.nii` / `.nii.gz` / `.hdr`
 /// (NIfTI-1, placed by its sform or qform), `.vol.toml` (raw voxels described by a small TOML
-/// sidecar, see `raw`) and a folder (a DICOM series of uncompressed slices).
+/// sidecar, see `raw`), `.vti` (VTK XML image data, see `vti`) and a folder (a DICOM series of
+/// uncompressed slices).
 ///
 /// # Errors
 /// An unknown extension, an unreadable file, a bad header field (named), or data cut short.
@@ -505,6 +511,7 @@ pub fn load(path: &Path) -> Result<Volume, VolumeError> {
         Some(Format::Nifti) => nifti::load(path),
         Some(Format::DicomSeries) => dicom::load(path),
         Some(Format::RawWithSidecar) => raw::load(path),
+        Some(Format::Vti) => vti::load(path),
         None => Err(VolumeError::UnknownFormat {
             path: path.display().to_string(),
         }),
