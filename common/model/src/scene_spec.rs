@@ -30,7 +30,9 @@ pub enum SceneSpec {
     /// Nothing at all: a flat backdrop that costs no tracing, for measuring the transport
     /// (the `max-fps` experiment).
     Empty,
-    /// A mesh file (OBJ, PLY, glTF or GLB) or particles at this path on the node that loads it.
+    /// A file at this path on the node that loads it: a mesh (OBJ, PLY, glTF, GLB, STL, VTK
+    /// `.vtk` / `.vtp` / `.vtu`), particles or a point cloud (CSV, `.tpart`, a PLY without
+    /// faces), a volume (NRRD, NIfTI, `.vti`, DICOM, `.vol.toml`) or a `.scene.toml`.
     File(PathBuf),
 }
 
