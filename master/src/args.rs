@@ -86,7 +86,8 @@ pub struct RunArgs {
     /// (camera, quality, cuts, lights): a session to replay or to render any frame of.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
-    /// Drive the wall from a recorded session: each recorded state lands on its frame.
+    /// Drive the wall from a recorded session: each recorded state lands on its frame. A
+    /// camera path (a .toml file of keyframes, see docs/movies.md) moves the camera alone.
     #[arg(long, value_name = "FILE")]
     pub replay: Option<PathBuf>,
     /// Progressive refinement: once the camera has held still for --still-frames frames,
@@ -208,7 +209,20 @@ pub struct RenderArgs {
     /// Frame number (selects the orbit camera's position).
     #[arg(long, default_value_t = 0)]
     pub frame: u64,
-    /// Output directory; wall.png is written there.
+    /// Render every frame of A..B (B left out; A..=B includes it) into DIR/frame-000123.png,
+    /// numbered by frame, in place of one --frame into wall.png: a movie of the orbit, of a
+    /// --replay session or of a camera path. The scene is prepared once.
+    #[arg(long, value_name = "A..B", value_parser = crate::movie::parse_frames,
+          allow_hyphen_values = true, conflicts_with_all = ["frame", "aov", "repeat"])]
+    pub frames: Option<crate::movie::FrameRange>,
+    /// With --frames: encode the frames into FILE, an H.264 MP4, with ffmpeg from the PATH
+    /// (checked before anything renders).
+    #[arg(long, value_name = "FILE", requires = "frames")]
+    pub mp4: Option<PathBuf>,
+    /// Frames a second of the --mp4 movie (1 to 1000; default: a camera path's `fps`, else 30).
+    #[arg(long, value_name = "N", requires = "mp4", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub fps: Option<u32>,
+    /// Output directory; wall.png (or with --frames, frame-NNNNNN.png) is written there.
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -219,7 +233,8 @@ pub struct RenderArgs {
     #[arg(long, value_enum)]
     pub aov: Vec<Aov>,
     /// Render --frame K of a recorded session (`--record`): its camera, quality and lights
-    /// at that frame, in place of the camera and quality flags.
+    /// at that frame, in place of the camera and quality flags. A camera path (a .toml file
+    /// of keyframes, see docs/movies.md) gives the camera alone; the quality is the flags'.
     #[arg(long, value_name = "FILE")]
     pub replay: Option<PathBuf>,
     /// Render the frame this many times and report the median and fastest render time (for
@@ -369,10 +384,13 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
             );
         }
     }
+    // A camera path (.toml) becomes a session in the scene's frame, with the run's quality.
     let replay = run
         .replay
         .as_deref()
-        .map(crate::record::Session::load)
+        .map(|path| {
+            crate::camera_path::Replay::load(path)?.session(&scene.render_from_world, params)
+        })
         .transpose()?;
     let bounds = scene.bounds();
     let (pivot, scene_size) = if bounds.center().is_finite() {

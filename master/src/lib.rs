@@ -14,11 +14,13 @@
 
 mod args;
 mod bench;
+mod camera_path;
 mod console;
 mod control;
 mod dsm_data;
 mod launch;
 mod launcher;
+mod movie;
 mod outcome;
 mod peers;
 mod probe;

@@ -2,62 +2,42 @@
 //! that the wall must equal pixel for pixel, with optional per-pixel outputs (AOVs).
 
 use crate::args::{Aov, RenderArgs};
-use anyhow::{Context, Result};
+use crate::camera_path::Replay;
+use crate::record::Session;
+use anyhow::{bail, Context, Result};
 use std::time::Instant;
 use tessera_cli::png::PngFile;
 use tessera_model::image::RgbImage;
 use tessera_model::params::RenderParams;
+use tessera_model::state::WallState;
 use tessera_model::wall::{TileGrid, WallLayout};
 use tessera_render::aov::{primary_aovs, write_pfm, write_pfm_rgb};
 use tessera_render::scene::Scene;
 use tessera_render::{orbit_of, render_wall, render_wall_linear, FrameView, PreparedScene};
 
+/// Renders what `args` asks: one frame into `--out DIR/wall.png` (and its AOVs), or with
+/// `--frames` a movie (see [`crate::movie`]).
 pub fn render_reference(args: RenderArgs) -> Result<()> {
-    let wall = args.wall.layout()?;
-    // Checked before the (long) load; the cutting planes are then moved into the scene's frame.
-    args.quality
-        .params(&tessera_model::local_origin::RenderFromWorld::IDENTITY)?;
-    let replayed = args
-        .replay
-        .as_deref()
-        .map(|path| crate::record::Session::load(path)?.state_at(args.frame))
-        .transpose()?;
-    let scene = crate::args::load_scene(&args.scene)?;
-    let params = args.quality.params(&scene.render_from_world)?;
-    let camera = match &replayed {
-        Some(state) => state.camera,
-        None => args.scene.camera_mode(&scene.render_from_world, |fov| {
-            orbit_of(&scene.bounds(), fov)
-        })?,
+    if args.frames.is_some() {
+        return crate::movie::render_movie(args);
     }
-    .camera_for_frame(args.frame);
+    let setup = Setup::load(&args, args.frame)?;
+    let state = setup.state_at(args.frame)?;
     let t0 = Instant::now();
-    let shown = replayed.as_ref().map_or(params, |state| state.params);
-    let prepared = prepare(&scene, &shown)?;
+    let prepared = prepare(&setup.scene, &state.params)?;
     let built = t0.elapsed();
-    let view = match replayed {
-        Some(state) => FrameView {
-            lights: state.lights,
-            ..FrameView::for_wall(args.frame, &camera, state.params, &wall)
-        },
-        None => FrameView::for_wall(args.frame, &camera, params, &wall),
-    };
-    let (image, rendered) = render_timed(&prepared, &view, &wall, args.repeat);
+    let view = view_of(args.frame, &state, &setup.wall);
+    let (image, rendered) = render_timed(&prepared, &view, &setup.wall, args.repeat);
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create --out {}", args.out.display()))?;
     let path = args.out.join("wall.png");
     image.save_png(&path)?;
-    write_aovs(&args, &prepared, &view, &wall)?;
+    write_aovs(&args, &prepared, &view, &setup.wall)?;
     eprintln!(
-        "rendered frame {} of a {}x{} wall ({} triangles{}): prepare {:.2} s, render {:.3} s; wrote {}",
+        "rendered frame {} of a {} ({}): prepare {:.2} s, render {:.3} s; wrote {}",
         args.frame,
-        wall.width(),
-        wall.height(),
-        scene.triangles.len(),
-        scene.volume.as_ref().map_or(String::new(), |v| {
-            let d = v.dims();
-            format!(", a {}x{}x{} volume", d[0], d[1], d[2])
-        }),
+        setup.wall_size(),
+        setup.scene_size(),
         built.as_secs_f64(),
         rendered,
         path.display()
@@ -65,11 +45,106 @@ pub fn render_reference(args: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+/// What `render` renders with: the wall, the scene, and where each frame's state comes from.
+pub(crate) struct Setup {
+    pub wall: WallLayout,
+    pub scene: Scene,
+    /// Frames a second the replayed file was made for, where it says (a camera path).
+    pub fps: Option<u32>,
+    states: States,
+}
+
+/// Where a frame's camera, quality and lights come from.
+enum States {
+    /// A recorded session, or a camera path made one.
+    Replayed(Session),
+    /// The flags: their camera mode (fixed, or the orbit, which moves with the frame) and
+    /// quality, the scene's lights.
+    Flags(Box<WallState>),
+}
+
+impl Setup {
+    /// Checks the flags and the replayed file, that it has a state for frame `first`, and
+    /// only then loads the scene (which can take long).
+    ///
+    /// # Errors
+    /// A bad flag, a replayed file that cannot be read or starts after `first`, a scene that
+    /// cannot be loaded, a camera path with a frame that is no camera.
+    pub fn load(args: &RenderArgs, first: u64) -> Result<Setup> {
+        let wall = args.wall.layout()?;
+        // The cutting planes are moved into the scene's frame once it is loaded.
+        args.quality
+            .params(&tessera_model::local_origin::RenderFromWorld::IDENTITY)?;
+        let replay = args.replay.as_deref().map(Replay::load).transpose()?;
+        if let (Some(replay), Some(path)) = (&replay, &args.replay) {
+            if replay.first_frame() > first {
+                bail!(
+                    "--replay {} starts at frame {}, after frame {first}",
+                    path.display(),
+                    replay.first_frame()
+                );
+            }
+        }
+        let scene = crate::args::load_scene(&args.scene)?;
+        let params = args.quality.params(&scene.render_from_world)?;
+        let fps = replay.as_ref().and_then(Replay::fps);
+        let states = match replay {
+            Some(replay) => States::Replayed(replay.session(&scene.render_from_world, params)?),
+            None => States::Flags(Box::new(WallState {
+                camera: args.scene.camera_mode(&scene.render_from_world, |fov| {
+                    orbit_of(&scene.bounds(), fov)
+                })?,
+                params,
+                lights: None,
+            })),
+        };
+        Ok(Setup {
+            wall,
+            scene,
+            fps,
+            states,
+        })
+    }
+
+    /// The state frame `frame` renders with.
+    ///
+    /// # Errors
+    /// A replayed session that starts after `frame`.
+    pub fn state_at(&self, frame: u64) -> Result<WallState> {
+        match &self.states {
+            States::Replayed(session) => session.state_at(frame),
+            States::Flags(state) => Ok(**state),
+        }
+    }
+
+    /// The wall's size in pixels, for messages.
+    pub fn wall_size(&self) -> String {
+        format!("{}x{} wall", self.wall.width(), self.wall.height())
+    }
+
+    /// What the scene holds, for messages.
+    pub fn scene_size(&self) -> String {
+        let volume = self.scene.volume.as_ref().map_or(String::new(), |v| {
+            let d = v.dims();
+            format!(", a {}x{}x{} volume", d[0], d[1], d[2])
+        });
+        format!("{} triangles{volume}", self.scene.triangles.len())
+    }
+}
+
+/// Frame `frame` of `wall` as `state` renders it: its camera there, its quality, its lights.
+pub(crate) fn view_of(frame: u64, state: &WallState, wall: &WallLayout) -> FrameView {
+    let camera = state.camera.camera_for_frame(frame);
+    FrameView {
+        lights: state.lights,
+        ..FrameView::for_wall(frame, &camera, state.params, wall)
+    }
+}
+
 /// The scene ready to trace, with the step of its volume series that `shown` selects.
-fn prepare(scene: &Scene, shown: &RenderParams) -> Result<PreparedScene> {
+pub(crate) fn prepare(scene: &Scene, shown: &RenderParams) -> Result<PreparedScene> {
     let mut prepared = PreparedScene::new(scene);
-    if !scene.series.is_empty() {
-        let step = shown.volume().time_step as usize % scene.series.len();
+    if let Some(step) = series_step(scene, shown) {
         let volume = tessera_render::volume::load(&scene.series[step])?;
         // Placed in the series' frame (its first step's).
         prepared.set_volume(std::sync::Arc::new(
@@ -77,6 +152,12 @@ fn prepare(scene: &Scene, shown: &RenderParams) -> Result<PreparedScene> {
         ));
     }
     Ok(prepared)
+}
+
+/// The step of the scene's volume series that `shown` selects, if it has a series: all of
+/// the prepared scene that depends on the frame's state.
+pub(crate) fn series_step(scene: &Scene, shown: &RenderParams) -> Option<usize> {
+    (!scene.series.is_empty()).then(|| shown.volume().time_step as usize % scene.series.len())
 }
 
 /// The frame rendered `repeat` times (at least once): the last image and the first render's
