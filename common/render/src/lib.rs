@@ -49,6 +49,7 @@ pub mod scene;
 mod shade;
 mod shadow_packet;
 pub mod slot_materials;
+mod slot_colors;
 pub mod spheres;
 pub mod stiff;
 mod surface_hit;

@@ -5,6 +5,7 @@
 use crate::bvh::Accel;
 use crate::pixel_rays::PixelRays;
 use crate::scene::{Light, Material, Scene};
+use crate::slot_colors::SlotColors;
 use crate::slot_materials::SlotMaterials;
 use crate::spheres::SphereAccel;
 use crate::volume::PreparedVolume;
@@ -26,6 +27,9 @@ pub struct PreparedScene {
     pub shared: Option<crate::dsm::DsmTree>,
     /// Material index of each leaf slot.
     pub(crate) slot_material: SlotMaterials,
+    /// Texture coordinates and vertex colours of each leaf slot, and the textures; `None`
+    /// when every triangle is drawn in its material's colour (always, for a shared scene).
+    pub(crate) colors: Option<Box<SlotColors>>,
     pub(crate) materials: Vec<Material>,
     /// Whether any material is transparent: without, the blending path is never entered.
     pub blends: bool,
@@ -56,8 +60,10 @@ impl PreparedScene {
                 .map(|&i| scene.triangle_material[i as usize])
                 .collect(),
         );
+        let colors = SlotColors::of(scene, &accel.scene_index).map(Box::new);
         PreparedScene {
             diagonal: scene.bounds().diagonal().length(),
+            colors,
             accel,
             shared: None,
             slot_material,
@@ -82,9 +88,10 @@ impl PreparedScene {
         self.accel.scene_index = Vec::new();
     }
 
-    /// Bytes of the per-slot material indices (for memory reports).
+    /// Bytes of the per-slot material indices, texture coordinates and vertex colours, and
+    /// of the textures (for memory reports).
     pub fn slot_material_bytes(&self) -> usize {
-        self.slot_material.bytes()
+        self.slot_material.bytes() + self.colors.as_ref().map_or(0, |c| c.bytes())
     }
 
     /// Shows `volume` from now on: a time series' next step, from a [`crate::volume::SeriesCache`].

@@ -7,11 +7,13 @@
 //! transmitted-ray counter stays at zero). Reflected and transmitted rays are single rays; their
 //! depth is bounded by [`MAX_DEPTH`].
 
+use crate::bvh::node::Hit;
 use crate::geometry::Ray;
 use crate::packet::PacketHit;
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::Material;
+use crate::slot_colors::SlotColors;
 use crate::surface_hit::{
     faces_light, hit_frame, iso_occludes, leaving_point, nearest_surface, offset_origin,
     towards_light, PrimaryHit, SurfaceHit,
@@ -173,6 +175,17 @@ impl Shader<'_, '_> {
                 (point, normal, start)
             }
         };
+        let painted;
+        let material = match (&self.scene.colors, hit) {
+            (Some(colors), SurfaceHit::Triangle(h)) => {
+                painted = Material {
+                    albedo: self.painted_albedo(colors, h, material, (point, dir, normal)),
+                    ..*material
+                };
+                &painted
+            }
+            _ => material,
+        };
         let mut color = self.local(
             dir,
             point,
@@ -196,6 +209,28 @@ impl Shader<'_, '_> {
             color = color * material.opacity + seen * (1.0 - material.opacity);
         }
         color
+    }
+
+    /// The albedo at a triangle hit of a scene with textures or vertex colours. The texture's
+    /// level follows from how wide a pixel is at the hit: the distance along this ray times
+    /// the angle between neighbouring pixels of the frame's one image (a viewport's pixels
+    /// are about as wide). After a mirror or through glass only this ray's own length counts,
+    /// which is sharper than the whole path's footprint would be, never blurrier.
+    fn painted_albedo(
+        &mut self,
+        colors: &SlotColors,
+        hit: Hit,
+        material: &Material,
+        (point, dir, normal): (Vec3, Vec3, Vec3),
+    ) -> Vec3 {
+        let (x, y) = self.pixel;
+        let rays = &self.view.rays;
+        let pixel_angle =
+            (rays.direction_at(x, y, 1.5, 0.5) - rays.direction_at(x, y, 0.5, 0.5)).length();
+        let footprint = hit.t * pixel_angle;
+        let tri = self.tracer.triangle(hit.slot);
+        let cos = normal.dot(dir);
+        colors.albedo(hit.slot, material, &tri, point, (footprint, cos))
     }
 
     /// Light reflected at the surface itself: headlight, lights with shadows, ambient term and

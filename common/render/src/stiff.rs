@@ -152,6 +152,7 @@ fn with_parts(
         triangle_material: scene.triangle_material.clone(),
         materials: scene.materials.clone(),
         material_names: scene.material_names.clone(),
+        colors: scene.colors.clone(),
         lights: scene.lights.clone(),
         particles,
         volume,

@@ -69,6 +69,8 @@ impl PreparedScene {
             ),
             shared: Some(tree),
             slot_material: manifest.slot_materials.clone(),
+            // Textures and vertex colours stay with replicated scenes (see `prepare`).
+            colors: None,
             materials: manifest.materials.clone(),
             blends: manifest.blends,
             lights: manifest.lights.clone(),

@@ -235,7 +235,7 @@ fn manifest_of(
         bounds_max: bounds.max.to_array(),
         diagonal: bounds.diagonal().length(),
         render_from_world: scene.render_from_world,
-        materials: scene.materials.clone(),
+        materials: material_colors_only(scene),
         lights: scene.lights.clone(),
         slot_materials: SlotMaterials::runs_of(&per_slot),
         blends: scene.has_transparency(),
@@ -248,6 +248,25 @@ fn manifest_of(
         particles: (!scene.particles.is_empty())
             .then(|| ParticleEntry::of_range(scene.attribute_range())),
     }
+}
+
+/// The scene's materials without their textures: blocks hold the triangles' corners only, so
+/// a shared scene is drawn in its materials' colours, and says so once.
+fn material_colors_only(scene: &Scene) -> Vec<crate::scene::Material> {
+    if !scene.colors.is_empty() {
+        tracing::warn!(
+            "scene {} has textures or vertex colours ({} textures, {} vertex colours); a shared \
+             scene draws material colours only",
+            &hash_hex(&scene.content_hash())[..12],
+            scene.colors.textures.len(),
+            scene.colors.vertex.len()
+        );
+    }
+    let plain = |m: &crate::scene::Material| crate::scene::Material {
+        texture: None,
+        ..*m
+    };
+    scene.materials.iter().map(plain).collect()
 }
 
 /// The files of a prepared scene in `dir`.

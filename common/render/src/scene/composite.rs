@@ -164,6 +164,15 @@ fn append(mesh: &mut Mesh, mut part: Mesh, path: &Path) -> Result<(), SceneError
     if mesh.materials.len() + part.materials.len() > u16::MAX as usize {
         return Err(too_many("materials"));
     }
+    let shift = mesh
+        .colors
+        .append(mesh.positions.len(), part.positions.len(), part.colors);
+    if mesh.colors.textures.len() > u16::MAX as usize {
+        return Err(too_many("textures"));
+    }
+    for m in &mut part.materials {
+        m.texture = m.texture.map(|t| t + shift);
+    }
     mesh.positions.extend(part.positions);
     mesh.triangles.extend(
         part.triangles

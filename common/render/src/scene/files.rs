@@ -3,8 +3,9 @@
 //! `.vtp` / `.vtu` surfaces (in `super::vtk`). Every error names the file and, where the format has them, the line or the
 //! element at fault: a render node that cannot load a scene must say exactly why.
 
+use super::colors::{SurfaceColors, TextureFiles};
 use super::{Mesh, SceneError};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use std::io::BufRead;
 use std::path::Path;
 
@@ -70,8 +71,12 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
         Vec::new()
     });
     let mut mesh = Mesh::default();
+    let mut textures = TextureFiles::new(path);
     if models.iter().any(|m| m.mesh.material_id.is_some()) && !file_materials.is_empty() {
-        mesh.materials = file_materials.iter().map(mtl_material).collect();
+        mesh.materials = file_materials
+            .iter()
+            .map(|m| mtl_material(m, &mut textures))
+            .collect();
         mesh.material_names = file_materials.iter().map(|m| m.name.clone()).collect();
         mesh.materials.push(super::NEUTRAL);
         mesh.material_names.push("neutral (no usemtl)".into());
@@ -89,15 +94,22 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
     for model in models {
         let m = model.mesh;
         let base = mesh.positions.len() as u32;
-        mesh.positions.extend(
-            m.positions
-                .chunks_exact(3)
-                .map(|p| DVec3::new(p[0], p[1], p[2])),
-        );
+        let (corners, colors) = obj_vertices(&m);
+        let count = m.positions.len() / 3;
+        let count = corners.as_ref().map_or(count, |c| c.vertices.len());
+        let position = |i: u32| {
+            let k = 3 * corners.as_ref().map_or(i, |c| c.vertices[i as usize].0) as usize;
+            DVec3::new(m.positions[k], m.positions[k + 1], m.positions[k + 2])
+        };
+        mesh.colors
+            .extend_vertices(base as usize, count, &colors.uvs, &colors.vertex);
+        mesh.positions.extend((0..count as u32).map(position));
+        let index = |k: usize| match &corners {
+            Some(c) => base + c.of_corner[k],
+            None => base + m.indices[k],
+        };
         mesh.triangles.extend(
-            m.indices
-                .chunks_exact(3)
-                .map(|t| [base + t[0], base + t[1], base + t[2]]),
+            (0..m.indices.len() / 3).map(|t| [index(3 * t), index(3 * t + 1), index(3 * t + 2)]),
         );
         if !mesh.materials.is_empty() {
             let id = m
@@ -108,6 +120,7 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
                 .extend(std::iter::repeat_n(id, m.indices.len() / 3));
         }
     }
+    mesh.colors.textures = textures.textures;
     if mesh.positions.iter().any(|p| !in_range(*p)) {
         let why = obj_culprit(path).unwrap_or_else(|| "has a non-finite vertex".into());
         return Err(file_error(path, why));
@@ -115,10 +128,68 @@ fn load_obj(path: &Path) -> Result<Mesh, SceneError> {
     Ok(mesh)
 }
 
-/// An MTL material as Tessera draws it: `Kd` is the diffuse colour; `Ks` and `Ns` (illumination
-/// models 2 and up) make it Phong; models 3, 5 and 7 ("reflection on, ray trace on") make `Ks`
-/// the mirror reflectance; `d` (or `Tr`) below 1 makes it transparent.
-fn mtl_material(m: &tobj::Material) -> super::Material {
+/// Vertices of an OBJ model with their own texture coordinates, by position and coordinate
+/// index, and the vertex of each face corner.
+struct Corners {
+    vertices: Vec<(u32, u32)>,
+    of_corner: Vec<u32>,
+}
+
+/// An OBJ model's per-vertex colours and texture coordinates. Without texture coordinates the
+/// vertices are the model's own, with their colours (`v x y z r g b`). With them, a position
+/// may carry a different coordinate in each face it is in (a seam), so each distinct pair of
+/// position and coordinate becomes a vertex: `Some` [`Corners`].
+fn obj_vertices(m: &tobj::Mesh) -> (Option<Corners>, SurfaceColors) {
+    let color = |i: u32| {
+        let k = 3 * i as usize;
+        let c = m.vertex_color.get(k..k + 3).unwrap_or(&[1.0; 3]);
+        SurfaceColors::encode_unit([c[0], c[1], c[2]].map(|c| c as f32))
+    };
+    let has_colors = !m.vertex_color.is_empty();
+    let mut colors = SurfaceColors::default();
+    if m.texcoords.is_empty() || m.texcoord_indices.len() != m.indices.len() {
+        if has_colors {
+            colors.vertex = (0..(m.positions.len() / 3) as u32).map(color).collect();
+        }
+        return (None, colors);
+    }
+    let mut known = std::collections::HashMap::new();
+    let mut vertices = Vec::new();
+    let of_corner = m
+        .indices
+        .iter()
+        .zip(&m.texcoord_indices)
+        .map(|(&p, &t)| {
+            *known.entry((p, t)).or_insert_with(|| {
+                vertices.push((p, t));
+                vertices.len() as u32 - 1
+            })
+        })
+        .collect();
+    colors.uvs = vertices
+        .iter()
+        .map(|&(_, t)| {
+            let k = 2 * t as usize;
+            let uv = m.texcoords.get(k..k + 2).unwrap_or(&[0.0; 2]);
+            // OBJ's v runs up the image; Tessera's, as glTF's, down from its top row.
+            Vec2::new(uv[0] as f32, 1.0 - uv[1] as f32)
+        })
+        .collect();
+    if has_colors {
+        colors.vertex = vertices.iter().map(|&(p, _)| color(p)).collect();
+    }
+    let corners = Corners {
+        vertices,
+        of_corner,
+    };
+    (Some(corners), colors)
+}
+
+/// An MTL material as Tessera draws it: `Kd` is the diffuse colour, times the `map_Kd` texture
+/// if it has one; `Ks` and `Ns` (illumination models 2 and up) make it Phong; models 3, 5 and
+/// 7 ("reflection on, ray trace on") make `Ks` the mirror reflectance; `d` (or `Tr`) below 1
+/// makes it transparent.
+fn mtl_material(m: &tobj::Material, textures: &mut TextureFiles) -> super::Material {
     let illum = m.illumination_model.unwrap_or(2);
     // tobj reads in f64 (for positions far from the origin); colours need no such range.
     let colour = |c: [f64; 3]| DVec3::from_array(c).as_vec3();
@@ -134,6 +205,10 @@ fn mtl_material(m: &tobj::Material) -> super::Material {
             0.0
         },
         opacity: m.dissolve.unwrap_or(1.0) as f32,
+        texture: m
+            .diffuse_texture
+            .as_deref()
+            .and_then(|file| textures.load(file, &m.name)),
     }
 }
 
@@ -250,6 +325,23 @@ fn obj_face_index(word: &str, vertices: usize) -> Result<usize, String> {
 struct PlyRow {
     xyz: [Option<f64>; 3],
     indices: Option<Vec<i64>>,
+    /// A vertex colour's red, green and blue from 0 to 1; bit k of `has_rgb` says channel k
+    /// was given.
+    rgb: [f32; 3],
+    has_rgb: u8,
+}
+
+/// A PLY colour channel from 0 to 1: integers count up to their type's largest value, floats
+/// are that fraction already.
+fn ply_channel(property: &ply_rs_bw::ply::Property) -> Option<f32> {
+    use ply_rs_bw::ply::Property as P;
+    Some(match *property {
+        P::UChar(v) => v as f32 / 255.0,
+        P::UShort(v) => v as f32 / 65535.0,
+        P::Float(v) => v,
+        P::Double(v) => v as f32,
+        _ => return None,
+    })
 }
 
 impl ply_rs_bw::ply::PropertyAccess for PlyRow {
@@ -263,6 +355,20 @@ impl ply_rs_bw::ply::PropertyAccess for PlyRow {
         property: ply_rs_bw::ply::Property,
     ) -> ply_rs_bw::ply::PropertyAccessResult {
         use ply_rs_bw::ply::{Property as P, PropertyAccessResult as R};
+        let channel = match name {
+            "red" | "diffuse_red" | "r" => Some(0),
+            "green" | "diffuse_green" | "g" => Some(1),
+            "blue" | "diffuse_blue" | "b" => Some(2),
+            _ => None,
+        };
+        if let Some(k) = channel {
+            let Some(value) = ply_channel(&property) else {
+                return R::UnsupportedType;
+            };
+            self.rgb[k] = value;
+            self.has_rgb |= 1 << k;
+            return R::Set;
+        }
         let axis = match name {
             "x" => 0,
             "y" => 1,
@@ -436,6 +542,13 @@ impl PlyRows<'_> {
                 return Err(self.err(format!("{} has a non-finite coordinate {p}", at())));
             }
             mesh.positions.push(p);
+        }
+        // Colours when every vertex has all three channels; a partial set is no colour.
+        if vertices.iter().all(|v| v.has_rgb == 0b111) {
+            mesh.colors.vertex = vertices
+                .iter()
+                .map(|v| SurfaceColors::encode_unit(v.rgb))
+                .collect();
         }
         let count = mesh.positions.len();
         if u32::try_from(count).is_err() {

@@ -4,9 +4,10 @@
 //! through its reader, whose offset arithmetic is unchecked and panics on corrupt counts or
 //! component types. A bad file must be an error naming the element, never a crashed node.
 
+use super::colors::{encode_linear, SurfaceColors, TextureFiles};
 use super::files::file_error;
 use super::{Mesh, SceneError, MAX_TRIANGLES};
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3, Vec4};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::Mode;
 use std::collections::hash_map::{Entry, HashMap};
@@ -16,7 +17,8 @@ use std::path::Path;
 /// none, every root node if there are no scenes), in world space.
 ///
 /// Triangle strips and fans are converted; points and lines are skipped with a warning.
-/// Materials, skins and morph targets are ignored: a mesh is traced in its bind pose.
+/// Materials keep their base colour texture (on `TEXCOORD_0`, repeating) and vertices their
+/// `COLOR_0`; skins and morph targets are ignored: a mesh is traced in its bind pose.
 ///
 /// # Errors
 /// A [`SceneError`] naming the file and the element (mesh, primitive, node, buffer) at fault.
@@ -38,7 +40,12 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
             document.materials().len()
         )));
     }
-    mesh.materials = document.materials().map(|m| gltf_material(&m)).collect();
+    let mut textures = TextureFiles::new(path);
+    mesh.materials = document
+        .materials()
+        .map(|m| gltf_material(&m, &buffers, &mut textures))
+        .collect();
+    mesh.colors.textures = textures.textures;
     mesh.material_names = document
         .materials()
         .map(|m| m.name().unwrap_or("unnamed").to_string())
@@ -59,6 +66,9 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
         if u32::try_from(base + local.positions.len()).is_err() {
             return Err(err("more vertices than 32-bit indices reach".into()));
         }
+        let (uvs, vertex) = (&local.colors.uvs, &local.colors.vertex);
+        mesh.colors
+            .extend_vertices(base, local.positions.len(), uvs, vertex);
         for (i, &p) in local.positions.iter().enumerate() {
             // In f64: a node placed far from the origin keeps its mesh's detail.
             let p = world.as_dmat4().transform_point3(p);
@@ -318,6 +328,9 @@ fn decode_mesh(
                     .map(|t| at_base([indices[0], t[0], t[1]])),
             ),
         }
+        let colors = primitive_colors(&primitive, buffers).map_err(|e| format!("{at}: {e}"))?;
+        out.colors
+            .extend_vertices(base as usize, count, &colors.uvs, &colors.vertex);
         out.positions.extend(positions.iter().map(|p| p.as_dvec3()));
         let material = primitive.material().index().unwrap_or(default_material) as u16;
         out.triangle_material.resize(out.triangles.len(), material);
@@ -325,11 +338,134 @@ fn decode_mesh(
     Ok(out)
 }
 
-/// A metallic-roughness material as Tessera draws it: the base colour is the diffuse colour;
-/// smooth surfaces get a Phong highlight whose width follows the roughness (the exponent that
+/// A primitive's `TEXCOORD_0` and `COLOR_0`, each empty when it has none.
+fn primitive_colors(
+    primitive: &gltf::Primitive,
+    buffers: &[Vec<u8>],
+) -> Result<SurfaceColors, String> {
+    let mut out = SurfaceColors::default();
+    if let Some(a) = primitive.get(&gltf::Semantic::TexCoords(0)) {
+        out.uvs = read_vectors(&a, buffers, Dimensions::Vec2)
+            .map_err(|e| format!("TEXCOORD_0 accessor {}: {e}", a.index()))?
+            .into_iter()
+            .map(|v| Vec2::new(v.x, v.y))
+            .collect();
+    }
+    if let Some(a) = primitive.get(&gltf::Semantic::Colors(0)) {
+        let dims = a.dimensions();
+        let dims = if dims == Dimensions::Vec4 {
+            dims
+        } else {
+            Dimensions::Vec3
+        };
+        out.vertex = read_vectors(&a, buffers, dims)
+            .map_err(|e| format!("COLOR_0 accessor {}: {e}", a.index()))?
+            .into_iter()
+            .map(|v| encode_linear(v.truncate()))
+            .collect();
+    }
+    Ok(out)
+}
+
+/// An accessor of `dims` floats or normalized unsigned integers (what glTF allows for texture
+/// coordinates and colours), as floats, unused components zero.
+fn read_vectors(
+    accessor: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    dims: Dimensions,
+) -> Result<Vec<Vec4>, String> {
+    let kind = (
+        accessor.dimensions(),
+        accessor.data_type(),
+        accessor.normalized(),
+    );
+    let n = dims.multiplicity();
+    let component: fn(&[u8], usize) -> f32 = match kind {
+        (d, DataType::F32, _) if d == dims => {
+            |b, k| f32::from_le_bytes([b[4 * k], b[4 * k + 1], b[4 * k + 2], b[4 * k + 3]])
+        }
+        (d, DataType::U8, true) if d == dims => |b, k| b[k] as f32 / 255.0,
+        (d, DataType::U16, true) if d == dims => {
+            |b, k| u16::from_le_bytes([b[2 * k], b[2 * k + 1]]) as f32 / 65535.0
+        }
+        _ => {
+            return Err(format!(
+                "is {kind:?}; expected {dims:?} of FLOAT or normalized UNSIGNED_BYTE/SHORT"
+            ))
+        }
+    };
+    Ok(elements(accessor, buffers)?
+        .map(|b| {
+            let mut v = [0f32; 4];
+            v.iter_mut()
+                .take(n)
+                .enumerate()
+                .for_each(|(k, c)| *c = component(b, k));
+            Vec4::from_array(v)
+        })
+        .collect())
+}
+
+/// The texture of a material's base colour, read from a buffer view, a data URI or a file
+/// beside the glTF; `None`, with a warning naming the image, when it cannot be read or uses
+/// texture coordinates other than `TEXCOORD_0`.
+fn base_color_texture(
+    m: &gltf::Material,
+    buffers: &[Vec<u8>],
+    textures: &mut TextureFiles,
+) -> Option<u16> {
+    use gltf::image::Source;
+    let info = m.pbr_metallic_roughness().base_color_texture()?;
+    let image = info.texture().source();
+    let material = m.name().unwrap_or("unnamed");
+    let name = format!("image {}", image.index());
+    if info.tex_coord() != 0 {
+        let why = format!(
+            "it uses TEXCOORD_{}; only TEXCOORD_0 is read",
+            info.tex_coord()
+        );
+        textures.warn(std::path::Path::new(&name), material, &why);
+        return None;
+    }
+    let bytes = match image.source() {
+        Source::View { view, .. } => buffers[view.buffer().index()]
+            .get(view.offset()..view.offset().saturating_add(view.length()))
+            .map(<[u8]>::to_vec)
+            .ok_or("its buffer view runs past the end of its buffer".to_string()),
+        Source::Uri { uri, .. } if uri.starts_with("data:") => {
+            let source = gltf::buffer::Source::Uri(uri);
+            gltf::buffer::Data::from_source_and_blob(source, None, &mut None)
+                .map(|d| d.0)
+                .map_err(|e| e.to_string())
+        }
+        Source::Uri { uri, .. } => {
+            let Some(file) = percent_decode(uri) else {
+                let why = "its uri is badly percent-encoded";
+                textures.warn(std::path::Path::new(uri), material, why);
+                return None;
+            };
+            let dir = textures.mesh.parent().unwrap_or(Path::new("."));
+            return textures.load_path(dir.join(file), material);
+        }
+    };
+    match bytes {
+        Ok(bytes) => textures.decode(&name, &bytes, material),
+        Err(why) => {
+            textures.warn(std::path::Path::new(&name), material, &why);
+            None
+        }
+    }
+}
+
+/// A metallic-roughness material as Tessera draws it: the base colour is the diffuse colour
+/// (times its texture, if it has one); smooth surfaces get a Phong highlight whose width follows the roughness (the exponent that
 /// matches a Beckmann lobe, 2/r⁴ − 2); smooth metals (roughness ≤ 0.1) become mirrors; alpha
 /// mode BLEND makes the base colour's alpha the opacity.
-fn gltf_material(m: &gltf::Material) -> super::Material {
+fn gltf_material(
+    m: &gltf::Material,
+    buffers: &[Vec<u8>],
+    textures: &mut TextureFiles,
+) -> super::Material {
     let pbr = m.pbr_metallic_roughness();
     let [r, g, b, a] = pbr.base_color_factor();
     let base = glam::Vec3::new(r, g, b);
@@ -347,6 +483,7 @@ fn gltf_material(m: &gltf::Material) -> super::Material {
         } else {
             1.0
         },
+        texture: base_color_texture(m, buffers, textures),
     }
 }
 

@@ -6,6 +6,9 @@
 //! loaded the same bytes as the master, since identical input is what makes tiles bit-identical
 //! on any node.
 
+pub mod colors;
+#[cfg(test)]
+mod color_tests;
 pub mod composite;
 mod files;
 pub mod footprint;
@@ -14,6 +17,7 @@ pub mod particles;
 pub mod points;
 mod procedural;
 mod stl;
+pub mod texture;
 pub(crate) mod vtk;
 
 use crate::geometry::Bounds;
@@ -43,6 +47,9 @@ pub struct Material {
     pub mirror: f32,
     /// 1 is opaque; below 1 the surface is blended with what lies behind it.
     pub opacity: f32,
+    /// The texture ([`colors::SurfaceColors::textures`]) that multiplies `albedo`, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<u16>,
 }
 
 impl Material {
@@ -54,6 +61,7 @@ impl Material {
             shininess: 1.0,
             mirror: 0.0,
             opacity: 1.0,
+            texture: None,
         }
     }
 
@@ -138,6 +146,9 @@ pub struct Scene {
     pub material_names: Vec<String>,
     /// Lights; a scene without lights traces no shadow rays.
     pub lights: Vec<Light>,
+    /// Texture coordinates and colours of the vertices, and the textures; empty for a scene
+    /// drawn in its materials' colours alone.
+    pub colors: colors::SurfaceColors,
     /// Spheres with a scalar attribute; a scene without them builds no sphere BVH.
     pub particles: Vec<particles::Particle>,
     /// A volume of samples, placed in the world; a scene without one builds no bricks. For a
@@ -336,6 +347,12 @@ impl Scene {
                 count: materials,
             });
         }
+        self.colors
+            .check(count, &self.materials)
+            .map_err(|message| SceneError::File {
+                path: origin.into(),
+                message,
+            })?;
         for (index, m) in self.materials.iter().enumerate() {
             m.check().map_err(|why| SceneError::BadMaterial {
                 origin: origin.into(),
@@ -424,7 +441,11 @@ impl Scene {
             hasher.update(bytemuck::bytes_of(&m.albedo));
             hasher.update(bytemuck::bytes_of(&m.specular));
             hasher.update(bytemuck::bytes_of(&[m.shininess, m.mirror, m.opacity]));
+            if let Some(texture) = m.texture {
+                hasher.update(&texture.to_le_bytes());
+            }
         }
+        self.colors.hash_into(&mut hasher);
         for p in &self.particles {
             hasher.update(bytemuck::bytes_of(&[
                 p.center.x,
@@ -487,6 +508,8 @@ pub struct Mesh {
     pub materials: Vec<Material>,
     /// Names of `materials` as the file gave them, for error messages.
     pub material_names: Vec<String>,
+    /// Texture coordinates and colours of `positions`, and the textures materials name.
+    pub colors: colors::SurfaceColors,
 }
 
 /// The colour of a mesh whose file gives none.
@@ -509,6 +532,7 @@ fn from_mesh_in(mut mesh: Mesh, path: &Path, render_from_world: RenderFromWorld)
         mesh.materials = vec![NEUTRAL];
         mesh.material_names = vec!["neutral".into()];
     }
+    drop_unmapped_textures(&mut mesh, path);
     let positions: Vec<Vec3> = mesh
         .positions
         .iter()
@@ -529,11 +553,28 @@ fn from_mesh_in(mut mesh: Mesh, path: &Path, render_from_world: RenderFromWorld)
         triangle_material,
         materials: mesh.materials,
         material_names: mesh.material_names,
+        colors: mesh.colors,
         lights: vec![default_light()],
         particles: Vec::new(),
         volume: None,
         series: Vec::new(),
         render_from_world,
+    }
+}
+
+/// A material's texture needs texture coordinates: without them it is dropped, said once.
+fn drop_unmapped_textures(mesh: &mut Mesh, path: &Path) {
+    if !mesh.colors.uvs.is_empty() || mesh.colors.textures.is_empty() {
+        return;
+    }
+    tracing::warn!(
+        "{}: has {} textures but no texture coordinates; drawing the materials' colours",
+        path.display(),
+        mesh.colors.textures.len()
+    );
+    mesh.colors.textures.clear();
+    for m in &mut mesh.materials {
+        m.texture = None;
     }
 }
 
@@ -649,6 +690,7 @@ mod tests {
                 triangle_material: vec![0, 1, 1, 2],
                 materials: vec![NEUTRAL; 3],
                 material_names: vec!["a".into(), "b".into(), "c".into()],
+                ..Mesh::default()
             },
             Path::new("t"),
         );

@@ -75,6 +75,7 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
             Material::lambert(Vec3::new(0.32, 0.36, 0.42)),
         ],
         material_names: vec!["knot".into(), "light floor".into(), "dark floor".into()],
+        colors: Default::default(),
         lights: vec![default_light()],
         particles: Vec::new(),
         volume: None,
