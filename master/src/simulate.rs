@@ -3,9 +3,10 @@
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 use tessera_core::balance::BalanceConfig;
 use tessera_core::sim::{near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall};
 use tessera_model::wall::{parse_size, WallLayout};
@@ -193,7 +194,11 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
     for k in &args.kills {
         sim.kill_at(RenderNodeId(k.node), FrameId(k.frame));
     }
-    sim.run_frames(args.frames);
+    let mut progress = Progress::new(args.frames, t0);
+    sim.run_frames_reporting(args.frames, |presented| {
+        progress.update(presented, Instant::now())
+    });
+    progress.bar.finish_and_clear();
     let run_time_s = t0.elapsed().as_secs_f64();
     let r = sim.report();
     print_summary(&r, &wall, run_time_s);
@@ -209,6 +214,71 @@ pub fn simulate(args: SimulateArgs) -> Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// How far a run is, on stderr: a bar on a terminal; in a log (stderr not a terminal), a line
+/// at each tenth of the frames and at least every [`Progress::EVERY`], so a long run shows it is
+/// moving.
+struct Progress {
+    bar: indicatif::ProgressBar,
+    terminal: bool,
+    frames: u64,
+    start: Instant,
+    last_line: Instant,
+    /// Tenths of the frames presented when the last line was written.
+    tenths: u64,
+}
+
+impl Progress {
+    const EVERY: Duration = Duration::from_secs(5);
+
+    fn new(frames: u64, start: Instant) -> Progress {
+        let terminal = std::io::stderr().is_terminal();
+        let bar = if terminal {
+            indicatif::ProgressBar::new(frames).with_style(
+                indicatif::ProgressStyle::with_template(
+                    "simulate: {bar:40} {pos}/{len} frames presented {elapsed_precise}",
+                )
+                .expect("valid template"),
+            )
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        Progress {
+            bar,
+            terminal,
+            frames,
+            start,
+            last_line: start,
+            tenths: 0,
+        }
+    }
+
+    /// `presented` frames are done at `now`.
+    fn update(&mut self, presented: u64, now: Instant) {
+        self.bar.set_position(presented);
+        if !self.terminal {
+            if let Some(line) = self.line(presented, now) {
+                eprintln!("{line}");
+            }
+        }
+    }
+
+    /// The log line due at `now` with `presented` frames done, if one is.
+    fn line(&mut self, presented: u64, now: Instant) -> Option<String> {
+        let tenths = presented.saturating_mul(10) / self.frames.max(1);
+        if tenths <= self.tenths && now.duration_since(self.last_line) < Self::EVERY {
+            return None;
+        }
+        self.tenths = self.tenths.max(tenths);
+        self.last_line = now;
+        Some(format!(
+            "simulate: {presented} of {} frames presented ({} %), {:.1} s",
+            self.frames,
+            presented.saturating_mul(100) / self.frames.max(1),
+            now.duration_since(self.start).as_secs_f64()
+        ))
+    }
 }
 
 /// The wall of --wall-file, or else a near-square grid of --displays screens.
@@ -360,6 +430,23 @@ fn write_report(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn simulate_shows_progress_in_a_log_each_tenth_and_every_five_seconds() {
+        let t0 = Instant::now();
+        let mut p = Progress::new(200, t0);
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        assert_eq!(p.line(5, at(1)), None, "under a tenth, under 5 s");
+        let line = p.line(20, at(2)).expect("a tenth of the frames");
+        assert!(line.contains("20 of 200 frames presented (10 %)"), "{line}");
+        assert_eq!(p.line(21, at(3)), None, "the same tenth");
+        let slow = p.line(22, at(8)).expect("5 s since the last line");
+        assert!(
+            slow.contains("22 of 200") && slow.contains("8.0 s"),
+            "{slow}"
+        );
+        assert!(p.line(200, at(9)).unwrap().contains("(100 %)"));
+    }
 
     #[test]
     fn kills_and_losses_are_parsed_or_refused_with_the_reason() {

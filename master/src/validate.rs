@@ -1,7 +1,10 @@
 //! `tessera-master validate WALL [--out FILE.svg]`: checks a wall file (the same checks every
 //! node makes when it reads one: fields, sizes, screens that overlap or face away from the
-//! viewer, each error naming the screen and field) and draws the wall: screens as the viewer
-//! faces them with their gaps (bezels), their tiles, and which display owns what.
+//! viewer, each error naming the screen and field) and draws the wall: a grid as the viewer
+//! faces it with its gaps (bezels), a wall of physical screens in perspective and in plan
+//! (see [`perspective`]); each with its tiles and which display owns what.
+
+mod perspective;
 
 use anyhow::{Context, Result};
 use std::fmt::Write as _;
@@ -100,6 +103,14 @@ fn at(s: &Shape, px: f64, py: f64) -> (f64, f64) {
 }
 
 fn svg(wall: &WallLayout, grid: &TileGrid) -> String {
+    match wall.viewer() {
+        Some(viewer) => perspective::svg(wall, grid, viewer.position_mm),
+        None => flat_svg(wall, grid),
+    }
+}
+
+/// A grid wall as its one image: screens, bezels and tiles in the image's pixels.
+fn flat_svg(wall: &WallLayout, grid: &TileGrid) -> String {
     let shapes = shapes(wall);
     let pts = shapes.iter().flat_map(|s| s.corners);
     let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);

@@ -128,3 +128,37 @@ fn the_reality_deck_runs_with_two_thousand_render_nodes() {
     );
     o.assert_success("416 displays from the shorthand");
 }
+
+#[test]
+fn simulate_shows_progress_on_stderr_when_it_is_not_a_terminal() {
+    let args = [
+        "simulate",
+        "--render-nodes",
+        "64",
+        "--displays",
+        "8",
+        "--frames",
+        "20",
+    ];
+    let o = run("tessera-master", &args, LIMIT);
+    o.assert_success("tessera-master simulate");
+    let percents: Vec<u64> = o
+        .stderr
+        .lines()
+        .filter_map(|l| {
+            l.strip_prefix("simulate: ")?
+                .split_once("frames presented (")?
+                .1
+                .split(' ')
+                .next()?
+                .parse()
+                .ok()
+        })
+        .collect();
+    assert!(percents.len() >= 3, "too few progress lines:\n{}", o.stderr);
+    assert!(
+        percents.windows(2).all(|w| w[0] <= w[1]),
+        "progress went back:\n{}",
+        o.stderr
+    );
+}

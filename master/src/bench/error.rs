@@ -8,8 +8,9 @@
 //! volume scene the ray-marching step (`step`, in units of the smallest voxel spacing, against
 //! a reference at 1/32 of it).
 
+use super::charts::{Chart, Labelled};
 use super::plot::Series;
-use super::{wrote, BenchArgs, Outputs, Plot};
+use super::{wrote, BenchArgs, Outputs};
 use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::Path;
@@ -297,29 +298,11 @@ fn write_outputs(
             )
         })
         .collect();
-    let series: Vec<Series> = ["ao", "spp", "passes", "step"]
-        .iter()
-        .filter(|k| points.iter().any(|p| p.knob == **k))
-        .map(|&k| Series {
-            name: k.into(),
-            points: points
-                .iter()
-                .filter(|p| p.knob == k)
-                .map(|p| (p.ms, p.rmse))
-                .collect(),
-        })
-        .collect();
     let written = Outputs {
         csv: "error-vs-time.csv",
         header: "knob,value,time_ms,rmse,psnr_db",
         rows,
-        plots: vec![Plot {
-            file: "error-vs-time.svg",
-            title: "image error against render time per frame",
-            x_label: "ms per frame",
-            y_label: "RMSE",
-            series,
-        }],
+        plots: Vec::new(),
         report: json!({
             "experiment": "error-vs-time",
             "wall": { "width": wall.width(), "height": wall.height() },
@@ -335,10 +318,57 @@ fn write_outputs(
             })).collect::<Vec<_>>(),
         }),
     }
-    .write(out)?;
+    .write_with(out, &[("error-vs-time.svg", chart(points))])?;
     print_table(points);
     wrote(&written);
     Ok(())
+}
+
+/// A line of labelled points for each knob measured, in the order of the table, and the
+/// 1/√N guide through the first samples-per-pixel point (the knob that is Monte Carlo's N).
+fn chart(points: &[Point]) -> Chart {
+    let knobs = ["ao", "spp", "passes", "step"];
+    let measured = knobs
+        .iter()
+        .filter(|k| points.iter().any(|p| p.knob == **k));
+    let series = measured.map(|&k| {
+        let of_knob = || points.iter().filter(move |p| p.knob == k);
+        Labelled {
+            series: Series {
+                name: knob_name(k).into(),
+                points: of_knob().map(|p| (p.ms, p.rmse)).collect(),
+            },
+            labels: of_knob().map(|p| point_label(k, p.value)).collect(),
+        }
+    });
+    let first_spp = points.iter().find(|p| p.knob == "spp");
+    Chart::Error {
+        series: series.collect(),
+        guide: first_spp.map(|p| (p.ms, p.rmse)),
+    }
+}
+
+/// What a knob's line is called in the legend.
+fn knob_name(knob: &str) -> &str {
+    match knob {
+        "ao" => "AO rays per hit (ao)",
+        "spp" => "samples per pixel (spp)",
+        "passes" => "progressive passes",
+        "step" => "volume step (voxel spacings)",
+        other => other,
+    }
+}
+
+/// A point's label: the knob's setting there.
+fn point_label(knob: &str, value: f64) -> String {
+    match knob {
+        "ao" => format!("AO {value}"),
+        "spp" => format!("{value} spp"),
+        "passes" if value == 1.0 => "1 pass".into(),
+        "passes" => format!("{value} passes"),
+        "step" => format!("step {value}"),
+        other => format!("{other} {value}"),
+    }
 }
 
 /// A line a point: knob, value, time, RMSE and PSNR.

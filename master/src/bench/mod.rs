@@ -1,6 +1,7 @@
 //! `tessera-master bench EXPERIMENT`: reproducible measurement runs on a local wall, each
 //! writing `report.json`, a CSV and an SVG plot into `--out DIR` and printing a short table.
 
+mod charts;
 mod dsm;
 mod error;
 mod max_fps;
@@ -14,6 +15,7 @@ use crate::control::ControlClient;
 use crate::report::Report;
 use crate::wall_run::{run_local, run_local_driven, Driver};
 use anyhow::{bail, Context, Result};
+use charts::Chart;
 use plot::{line_plot, Series};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -208,12 +210,22 @@ impl Outputs<'_> {
     /// Writes the CSV, the plots and report.json, in that order, and returns their paths in
     /// the order [`wrote`] lists them: report.json, the CSV, the plots.
     fn write(&self, out: &Path) -> Result<Vec<PathBuf>> {
+        self.write_with(out, &[])
+    }
+
+    /// [`Outputs::write`], with `charts` (each a file name and its chart) after the plots.
+    fn write_with(&self, out: &Path, charts: &[(&str, Chart)]) -> Result<Vec<PathBuf>> {
         let csv = out.join(self.csv);
         write_csv(&csv, self.header, &self.rows)?;
         let mut paths = vec![csv];
         for plot in &self.plots {
             let path = out.join(plot.file);
             line_plot(&path, plot.title, plot.x_label, plot.y_label, &plot.series)?;
+            paths.push(path);
+        }
+        for (file, chart) in charts {
+            let path = out.join(file);
+            chart.draw(&path)?;
             paths.push(path);
         }
         paths.insert(0, write_json(out, &self.report)?);
@@ -326,7 +338,7 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
             .iter()
             .map(|f| format!("{},{:.4},{:.4}", f.frame, f.latency_ms, f.skew_ms))
             .collect(),
-        plots: vec![latency_plot(t)],
+        plots: Vec::new(),
         report: json!({
             "experiment": "latency",
             "latency_ms": t.latency_ms,
@@ -341,31 +353,24 @@ async fn latency(args: &BenchArgs, out: &Path) -> Result<()> {
             "run": report,
         }),
     }
-    .write(out)?;
+    .write_with(out, &[("latency.svg", latency_chart(t))])?;
     print_latency(t, period, in_periods);
     wrote(&written);
     Ok(())
 }
 
-/// Latency and skew against the frame.
-fn latency_plot(t: &crate::timing::TimingSummary) -> Plot<'static> {
-    let series = |name: &str, pick: fn(&crate::timing::FrameTiming) -> f64| Series {
-        name: name.into(),
-        points: t
-            .per_frame
+/// Latency and skew against the frame, and each input's latency at the frame that showed it.
+fn latency_chart(t: &crate::timing::TimingSummary) -> Chart {
+    let per_frame = |pick: fn(&crate::timing::FrameTiming) -> f64| {
+        t.per_frame
             .iter()
             .map(|f| (f.frame as f64, pick(f)))
-            .collect(),
+            .collect()
     };
-    Plot {
-        file: "latency.svg",
-        title: "camera change → present on every display, and present skew",
-        x_label: "frame",
-        y_label: "ms",
-        series: vec![
-            series("latency", |f| f.latency_ms),
-            series("skew", |f| f.skew_ms),
-        ],
+    Chart::Latency {
+        latency: per_frame(|f| f.latency_ms),
+        input: t.per_input.iter().map(|&(f, ms)| (f as f64, ms)).collect(),
+        skew: per_frame(|f| f.skew_ms),
     }
 }
 
@@ -431,16 +436,10 @@ async fn scaling(args: &BenchArgs, out: &Path) -> Result<()> {
         csv: "scaling.csv",
         header: "render_nodes,threads,fps,efficiency,efficiency_min",
         rows,
-        plots: vec![Plot {
-            file: "scaling.svg",
-            title: "frames/s against render nodes",
-            x_label: "render nodes",
-            y_label: "frames/s",
-            series,
-        }],
+        plots: Vec::new(),
         report: json!({ "experiment": "scaling", "runs": runs }),
     }
-    .write(out)?;
+    .write_with(out, &[("scaling.svg", Chart::Scaling(series))])?;
     print_scaling(&runs);
     wrote(&written);
     Ok(())
