@@ -43,6 +43,8 @@ dims = [256, 256, 108]
 type = "i16"
 spacing = [0.9570312, 0.9570312, 1.5]
 endian = "little"
+# Axial slices from the neck up: superior is +z, so the head stands upright.
+up = [0.0, 0.0, 1.0]
 TOML
 cat > "$dir/cranium.nhdr" <<NHDR
 NRRD0004

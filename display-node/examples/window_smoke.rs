@@ -74,6 +74,7 @@ fn main() -> anyhow::Result<()> {
         width: WIDTH,
         height: HEIGHT,
         overlay: None,
+        status: None,
         rgb,
     };
     sender.send(WindowCommand::Show(frame));

@@ -87,7 +87,8 @@ pub fn parse_linger(text: &str) -> Result<f64, String> {
     }
 }
 
-fn parse_position(text: &str) -> Result<(i32, i32), String> {
+/// Parses a window position `X,Y` (whole numbers, negative allowed).
+pub fn parse_position(text: &str) -> Result<(i32, i32), String> {
     let bad = || format!("`{text}` is not X,Y (two whole numbers)");
     let (x, y) = text.split_once(',').ok_or_else(bad)?;
     Ok((

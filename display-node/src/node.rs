@@ -339,6 +339,7 @@ impl Driver {
                 height: image.height,
                 rgb: image.rgb.clone(),
                 overlay,
+                status: self.session.status_of(frame),
             }));
         } else {
             let clock_ns = tessera_net::unix_ns();
@@ -392,6 +393,7 @@ impl Driver {
             height: image.height,
             rgb: image.rgb.clone(),
             overlay: self.session.overlay_now(Instant::now()),
+            status: self.session.status_of(*frame),
         }));
     }
 }

@@ -1,11 +1,51 @@
-//! The overlay a display draws over its frame on request: its own frame rate and frame time,
-//! and over every tile a tint in the colour of the render node that drew it with the
-//! milliseconds the tile took. It needs no scene data: who sent each tile and how long it
-//! took travel in the pixel stream's header.
+//! What a window draws over its frame, never into the frame itself (snapshots and the wall's
+//! pixels stay exact):
+//!
+//! - the overlay, on request (`O`, wall-wide): over every tile a tint in the colour of the
+//!   render node that drew it with the milliseconds the tile took, and the status line;
+//! - the key help (`?` or F1, this window only): every key and drag the windows take, and the
+//!   status line;
+//! - the status line: the frame's state id, the display's frame rate and frame time, and the
+//!   quality knobs the frame was rendered with.
+//!
+//! It needs no scene data: who sent each tile and how long it took travel in the pixel stream's
+//! header, the state and quality in the frame's start. Text is the public-domain 8x8 font of
+//! the `font8x8` crate, doubled on screens wide enough to read it from a step back.
 
 // What to draw is the display session's (it times the presents and knows who rendered each
 // tile); drawing it is the window's.
-pub use tessera_core::node::display::{Overlay, TileInfo};
+pub use tessera_core::node::display::{FrameStatus, Overlay, TileInfo};
+
+/// What the key help lists: the keys and drags every window takes (the master's navigator,
+/// `tessera_core::master::navigate`, and this window's own `?`).
+pub const KEY_HELP: &[&str] = &[
+    "KEYS (this help: ? or F1)",
+    "drag          orbit about the scene",
+    "right drag    pan     wheel  zoom",
+    "F             fly mode: W A S D, Q E",
+    "Z             fit the scene to the view",
+    "H or Home     home view",
+    "1             shadows on/off",
+    "2             AO rays 0/4/16",
+    "3             samples per pixel 1/2/4/8",
+    "O             overlay: nodes and tiles",
+    "click         probe a volume",
+];
+
+/// The status line of a frame: its state, this display's rate, its quality.
+pub fn status_line(status: Option<&FrameStatus>, fps: f32, frame_ms: f32) -> String {
+    let rate = format!("{fps:.1} fps {frame_ms:.1} ms");
+    match status {
+        Some(s) => format!(
+            "state {}  {rate}  {} spp  AO {}  shadows {}",
+            s.state.0,
+            s.spp,
+            s.ao_samples,
+            if s.shadows { "on" } else { "off" }
+        ),
+        None => rate,
+    }
+}
 
 /// A distinct, stable colour per render node (hues spread by the golden angle).
 pub fn node_colour(node: u32) -> [u8; 3] {
@@ -49,45 +89,67 @@ pub fn draw(rgb: &mut [u8], width: u32, height: u32, overlay: &Overlay) {
             &format!("{:.1}", t.ms),
         );
     }
-    let label = format!("{:.1} FPS {:.1} MS", overlay.fps, overlay.frame_ms);
-    text(rgb, width, height, 4, height.saturating_sub(12), &label);
+    let label = status_line(overlay.status.as_ref(), overlay.fps, overlay.frame_ms);
+    bottom_line(rgb, width, height, &label);
 }
 
-/// 5×7 glyphs of what the overlay writes: digits, a point and a few capitals.
-fn glyph(c: char) -> [u8; 7] {
-    match c {
-        '0' => [0x0e, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0e],
-        '1' => [0x04, 0x0c, 0x04, 0x04, 0x04, 0x04, 0x0e],
-        '2' => [0x0e, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1f],
-        '3' => [0x1f, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0e],
-        '4' => [0x02, 0x06, 0x0a, 0x12, 0x1f, 0x02, 0x02],
-        '5' => [0x1f, 0x10, 0x1e, 0x01, 0x01, 0x11, 0x0e],
-        '6' => [0x06, 0x08, 0x10, 0x1e, 0x11, 0x11, 0x0e],
-        '7' => [0x1f, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08],
-        '8' => [0x0e, 0x11, 0x11, 0x0e, 0x11, 0x11, 0x0e],
-        '9' => [0x0e, 0x11, 0x11, 0x0f, 0x01, 0x02, 0x0c],
-        '.' => [0, 0, 0, 0, 0, 0x0c, 0x0c],
-        'F' => [0x1f, 0x10, 0x10, 0x1e, 0x10, 0x10, 0x10],
-        'P' => [0x1e, 0x11, 0x11, 0x1e, 0x10, 0x10, 0x10],
-        'S' => [0x0f, 0x10, 0x10, 0x0e, 0x01, 0x01, 0x1e],
-        'M' => [0x11, 0x1b, 0x15, 0x15, 0x11, 0x11, 0x11],
-        _ => [0; 7],
+/// Draws the key help and the status line into an RGB8 image of `width × height`.
+pub fn draw_help(rgb: &mut [u8], width: u32, height: u32, status: Option<&FrameStatus>) {
+    let scale = scale_for(width);
+    let line = (LINE + 2) * scale;
+    for (i, text_line) in KEY_HELP.iter().enumerate() {
+        text(rgb, width, height, 8, 8 + i as u32 * line, text_line);
+    }
+    if let Some(s) = status {
+        bottom_line(rgb, width, height, &status_line(Some(s), 0.0, 0.0));
     }
 }
 
-/// Writes `s` in white on a black box with its top-left corner at `(x, y)`, clipped.
+/// Glyph cell side, in pixels before scaling.
+const LINE: u32 = 9;
+
+/// Text is doubled on screens wider than this, to be read from a step back.
+const DOUBLE_ABOVE: u32 = 1200;
+
+fn scale_for(width: u32) -> u32 {
+    if width > DOUBLE_ABOVE {
+        2
+    } else {
+        1
+    }
+}
+
+fn bottom_line(rgb: &mut [u8], width: u32, height: u32, s: &str) {
+    let y = height.saturating_sub((LINE + 3) * scale_for(width));
+    text(rgb, width, height, 4, y, s);
+}
+
+/// Writes `s` (ASCII; anything else is a blank) in white on a black box with its top-left
+/// corner at `(x, y)`, clipped, each glyph pixel `scale_for(width)` pixels square.
 fn text(rgb: &mut [u8], width: u32, height: u32, x: u32, y: u32, s: &str) {
-    let (w, h) = (s.chars().count() as u32 * 6 + 1, 9);
+    let scale = scale_for(width);
+    let glyphs: Vec<[u8; 8]> = s
+        .chars()
+        .map(|c| {
+            let code = c as usize;
+            font8x8::legacy::BASIC_LEGACY
+                .get(code)
+                .copied()
+                .unwrap_or([0; 8])
+        })
+        .collect();
+    let (w, h) = ((glyphs.len() as u32 * 8 + 2) * scale, LINE * scale);
     for py in y..(y + h).min(height) {
         for px in x..(x + w).min(width) {
-            let i = ((py * width + px) * 3) as usize;
-            let (col, row) = (px - x, py - y);
-            let lit = col >= 1 && (1..=7).contains(&row) && {
-                let (cell, bit) = ((col - 1) / 6, (col - 1) % 6);
-                let c = s.chars().nth(cell as usize).unwrap_or(' ');
-                bit < 5 && glyph(c)[(row - 1) as usize] & (0x10 >> bit) != 0
+            let (col, row) = ((px - x) / scale, (py - y) / scale);
+            let lit = col >= 1 && (1..=8).contains(&row) && {
+                let (cell, bit) = ((col - 1) / 8, (col - 1) % 8);
+                glyphs
+                    .get(cell as usize)
+                    .is_some_and(|g| g[(row - 1) as usize] & (1 << bit) != 0)
             };
             let v = if lit { 255 } else { 0 };
+            let i = ((py * width + px) * 3) as usize;
             rgb[i..i + 3].copy_from_slice(&[v, v, v]);
         }
     }
@@ -112,6 +174,7 @@ mod tests {
                 node: 1,
                 ms: 2.5,
             }],
+            status: None,
         };
         draw(&mut rgb, w, h, &overlay);
         let at = |x: u32, y: u32| &rgb[((y * w + x) * 3) as usize..((y * w + x) * 3 + 3) as usize];
@@ -124,5 +187,33 @@ mod tests {
         );
         assert_eq!(at(10, 5), &[100, 100, 100], "outside every tile");
         assert_ne!(node_colour(0), node_colour(1));
+    }
+
+    #[test]
+    fn the_status_line_names_state_rate_and_quality_and_the_help_every_key() {
+        let params = tessera_model::params::RenderParams::interactive();
+        let status = FrameStatus::of(tessera_model::state::StateId(12), &params);
+        let line = status_line(Some(&status), 29.96, 33.4);
+        assert!(
+            line.starts_with("state 12  30.0 fps 33.4 ms  1 spp  AO 0"),
+            "{line}"
+        );
+        for key in ["? or F1", "Z ", "H or Home", "F ", "O ", "1 ", "2 ", "3 "] {
+            assert!(
+                KEY_HELP.iter().any(|l| l.contains(key)),
+                "{key} missing from the help"
+            );
+        }
+        // The help is drawn: white glyph pixels on black boxes, only where its lines go.
+        let (w, h) = (400u32, 200u32);
+        let mut rgb = vec![100u8; (w * h * 3) as usize];
+        draw_help(&mut rgb, w, h, Some(&status));
+        let lit = rgb
+            .chunks_exact(3)
+            .filter(|p| p == &[255, 255, 255])
+            .count();
+        assert!(lit > 500, "{lit} lit pixels");
+        let right_edge = ((100 * w + w - 1) * 3) as usize;
+        assert_eq!(rgb[right_edge], 100, "the frame shows beside the help");
     }
 }

@@ -9,7 +9,7 @@ use std::collections::BTreeSet;
 use std::num::NonZeroU32;
 use std::rc::Rc;
 
-use crate::overlay::{self, Overlay};
+use crate::overlay::{self, FrameStatus, Overlay};
 use anyhow::{anyhow, bail, Context as _};
 use tessera_model::input::{Button, InputEvent, Key};
 use tessera_model::window::WindowPlacement;
@@ -32,6 +32,8 @@ pub struct WindowFrame {
     pub rgb: Vec<u8>,
     /// Drawn over the frame when the overlay is on.
     pub overlay: Option<Overlay>,
+    /// The frame's state and quality: the status line, with the key help or the overlay.
+    pub status: Option<FrameStatus>,
 }
 
 /// Messages from the (tokio) network side to the window.
@@ -107,6 +109,7 @@ pub fn window_presenter(
         buttons: BTreeSet::new(),
         cursor: None,
         dragged: false,
+        help: false,
     };
     Ok((sender, WindowRunner { event_loop, app }))
 }
@@ -160,6 +163,8 @@ struct App {
     /// Whether the cursor moved while a button was held: a release then ends a drag, not a
     /// click.
     dragged: bool,
+    /// Whether this window shows its key help (`?` or F1 toggles it, here only).
+    help: bool,
 }
 
 impl App {
@@ -248,14 +253,18 @@ impl App {
         match &self.frame {
             Some(f) => {
                 let overlaid;
-                let rgb = match &f.overlay {
-                    Some(o) => {
-                        let mut copy = f.rgb.clone();
+                let rgb = if f.overlay.is_some() || self.help {
+                    let mut copy = f.rgb.clone();
+                    if let Some(o) = &f.overlay {
                         overlay::draw(&mut copy, f.width, f.height, o);
-                        overlaid = copy;
-                        &overlaid
                     }
-                    None => &f.rgb,
+                    if self.help {
+                        overlay::draw_help(&mut copy, f.width, f.height, f.status.as_ref());
+                    }
+                    overlaid = copy;
+                    &overlaid
+                } else {
+                    &f.rgb
                 };
                 let (bw, bh) = (state.size.0.get(), state.size.1.get());
                 if (bw, bh) == (f.width, f.height) {
@@ -404,6 +413,13 @@ impl ApplicationHandler<WindowCommand> for App {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        if is_help_key(&event) {
+            self.help = !self.help;
+            if let Some(state) = &self.state {
+                state.window.request_redraw();
+            }
+            return;
+        }
         if let Some(input) = self.input(&event) {
             (self.callbacks.on_input)(input);
         }
@@ -427,6 +443,20 @@ impl ApplicationHandler<WindowCommand> for App {
         // Drop the surface before the loop tears down the display connection.
         self.state = None;
     }
+}
+
+/// `?` (the slash key, shifted or not) or F1 pressed: the key help's toggle, which stays in
+/// this window.
+fn is_help_key(event: &WindowEvent) -> bool {
+    let WindowEvent::KeyboardInput { event, .. } = event else {
+        return false;
+    };
+    event.state == ElementState::Pressed
+        && !event.repeat
+        && matches!(
+            event.physical_key,
+            PhysicalKey::Code(KeyCode::F1 | KeyCode::Slash)
+        )
 }
 
 fn pack(rgb: &[u8]) -> u32 {
@@ -459,6 +489,7 @@ fn key_of(code: KeyCode) -> Option<Key> {
         KeyCode::Digit1 => Key::Digit1,
         KeyCode::Digit2 => Key::Digit2,
         KeyCode::Digit3 => Key::Digit3,
+        KeyCode::KeyZ => Key::Z,
         _ => return None,
     })
 }

@@ -9,7 +9,6 @@ use tessera_cli::{CompressArg, QualityArgs, SceneArgs, WallArgs};
 use tessera_core::balance::{BalanceConfig, DeathDetector, DEFAULT_ACCEPTABLE_PAUSE};
 use tessera_core::master::MasterConfig;
 use tessera_protocol::FrameId;
-use tessera_render::orbit_of;
 use tessera_render::scene::Scene;
 
 /// Most render nodes `local` starts on one machine.
@@ -169,6 +168,13 @@ pub struct LocalArgs {
     /// 3600).
     #[arg(long, default_value_t = 0.0, value_parser = tessera_display_node::parse_linger)]
     pub linger: f64,
+    /// With --window, where the wall's top-left window goes on the desktop, X,Y; the others
+    /// follow side by side as the screens lie in the wall (unless the wall file places them).
+    #[arg(long, default_value = "0,0", value_name = "X,Y", value_parser = tessera_display_node::parse_position, allow_hyphen_values = true)]
+    pub window_origin: (i32, i32),
+    /// With --window, display N full screen on monitor N instead of side by side.
+    #[arg(long)]
+    pub fullscreen_all: bool,
     /// Serve the operator's console (a web page and a REST/JSON API) on this address; its
     /// URL, with a token, is printed at start. Port 0 picks a free one. Anything but
     /// loopback lets other hosts in (the token still guards it).
@@ -339,6 +345,54 @@ pub fn load_scene(args: &SceneArgs) -> Result<Scene> {
     Ok(scene)
 }
 
+/// Refuses quality flags the loaded scene has nothing for, naming the flag and why: volume
+/// flags without a volume, a time step outside the series, particle flags without particles.
+/// Silently ignoring them would leave a person wondering why `--iso 300` shows nothing.
+pub fn refuse_what_does_not_apply(
+    quality: &tessera_cli::QualityArgs,
+    scene: &Scene,
+    name: &str,
+) -> Result<()> {
+    let volume_flags = [
+        ("--iso", !quality.iso.is_empty()),
+        ("--transfer", quality.transfer != "ramp"),
+        ("--volume-step", quality.volume_step != 0.0),
+    ];
+    if scene.volume.is_none() {
+        if let Some((flag, _)) = volume_flags.iter().find(|(_, given)| *given) {
+            bail!("{flag} applies to volumes, and scene {name} has none");
+        }
+    }
+    let steps = scene.series.len().max(usize::from(scene.volume.is_some())) as u32;
+    if quality.time_step > 0 && quality.time_step >= steps {
+        match steps {
+            0 => bail!("--time-step applies to volumes, and scene {name} has none"),
+            1 => bail!(
+                "--time-step {}: scene {name} is one volume, not a series (only 0)",
+                quality.time_step
+            ),
+            n => bail!(
+                "--time-step {} is outside the series' {n} steps (0 to {})",
+                quality.time_step,
+                n - 1
+            ),
+        }
+    }
+    let particle_flags = [
+        ("--crop", quality.crop.is_some()),
+        (
+            "--colormap",
+            quality.colormap != tessera_model::colormap::ColorMap::default(),
+        ),
+    ];
+    if scene.particles.is_empty() {
+        if let Some((flag, _)) = particle_flags.iter().find(|(_, given)| *given) {
+            bail!("{flag} applies to particles, and scene {name} has none");
+        }
+    }
+    Ok(())
+}
+
 /// What operators see of `scene` (its ranges, its series), and whether it plays from the start.
 fn operator_config(scene: &Scene, play: bool) -> tessera_core::master::OperatorConfig {
     tessera_core::master::OperatorConfig {
@@ -368,6 +422,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     let refinement = run.refinement()?;
     let scene = load_scene(&run.scene)?;
     let params = run.quality.params(&scene.render_from_world)?;
+    refuse_what_does_not_apply(&run.quality, &scene, &run.scene.scene)?;
     if run.play && scene.series.is_empty() {
         bail!("--play needs a scene with a time series (`series` in a .scene.toml)");
     }
@@ -412,9 +467,9 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         pivot,
         scene_size,
         replay: replay.map_or_else(Vec::new, |session| session.changes()),
-        camera: run.scene.camera_mode(&scene.render_from_world, |fov| {
-            orbit_of(&scene.bounds(), fov)
-        })?,
+        camera: run
+            .scene
+            .camera_mode(&scene.render_from_world, |fov| scene.orbit(fov))?,
         scene_hash: scene.content_hash(),
         data: crate::dsm_data::data_spec(&run.data, &scene, render_nodes, show_progress)?,
         scene: spec,

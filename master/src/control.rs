@@ -14,7 +14,7 @@ use tessera_model::camera::{Camera, CameraMode};
 use tessera_model::cut::CutPlanes;
 use tessera_model::light::{Light, Lights};
 use tessera_model::state::{StateChange, WallState};
-use tessera_model::volume_params::{IsoValues, VolumeParams};
+use tessera_model::volume_params::VolumeParams;
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::MasterLink;
 use tessera_protocol::control::{ControlReply, ControlRequest, Playback, ViewName};
@@ -108,9 +108,10 @@ pub enum Command {
     /// How volumes are drawn; what is not given stays as it is. --iso replaces the iso-values
     /// (repeat for up to 4), --no-iso goes back to the transfer function.
     Volume {
-        /// Draw the iso-surface at this value, in the data's own units.
-        #[arg(long = "iso", value_name = "VALUE", allow_hyphen_values = true)]
-        iso: Vec<f32>,
+        /// Draw the iso-surface at this value, in the data's own units, with an optional
+        /// colour (a name or R,G,B) and opacity, as the wall's --iso takes them.
+        #[arg(long = "iso", value_name = "VALUE[:COLOUR[:OPACITY]]", value_parser = tessera_cli::iso_arg::parse_iso, allow_hyphen_values = true)]
+        iso: Vec<tessera_cli::iso_arg::IsoArg>,
         /// Drop the iso-values: back to the transfer function.
         #[arg(long, conflicts_with = "iso")]
         no_iso: bool,
@@ -383,7 +384,7 @@ impl ControlClient {
     /// The volume settings after the next barrier, changed as the `volume` command's flags say.
     async fn volume(
         &mut self,
-        iso: &[f32],
+        iso: &[tessera_cli::iso_arg::IsoArg],
         no_iso: bool,
         step: Option<f32>,
         transfer: Option<&str>,
@@ -394,7 +395,8 @@ impl ControlClient {
             volume.time_step = t;
         }
         if !iso.is_empty() || no_iso {
-            volume.iso = IsoValues::new(iso).context("--iso")?;
+            (volume.iso, volume.iso_looks) =
+                tessera_cli::iso_arg::iso_params(iso).context("--iso")?;
         }
         if let Some(step) = step {
             volume.step = step;
@@ -426,6 +428,12 @@ impl ControlClient {
             return self
                 .home
                 .context("the wall started with a fixed camera: there is no orbit to go back to");
+        }
+        if eye.is_none() && up.is_none() && fov.is_none() {
+            anyhow::bail!(
+                "camera: give --eye and --target, --up, --fov or --orbit (nothing to change); \
+                 `fit` frames the scene, `state` shows the camera now"
+            );
         }
         // What is not given is kept from the camera on the wall now.
         let (next, frame) = self.state_and_frame().await?;

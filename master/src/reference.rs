@@ -13,7 +13,7 @@ use tessera_model::state::WallState;
 use tessera_model::wall::{TileGrid, WallLayout};
 use tessera_render::aov::{primary_aovs, write_pfm, write_pfm_rgb};
 use tessera_render::scene::Scene;
-use tessera_render::{orbit_of, render_wall, render_wall_linear, FrameView, PreparedScene};
+use tessera_render::{render_wall, render_wall_linear, FrameView, PreparedScene};
 
 /// Renders what `args` asks: one frame into `--out DIR/wall.png` (and its AOVs), or with
 /// `--frames` a movie (see [`crate::movie`]).
@@ -87,13 +87,14 @@ impl Setup {
         }
         let scene = crate::args::load_scene(&args.scene)?;
         let params = args.quality.params(&scene.render_from_world)?;
+        crate::args::refuse_what_does_not_apply(&args.quality, &scene, &args.scene.scene)?;
         let fps = replay.as_ref().and_then(Replay::fps);
         let states = match replay {
             Some(replay) => States::Replayed(replay.session(&scene.render_from_world, params)?),
             None => States::Flags(Box::new(WallState {
-                camera: args.scene.camera_mode(&scene.render_from_world, |fov| {
-                    orbit_of(&scene.bounds(), fov)
-                })?,
+                camera: args
+                    .scene
+                    .camera_mode(&scene.render_from_world, |fov| scene.orbit(fov))?,
                 params,
                 lights: None,
             })),

@@ -77,6 +77,14 @@ pub async fn run_local_driven(
         bail!("--render-nodes must be at least 1");
     }
     let mut cfg = prepare_run(&args.run, args.render_nodes, show_progress)?;
+    if cfg.master.windows.is_empty() {
+        // One desktop holds every window of a local wall: side by side, not on top.
+        cfg.master.windows = tessera_model::window::side_by_side(
+            &cfg.master.wall,
+            args.window_origin,
+            args.fullscreen_all,
+        );
+    }
     if args.run.acceptable_pause_ms.is_none() {
         // Every process of a local wall shares this machine's cores: pauses are the norm.
         cfg.master.balance.death.acceptable_pause = LOCAL_ACCEPTABLE_PAUSE;

@@ -15,7 +15,7 @@ use tessera_render::bvh::cache::{load_or_build_timed, Source};
 use tessera_render::bvh::Accel;
 use tessera_render::isa::Isa;
 use tessera_render::scene::Scene;
-use tessera_render::{orbit_of, render_tiles, FrameView, PreparedScene};
+use tessera_render::{render_tiles, FrameView, PreparedScene};
 
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
@@ -126,9 +126,7 @@ fn prepare(
     let loaded = t0.elapsed();
     let camera = args
         .scene
-        .camera_mode(&scene.render_from_world, |fov| {
-            orbit_of(&scene.bounds(), fov)
-        })?
+        .camera_mode(&scene.render_from_world, |fov| scene.orbit(fov))?
         .camera_for_frame(0);
     let t1 = Instant::now();
     let cache = crate::cache_dir(args.bvh_cache.clone(), args.no_bvh_cache);

@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 pub mod bytes;
+pub mod iso_arg;
 pub mod logging;
 pub mod png;
 pub mod procs;
@@ -26,7 +27,7 @@ use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
 use tessera_model::scene_spec::{SceneSpec, SceneSpecError};
 use tessera_model::stereo::{Stereo, StereoMode};
-use tessera_model::volume_params::{IsoValues, VolumeParams};
+use tessera_model::volume_params::VolumeParams;
 use tessera_model::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
 use tessera_model::window::WallFile;
 use tessera_protocol::pixels::Compression;
@@ -297,8 +298,11 @@ pub struct QualityArgs {
     pub spp: u32,
     /// Volumes: draw the direct iso-surface at this value, in the data's own units (e.g.
     /// Hounsfield units for CT) instead of the transfer function. Repeat for up to 4 surfaces.
-    #[arg(long = "iso", value_name = "VALUE", allow_hyphen_values = true)]
-    pub iso: Vec<f32>,
+    /// COLOUR is a name (bone, skin, red, green, blue, yellow, white, grey) or R,G,B from 0
+    /// to 1, OPACITY from 0 to 1; by default each surface has its own colour and, with
+    /// several, all but the highest value's are translucent (0.4) so the inner one shows.
+    #[arg(long = "iso", value_name = "VALUE[:COLOUR[:OPACITY]]", value_parser = iso_arg::parse_iso, allow_hyphen_values = true)]
+    pub iso: Vec<iso_arg::IsoArg>,
     /// Volumes: ray-marching step in world units (those of the voxel spacing); 0 picks half the
     /// smallest spacing. Opacity is corrected for the step, so the look stays the same.
     #[arg(long, default_value_t = 0.0)]
@@ -342,6 +346,7 @@ impl QualityArgs {
             .iter()
             .map(|&(n, d)| (n, frame.plane_distance(n, d)))
             .collect();
+        let iso_params = iso_arg::iso_params(&self.iso).map_err(ParamsError::from)?;
         Ok(RenderParamsSpec {
             shadows: !self.no_shadows,
             ao_samples: self.ao,
@@ -351,7 +356,8 @@ impl QualityArgs {
             spp: self.spp,
             volume: VolumeParams {
                 step: self.volume_step,
-                iso: IsoValues::new(&self.iso).map_err(ParamsError::from)?,
+                iso: iso_params.0,
+                iso_looks: iso_params.1,
                 transfer: transfer_file::transfer_function(&self.transfer)?,
                 time_step: self.time_step,
                 missing_color: self.nan_color.map(|c| c.to_array()),

@@ -99,6 +99,9 @@ pub enum CameraError {
     /// The orbit radius, in world units, is zero, negative, infinite or NaN.
     #[error("orbit radius {0} must be finite and above 0")]
     BadRadius(f32),
+    /// An orbit's axis is zero or not finite.
+    #[error("orbit axis {0:?} must be a finite direction")]
+    BadUp([f32; 3]),
     /// The orbit is so small next to its distance from the origin that, in `f32`, some frame's eye
     /// would round onto its target.
     #[error(
@@ -192,11 +195,13 @@ impl<'de> Deserialize<'de> for CameraMode {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Mode {
     Fixed(Camera),
-    /// Circles `center` at a distance scaled by `radius`, one degree per frame.
+    /// Circles `center` about the axis `up`, one degree per frame, far enough for a sphere of
+    /// `radius` to fit the field of view.
     Orbit {
         center: Vec3,
         radius: f32,
         fov_y_deg: f32,
+        up: Vec3,
     },
 }
 
@@ -207,7 +212,14 @@ enum CameraModeSpec {
         center: Vec3,
         radius: f32,
         fov_y_deg: f32,
+        // Sessions recorded before orbits had an axis turned about +y.
+        #[serde(default = "y_up")]
+        up: Vec3,
     },
+}
+
+fn y_up() -> Vec3 {
+    Vec3::Y
 }
 
 impl TryFrom<CameraModeSpec> for CameraMode {
@@ -220,7 +232,8 @@ impl TryFrom<CameraModeSpec> for CameraMode {
                 center,
                 radius,
                 fov_y_deg,
-            } => CameraMode::orbit(center, radius, fov_y_deg),
+                up,
+            } => CameraMode::orbit_about(center, radius, fov_y_deg, up),
         }
     }
 }
@@ -233,10 +246,12 @@ impl From<CameraMode> for CameraModeSpec {
                 center,
                 radius,
                 fov_y_deg,
+                up,
             } => CameraModeSpec::Orbit {
                 center,
                 radius,
                 fov_y_deg,
+                up,
             },
         }
     }
@@ -248,21 +263,41 @@ impl CameraMode {
         CameraMode(Mode::Fixed(camera))
     }
 
-    /// An orbit around `center`, at a distance scaled by `radius` (half the diagonal of the
-    /// scene's bounds, say), one degree per frame, with the given field of view.
+    /// An orbit about the +y axis through `center` that keeps a sphere of `radius` (half the
+    /// diagonal of the scene's bounds, say) in the field of view, one degree per frame; see
+    /// [`CameraMode::orbit_about`].
     ///
     /// # Errors
-    /// A bad field of view or radius, or an orbit so small next to its distance from the
-    /// origin that some frame's eye would round onto its target.
+    /// As [`CameraMode::orbit_about`].
     pub fn orbit(center: Vec3, radius: f32, fov_y_deg: f32) -> Result<Self, CameraError> {
+        Self::orbit_about(center, radius, fov_y_deg, Vec3::Y)
+    }
+
+    /// An orbit about the axis `up` through `center`, one degree per frame, looking at `center`
+    /// from a little above (26.6°) and far enough that the whole sphere of `radius` fits the
+    /// vertical field of view: the scene is framed at every frame, not cropped.
+    ///
+    /// # Errors
+    /// A bad field of view, radius or axis, or an orbit so small next to its distance from
+    /// the origin that some frame's eye would round onto its target.
+    pub fn orbit_about(
+        center: Vec3,
+        radius: f32,
+        fov_y_deg: f32,
+        up: Vec3,
+    ) -> Result<Self, CameraError> {
         check_fov(fov_y_deg)?;
         if !(radius.is_finite() && radius > 0.0) {
             return Err(CameraError::BadRadius(radius));
         }
+        let up = up
+            .try_normalize()
+            .ok_or(CameraError::BadUp(up.to_array()))?;
         let mode = CameraMode(Mode::Orbit {
             center,
             radius,
             fov_y_deg,
+            up,
         });
         // The orbit repeats every 360 frames: checking each camera once covers every frame.
         for frame in 0..360 {
@@ -300,19 +335,38 @@ impl CameraMode {
             center,
             radius,
             fov_y_deg,
+            up,
         } = self.0
         else {
             unreachable!("only orbits have orbit cameras");
         };
+        let (across, toward) = orbit_plane(up);
         let angle = 0.6 + (frame % 360) as f32 * std::f32::consts::PI / 180.0;
-        let offset = Vec3::new(angle.sin(), 0.5, angle.cos()) * (radius * 1.2);
+        let direction = (across * angle.sin() + up * 0.5 + toward * angle.cos()).normalize();
         Camera {
-            eye: center + offset,
-            target: center - Vec3::Y * (radius * 0.08),
-            up: Vec3::Y,
+            eye: center + direction * fit_distance(radius, fov_y_deg),
+            target: center,
+            up,
             fov_y_deg,
         }
     }
+}
+
+/// How far from a sphere's centre of `radius` a camera of vertical field of view `fov_y_deg`
+/// must be for the whole sphere to fit, with a 5 % margin. The wall's width is never the
+/// narrower side on the walls we know; a portrait wall would crop at its sides.
+pub fn fit_distance(radius: f32, fov_y_deg: f32) -> f32 {
+    let half = (fov_y_deg.to_radians() * 0.5).clamp(0.01, 1.5);
+    radius / half.sin() * 1.05
+}
+
+/// Two directions across the orbit's axis `up` (unit): +x and +z about +y, and for any other
+/// axis the same turned onto it, so that an orbit about +z (a patient's superior) starts from
+/// the same side of the data as one about +y.
+fn orbit_plane(up: Vec3) -> (Vec3, Vec3) {
+    let seed = if up.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+    let across = (seed - up * seed.dot(up)).normalize();
+    (across, across.cross(up))
 }
 
 #[cfg(test)]
@@ -355,6 +409,32 @@ mod tests {
         assert!(CameraMode::orbit(Vec3::ONE, 3.0, 180.0).is_err());
         assert!(CameraMode::orbit(Vec3::ONE, 0.0, 45.0).is_err());
         assert!(CameraMode::orbit(Vec3::ONE, f32::INFINITY, 45.0).is_err());
+        assert!(CameraMode::orbit_about(Vec3::ONE, 1.0, 45.0, Vec3::ZERO).is_err());
+    }
+
+    #[test]
+    fn the_default_orbit_keeps_the_whole_sphere_in_view_at_every_frame() {
+        for (fov, up) in [
+            (45.0, Vec3::Y),
+            (30.0, Vec3::Z),
+            (60.0, Vec3::new(1.0, 1.0, 0.0)),
+        ] {
+            let mode = CameraMode::orbit_about(Vec3::new(3.0, -2.0, 1.0), 2.0, fov, up).unwrap();
+            for frame in [0, 45, 90, 200, 359] {
+                let c = mode.camera_for_frame(frame);
+                let to_centre = Vec3::new(3.0, -2.0, 1.0) - c.eye();
+                // The sphere's angular radius seen from the eye is under half the fov.
+                let half_angle = (2.0 / to_centre.length()).asin().to_degrees();
+                assert!(
+                    half_angle < fov * 0.5,
+                    "frame {frame}: {half_angle} of {fov}"
+                );
+                assert!(c.up().dot(up.normalize()) > 0.999, "turns about its axis");
+                // Seen from a little above, never from below or from the pole.
+                let elevation = (-to_centre).normalize().dot(up.normalize());
+                assert!((0.3..0.6).contains(&elevation), "{elevation}");
+            }
+        }
     }
 
     #[test]

@@ -30,6 +30,8 @@ pub enum Key {
     Digit2,
     /// Samples per pixel: 1 → 2 → 4 → 8 → 1.
     Digit3,
+    /// Fit the scene into the view, looking from where the camera looks now.
+    Z,
 }
 
 /// A mouse button, as held in a drag or pressed in a click.

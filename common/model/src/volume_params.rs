@@ -27,6 +27,15 @@ pub enum VolumeParamsError {
     /// The step factor [`VolumeParams::coarsen`] is outside 1 to [`VolumeParams::MAX_COARSEN`].
     #[error("the step factor {0} must be from 1 to 16")]
     BadCoarsen(f32),
+    /// An iso-surface's colour has a component outside 0 to 1, or its opacity is outside 0
+    /// to 1.
+    #[error("iso-surface {index}: {why}")]
+    BadIsoLook {
+        /// Which iso-value, from 0.
+        index: usize,
+        /// What is wrong with its look.
+        why: String,
+    },
     /// The colour of missing data has a component that is negative or not finite.
     #[error("the missing-data colour {0:?} needs finite components of 0 or more")]
     BadMissingColor([f32; 3]),
@@ -368,7 +377,35 @@ pub struct VolumeParams {
     /// in that colour (`--nan-color`). Particles with a missing attribute take it too (grey
     /// without it).
     pub missing_color: Option<[f32; 3]>,
+    /// How each iso-surface looks, by its place in [`VolumeParams::iso`]; what is not given
+    /// is [`VolumeParams::iso_look`]'s default. (Absent from sessions recorded before it.)
+    #[serde(default)]
+    pub iso_looks: [IsoLook; MAX_ISO_VALUES],
 }
+
+/// One iso-surface's colour and opacity as given (`--iso VALUE:COLOUR:OPACITY`); `None` takes
+/// the default.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct IsoLook {
+    /// Linear RGB, each from 0 to 1.
+    pub color: Option<[f32; 3]>,
+    /// 1 is opaque; below 1 what lies inside shows through.
+    pub opacity: Option<f32>,
+}
+
+/// The default colours of iso-surfaces, by their place in the list of iso-values: bone, skin,
+/// and two that tell further surfaces apart.
+pub const ISO_PALETTE: [[f32; 3]; MAX_ISO_VALUES] = [
+    [0.9, 0.86, 0.78],
+    [0.85, 0.55, 0.45],
+    [0.35, 0.55, 0.9],
+    [0.45, 0.8, 0.45],
+];
+
+/// The default opacity of every iso-surface but the one of the highest value, when there are
+/// several: in a CT, as in most data, higher values lie inside lower ones (bone in skin), so
+/// the inner surface shows through the outer ones.
+pub const OUTER_ISO_OPACITY: f32 = 0.4;
 
 impl VolumeParams {
     /// Half-voxel steps, no iso-surface, the [`TransferFunction::ramp`], full step, the first
@@ -380,6 +417,10 @@ impl VolumeParams {
         coarsen: 1.0,
         time_step: 0,
         missing_color: None,
+        iso_looks: [IsoLook {
+            color: None,
+            opacity: None,
+        }; MAX_ISO_VALUES],
     };
 
     /// Most [`VolumeParams::coarsen`] allowed.
@@ -392,6 +433,18 @@ impl VolumeParams {
     /// A step that is negative or not finite, a coarsening outside 1..=16, or a missing-data
     /// colour with a negative or non-finite component.
     pub fn check(&self) -> Result<(), VolumeParamsError> {
+        for (index, look) in self.iso_looks.iter().enumerate() {
+            let bad = |why: String| Err(VolumeParamsError::BadIsoLook { index, why });
+            if let Some(c) = look
+                .color
+                .filter(|c| !c.iter().all(|v| (0.0..=1.0).contains(v)))
+            {
+                return bad(format!("colour {c:?} needs components from 0 to 1"));
+            }
+            if let Some(o) = look.opacity.filter(|o| !(0.0..=1.0).contains(o)) {
+                return bad(format!("opacity {o} is not from 0 to 1"));
+            }
+        }
         if let Some(c) = self.missing_color {
             if !c.iter().all(|v| v.is_finite() && *v >= 0.0) {
                 return Err(VolumeParamsError::BadMissingColor(c));
@@ -404,6 +457,29 @@ impl VolumeParams {
             return Err(VolumeParamsError::BadCoarsen(self.coarsen));
         }
         Ok(())
+    }
+}
+
+impl VolumeParams {
+    /// The colour (linear RGB) and opacity iso-surface `index` is drawn with: as given in
+    /// [`VolumeParams::iso_looks`], else the [`ISO_PALETTE`] colour of its rank from the highest
+    /// value down (bone, then skin) and, with several surfaces, [`OUTER_ISO_OPACITY`] for all
+    /// but the highest value's.
+    pub fn iso_look(&self, index: usize) -> ([f32; 3], f32) {
+        let look = self.iso_looks.get(index).copied().unwrap_or_default();
+        let values = self.iso.as_slice();
+        let value = values.get(index).copied().unwrap_or(f32::INFINITY);
+        // Ties keep the order given, so equal values still get colours of their own.
+        let rank = values
+            .iter()
+            .enumerate()
+            .filter(|&(i, &v)| v > value || (v == value && i < index))
+            .count();
+        let opacity = look
+            .opacity
+            .unwrap_or(if rank == 0 { 1.0 } else { OUTER_ISO_OPACITY });
+        let color = look.color.unwrap_or(ISO_PALETTE[rank % ISO_PALETTE.len()]);
+        (color, opacity)
     }
 }
 
@@ -476,8 +552,56 @@ mod tests {
             coarsen: 2.0,
             time_step: 3,
             missing_color: Some([1.0, 0.0, 1.0]),
+            iso_looks: [
+                IsoLook {
+                    color: Some([0.2, 0.3, 0.4]),
+                    opacity: Some(0.5),
+                },
+                IsoLook::default(),
+                IsoLook::default(),
+                IsoLook::default(),
+            ],
         };
         let bytes = postcard::to_allocvec(&good).unwrap();
         assert_eq!(postcard::from_bytes::<VolumeParams>(&bytes).unwrap(), good);
+        // Sessions recorded before iso looks still read, with the defaults.
+        let mut old = serde_json::to_value(good).unwrap();
+        old.as_object_mut().unwrap().remove("iso_looks");
+        let read: VolumeParams = serde_json::from_value(old).unwrap();
+        assert_eq!(read.iso_looks, [IsoLook::default(); MAX_ISO_VALUES]);
+    }
+
+    #[test]
+    fn two_iso_surfaces_differ_in_colour_and_the_outer_one_is_translucent() {
+        let two = VolumeParams {
+            iso: IsoValues::new(&[-300.0, 400.0]).unwrap(),
+            ..VolumeParams::DEFAULT
+        };
+        let (skin, skin_opacity) = two.iso_look(0);
+        let (bone, bone_opacity) = two.iso_look(1);
+        assert_ne!(skin, bone);
+        assert_eq!(bone, ISO_PALETTE[0], "the highest value gets bone");
+        assert_eq!((skin_opacity, bone_opacity), (OUTER_ISO_OPACITY, 1.0));
+        let one = VolumeParams {
+            iso: IsoValues::new(&[-300.0]).unwrap(),
+            ..VolumeParams::DEFAULT
+        };
+        assert_eq!(one.iso_look(0).1, 1.0, "a single surface is opaque");
+        let given = VolumeParams {
+            iso_looks: [IsoLook {
+                color: Some([1.0, 0.0, 0.0]),
+                opacity: Some(0.7),
+            }; MAX_ISO_VALUES],
+            ..two
+        };
+        assert_eq!(given.iso_look(1), ([1.0, 0.0, 0.0], 0.7));
+        let bad = VolumeParams {
+            iso_looks: [IsoLook {
+                color: None,
+                opacity: Some(1.5),
+            }; MAX_ISO_VALUES],
+            ..two
+        };
+        assert!(bad.check().unwrap_err().to_string().contains("opacity 1.5"));
     }
 }

@@ -208,11 +208,75 @@ impl WallFile {
     }
 }
 
+/// Windows for every display of `layout` on one desktop, none on top of another: each at
+/// `origin` plus its screen's place in the wall's image (a grid's screens side by side, the
+/// bezels as gaps), or, with `fullscreen_all`, display N full screen on monitor N. What `local`
+/// gives a wall whose file says nothing of windows.
+///
+/// # Examples
+/// ```
+/// use tessera_model::wall::WallSpec;
+/// use tessera_model::window::side_by_side;
+///
+/// let wall = WallSpec::grid(3, 1, 640, 360).build().unwrap();
+/// let windows = side_by_side(&wall, (0, 0), false);
+/// let xs: Vec<_> = windows.values().map(|w| w.position.unwrap().0).collect();
+/// assert_eq!(xs, [0, 640, 1280]);
+/// ```
+pub fn side_by_side(
+    layout: &WallLayout,
+    origin: (i32, i32),
+    fullscreen_all: bool,
+) -> BTreeMap<u32, WindowPlacement> {
+    layout
+        .screens()
+        .map(|screen| {
+            let placement = if fullscreen_all {
+                WindowPlacement {
+                    fullscreen: Some(screen.id.0.min(MAX_MONITOR)),
+                    ..WindowPlacement::default()
+                }
+            } else {
+                let at = |o: i32, p: u32| o.saturating_add(i32::try_from(p).unwrap_or(i32::MAX));
+                WindowPlacement {
+                    position: Some((at(origin.0, screen.x), at(origin.1, screen.y))),
+                    ..WindowPlacement::default()
+                }
+            };
+            (screen.id.0, placement)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     const DESK: &str = "columns = 3\nrows = 1\nscreen_width = 640\nscreen_height = 360\n";
+
+    #[test]
+    fn grid_windows_go_side_by_side_from_the_origin_or_one_per_monitor() {
+        let wall = WallSpec::grid(3, 2, 640, 360).bezel(10).build().unwrap();
+        let windows = side_by_side(&wall, (100, -20), false);
+        let at = |d: u32| windows[&d].position.unwrap();
+        assert_eq!(at(0), (100, -20));
+        assert_eq!(
+            at(1),
+            (100 + 650, -20),
+            "the bezel is a gap between windows"
+        );
+        assert_eq!(
+            at(4),
+            (100 + 650, -20 + 370),
+            "the second row below the first"
+        );
+        let positions: std::collections::BTreeSet<_> =
+            windows.values().map(|w| w.position).collect();
+        assert_eq!(positions.len(), 6, "no two windows on top of each other");
+        let full = side_by_side(&wall, (0, 0), true);
+        assert_eq!(full[&5].fullscreen, Some(5));
+        assert_eq!(full[&5].position, None);
+    }
 
     #[test]
     fn windows_are_read_and_checked() {

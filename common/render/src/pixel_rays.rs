@@ -14,11 +14,24 @@ use tessera_model::camera::{Camera, CameraError, CameraMode};
 /// As [`CameraMode::orbit`]: a bad field of view, or a scene too small for its distance from
 /// the origin to place a camera around at single precision.
 pub fn orbit_of(bounds: &Bounds, fov_y_deg: f32) -> Result<CameraMode, CameraError> {
+    orbit_about_of(bounds, Vec3::Y, fov_y_deg)
+}
+
+/// [`orbit_of`] about the axis `up`: a scene's own up (`Scene::orbit`), such as a patient's
+/// superior for a CT.
+///
+/// # Errors
+/// As [`orbit_of`], and an axis that is no direction.
+pub fn orbit_about_of(
+    bounds: &Bounds,
+    up: Vec3,
+    fov_y_deg: f32,
+) -> Result<CameraMode, CameraError> {
     let (center, diagonal) = (bounds.center(), bounds.diagonal().length());
     if !(center.is_finite() && diagonal.is_finite()) {
-        return CameraMode::orbit(glam::Vec3::ZERO, 1.0, fov_y_deg);
+        return CameraMode::orbit_about(glam::Vec3::ZERO, 1.0, fov_y_deg, up);
     }
-    CameraMode::orbit(center, (diagonal * 0.5).max(1e-6), fov_y_deg)
+    CameraMode::orbit_about(center, (diagonal * 0.5).max(1e-6), fov_y_deg, up)
 }
 
 /// Maps pixels to primary-ray directions: the direction through the point `forward + right · sx

@@ -15,8 +15,8 @@ use crate::sampling::{Hemisphere, SampleStream};
 use crate::scene::Material;
 use crate::slot_colors::SlotColors;
 use crate::surface_hit::{
-    faces_light, hit_frame, iso_occludes, leaving_point, nearest_surface, offset_origin,
-    towards_light, PrimaryHit, SurfaceHit,
+    faces_light, hit_frame, iso_occludes, leaving_point, nearest_surface, towards_light,
+    PrimaryHit, SurfaceHit,
 };
 use crate::tracer::Tracer;
 use crate::volume::FrameTables;
@@ -26,15 +26,6 @@ use tessera_model::cut::CutPlanes;
 
 /// Bounces of reflection and transmission (together) after the primary hit.
 pub const MAX_DEPTH: u32 = 6;
-
-/// The colours of iso-surfaces, by their place in the list of iso-values: bone, skin, and two
-/// that tell further surfaces apart.
-const ISO_ALBEDO: [Vec3; 4] = [
-    Vec3::new(0.9, 0.86, 0.78),
-    Vec3::new(0.85, 0.55, 0.45),
-    Vec3::new(0.35, 0.55, 0.9),
-    Vec3::new(0.45, 0.8, 0.45),
-];
 
 /// Shading of one pixel's rays: borrows the scene and the frame, counts the rays it traces.
 pub struct Shader<'a, 't> {
@@ -202,7 +193,8 @@ impl Shader<'_, '_> {
         }
         if material.is_transparent() && depth < MAX_DEPTH {
             self.counts.transmitted += 1;
-            let behind = offset_origin(point, -normal, self.scene.diagonal);
+            // An iso-surface is found again from the volume's index space: leave it as far.
+            let behind = leaving_point(self.scene, hit, point, -normal);
             // Tinted glass: what lies behind is filtered by the surface's colour.
             let tint = Vec3::ONE.lerp(material.albedo, material.opacity);
             let seen = self.trace(behind, dir, depth + 1) * tint;
@@ -330,7 +322,8 @@ impl PreparedScene {
                 Material::lambert(Vec3::from_array(view.params.colormap().eval(x)))
             }
             SurfaceHit::Iso { surface, .. } => {
-                Material::lambert(ISO_ALBEDO[surface as usize % ISO_ALBEDO.len()])
+                let (color, opacity) = view.params.volume().iso_look(surface as usize);
+                Material::transparent(Vec3::from_array(color), opacity)
             }
         }
     }

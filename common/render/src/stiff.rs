@@ -158,6 +158,7 @@ fn with_parts(
         volume,
         series: scene.series.clone(),
         render_from_world: frame,
+        up: scene.up,
     }
 }
 

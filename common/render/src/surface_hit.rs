@@ -209,8 +209,9 @@ pub fn leaving_point(scene: &PreparedScene, hit: SurfaceHit, point: Vec3, normal
     }
 }
 
-/// Whether a volume's iso-surface blocks `ray` within `interval` (never, in a frame without
-/// iso-values).
+/// Whether a volume's opaque iso-surface blocks `ray` within `interval` (never, in a frame
+/// without iso-values). Translucent ones cast no shadow: they are there to show what lies
+/// inside them, which their shadow would darken.
 pub fn iso_occludes(
     scene: &PreparedScene,
     view: &FrameView,
@@ -218,7 +219,17 @@ pub fn iso_occludes(
     interval: (f32, f32),
     tracer: &mut Tracer<'_>,
 ) -> bool {
-    let iso = view.params.volume().iso.as_slice();
+    let volume_params = view.params.volume();
+    let all = volume_params.iso.as_slice();
+    let mut opaque = [0.0; tessera_model::volume_params::MAX_ISO_VALUES];
+    let mut count = 0;
+    for (i, &value) in all.iter().enumerate() {
+        if volume_params.iso_look(i).1 >= 1.0 {
+            opaque[count] = value;
+            count += 1;
+        }
+    }
+    let iso = &opaque[..count];
     scene.volume.as_ref().is_some_and(|v| {
         !iso.is_empty()
             && v.iso_hit(iso, (ray.origin, ray.dir), interval, tracer)

@@ -21,7 +21,7 @@ use tessera_model::params::{RenderParams, RenderParamsSpec};
 use tessera_model::wall::{TileGrid, WallLayout};
 use tessera_render::render_wall;
 use tessera_render::scene::Scene;
-use tessera_render::{orbit_of, FrameView, PreparedScene};
+use tessera_render::{FrameView, PreparedScene};
 
 const AO_STEPS: [u32; 7] = [1, 2, 4, 8, 16, 32, 64];
 const SPP_STEPS: [u32; 5] = [1, 2, 4, 8, 16];
@@ -138,9 +138,7 @@ impl Settings {
             .collect::<Result<Vec<_>>>()?;
         let camera = run
             .scene
-            .camera_mode(&scene.render_from_world, |fov| {
-                orbit_of(&scene.bounds(), fov)
-            })?
+            .camera_mode(&scene.render_from_world, |fov| scene.orbit(fov))?
             .camera_for_frame(0);
         let spacing = scene
             .volume

@@ -146,7 +146,7 @@ impl Master {
         let frame = self.live.last_start.map_or(0, |s| s.frame.0);
         let camera = current.camera_for_frame(frame);
         let params = self.coordinator.next_state().params;
-        let action = self.navigator.handle(&event, &camera, &params);
+        let action = self.navigator.handle(&event, &camera, &params, now.instant);
         tracing::debug!("input {event:?} at frame {frame}: {action:?}");
         match action {
             Some(NavAction::Change(change)) => {
@@ -212,22 +212,10 @@ impl Master {
         for (i, change) in changes.iter().enumerate() {
             next = next.apply(change).map_err(|e| refusal(i, e.to_string()))?;
         }
-        self.record.timing.input_arrived(stamp, now.unix_ns);
-        if let (Some(steps), Some(i)) = (
-            self.cfg.operator.series_steps,
-            changes.iter().position(|c| match c {
-                StateChange::Volume(v) => {
-                    v.time_step >= self.cfg.operator.series_steps.unwrap_or(1)
-                }
-                _ => false,
-            }),
-        ) {
-            let reason = format!(
-                "time step outside the series' {steps} steps (0 to {})",
-                steps - 1
-            );
+        if let Some((i, reason)) = self.volume_misfit(changes) {
             return Err(refusal(i, reason));
         }
+        self.record.timing.input_arrived(stamp, now.unix_ns);
         for (i, change) in changes.iter().enumerate() {
             self.coordinator
                 .queue_change(*change, stamp, now.instant)
@@ -238,6 +226,42 @@ impl Master {
             changes: changes.len() as u32,
             state_id: tessera_model::state::StateId(id.0 + 1),
             frame: self.coordinator.next_frame().0,
+        })
+    }
+
+    /// The first change that sets volume knobs the scene cannot take, and why: a scene without
+    /// a volume takes none, and a time step must be one of the series' (0 for one volume).
+    fn volume_misfit(&self, changes: &[StateChange]) -> Option<(usize, String)> {
+        let now = *self.coordinator.next_state().params.volume();
+        changes.iter().enumerate().find_map(|(i, c)| {
+            let StateChange::Volume(v) = c else {
+                return None;
+            };
+            let op = &self.cfg.operator;
+            let has_volume = op.volume_range.is_some() || op.series_steps.is_some();
+            if !has_volume && *v != now {
+                return Some((
+                    i,
+                    "the scene has no volume: iso-values, transfer function, step and time \
+                     step do not apply"
+                        .to_string(),
+                ));
+            }
+            let steps = self.cfg.operator.series_steps.unwrap_or(1);
+            (v.time_step >= steps).then(|| {
+                let reason = match self.cfg.operator.series_steps {
+                    Some(steps) => format!(
+                        "time step {} is outside the series' {steps} steps (0 to {})",
+                        v.time_step,
+                        steps - 1
+                    ),
+                    None => format!(
+                        "time step {}: the scene is one volume, not a series (only 0)",
+                        v.time_step
+                    ),
+                };
+                (i, reason)
+            })
         })
     }
 

@@ -3,14 +3,21 @@
 //! Two modes, as in most viewers. **Orbit** (the default): a left drag turns the camera about
 //! a pivot (the scene's centre), a right or middle drag pans, the wheel zooms. **Fly** (`F`
 //! toggles): `W`/`S` forward and back, `A`/`D` sideways, `Q`/`E` down and up, a left drag
-//! looks around. `H` goes back to the home view (the camera the wall started with); `1`
+//! looks around. `H` goes back to the home view (the camera the wall started with, which
+//! frames the scene), `Z` fits the scene into the view from where the camera looks; `1`
 //! toggles shadows, `2` cycles ambient-occlusion rays (0 → 4 → 16), `3` samples per pixel
 //! (1 → 2 → 4 → 8); `O` toggles the overlay.
 //!
+//! Speeds follow the scene and the clock, not the event rate: a wheel line moves a tenth of
+//! the way to the target (never through it), and flying covers a fixed fraction per second of
+//! the distance to the pivot, however fast a key repeats or frames come; so holding `W` slows
+//! down as the scene comes close instead of flying into it.
+//!
 //! Like the rest of this crate it is a state machine with no I/O: the driver hands it each
-//! event with the camera on the wall at that moment and queues what it returns.
+//! event with the camera on the wall and the time at that moment and queues what it returns.
 
 use glam::{Quat, Vec3};
+use std::time::{Duration, Instant};
 use tessera_model::camera::{Camera, CameraMode};
 use tessera_model::input::{Button, InputEvent, Key};
 use tessera_model::params::RenderParams;
@@ -59,8 +66,9 @@ pub enum NavMode {
 /// let mut nav = Navigator::new(CameraMode::fixed(camera), Vec3::ZERO, 1.0);
 /// // Dragging a quarter of a screen height to the right turns the camera about the pivot.
 /// let drag = InputEvent::Drag { button: Button::Left, dx: 0.25, dy: 0.0 };
+/// let now = std::time::Instant::now();
 /// let Some(NavAction::Change(StateChange::Camera(mode))) =
-///     nav.handle(&drag, &camera, &RenderParams::interactive())
+///     nav.handle(&drag, &camera, &RenderParams::interactive(), now)
 /// else {
 ///     panic!("a drag moves the camera");
 /// };
@@ -73,15 +81,20 @@ pub struct Navigator {
     mode: NavMode,
     home: CameraMode,
     pivot: Vec3,
-    /// Size of the scene (half its diagonal): the unit of fly steps and of the closest zoom.
+    /// Size of the scene (half its diagonal): the radius a fit frames, the closest zoom.
     scale: f32,
+    /// When the last fly key moved the camera: a step covers the time since.
+    last_fly: Option<Instant>,
 }
 
 /// Degrees an orbit or a look turns per screen height dragged.
 const DEGREES_PER_SCREEN: f32 = 180.0;
-/// How far one fly key press moves, in scene sizes.
-const FLY_STEP: f32 = 0.05;
-/// How much closer one wheel line zooms.
+/// The fraction of the distance to the pivot a held fly key covers per second.
+const FLY_PER_SECOND: f32 = 0.6;
+/// The time a fly key event stands for: a first press is one key repeat (about 30 a second);
+/// a pause longer than the longest is not flown through.
+const FLY_EVENT: (Duration, Duration) = (Duration::from_millis(33), Duration::from_millis(100));
+/// How much closer one wheel line (a notch) zooms.
 const ZOOM_PER_LINE: f32 = 0.9;
 /// The orbit stops this far (radians) short of the poles, where up and view would align.
 const POLE_MARGIN: f32 = 0.02;
@@ -98,7 +111,24 @@ impl Navigator {
             } else {
                 1.0
             },
+            last_fly: None,
         }
+    }
+
+    /// A fixed camera looking at the pivot from where `camera` looks, far enough that the
+    /// scene's bounding sphere fits its vertical field of view: "fit to data".
+    pub fn fit(&self, camera: &Camera) -> Option<Camera> {
+        let back = (camera.eye() - camera.target())
+            .try_normalize()
+            .unwrap_or(Vec3::Z);
+        let distance = tessera_model::camera::fit_distance(self.scale, camera.fov_y_deg());
+        Camera::new(
+            self.pivot + back * distance,
+            self.pivot,
+            camera.up(),
+            camera.fov_y_deg(),
+        )
+        .ok()
     }
 
     /// The mode input moves the camera in now.
@@ -106,13 +136,15 @@ impl Navigator {
         self.mode
     }
 
-    /// The action for `event`, given the camera on the wall and its quality knobs; `None` for
-    /// events that do nothing (a key released, a move that would make no valid camera).
+    /// The action for `event` at `now`, given the camera on the wall and its quality knobs;
+    /// `None` for events that do nothing (a key released, a move that would make no valid
+    /// camera).
     pub fn handle(
         &mut self,
         event: &InputEvent,
         camera: &Camera,
         params: &RenderParams,
+        now: Instant,
     ) -> Option<NavAction> {
         let moved = |c: Option<Camera>| {
             c.map(|c| NavAction::Change(StateChange::Camera(CameraMode::fixed(c))))
@@ -128,6 +160,7 @@ impl Navigator {
                     None
                 }
                 Key::H => Some(NavAction::Change(StateChange::Camera(self.home))),
+                Key::Z => moved(self.fit(camera)),
                 Key::O => Some(NavAction::ToggleOverlay),
                 Key::Digit1 => Some(NavAction::Change(StateChange::Shadows(!params.shadows()))),
                 Key::Digit2 => Some(NavAction::Change(StateChange::AoSamples(
@@ -143,7 +176,9 @@ impl Navigator {
                     4..=7 => 8,
                     _ => 1,
                 }))),
-                Key::W | Key::A | Key::S | Key::D | Key::Q | Key::E => moved(self.fly(camera, key)),
+                Key::W | Key::A | Key::S | Key::D | Key::Q | Key::E => {
+                    moved(self.fly(camera, key, now))
+                }
             },
             InputEvent::Drag { button, dx, dy } => match (self.mode, button) {
                 (NavMode::Orbit, Button::Left) => moved(self.orbit(camera, dx, dy)),
@@ -172,11 +207,20 @@ impl Navigator {
         Camera::new(eye, target, camera.up(), camera.fov_y_deg()).ok()
     }
 
-    fn fly(&self, camera: &Camera, key: Key) -> Option<Camera> {
+    /// One fly step: as far as [`FLY_PER_SECOND`] goes in the time since the last one, of the
+    /// distance to the pivot (but at least a thousandth of the scene, so the pivot itself can
+    /// be flown past slowly).
+    fn fly(&mut self, camera: &Camera, key: Key, now: Instant) -> Option<Camera> {
+        let elapsed = self
+            .last_fly
+            .map_or(FLY_EVENT.0, |last| now.saturating_duration_since(last))
+            .min(FLY_EVENT.1);
+        self.last_fly = Some(now);
         let forward = (camera.target() - camera.eye()).normalize_or_zero();
         let up = camera.up().normalize_or_zero();
         let right = forward.cross(up).normalize_or_zero();
-        let step = self.scale * FLY_STEP;
+        let distance = (camera.eye() - self.pivot).length().max(self.scale * 1e-3);
+        let step = distance * FLY_PER_SECOND * elapsed.as_secs_f32();
         let delta = match key {
             Key::W => forward,
             Key::S => -forward,
@@ -264,6 +308,10 @@ mod tests {
 
     const P: RenderParams = RenderParams::interactive();
 
+    fn now() -> Instant {
+        Instant::now()
+    }
+
     #[test]
     fn orbiting_keeps_the_distance_and_stops_short_of_the_pole() {
         let mut nav = nav();
@@ -275,6 +323,7 @@ mod tests {
             },
             &camera(),
             &P,
+            now(),
         ));
         assert!((c.eye().length() - camera().eye().length()).abs() < 1e-4);
         // Half a screen is 90 degrees: from +z to the side.
@@ -292,6 +341,7 @@ mod tests {
             },
             &camera(),
             &P,
+            now(),
         ));
         assert!(c.eye().normalize().y > 0.99, "{:?}", c.eye());
     }
@@ -307,15 +357,16 @@ mod tests {
             },
             &camera(),
             &P,
+            now(),
         ));
         let d0 = camera().target() - camera().eye();
         assert!(((c.target() - c.eye()) - d0).length() < 1e-4);
         assert!(c.target().x < 0.0, "dragging right moves the view left");
-        let c = camera_of(nav.handle(&InputEvent::Scroll { lines: 3.0 }, &camera(), &P));
+        let c = camera_of(nav.handle(&InputEvent::Scroll { lines: 3.0 }, &camera(), &P, now()));
         let (before, after) = (camera().eye().length(), c.eye().length());
         assert!((after / before - 0.9f32.powi(3)).abs() < 1e-3);
         // Zooming far in stops before the target.
-        let c = camera_of(nav.handle(&InputEvent::Scroll { lines: 100.0 }, &camera(), &P));
+        let c = camera_of(nav.handle(&InputEvent::Scroll { lines: 100.0 }, &camera(), &P, now()));
         assert!(c.eye().length() > 0.0);
     }
 
@@ -323,18 +374,87 @@ mod tests {
     fn fly_mode_moves_with_the_keys_and_f_toggles_it() {
         let mut nav = nav();
         let press = |key| InputEvent::Key { key, pressed: true };
-        assert_eq!(nav.handle(&press(Key::F), &camera(), &P), None);
+        assert_eq!(nav.handle(&press(Key::F), &camera(), &P, now()), None);
         assert_eq!(nav.mode(), NavMode::Fly);
-        let c = camera_of(nav.handle(&press(Key::W), &camera(), &P));
+        let c = camera_of(nav.handle(&press(Key::W), &camera(), &P, now()));
         let forward = (camera().target() - camera().eye()).normalize();
-        assert!(((c.eye() - camera().eye()) - forward * 0.1).length() < 1e-5);
+        // A first press is one key repeat's worth of flight: 0.6 × 1/30 s of the distance.
+        let step = camera().eye().length() * 0.6 * 0.033;
+        assert!(((c.eye() - camera().eye()) - forward * step).length() < 1e-5);
         let released = InputEvent::Key {
             key: Key::W,
             pressed: false,
         };
-        assert_eq!(nav.handle(&released, &camera(), &P), None);
-        nav.handle(&press(Key::F), &camera(), &P);
+        assert_eq!(nav.handle(&released, &camera(), &P, now()), None);
+        nav.handle(&press(Key::F), &camera(), &P, now());
         assert_eq!(nav.mode(), NavMode::Orbit);
+    }
+
+    #[test]
+    fn holding_w_for_a_second_slows_down_before_the_scene_at_any_key_rate() {
+        // The scene is a sphere of radius 2 about the origin, seen from where a fit puts it.
+        let start = Camera::new(Vec3::new(0.0, 0.0, 6.0), Vec3::ZERO, Vec3::Y, 45.0).unwrap();
+        let mut reached = Vec::new();
+        for repeats_per_second in [10u32, 30, 120] {
+            let mut nav = nav();
+            nav.handle(
+                &InputEvent::Key {
+                    key: Key::F,
+                    pressed: true,
+                },
+                &start,
+                &P,
+                now(),
+            );
+            let t0 = Instant::now();
+            let mut c = start;
+            for i in 1..=repeats_per_second {
+                let at = t0 + Duration::from_secs_f64(f64::from(i) / f64::from(repeats_per_second));
+                let press = InputEvent::Key {
+                    key: Key::W,
+                    pressed: true,
+                };
+                c = camera_of(nav.handle(&press, &c, &P, at));
+            }
+            reached.push(c.eye().z);
+        }
+        for z in &reached {
+            assert!(*z > 2.0, "flew into the scene within a second: {reached:?}");
+            assert!(*z < 4.0, "hardly moved: {reached:?}");
+        }
+        let spread = reached.iter().cloned().fold(f32::MIN, f32::max)
+            - reached.iter().cloned().fold(f32::MAX, f32::min);
+        assert!(spread < 0.3, "speed depends on the key rate: {reached:?}");
+    }
+
+    #[test]
+    fn z_fits_the_scene_and_wheel_notches_never_pass_the_target() {
+        let mut nav = nav();
+        let far = Camera::new(Vec3::new(0.0, 0.0, 50.0), Vec3::X, Vec3::Y, 45.0).unwrap();
+        let press = InputEvent::Key {
+            key: Key::Z,
+            pressed: true,
+        };
+        let fit = camera_of(nav.handle(&press, &far, &P, now()));
+        assert_eq!(fit.target(), Vec3::ZERO, "looks at the pivot");
+        let half = (2.0 / fit.eye().length()).asin().to_degrees();
+        assert!(
+            half < 22.5 && half > 18.0,
+            "the sphere of radius 2 fills the view: {half}"
+        );
+        let mut c = fit;
+        for _ in 0..5 {
+            c = camera_of(nav.handle(&InputEvent::Scroll { lines: 1.0 }, &c, &P, now()));
+        }
+        let ratio = c.eye().length() / fit.eye().length();
+        assert!(
+            (ratio - 0.9f32.powi(5)).abs() < 1e-3,
+            "a tenth per notch: {ratio}"
+        );
+        assert!(
+            c.eye().length() > 2.0,
+            "five notches stay outside the scene"
+        );
     }
 
     #[test]
@@ -342,25 +462,25 @@ mod tests {
         let mut nav = nav();
         let press = |key| InputEvent::Key { key, pressed: true };
         assert_eq!(
-            nav.handle(&press(Key::Digit1), &camera(), &P),
+            nav.handle(&press(Key::Digit1), &camera(), &P, now()),
             Some(NavAction::Change(StateChange::Shadows(false)))
         );
         assert_eq!(
-            nav.handle(&press(Key::Digit2), &camera(), &P),
+            nav.handle(&press(Key::Digit2), &camera(), &P, now()),
             Some(NavAction::Change(StateChange::AoSamples(4)))
         );
         assert_eq!(
-            nav.handle(&press(Key::Digit3), &camera(), &P),
+            nav.handle(&press(Key::Digit3), &camera(), &P, now()),
             Some(NavAction::Change(StateChange::Spp(2)))
         );
         assert_eq!(
-            nav.handle(&press(Key::H), &camera(), &P),
+            nav.handle(&press(Key::H), &camera(), &P, now()),
             Some(NavAction::Change(StateChange::Camera(CameraMode::fixed(
                 camera()
             ))))
         );
         assert_eq!(
-            nav.handle(&press(Key::O), &camera(), &P),
+            nav.handle(&press(Key::O), &camera(), &P, now()),
             Some(NavAction::ToggleOverlay)
         );
     }

@@ -148,27 +148,7 @@ impl Master {
     pub(super) fn fit_camera(&self) -> CameraMode {
         let frame = self.live.last_start.map_or(0, |s| s.frame.0);
         let now = self.current_camera().camera_for_frame(frame);
-        let size = self.cfg.scene_size;
-        let radius = if size.is_finite() && size > 0.0 {
-            size
-        } else {
-            1.0
-        };
-        let half_fov = (now.fov_y_deg().to_radians() * 0.5).clamp(0.01, 1.5);
-        let distance = radius / half_fov.sin();
-        let pivot = self.cfg.pivot;
-        let back = (now.eye() - now.target())
-            .try_normalize()
-            .unwrap_or(glam::Vec3::Z);
-        match tessera_model::camera::Camera::new(
-            pivot + back * distance,
-            pivot,
-            now.up(),
-            now.fov_y_deg(),
-        ) {
-            Ok(camera) => CameraMode::fixed(camera),
-            Err(_) => CameraMode::fixed(now),
-        }
+        CameraMode::fixed(self.navigator.fit(&now).unwrap_or(now))
     }
 
     /// `node` rendered `tiles`: the console's heatmap says so. Tile ids were checked by the
@@ -223,7 +203,7 @@ impl Master {
         let frame = self.live.last_start.map_or(0, |s| s.frame.0);
         let camera = self.current_camera().camera_for_frame(frame);
         let params = self.coordinator.next_state().params;
-        match self.navigator.handle(&event, &camera, &params) {
+        match self.navigator.handle(&event, &camera, &params, now.instant) {
             Some(NavAction::Change(change)) => self.queue_all(&[change], stamp, now),
             Some(NavAction::ToggleOverlay) => {
                 self.set_overlay(!self.live.overlay);

@@ -267,3 +267,47 @@ fn a_series_plays_on_its_own_clock_steps_and_refuses_what_does_not_apply() {
     let none = ask(&mut plain, base, 0, play_at(None));
     assert_eq!(none, ControlReply::Refused(Refusal::NoSeries));
 }
+
+#[test]
+fn volume_changes_a_scene_cannot_take_are_refused_naming_why() {
+    let base = Instant::now();
+    let mut mesh = still_wall(base, OperatorConfig::default());
+    let mut volume = *mesh.coordinator.next_state().params.volume();
+    volume.iso = tessera_model::volume_params::IsoValues::new(&[300.0]).unwrap();
+    let iso = ask(
+        &mut mesh,
+        base,
+        0,
+        ControlRequest::Change(vec![StateChange::Volume(volume)]),
+    );
+    assert!(
+        matches!(&iso, ControlReply::Refused(Refusal::BadChange { reason, .. }) if reason.contains("no volume")),
+        "{iso:?}"
+    );
+    let one = OperatorConfig {
+        volume_range: Some([0.0, 1.0]),
+        ..OperatorConfig::default()
+    };
+    let mut single = still_wall(base, one);
+    let mut volume = *single.coordinator.next_state().params.volume();
+    volume.time_step = 1000;
+    let step = ask(
+        &mut single,
+        base,
+        0,
+        ControlRequest::Change(vec![StateChange::Volume(volume)]),
+    );
+    assert!(
+        matches!(&step, ControlReply::Refused(Refusal::BadChange { reason, .. }) if reason.contains("not a series")),
+        "{step:?}"
+    );
+    volume.time_step = 0;
+    volume.iso = tessera_model::volume_params::IsoValues::new(&[0.5]).unwrap();
+    let fine = ask(
+        &mut single,
+        base,
+        0,
+        ControlRequest::Change(vec![StateChange::Volume(volume)]),
+    );
+    assert!(matches!(fine, ControlReply::Queued { .. }), "{fine:?}");
+}

@@ -11,6 +11,7 @@ use crate::assemble::{AssembleError, FrameAssembler, PresentedFrame};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
+use tessera_model::params::RenderParams;
 use tessera_model::state::StateId;
 use tessera_model::wall::{ScreenRect, TileGrid, TileId};
 use tessera_protocol::pixels::BatchSource;
@@ -44,7 +45,37 @@ pub struct Overlay {
     pub frame_ms: f32,
     /// Each tile of the frame: its rectangle on this screen, who rendered it, in how long.
     pub tiles: Vec<TileInfo>,
+    /// The state and quality the frame was rendered with: the status line.
+    pub status: Option<FrameStatus>,
 }
+
+/// What a frame shows, as its status line says: the state's id and the quality knobs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameStatus {
+    /// The wall state the frame renders.
+    pub state: StateId,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Ambient-occlusion rays per hit.
+    pub ao_samples: u32,
+    /// Whether shadow rays are traced.
+    pub shadows: bool,
+}
+
+impl FrameStatus {
+    /// The status of a frame of state `state` rendered with `params`.
+    pub fn of(state: StateId, params: &RenderParams) -> Self {
+        FrameStatus {
+            state,
+            spp: params.spp(),
+            ao_samples: params.ao_samples(),
+            shadows: params.shadows(),
+        }
+    }
+}
+
+/// Frame starts remembered for the status line: more than are ever in flight at once.
+const STARTS_KEPT: usize = 16;
 
 /// One tile as the overlay shows it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -170,6 +201,8 @@ pub struct DisplaySession {
     last_shown: Option<(FrameId, BTreeMap<TileId, BatchSource>)>,
     /// When the last presents happened, for the overlay's frame rate.
     present_times: VecDeque<Instant>,
+    /// The latest frames' states and quality, for the status line.
+    starts: VecDeque<(FrameId, FrameStatus)>,
     transmit: VecDeque<FromNode>,
     events: VecDeque<DisplayEvent>,
 }
@@ -190,6 +223,7 @@ impl DisplaySession {
             sources: BTreeMap::new(),
             last_shown: None,
             present_times: VecDeque::new(),
+            starts: VecDeque::new(),
             transmit: VecDeque::new(),
             events: VecDeque::new(),
         }
@@ -217,10 +251,16 @@ impl DisplaySession {
             ToNode::Ping { seq } => self.events.push_back(DisplayEvent::Pong { seq }),
             ToNode::Shutdown => self.events.push_back(DisplayEvent::Shutdown),
             // The frame's state: every tile of the frame must have been rendered with it.
-            ToNode::FrameStart(start) => self
-                .assembler
-                .handle_frame_start(start.frame, start.state)
-                .map_err(DisplaySessionError::FrameBarrier)?,
+            ToNode::FrameStart(start) => {
+                self.assembler
+                    .handle_frame_start(start.frame, start.state)
+                    .map_err(DisplaySessionError::FrameBarrier)?;
+                if self.starts.len() == STARTS_KEPT {
+                    self.starts.pop_front();
+                }
+                let status = FrameStatus::of(start.state, &start.params);
+                self.starts.push_back((start.frame, status));
+            }
             ToNode::StartAt { frame } => self.assembler.start_at(frame),
             ToNode::Cancel { frame } => {
                 self.assembler.cancel_up_to(frame);
@@ -278,7 +318,9 @@ impl DisplaySession {
     /// The frame of `order` is being shown at `now` (its deadline passed): the overlay to
     /// draw over it, if the overlay is on, timed against the presents before it.
     pub fn handle_shown(&mut self, order: &PresentOrder, now: Instant) -> Option<Overlay> {
-        let overlay = self.overlay.then(|| self.overlay_of(&order.sources, now));
+        let overlay = self
+            .overlay
+            .then(|| self.overlay_of(order.shown.frame, &order.sources, now));
         self.last_shown = Some((order.shown.frame, order.sources.clone()));
         self.present_times.push_back(now);
         while self.present_times.len() > PRESENTS_TIMED {
@@ -287,10 +329,19 @@ impl DisplaySession {
         overlay
     }
 
+    /// The state and quality `frame` was rendered with, if its start is recent enough to be
+    /// remembered: what a window's status line says.
+    pub fn status_of(&self, frame: FrameId) -> Option<FrameStatus> {
+        self.starts
+            .iter()
+            .find(|(f, _)| *f == frame)
+            .map(|(_, status)| *status)
+    }
+
     /// The overlay over the frame shown now, timed now, if the overlay is on.
     pub fn overlay_now(&self, now: Instant) -> Option<Overlay> {
-        let (_, sources) = self.last_shown.as_ref()?;
-        self.overlay.then(|| self.overlay_of(sources, now))
+        let (frame, sources) = self.last_shown.as_ref()?;
+        self.overlay.then(|| self.overlay_of(*frame, sources, now))
     }
 
     /// The next message for the master.
@@ -362,7 +413,12 @@ impl DisplaySession {
         names
     }
 
-    fn overlay_of(&self, sources: &BTreeMap<TileId, BatchSource>, now: Instant) -> Overlay {
+    fn overlay_of(
+        &self,
+        frame: FrameId,
+        sources: &BTreeMap<TileId, BatchSource>,
+        now: Instant,
+    ) -> Overlay {
         let last = self.present_times.back().copied();
         let frame_ms = last.map_or(0.0, |t| now.duration_since(t).as_secs_f32() * 1000.0);
         let window = self.present_times.front().map(|t| now.duration_since(*t));
@@ -384,10 +440,12 @@ impl DisplaySession {
                 })
             })
             .collect();
+        let status = self.status_of(frame);
         Overlay {
             fps,
             frame_ms,
             tiles,
+            status,
         }
     }
 }

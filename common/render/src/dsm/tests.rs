@@ -76,7 +76,12 @@ fn shared_from(
 }
 
 fn view_of(scene: &Scene, params: RenderParams, (w, h): (u32, u32)) -> FrameView {
-    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(7);
+    // Half the default orbit's distance: close enough that particles, bricks and blocks fill
+    // these tiny test walls, with much of the scene cut off at their edges.
+    let framed = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(7);
+    let eye = framed.target() + (framed.eye() - framed.target()) * 0.5;
+    let camera =
+        tessera_model::camera::Camera::new(eye, framed.target(), framed.up(), 45.0).unwrap();
     FrameView::new(7, &camera, params, w, h)
 }
 

@@ -6,9 +6,9 @@
 //! loaded the same bytes as the master, since identical input is what makes tiles bit-identical
 //! on any node.
 
-pub mod colors;
 #[cfg(test)]
 mod color_tests;
+pub mod colors;
 pub mod composite;
 mod files;
 pub mod footprint;
@@ -25,6 +25,7 @@ use crate::volume::{self, Volume, VolumeError};
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use tessera_model::camera::{CameraError, CameraMode};
 use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::scene_spec::SceneSpec;
 
@@ -159,6 +160,9 @@ pub struct Scene {
     /// Where the render coordinates sit in the world (identity for built-in scenes): a file's
     /// mesh is moved to its middle, in f64, before it becomes f32.
     pub render_from_world: RenderFromWorld,
+    /// The scene's own up, where its file says one (a volume in patient axes: superior);
+    /// `None` is +y, the convention of meshes.
+    pub up: Option<Vec3>,
 }
 
 pub use tessera_model::light::Light;
@@ -409,6 +413,15 @@ impl Scene {
             })
     }
 
+    /// The default orbit around the scene (its bounds, about its own up), with vertical field
+    /// of view `fov_y_deg`: the home view of a wall that was given no camera.
+    ///
+    /// # Errors
+    /// As [`crate::orbit_of`].
+    pub fn orbit(&self, fov_y_deg: f32) -> Result<CameraMode, CameraError> {
+        crate::pixel_rays::orbit_about_of(&self.bounds(), self.up.unwrap_or(Vec3::Y), fov_y_deg)
+    }
+
     /// The box, in render coordinates, around the triangles, the particles and the volume; empty
     /// for an empty scene.
     pub fn bounds(&self) -> Bounds {
@@ -559,6 +572,7 @@ fn from_mesh_in(mut mesh: Mesh, path: &Path, render_from_world: RenderFromWorld)
         volume: None,
         series: Vec::new(),
         render_from_world,
+        up: None,
     }
 }
 
@@ -588,6 +602,7 @@ pub(crate) fn from_volume(volume: Volume) -> Scene {
     Scene {
         lights: vec![default_light()],
         render_from_world: RenderFromWorld::centred_on(&corners),
+        up: volume.up(),
         volume: Some(volume),
         ..Scene::default()
     }

@@ -81,6 +81,7 @@ pub fn knot_scene(segments: u32, sides: u32) -> Scene {
         volume: None,
         series: Vec::new(),
         render_from_world: Default::default(),
+        up: None,
     }
 }
 

@@ -87,6 +87,7 @@ pub(super) fn load(dir: &Path) -> Result<Volume, VolumeError> {
     for s in slices {
         values.extend(s.values);
     }
+    // DICOM places slices in LPS patient axes, where +z is superior.
     Volume::checked(
         dir,
         [cols, rows, values.len() / (cols * rows)],
@@ -95,6 +96,7 @@ pub(super) fn load(dir: &Path) -> Result<Volume, VolumeError> {
         voxel_type,
         values,
     )
+    .map(|v| v.with_up(glam::Vec3::Z))
 }
 
 /// The distance between consecutive slices, which must be even (within 1 %) and non-zero; one

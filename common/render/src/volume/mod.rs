@@ -180,6 +180,8 @@ pub struct Volume {
     /// The samples are the file's times 2^this: 0 unless the file's f64 values lie beyond
     /// f32's range (see [`narrow_f64`]).
     value_exponent: i32,
+    /// The world's up as the file gives it: +z (superior) for data in patient axes.
+    up: Option<glam::Vec3>,
 }
 
 impl Volume {
@@ -265,6 +267,7 @@ impl Volume {
             range,
             missing,
             value_exponent: 0,
+            up: None,
         })
     }
 
@@ -273,6 +276,20 @@ impl Volume {
     /// transfer points are then in those scaled units).
     pub fn value_exponent(&self) -> i32 {
         self.value_exponent
+    }
+
+    /// The world's up as the file said (`None`: the file gives no anatomy or up).
+    pub fn up(&self) -> Option<glam::Vec3> {
+        self.up
+    }
+
+    /// The same volume, whose file says which way is up in its world (a patient's superior, +z
+    /// in both RAS and LPS).
+    pub fn with_up(self, up: glam::Vec3) -> Volume {
+        Volume {
+            up: Some(up),
+            ..self
+        }
     }
 
     /// This volume with every length multiplied by `extent`, then moved by `offset`, and every
@@ -295,6 +312,7 @@ impl Volume {
             range,
             missing: self.missing,
             value_exponent: self.value_exponent,
+            up: self.up,
         }
     }
 

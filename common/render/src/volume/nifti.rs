@@ -27,7 +27,20 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
         }
     }
     let (axes, origin) = placement(path, &header)?;
-    Volume::checked(path, dims, axes, origin, voxel_type, values)
+    Ok(in_patient_axes(
+        &header,
+        Volume::checked(path, dims, axes, origin, voxel_type, values)?,
+    ))
+}
+
+/// A volume placed by its sform or qform is in RAS+ patient axes, where +z is superior: the
+/// head is up, not the scanner table's side.
+fn in_patient_axes(header: &nifti::NiftiHeader, volume: Volume) -> Volume {
+    if header.sform_code > 0 || header.qform_code > 0 {
+        volume.with_up(glam::Vec3::Z)
+    } else {
+        volume
+    }
 }
 
 /// A volume of f64 samples: scaled into f32's range where they lie beyond it (see
@@ -55,10 +68,13 @@ fn load_f64(
     let (narrowed, exponent) = super::narrow_f64(&values);
     let (axes, origin) = placement(path, header)?;
     let volume = Volume::checked(path, dims, axes, origin, VoxelType::F32, narrowed)?;
-    Ok(Volume {
-        value_exponent: exponent,
-        ..volume
-    })
+    Ok(in_patient_axes(
+        header,
+        Volume {
+            value_exponent: exponent,
+            ..volume
+        },
+    ))
 }
 
 /// `scl_slope` and `scl_inter`, where they change the values (a slope of 0 means none).

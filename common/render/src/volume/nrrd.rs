@@ -56,7 +56,18 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
         }
     };
     let values = decode_exact(path, &bytes, dims, voxel_type, little_endian)?;
-    Volume::checked(path, dims, axes, origin, voxel_type, values)
+    let volume = Volume::checked(path, dims, axes, origin, voxel_type, values)?;
+    // Every anatomical space NRRD names (RAS, LPS, LAS, or spelt out, ending in "superior")
+    // puts superior at +z.
+    let anatomical = fields.get("space").is_some_and(|s| {
+        let s = s.trim().to_ascii_lowercase();
+        s.ends_with("superior") || matches!(s.as_str(), "ras" | "lps" | "las")
+    });
+    Ok(if anatomical {
+        volume.with_up(glam::Vec3::Z)
+    } else {
+        volume
+    })
 }
 
 /// The voxel count an NRRD header declares, read from the start of the file only (the

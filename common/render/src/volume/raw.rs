@@ -8,6 +8,7 @@
 //! spacing = [0.9, 0.9, 2.0]  # world units per voxel step (default 1, 1, 1)
 //! origin = [0.0, 0.0, 0.0]   # world position of voxel (0, 0, 0) (default 0)
 //! endian = "little"        # or "big" (default little)
+//! up = [0.0, 0.0, 1.0]     # the world's up, e.g. a CT's superior (default: none, +y)
 //! ```
 
 use super::{axis_aligned, decode_exact, little_endian, Volume, VolumeError, VoxelType};
@@ -24,6 +25,7 @@ struct Sidecar {
     spacing: Option<[f64; 3]>,
     origin: Option<[f64; 3]>,
     endian: Option<String>,
+    up: Option<[f32; 3]>,
 }
 
 /// The voxel count a sidecar declares, before its data is read.
@@ -66,12 +68,21 @@ pub(super) fn load(path: &Path) -> Result<Volume, VolumeError> {
     let bytes = std::fs::read(&data_path).map_err(|e| VolumeError::io(&data_path, e))?;
     let values = decode_exact(&data_path, &bytes, sidecar.dims, voxel_type, little_endian)?;
     let axes = axis_aligned(path, "spacing", sidecar.spacing.unwrap_or([1.0; 3]))?;
-    Volume::checked(
+    let volume = Volume::checked(
         path,
         sidecar.dims,
         axes,
         sidecar.origin.unwrap_or([0.0; 3]),
         voxel_type,
         values,
-    )
+    )?;
+    match sidecar.up.map(glam::Vec3::from_array) {
+        None => Ok(volume),
+        Some(up) if up.is_finite() && up != glam::Vec3::ZERO => Ok(volume.with_up(up)),
+        Some(up) => Err(VolumeError::field(
+            path,
+            "up",
+            format!("{:?} is not a direction", up.to_array()),
+        )),
+    }
 }
