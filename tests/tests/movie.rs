@@ -245,6 +245,91 @@ fn a_wall_replays_a_camera_path_as_render_renders_it() {
 }
 
 #[test]
+fn a_movie_of_a_played_series_prepares_each_step_it_shows() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tessera_tests::write_ball_series(dir.path(), 16);
+    let record = dir.path().join("played.jsonl");
+    let wall = [
+        "--wall",
+        "1x1",
+        "--screen",
+        "48x32",
+        "--scene",
+        s(&scene),
+        "--iso",
+        "100",
+        "--eye",
+        "40,7.5,7.5",
+        "--target",
+        "7.5,7.5,7.5",
+    ];
+    let mut args = vec!["local"];
+    args.extend(wall);
+    args.extend([
+        "--render-nodes",
+        "1",
+        "--no-console",
+        "--frames",
+        "8",
+        "--play",
+    ]);
+    args.extend(["--record", s(&record)]);
+    run("tessera-master", &args, LIMIT).assert_success("local --play --record");
+    let movie = dir.path().join("movie");
+    let mut args = vec!["render"];
+    args.extend(wall);
+    args.extend([
+        "--replay",
+        s(&record),
+        "--frames",
+        "0..8",
+        "--out",
+        s(&movie),
+    ]);
+    run("tessera-master", &args, LIMIT).assert_success("a movie of the played session");
+    for k in 0..8 {
+        assert_shows_replayed_frame(&wall, &record, k, &frame(&movie, k), dir.path());
+    }
+    // The wall steps through the series as its readers keep up: the recording says which
+    // step each frame showed. Frames of one step are the same image, of two steps not.
+    let steps = recorded_steps(&record, 8);
+    assert!(
+        steps.iter().any(|&step| step != steps[0]),
+        "the series played: {steps:?}"
+    );
+    for a in 0..8 {
+        for b in a + 1..8 {
+            let same = differing(&frame(&movie, a as u64), &frame(&movie, b as u64)) == 0;
+            assert_eq!(
+                same,
+                steps[a] == steps[b],
+                "frames {a} and {b} of steps {steps:?}"
+            );
+        }
+    }
+}
+
+/// The series step each of the first `frames` frames of a recorded session shows.
+fn recorded_steps(record: &Path, frames: u64) -> Vec<u64> {
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(record)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    (0..frames)
+        .map(|k| {
+            let line = lines
+                .iter()
+                .rev()
+                .find(|l| l["frame"].as_u64().unwrap() <= k);
+            line.expect("a state for every frame")["wall"]["params"]["volume"]["time_step"]
+                .as_u64()
+                .expect("a time step")
+        })
+        .collect()
+}
+
+#[test]
 fn mp4_holds_the_frames_of_the_range_and_no_stale_ones() {
     let test = "mp4_holds_the_frames_of_the_range_and_no_stale_ones";
     let Some(tools) = require_tools(test, &["ffmpeg", "ffprobe"], "apt-get install ffmpeg") else {
