@@ -90,6 +90,10 @@ fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
     bad.assert_refused("--ao 5000", &["5000", "1024"]);
     let bad = wall.control(&["camera", "--eye", "0,0,0", "--target", "0,0,0"]);
     bad.assert_refused("eye on target", &["eye and target"]);
+    wall.control(&["camera"])
+        .assert_refused("an empty camera command", &["--eye", "nothing to change"]);
+    wall.control(&["volume", "--iso", "300"])
+        .assert_refused("an iso-value on a mesh wall", &["no volume"]);
 
     // The next frame to start comes after the barrier that applies all of the above.
     let snap = wall.control(&["snapshot"]);

@@ -131,6 +131,33 @@ fn missing_data_is_drawn_by_default_and_refused_under_nan_refuse() {
 }
 
 #[test]
+fn flags_the_scene_has_nothing_for_are_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let volume = write_ramp_volume(dir.path());
+    let series = write_ball_series(dir.path(), 8);
+    let (volume, series) = (volume.to_str().unwrap(), series.to_str().unwrap());
+    for (flags, says) in [
+        (vec!["--iso", "300"], vec!["--iso", "no", "volume"]),
+        (vec!["--transfer", "ct-bone"], vec!["--transfer", "volume"]),
+        (vec!["--time-step", "2"], vec!["--time-step", "volume"]),
+        (vec!["--colormap", "magma"], vec!["--colormap", "particles"]),
+        (
+            vec!["--scene", volume, "--time-step", "1000"],
+            vec!["--time-step 1000", "not a series"],
+        ),
+        (
+            vec!["--scene", series, "--time-step", "1000"],
+            vec!["--time-step 1000", "3 steps"],
+        ),
+    ] {
+        render_with(&flags).assert_refused(&format!("render {flags:?}"), &says);
+    }
+    let mut local = vec!["local", "--wall", "1x1", "--frames", "1", "--no-console"];
+    local.extend(["--iso", "300"]);
+    run("tessera-master", &local, QUICK).assert_refused("local --iso on builtin", &["--iso"]);
+}
+
+#[test]
 fn walls_whose_display_count_overflows_are_refused() {
     // 65536 × 65536 screens is 2^32 displays: the count wrapped to 0 in a u32.
     render_with(&["--wall", "65536x65536", "--screen", "1x1"])
