@@ -26,7 +26,7 @@ use tessera_model::cut::{CutError, CutPlanes};
 use tessera_model::local_origin::RenderFromWorld;
 use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
 use tessera_model::scene_spec::{SceneSpec, SceneSpecError};
-use tessera_model::stereo::{Stereo, StereoMode};
+use tessera_model::stereo::{Stereo, StereoMode, DEFAULT_EYE_SEPARATION};
 use tessera_model::volume_params::VolumeParams;
 use tessera_model::wall::{parse_size, WallError, WallLayout, WallSpec, DEFAULT_TILE_SIZE};
 use tessera_model::window::WallFile;
@@ -76,18 +76,28 @@ pub struct WallArgs {
     /// Pixels hidden between neighbouring screens (mullion).
     #[arg(long, default_value_t = 0, conflicts_with = "wall_file")]
     pub bezel: u32,
-    /// Tile edge in pixels; tiles are the unit of load balancing.
-    #[arg(long, default_value_t = DEFAULT_TILE_SIZE, conflicts_with = "wall_file")]
-    pub tile: u32,
+    /// Tile edge in pixels; tiles are the unit of load balancing (`--tile` is the old name).
+    #[arg(
+        long,
+        alias = "tile",
+        default_value_t = DEFAULT_TILE_SIZE,
+        conflicts_with = "wall_file"
+    )]
+    pub tile_size: u32,
     /// Stereo: `side-by-side` (each display's left half the left eye, right half the right),
     /// `top-bottom`, or `displays` (two displays a screen: 2k the left eye of screen k, 2k+1
     /// the right, for passive stereo with two projectors a screen). A wall file says it in its
     /// `[stereo]` table.
     #[arg(long, value_enum, default_value_t = StereoArg::Mono, conflicts_with = "wall_file")]
     pub stereo: StereoArg,
-    /// With --stereo: the distance between the eyes in scene units (default 0.065); the eyes'
-    /// views meet at the camera's target.
-    #[arg(long, default_value_t = 0.0, requires = "stereo", value_parser = parse_separation)]
+    /// With --stereo: the distance between the eyes in scene units; the eyes' views meet at
+    /// the camera's target.
+    #[arg(
+        long,
+        default_value_t = DEFAULT_EYE_SEPARATION,
+        requires = "stereo",
+        value_parser = parse_separation
+    )]
     pub eye_separation: f64,
     /// A TOML wall file: a grid (columns, rows, screen_width, screen_height, bezel, tile_size)
     /// or physical screens (a `[viewer]` and `[[screen]]` tables; see deploy/walls/).
@@ -109,10 +119,14 @@ pub enum StereoArg {
     Displays,
 }
 
+/// Refuses 0: a stereo model's 0 means "the default", which the flag already gives, so a 0
+/// typed here would quietly become 0.065.
 fn parse_separation(text: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
-        Ok(d) if d.is_finite() && d >= 0.0 => Ok(d),
-        _ => Err(format!("`{text}` is not a distance of 0 or more")),
+        Ok(d) if d.is_finite() && d > 0.0 => Ok(d),
+        _ => Err(format!(
+            "`{text}` is not a distance more than 0 (scene units; {DEFAULT_EYE_SEPARATION} without the flag)"
+        )),
     }
 }
 
@@ -143,9 +157,9 @@ impl WallArgs {
         };
         let layout = WallSpec::grid(columns, rows, w, h)
             .bezel(self.bezel)
-            .tile_size(self.tile)
+            .tile_size(self.tile_size)
             .build_stereo(stereo)
-            .map_err(wall("--wall/--screen/--bezel/--tile"))?;
+            .map_err(wall("--wall/--screen/--bezel/--tile-size"))?;
         Ok(WallFile {
             layout,
             windows: Default::default(),
@@ -524,6 +538,57 @@ mod tests {
             .camera_for_frame(0);
         assert_eq!(camera.eye(), Vec3::new(0.3, 0.0, 2.7));
         assert_eq!(camera.target(), Vec3::ZERO);
+    }
+
+    #[derive(clap::Parser)]
+    struct WallCli {
+        #[command(flatten)]
+        wall: WallArgs,
+    }
+
+    fn wall_cli(args: &[&str]) -> Result<WallCli, clap::Error> {
+        use clap::Parser;
+        WallCli::try_parse_from(std::iter::once("t").chain(args.iter().copied()))
+    }
+
+    #[test]
+    fn eye_separation_help_default_and_wall_agree() {
+        use clap::CommandFactory;
+        // The help said "default 0.065" beside clap's "[default: 0]", and an explicit 0 became
+        // 0.065 in the renderer.
+        let help = WallCli::command().render_long_help().to_string();
+        let flag = help
+            .split("--eye-separation")
+            .nth(1)
+            .expect("the flag is in the help");
+        let shown = flag
+            .split("[default: ")
+            .nth(1)
+            .and_then(|d| d.split(']').next());
+        assert_eq!(
+            shown,
+            Some(DEFAULT_EYE_SEPARATION.to_string().as_str()),
+            "{help}"
+        );
+        let stereo = |args: &[&str]| wall_cli(args).unwrap().wall.layout().unwrap().stereo();
+        let given = stereo(&["--stereo", "side-by-side"]);
+        assert_eq!(given.eye_separation, DEFAULT_EYE_SEPARATION);
+        let given = stereo(&["--stereo", "top-bottom", "--eye-separation", "0.1"]);
+        assert_eq!(given.eye_separation, 0.1);
+        let err = wall_cli(&["--stereo", "displays", "--eye-separation", "0"]);
+        let err = err.err().expect("0 is refused").to_string();
+        assert!(err.contains("more than 0"), "{err}");
+    }
+
+    #[test]
+    fn tile_size_is_the_flag_and_tile_its_old_name() {
+        use clap::CommandFactory;
+        let size = |args: &[&str]| wall_cli(args).unwrap().wall.layout().unwrap().tile_size();
+        assert_eq!(size(&["--tile-size", "32"]), 32);
+        assert_eq!(size(&["--tile", "16"]), 16);
+        assert_eq!(size(&[]), DEFAULT_TILE_SIZE);
+        let help = WallCli::command().render_help().to_string();
+        assert!(help.contains("--tile-size <TILE_SIZE>"), "{help}");
     }
 
     #[test]

@@ -126,4 +126,44 @@ mod tests {
         ));
         assert!(transfer_function("ct-bone").is_ok());
     }
+
+    /// Every refusal as the master prints it, `--transfer: ` and the error's causes: the
+    /// invalid points' reason used to be a `source` too, and came out twice.
+    #[test]
+    fn a_refused_transfer_function_says_its_reason_once() {
+        let dir = std::env::temp_dir().join(format!("tessera-tf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let point = "[[point]]\nvalue = 0.0\ncolor = [1.0, 0.0, 0.0]\nopacity = 0.0\n";
+        let files = [
+            (
+                "points.toml",
+                format!("{point}{}", point.replace("0.0\n", "2.0\n")),
+            ),
+            ("syntax.toml", "point = [".to_string()),
+            ("shape.toml", "point = 3\n".to_string()),
+        ];
+        let mut args = vec![
+            "nosuch".to_string(),
+            dir.join("absent.toml").display().to_string(),
+        ];
+        for (name, text) in &files {
+            std::fs::write(dir.join(name), text).unwrap();
+            args.push(dir.join(name).display().to_string());
+        }
+        for arg in &args {
+            let err = crate::ArgError::from(transfer_function(arg).unwrap_err());
+            let mut chain = vec![err.to_string()];
+            let mut cause = std::error::Error::source(&err);
+            while let Some(c) = cause {
+                chain.push(c.to_string());
+                cause = c.source();
+            }
+            for pair in chain.windows(2) {
+                assert!(!pair[0].contains(&pair[1]), "{arg}: said twice: {chain:?}");
+            }
+            let last = chain.last().unwrap();
+            assert!(last.contains(arg.as_str()), "{arg}: {chain:?}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

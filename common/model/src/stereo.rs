@@ -33,6 +33,12 @@ impl StereoMode {
     }
 }
 
+/// Eye separation of a grid wall's stereo when none is given (`eye_separation = 0`, or no
+/// `--eye-separation`), in scene units.
+pub const DEFAULT_EYE_SEPARATION: f64 = 0.065;
+/// Eye separation of a wall of physical screens when none is given, in millimetres.
+pub const DEFAULT_EYE_SEPARATION_MM: f64 = 64.0;
+
 /// Stereo: its mode and how far apart the eyes are.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -43,7 +49,7 @@ pub struct Stereo {
     pub mode: StereoMode,
     /// Distance between the eyes: in scene units for a grid wall, in millimetres for a wall
     /// of physical screens (whose viewer says how millimetres map to the scene). 0: the
-    /// default (0.065 scene units; 64 mm).
+    /// default ([`DEFAULT_EYE_SEPARATION`] scene units; [`DEFAULT_EYE_SEPARATION_MM`]).
     #[serde(default)]
     pub eye_separation: f64,
 }

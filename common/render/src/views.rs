@@ -10,10 +10,8 @@ use tessera_model::screens::{ScreenGeometry, Viewer};
 use tessera_model::stereo::{ViewSource, Viewport};
 use tessera_model::wall::WallLayout;
 
-/// Eye separation of a grid wall's stereo when none is given, in scene units.
-pub const DEFAULT_EYE_SEPARATION: f64 = 0.065;
-/// Eye separation of a wall of screens when none is given, in millimetres.
-pub const DEFAULT_EYE_SEPARATION_MM: f64 = 64.0;
+// One place for the defaults: `--eye-separation`'s help shows the same constant.
+pub use tessera_model::stereo::{DEFAULT_EYE_SEPARATION, DEFAULT_EYE_SEPARATION_MM};
 
 /// The camera's basis, in f64: where every viewport is placed from.
 struct CameraBasis {
