@@ -74,8 +74,9 @@ enum Command {
     Serve(args::ServeArgs),
     /// Render one frame of the wall in this process, no network: the reference image.
     Render(args::RenderArgs),
-    /// Run a measurement experiment on a local wall: max-fps, latency, scaling or
-    /// error-vs-time; writes report.json, a CSV and an SVG plot into --out DIR.
+    /// Run a measurement experiment on a local wall: max-fps, latency, scaling,
+    /// error-vs-time, soak, dsm or stiff; writes report.json, a CSV and an SVG plot into --out
+    /// DIR.
     Bench(bench::BenchArgs),
     /// Prepare a scene for distributed shared memory (`--data dsm`): its BVH and triangles in
     /// checksummed blocks, reused while the scene is the same.

@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use tessera_core::balance::BalanceConfig;
 use tessera_core::sim::{near_square_wall, NodeSpeeds, PixelCheck, SimConfig, SimReport, SimWall};
-use tessera_model::wall::{parse_size, WallLayout};
+use tessera_model::wall::{parse_size, WallLayout, DEFAULT_TILE_SIZE};
 use tessera_protocol::{FrameId, RenderNodeId};
 
 #[derive(clap::Args, Debug)]
@@ -40,8 +40,8 @@ pub struct SimulateArgs {
     /// Pixels of one screen.
     #[arg(long, default_value = "1920x1080", value_parser = parse_screen)]
     screen: (u32, u32),
-    /// Edge length of a tile in pixels.
-    #[arg(long, default_value_t = 64)]
+    /// Edge length of a tile in pixels (`--tile` as on `local`).
+    #[arg(long, alias = "tile", default_value_t = DEFAULT_TILE_SIZE)]
     tile_size: u32,
     /// Microseconds the fastest render node takes for a full tile.
     #[arg(long, default_value_t = 100)]
@@ -58,8 +58,8 @@ pub struct SimulateArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// A wall file (a grid, or physical screens such as deploy/walls/reality-deck.toml) in
-    /// place of --displays and --screen.
-    #[arg(long, conflicts_with_all = ["displays", "screen"])]
+    /// place of --displays, --screen and --tile-size.
+    #[arg(long, conflicts_with_all = ["displays", "screen", "tile_size"])]
     wall_file: Option<PathBuf>,
 }
 
@@ -410,7 +410,7 @@ fn write_report(
         screen_height,
         columns: wall.columns(),
         rows: wall.rows(),
-        tile_size: args.tile_size,
+        tile_size: wall.tile_size(),
         tile_us: args.tile_us,
         speed_spread: args.speed_spread,
         kills: args
@@ -457,5 +457,21 @@ mod tests {
         assert!(parse_loss("1").unwrap_err().contains("[0, 1)"));
         assert!(parse_loss("-0.1").is_err());
         assert!(parse_loss("NaN").is_err());
+    }
+
+    #[test]
+    fn the_tile_flag_is_named_as_on_local_and_a_wall_file_sets_the_tile() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            sim: SimulateArgs,
+        }
+        let parse = |args: &[&str]| Cli::try_parse_from(std::iter::once("t").chain(args.to_vec()));
+        assert_eq!(parse(&[]).unwrap().sim.tile_size, DEFAULT_TILE_SIZE);
+        assert_eq!(parse(&["--tile-size", "32"]).unwrap().sim.tile_size, 32);
+        assert_eq!(parse(&["--tile", "16"]).unwrap().sim.tile_size, 16);
+        // It used to be ignored beside a wall file, which sets the tiles itself.
+        assert!(parse(&["--wall-file", "w.toml", "--tile-size", "32"]).is_err());
     }
 }
