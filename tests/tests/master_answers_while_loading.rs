@@ -31,8 +31,11 @@ const SCENE: &str = "knot:4096:1024";
 /// What the master logs once every node is ready.
 const STARTED: &str = "all nodes ready, starting frames";
 
-/// Asks `state` of the master on `link` and returns how long the answer took.
-async fn time_state(link: &mut MasterLink, id: u32) -> Duration {
+/// Asks `state` of the master on `link` and returns how long the answer took; `None` if the
+/// run ended first. (The wall's three tiny frames can start and finish between a look at the
+/// master's log, read through a pipe that a busy machine delays, and the question: then the
+/// master says goodbye instead, which is no slow answer.)
+async fn time_state(link: &mut MasterLink, id: u32) -> Option<Duration> {
     let asked = Instant::now();
     let request = ControlRequest::State;
     let msg = FromNode::Control {
@@ -45,9 +48,10 @@ async fn time_state(link: &mut MasterLink, id: u32) -> Duration {
         match link.recv().await.expect("the master answers") {
             ToNode::ControlReply { id: got, reply } if got == id => {
                 assert!(matches!(reply, ControlReply::State { .. }), "{reply:?}");
-                return asked.elapsed();
+                return Some(asked.elapsed());
             }
             ToNode::ControlReply { .. } => {}
+            ToNode::Shutdown => return None,
             other => panic!("a control client got a {} message", other.kind()),
         }
     }
@@ -171,7 +175,9 @@ fn query_while_loading(master: &Proc, connect: &[String]) -> Vec<Query> {
             let (me, them) = (std::process::id(), master.pid());
             let before = [Taken::read(me), Taken::read(them)];
             let at = t0.elapsed();
-            let took = time_state(&mut link, times.len() as u32).await;
+            let Some(took) = time_state(&mut link, times.len() as u32).await else {
+                break;
+            };
             let after = [Taken::read(me), Taken::read(them)];
             let held = after[0]
                 .held_since(&before[0])
