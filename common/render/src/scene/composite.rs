@@ -7,7 +7,8 @@
 //! particles = "tracers.csv"
 //! ```
 //!
-//! A time series takes the place of `volume`: `series = ["t0.nrrd", "t1.nrrd"]`, or a pattern
+//! `particles` may be a point cloud too (a PLY of vertices alone, a CSV of positions alone). A
+//! time series takes the place of `volume`: `series = ["t0.nrrd", "t1.nrrd"]`, or a pattern
 //! with one `*` in the file name, `series = "flow/t*.nrrd"`, its matches in name order.
 //!
 //! Every part keeps its world coordinates; the render frame is centred on all of them together
@@ -108,6 +109,12 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     }
     let mut mesh = Mesh::default();
     for part in &file.meshes {
+        if super::points::is_point_cloud(&dir.join(part)) {
+            return Err(bad(format!(
+                "mesh {} has vertices and no faces: a point cloud, name it as `particles`",
+                part.display()
+            )));
+        }
         append(
             &mut mesh,
             super::load_mesh_file(&dir.join(part))?,
@@ -122,7 +129,8 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
         .or(series.first().cloned());
     let volume: Option<Volume> = first.as_deref().map(volume::load).transpose()?;
     let world_particles = match &file.particles {
-        Some(p) => particles::load_particles(&dir.join(p))?,
+        // Particles, or a point cloud (a PLY of vertices alone, a CSV of positions).
+        Some(p) => super::points::load(&dir.join(p))?,
         None => Vec::new(),
     };
     let mut extent: Vec<DVec3> = mesh.positions.clone();
@@ -141,6 +149,7 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     } else {
         from_mesh_in(mesh, path, frame)
     };
+    scene.up = volume.as_ref().and_then(Volume::up);
     scene.volume = volume;
     scene.series = series;
     scene.particles = particles;
@@ -258,5 +267,23 @@ mod tests {
         );
         std::fs::write(&path, "").unwrap();
         assert!(load_scene_file(&path).is_err());
+    }
+
+    #[test]
+    fn a_point_cloud_in_a_scene_file_is_particles_and_refused_as_a_mesh() {
+        let dir = tempfile::tempdir().unwrap();
+        let cloud = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n\
+                     property float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n";
+        std::fs::write(dir.path().join("cloud.ply"), cloud).unwrap();
+        let path = dir.path().join("s.scene.toml");
+        std::fs::write(&path, "particles = \"cloud.ply\"\n").unwrap();
+        let scene = load_scene_file(&path).unwrap();
+        assert_eq!(scene.particles.len(), 3);
+        std::fs::write(&path, "meshes = [\"cloud.ply\"]\n").unwrap();
+        let err = load_scene_file(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("point cloud") && err.contains("particles"),
+            "{err}"
+        );
     }
 }
