@@ -199,6 +199,13 @@ impl ScreenSpec {
         let (bl, br, tl) = self.corners(index)?;
         let geometry = self.turned(index, bl, br, tl)?;
         if dot(sub(viewer, geometry.centre()), geometry.normal()) <= 0.0 {
+            // A screen placed by x_mm faces +z: only the viewer can be on the wrong side.
+            if self.is_flat() {
+                return Err(WallError::File {
+                    path: "[viewer]".into(),
+                    message: format!("position_mm is behind screen {index}, which is on the plane z = 0 facing +z: the viewer needs a z of more than 0"),
+                });
+            }
             return Err(screen_error(
                 index,
                 "bottom_left_mm",
@@ -212,54 +219,67 @@ impl ScreenSpec {
         })
     }
 
+    /// Whether the screen is placed on the plane z = 0 by `x_mm`, `y_mm`, `width_mm` and
+    /// `height_mm` rather than by its corners.
+    fn is_flat(&self) -> bool {
+        [self.x_mm, self.y_mm, self.width_mm, self.height_mm]
+            .iter()
+            .any(Option::is_some)
+    }
+
+    /// The field that places the screen, as the file gave it: where it is wrong, that is the
+    /// field to name.
+    fn place_field(&self) -> &'static str {
+        if self.is_flat() {
+            "x_mm"
+        } else {
+            "bottom_left_mm"
+        }
+    }
+
     /// The bottom-left, bottom-right and top-left corners of screen `index`, from whichever
-    /// of the two sets of fields it gives, checked to make a rectangle.
+    /// of the two sets of fields it gives, checked to make a rectangle; an error names the
+    /// fields the file used.
     fn corners(&self, index: usize) -> Result<(V, V, V), WallError> {
         let flat = [self.x_mm, self.y_mm, self.width_mm, self.height_mm];
         let corners = [self.bottom_left_mm, self.bottom_right_mm, self.top_left_mm];
-        let (bl, br, tl) = match (
+        let (points, names) = match (
             flat.iter().all(Option::is_some),
-            flat.iter().any(Option::is_some),
+            self.is_flat(),
             corners.iter().all(Option::is_some),
-            corners.iter().any(Option::is_some),
         ) {
-            (true, _, false, false) => {
-                let [x, y, width, height] = flat.map(|v| v.unwrap_or_default());
-                for (field, v) in [("width_mm", width), ("height_mm", height)] {
-                    if !(v > 0.0 && v.is_finite()) {
-                        return Err(screen_error(index, field, format!("is {v}: a screen needs a size")));
-                    }
-                }
-                ([x, y, 0.0], [x + width, y, 0.0], [x, y + height, 0.0])
+            (true, _, false) if corners.iter().all(Option::is_none) => {
+                (self.flat_corners(index)?, ["x_mm", "width_mm", "height_mm"])
             }
-            (false, false, true, _) => (
-                self.bottom_left_mm.unwrap_or_default(),
-                self.bottom_right_mm.unwrap_or_default(),
-                self.top_left_mm.unwrap_or_default(),
+            (false, false, true) => (
+                corners.map(|c| c.unwrap_or_default()),
+                ["bottom_left_mm", "bottom_right_mm", "top_left_mm"],
             ),
             _ => {
                 return Err(screen_error(
                     index,
-                    "x_mm",
+                    self.place_field(),
                     "give x_mm, y_mm, width_mm and height_mm, or bottom_left_mm, bottom_right_mm and top_left_mm, one set whole",
                 ))
             }
         };
-        if [bl, br, tl].iter().flatten().any(|v| !v.is_finite()) {
+        if let Some(i) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
             return Err(screen_error(
                 index,
-                "bottom_left_mm",
+                names[i],
                 "holds a value that is not finite",
             ));
         }
+        let [bl, br, tl] = points;
         let (right, up) = (sub(br, bl), sub(tl, bl));
-        for (field, edge) in [("bottom_right_mm", right), ("top_left_mm", up)] {
+        for (field, edge) in [(names[1], right), (names[2], up)] {
             if length(edge) < 1e-6 {
-                return Err(screen_error(
-                    index,
-                    field,
-                    "is on bottom_left_mm: a screen needs a size",
-                ));
+                let why = if self.is_flat() {
+                    "is too small to tell apart at that x_mm and y_mm: a screen needs a size"
+                } else {
+                    "is on bottom_left_mm: a screen needs a size"
+                };
+                return Err(screen_error(index, field, why));
             }
         }
         if dot(right, up).abs() > 1e-3 * length(right) * length(up) {
@@ -270,6 +290,32 @@ impl ScreenSpec {
             ));
         }
         Ok((bl, br, tl))
+    }
+
+    /// The corners of a screen given by `x_mm`, `y_mm`, `width_mm` and `height_mm`, each
+    /// number checked on its own.
+    fn flat_corners(&self, index: usize) -> Result<[V; 3], WallError> {
+        let [x, y, width, height] =
+            [self.x_mm, self.y_mm, self.width_mm, self.height_mm].map(|v| v.unwrap_or_default());
+        for (field, v) in [("x_mm", x), ("y_mm", y)] {
+            if !v.is_finite() {
+                return Err(screen_error(
+                    index,
+                    field,
+                    format!("is {v}: not a finite number of millimetres"),
+                ));
+            }
+        }
+        for (field, v) in [("width_mm", width), ("height_mm", height)] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(screen_error(
+                    index,
+                    field,
+                    format!("is {v}: a screen needs a size"),
+                ));
+            }
+        }
+        Ok([[x, y, 0.0], [x + width, y, 0.0], [x, y + height, 0.0]])
     }
 
     /// Where the framebuffer's first row starts, and which way its rows and columns run, as
@@ -395,11 +441,16 @@ impl PhysicalSpec {
             .map(|(i, s)| s.resolve(i, viewer))
             .collect::<Result<Vec<_>, _>>()?;
         if let Some((a, b)) = overlapping(&screens) {
-            return Err(screen_error(
-                b,
-                "bottom_left_mm",
-                format!("overlaps screen {a}"),
-            ));
+            return Err(match self.screens.get(b) {
+                Some(listed) => {
+                    screen_error(b, listed.place_field(), format!("overlaps screen {a}"))
+                }
+                // The ring's screens are placed by the ring, not by fields of their own.
+                None => WallError::File {
+                    path: "[ring]".into(),
+                    message: format!("its screen {b} overlaps screen {a}"),
+                },
+            });
         }
         Ok(screens)
     }
@@ -545,6 +596,52 @@ mod tests {
         assert!(spec(vec![ok, flat(500.0, 0.0, 500.0, 300.0, [640, 360])])
             .resolve()
             .is_ok());
+    }
+
+    #[test]
+    fn an_error_names_the_fields_the_screen_was_given_by() {
+        // A bad x_mm, an overlap and a viewer behind the wall were all blamed on
+        // bottom_left_mm, a field the file did not use.
+        let ok = flat(0.0, 0.0, 500.0, 300.0, [640, 360]);
+        let cases = [
+            (
+                flat(f64::NAN, 0.0, 500.0, 300.0, [640, 360]),
+                "`x_mm` is NaN",
+            ),
+            (
+                flat(0.0, f64::INFINITY, 500.0, 300.0, [640, 360]),
+                "`y_mm` is inf",
+            ),
+            (
+                flat(1e308, 0.0, 500.0, 300.0, [640, 360]),
+                "`width_mm` is too small",
+            ),
+            (
+                flat(400.0, 0.0, 500.0, 300.0, [640, 360]),
+                "`x_mm` overlaps screen 0",
+            ),
+        ];
+        for (bad, said) in cases {
+            let err = spec(vec![ok, bad]).resolve().unwrap_err().to_string();
+            assert!(err.contains(&format!("screen 1: {said}")), "{err}");
+            assert!(!err.contains("bottom_left_mm"), "{err}");
+        }
+        let mut behind = spec(vec![ok]);
+        behind.viewer.position_mm[2] = -100.0;
+        let err = behind.resolve().unwrap_err().to_string();
+        assert!(
+            err.contains("[viewer]") && err.contains("position_mm is behind screen 0"),
+            "{err}"
+        );
+        let angled = ScreenSpec {
+            resolution: [640, 360],
+            bottom_left_mm: Some([0.0; 3]),
+            bottom_right_mm: Some([500.0, 0.0, 0.0]),
+            top_left_mm: Some([0.0, f64::NAN, 0.0]),
+            ..ScreenSpec::default()
+        };
+        let err = spec(vec![angled]).resolve().unwrap_err().to_string();
+        assert!(err.contains("`top_left_mm` holds a value"), "{err}");
     }
 
     #[test]

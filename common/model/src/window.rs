@@ -162,7 +162,11 @@ impl WallFile {
             let spec: WallSpec = table.try_into().map_err(toml_error)?;
             spec.build_stereo(stereo)
         }
-        .map_err(|e| file_error(e.to_string()))?;
+        .map_err(|e| match e {
+            // A section's error ([viewer], [ring]) is part of this file's, not a second file.
+            WallError::File { path, message } => file_error(format!("{path}: {message}")),
+            e => file_error(e.to_string()),
+        })?;
         let entries: Vec<WindowEntry> = match windows {
             None => Vec::new(),
             Some(value) => value.try_into().map_err(|e: toml::de::Error| {
@@ -303,5 +307,14 @@ mod tests {
                 .to_string();
             assert!(err.contains(why) && err.contains("desk.toml"), "{err}");
         }
+    }
+
+    #[test]
+    fn a_bad_section_is_named_within_its_file_once() {
+        // Said "wall file w.toml: wall file [viewer]: ...", as if [viewer] were a second file.
+        let text = "[viewer]\nposition_mm = [0.0, 0.0, nan]\n[[screen]]\nresolution = [64, 64]\nx_mm = 0.0\ny_mm = 0.0\nwidth_mm = 100.0\nheight_mm = 100.0\n";
+        let err = WallFile::from_toml(text, "w.toml").unwrap_err().to_string();
+        assert!(err.starts_with("wall file w.toml: [viewer]: "), "{err}");
+        assert_eq!(err.matches("wall file").count(), 1, "{err}");
     }
 }
