@@ -229,6 +229,7 @@ fn nifti_is_placed_by_its_sform_else_its_qform_and_rescaled() {
     let v = load(&plain).unwrap();
     assert_eq!(v.dims(), [3, 2, 2]);
     assert_eq!(v.spacing(), [0.5, 0.25, 2.0]);
+    assert_eq!(v.up(), None, "no sform or qform: no anatomy known");
     assert_eq!(v.at([1, 0, 0]), 10.0 * 2.0 - 1024.0);
     // A qform turning x into y (90° about z: b = c = 0, d = sin 45°) with an offset; gzip.
     let q = std::f32::consts::FRAC_1_SQRT_2;
@@ -242,6 +243,11 @@ fn nifti_is_placed_by_its_sform_else_its_qform_and_rescaled() {
     let gz = dir.path().join("q.nii.gz");
     std::fs::write(&gz, gzip(&qform)).unwrap();
     let v = load(&gz).unwrap();
+    assert_eq!(
+        v.up(),
+        Some(glam::Vec3::Z),
+        "RAS+: superior is up, not the table"
+    );
     let p = v.world_of_index([1.0, 0.0, 0.0]);
     assert!(
         (p[0] - 10.0).abs() < 1e-6 && (p[1] - 20.5).abs() < 1e-6,
@@ -321,4 +327,40 @@ fn f64_values_beyond_f32_are_scaled_by_a_power_of_two_and_others_kept() {
             );
         }
     }
+}
+
+#[test]
+fn volumes_in_patient_axes_and_sidecars_that_say_so_stand_upright() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = i16_bytes(&expected(), true);
+    for (space, up) in [
+        ("space: left-posterior-superior\n", Some(glam::Vec3::Z)),
+        ("space: RAS\n", Some(glam::Vec3::Z)),
+        ("", None),
+    ] {
+        let header = format!(
+            "NRRD0004\ntype: short\ndimension: 3\n{space}sizes: 3 2 2\nspacings: 1 1 1\n\
+             encoding: raw\nendian: little\n\n"
+        );
+        let path = dir.path().join("v.nrrd");
+        std::fs::write(&path, nrrd(&header, &data)).unwrap();
+        assert_eq!(load(&path).unwrap().up(), up, "{space:?}");
+    }
+    std::fs::write(dir.path().join("v.raw"), &data).unwrap();
+    let sidecar = dir.path().join("v.vol.toml");
+    let text = "data = \"v.raw\"\ndims = [3, 2, 2]\ntype = \"i16\"\n";
+    std::fs::write(&sidecar, format!("{text}up = [0.0, 0.0, 1.0]\n")).unwrap();
+    assert_eq!(load(&sidecar).unwrap().up(), Some(glam::Vec3::Z));
+    std::fs::write(&sidecar, format!("{text}up = [0.0, 0.0, 0.0]\n")).unwrap();
+    let err = load(&sidecar).unwrap_err().to_string();
+    assert!(
+        err.contains("up") && err.contains("not a direction"),
+        "{err}"
+    );
+    // The orbit of such a scene turns about +z.
+    std::fs::write(&sidecar, format!("{text}up = [0.0, 0.0, 1.0]\n")).unwrap();
+    let scene =
+        crate::scene::Scene::load(&tessera_model::scene_spec::SceneSpec::File(sidecar)).unwrap();
+    let camera = scene.orbit(45.0).unwrap().camera_for_frame(0);
+    assert_eq!(camera.up(), glam::Vec3::Z);
 }
