@@ -166,8 +166,15 @@ fn walls_whose_display_count_overflows_are_refused() {
 
 #[test]
 fn walls_whose_tile_count_overflows_are_refused() {
-    render_with(&["--wall", "1x1", "--screen", "65536x65536", "--tile", "1"])
-        .assert_refused("2^32 one-pixel tiles", &["4294967296", "tiles"]);
+    render_with(&[
+        "--wall",
+        "1x1",
+        "--screen",
+        "65536x65536",
+        "--tile-size",
+        "1",
+    ])
+    .assert_refused("2^32 one-pixel tiles", &["4294967296", "tiles"]);
 }
 
 #[test]
@@ -445,5 +452,40 @@ fn a_bulk_transfer_of_infinite_or_nan_seconds_is_refused() {
             QUICK,
         );
         o.assert_refused("--transport-seconds", &[seconds, "seconds"]);
+    }
+}
+
+#[test]
+fn a_refused_transfer_function_says_its_reason_once() {
+    // Points that make no transfer function were refused with their reason twice, once as
+    // the message and again as its source.
+    let dir = tempfile::tempdir().unwrap();
+    let volume = write_ramp_volume(dir.path());
+    let point = |value: f32, opacity: f32| {
+        format!("[[point]]\nvalue = {value:?}\ncolor = [1.0, 1.0, 1.0]\nopacity = {opacity:?}\n")
+    };
+    let files = [
+        (
+            "points.toml",
+            point(0.0, 0.0) + &point(1.0, 2.0),
+            "opacity 2 is outside 0..1",
+        ),
+        (
+            "shape.toml",
+            "point = 3\n".to_string(),
+            "expected a sequence",
+        ),
+    ];
+    let mut cases = vec![("nosuch".to_string(), "is neither a preset")];
+    for (name, text, reason) in files {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        cases.push((path.to_str().unwrap().to_string(), reason));
+    }
+    for (arg, reason) in &cases {
+        let o = render_with(&["--scene", volume.to_str().unwrap(), "--transfer", arg]);
+        o.assert_refused(&format!("--transfer {arg}"), &["--transfer", reason]);
+        let said = o.stderr.matches(reason).count();
+        assert_eq!(said, 1, "{arg}: the reason {said} times:\n{}", o.stderr);
     }
 }
