@@ -14,6 +14,7 @@
 
 #![warn(missing_docs)]
 
+mod legend;
 mod node;
 pub mod overlay;
 mod pixels_in;

@@ -183,7 +183,8 @@ async fn session(
         pixel_addr
     );
     let mut driver = Driver {
-        session: DisplaySession::new(grid, screen, session.save_frame()),
+        session: DisplaySession::new(grid, screen, session.save_frame())
+            .with_particle_range(session.particle_range()),
         me,
         window,
         out: cli.out.clone(),

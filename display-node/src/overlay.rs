@@ -2,14 +2,16 @@
 //! pixels stay exact):
 //!
 //! - the overlay, on request (`O`, wall-wide): over every tile a tint in the colour of the
-//!   render node that drew it with the milliseconds the tile took, and the status line;
+//!   render node that drew it with the milliseconds the tile took, the status line, and
+//!   where the scene has particles the legend of their colour map (`legend.rs`);
 //! - the key help (`?` or F1, this window only): every key and drag the windows take, and the
 //!   status line;
 //! - the status line: the frame's state id, the display's frame rate and frame time, and the
 //!   quality knobs the frame was rendered with.
 //!
 //! It needs no scene data: who sent each tile and how long it took travel in the pixel stream's
-//! header, the state and quality in the frame's start. Text is the public-domain 8x8 font of
+//! header, the state, quality and colour map in the frame's start, the particles' range in
+//! the session. Text is the public-domain 8x8 font of
 //! the `font8x8` crate, doubled on screens wide enough to read it from a step back.
 
 // What to draw is the display session's (it times the presents and knows who rendered each
@@ -89,6 +91,9 @@ pub fn draw(rgb: &mut [u8], width: u32, height: u32, overlay: &Overlay) {
             &format!("{:.1}", t.ms),
         );
     }
+    if let (Some(range), Some(s)) = (overlay.particles, &overlay.status) {
+        crate::legend::draw_legend(rgb, (width, height), s.colormap, range, s.crop);
+    }
     let label = status_line(overlay.status.as_ref(), overlay.fps, overlay.frame_ms);
     bottom_line(rgb, width, height, &label);
 }
@@ -106,12 +111,13 @@ pub fn draw_help(rgb: &mut [u8], width: u32, height: u32, status: Option<&FrameS
 }
 
 /// Glyph cell side, in pixels before scaling.
-const LINE: u32 = 9;
+pub(crate) const LINE: u32 = 9;
 
 /// Text is doubled on screens wider than this, to be read from a step back.
 const DOUBLE_ABOVE: u32 = 1200;
 
-fn scale_for(width: u32) -> u32 {
+/// Pixels per glyph pixel on a screen `width` pixels across.
+pub(crate) fn scale_for(width: u32) -> u32 {
     if width > DOUBLE_ABOVE {
         2
     } else {
@@ -124,9 +130,14 @@ fn bottom_line(rgb: &mut [u8], width: u32, height: u32, s: &str) {
     text(rgb, width, height, 4, y, s);
 }
 
+/// How wide [`text`] draws `s` on a screen `width` pixels across, its box included.
+pub(crate) fn text_width(s: &str, width: u32) -> u32 {
+    (s.chars().count() as u32 * 8 + 2) * scale_for(width)
+}
+
 /// Writes `s` (ASCII; anything else is a blank) in white on a black box with its top-left
 /// corner at `(x, y)`, clipped, each glyph pixel `scale_for(width)` pixels square.
-fn text(rgb: &mut [u8], width: u32, height: u32, x: u32, y: u32, s: &str) {
+pub(crate) fn text(rgb: &mut [u8], width: u32, height: u32, x: u32, y: u32, s: &str) {
     let scale = scale_for(width);
     let glyphs: Vec<[u8; 8]> = s
         .chars()
@@ -138,7 +149,7 @@ fn text(rgb: &mut [u8], width: u32, height: u32, x: u32, y: u32, s: &str) {
                 .unwrap_or([0; 8])
         })
         .collect();
-    let (w, h) = ((glyphs.len() as u32 * 8 + 2) * scale, LINE * scale);
+    let (w, h) = (text_width(s, width), LINE * scale);
     for py in y..(y + h).min(height) {
         for px in x..(x + w).min(width) {
             let (col, row) = ((px - x) / scale, (py - y) / scale);
@@ -175,6 +186,7 @@ mod tests {
                 ms: 2.5,
             }],
             status: None,
+            particles: Some([0.0, 1.0]),
         };
         draw(&mut rgb, w, h, &overlay);
         let at = |x: u32, y: u32| &rgb[((y * w + x) * 3) as usize..((y * w + x) * 3 + 3) as usize];
@@ -215,5 +227,40 @@ mod tests {
         assert!(lit > 500, "{lit} lit pixels");
         let right_edge = ((100 * w + w - 1) * 3) as usize;
         assert_eq!(rgb[right_edge], 100, "the frame shows beside the help");
+    }
+
+    #[test]
+    fn the_overlay_draws_the_particles_legend_only_where_the_scene_has_particles() {
+        let (w, h) = (240u32, 120u32);
+        let params = tessera_model::params::RenderParamsSpec {
+            colormap: tessera_model::colormap::ColorMap::Coolwarm,
+            ..tessera_model::params::RenderParamsSpec::INTERACTIVE
+        }
+        .build()
+        .unwrap();
+        let status = FrameStatus::of(tessera_model::state::StateId(3), &params);
+        let drawn = |particles| {
+            let mut rgb = vec![100u8; (w * h * 3) as usize];
+            let overlay = Overlay {
+                status: Some(status),
+                particles,
+                ..Overlay::default()
+            };
+            draw(&mut rgb, w, h, &overlay);
+            rgb
+        };
+        let bar = crate::legend::bar(w);
+        let i = (((bar.y + 2) * w + bar.x) * 3) as usize;
+        let blue = drawn(Some([1.0, 2.0]));
+        assert!(
+            blue[i + 2] > blue[i],
+            "coolwarm starts blue: {:?}",
+            &blue[i..i + 3]
+        );
+        assert_eq!(
+            &drawn(None)[i..i + 3],
+            &[100, 100, 100],
+            "no particles, no legend"
+        );
     }
 }

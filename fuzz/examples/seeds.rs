@@ -182,6 +182,7 @@ fn codec(root: &Path) {
                     memory_budget: Some(512 << 20),
                     cache_fraction: Some(0.125),
                 }),
+                particle_range: Some([-1.5, 2.0]),
             })
             .unwrap(),
         },

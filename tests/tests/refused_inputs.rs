@@ -336,6 +336,7 @@ fn render_node_told(lie: &[u8]) -> Output {
                 compression: Default::default(),
                 windows: Default::default(),
                 data: tessera_protocol::dsm::DataSpec::Replicated,
+                particle_range: None,
             })
             .unwrap();
             let welcome = ToNode::Welcome {

@@ -1,7 +1,8 @@
 //! A local wall's windows under Xvfb: the grid's windows open side by side from
 //! `--window-origin`, not on top of each other; F1 shows the key help in the window it was
 //! pressed in only, and again hides it; Z in a window fits the scene to the view as the
-//! control's `fit` does.
+//! control's `fit` does; O over particles shows their colour map's legend, in the colours
+//! the render nodes give them.
 //!
 //! Needs Xvfb, xwininfo, xdotool and ImageMagick's `import` (`deploy/xvfb-screenshot.sh
 //! install`, which `.ci/run` calls); skipped, saying why, where they are missing outside CI.
@@ -9,6 +10,8 @@
 use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
+use tessera_model::colormap::ColorMap;
+use tessera_render::encode_srgb_ish;
 use tessera_tests::xvfb::{screenshot_script, xwininfo_field, Xvfb};
 use tessera_tests::*;
 
@@ -175,6 +178,98 @@ fn f1_shows_the_key_help_in_its_window_only_and_z_fits_the_wall() {
         by_control == fitted
     });
     assert!(same, "Z gave {fitted}, control fit {by_control}");
+    master.signal(libc::SIGINT);
+    let o = master.wait(LIMIT);
+    assert_eq!(o.status.code(), Some(130), "{}", o.stderr);
+}
+
+#[test]
+fn the_overlay_shows_the_particles_colour_map_legend_and_follows_the_map() {
+    let test = "the_overlay_shows_the_particles_colour_map_legend_and_follows_the_map";
+    let Some(xvfb) = Xvfb::start(test, "400x200", &["xwininfo", "xdotool", "import"]) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let mut csv = String::from("x,y,z,radius,attribute\n");
+    for i in 0..20 {
+        let t = i as f32 / 19.0;
+        csv.push_str(&format!(
+            "{},0,0,0.15,{}\n",
+            (t - 0.5) * 4.0,
+            t * 10.0 - 2.0
+        ));
+    }
+    let scene = dir.path().join("dots.csv");
+    std::fs::write(&scene, csv).unwrap();
+    let master = Proc::start_with_env(
+        "tessera-master",
+        &[
+            "local",
+            "--wall",
+            "1x1",
+            "--screen",
+            "240x136",
+            "--window",
+            "--frames",
+            "0",
+            "--refine",
+            "off",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--eye",
+            "0,0,6",
+            "--target",
+            "0,0,0",
+        ],
+        &[("DISPLAY", xvfb.display.as_str())],
+    );
+    let connect = control_args(&master, LIMIT);
+    let running = wait_for(LIMIT, || {
+        let o = control(&connect, &["state"], LIMIT);
+        o.status.success() && o.stdout.contains("\"frame\"")
+    });
+    assert!(running, "the wall never answered its state");
+    let id = xdotool_window(&xvfb, "Tessera display 0");
+    xvfb.client("xdotool", &["windowfocus", "--sync", &id]);
+    xvfb.client("xdotool", &["key", "o"]);
+    // On a 240-pixel screen the legend's bar is 128x8 pixels, 4 from the right edge, under
+    // its title's line (display-node/src/legend.rs); the ends are labelled under it.
+    let (bar_x, bar_y, bar_w) = (108u32, 14u32, 128u32);
+    let shot = dir.path().join("legend.png");
+    let shows = |map: ColorMap, last: &mut String| {
+        let ends = [map.eval(0.0), map.eval(1.0)]
+            .map(|c| encode_srgb_ish(glam::Vec3::from_array(c)).to_vec());
+        wait_for(Duration::from_secs(20), || {
+            let Some((w, _, rgb)) = grab(&xvfb, "Tessera display 0", &shot) else {
+                return false;
+            };
+            let at = |x: u32, y: u32| {
+                let i = ((y * w + x) * 3) as usize;
+                rgb[i..i + 3].to_vec()
+            };
+            let y = bar_y + 4;
+            let labels = (bar_y + 9..bar_y + 18)
+                .flat_map(|y| (bar_x..bar_x + 24).map(move |x| (x, y)))
+                .filter(|&(x, y)| at(x, y) == [255, 255, 255])
+                .count();
+            *last = format!(
+                "bar ends {:?} {:?}, want {ends:?}; {labels} white label pixels",
+                at(bar_x, y),
+                at(bar_x + bar_w - 1, y)
+            );
+            [at(bar_x, y), at(bar_x + bar_w - 1, y)] == ends && labels > 5
+        })
+    };
+    let mut last = String::new();
+    if !shows(ColorMap::Viridis, &mut last) {
+        master.fail(&format!("O showed no viridis legend: {last}"));
+    }
+    control(&connect, &["colormap", "magma"], LIMIT).assert_success("colormap magma");
+    if !shows(ColorMap::Magma, &mut last) {
+        master.fail(&format!(
+            "the legend did not follow the map to magma: {last}"
+        ));
+    }
     master.signal(libc::SIGINT);
     let o = master.wait(LIMIT);
     assert_eq!(o.status.code(), Some(130), "{}", o.stderr);

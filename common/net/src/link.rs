@@ -344,6 +344,7 @@ mod tests {
                 compression: Compression::None,
                 windows: Default::default(),
                 data: DataSpec::Replicated,
+                particle_range: None,
             })
             .unwrap();
             let welcome = ToNode::Welcome {

@@ -191,6 +191,7 @@ mod tests {
                         memory_budget: Some(512 << 20),
                         cache_fraction: None,
                     }),
+                    particle_range: Some([-1.5, 2.0]),
                 })
                 .unwrap(),
             },

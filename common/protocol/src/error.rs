@@ -44,6 +44,14 @@ pub enum ProtocolError {
     /// A session's shared scene has a spread [`dsm::DsmSpec::check`] refuses.
     #[error("session shares the scene with {0}")]
     BadShared(dsm::DsmSpecError),
+    /// A session's particle attribute range is not finite, or ends below where it starts.
+    #[error("session's particle range {lo}..{hi} is not a finite range from low to high")]
+    BadParticleRange {
+        /// Its low end.
+        lo: f32,
+        /// Its high end.
+        hi: f32,
+    },
 }
 
 // By hand, not `#[from]`, which would make the spread's error a source as well and an error

@@ -177,13 +177,16 @@ pub struct SessionSpec {
     pub windows: BTreeMap<u32, WindowPlacement>,
     /// How render nodes hold the scene: each all of it, or a share of its blocks.
     pub data: dsm::DataSpec,
+    /// The particles' attribute range `[lo, hi]` the colour map spans, where the scene has
+    /// particles: the legend a display's overlay draws.
+    pub particle_range: Option<[f32; 2]>,
 }
 
 impl Session {
     /// The session `spec` describes, checked.
     ///
     /// # Errors
-    /// A display the wall does not have, or one listed twice.
+    /// A display the wall does not have, or one listed twice; a bad particle range.
     pub fn new(spec: SessionSpec) -> Result<Self, ProtocolError> {
         let count = spec.wall.display_count();
         let mut seen = std::collections::BTreeSet::new();
@@ -203,6 +206,11 @@ impl Session {
         }
         if let dsm::DataSpec::Dsm(shared) = &spec.data {
             shared.check()?;
+        }
+        if let Some([lo, hi]) = spec.particle_range {
+            if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                return Err(ProtocolError::BadParticleRange { lo, hi });
+            }
         }
         Ok(Session(spec))
     }
@@ -246,6 +254,11 @@ impl Session {
     /// How render nodes hold the scene.
     pub fn data(&self) -> &dsm::DataSpec {
         &self.0.data
+    }
+
+    /// The particles' attribute range `[lo, hi]` (finite, in order), if the scene has particles.
+    pub fn particle_range(&self) -> Option<[f32; 2]> {
+        self.0.particle_range
     }
 }
 

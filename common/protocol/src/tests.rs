@@ -46,6 +46,7 @@ fn a_session_naming_displays_the_wall_lacks_is_refused() {
         compression: pixels::Compression::None,
         windows: BTreeMap::new(),
         data: dsm::DataSpec::Replicated,
+        particle_range: None,
     };
     assert!(Session::new(spec(vec![endpoint(0), endpoint(1)])).is_ok());
     assert_eq!(
@@ -61,6 +62,35 @@ fn a_session_naming_displays_the_wall_lacks_is_refused() {
     );
     let err = decode_err::<Session>(&spec(vec![endpoint(5)]));
     assert!(err.contains("display 5"), "{err}");
+}
+
+#[test]
+fn a_session_whose_particle_range_is_not_finite_or_backward_is_refused() {
+    let spec = |range| SessionSpec {
+        wall: WallLayout::grid(1, 1, 64, 64).unwrap(),
+        scene: SceneSpec::Gallery,
+        scene_hash: [0; 32],
+        displays: Vec::new(),
+        save_frame: None,
+        compression: pixels::Compression::None,
+        windows: BTreeMap::new(),
+        data: dsm::DataSpec::Replicated,
+        particle_range: Some(range),
+    };
+    let session = Session::new(spec([-2.0, 2.0])).unwrap();
+    assert_eq!(session.particle_range(), Some([-2.0, 2.0]));
+    assert!(Session::new(spec([3.0, 3.0])).is_ok(), "one value");
+    for bad in [[2.0, 1.0], [f32::NAN, 1.0], [0.0, f32::INFINITY]] {
+        assert!(
+            matches!(
+                Session::new(spec(bad)),
+                Err(ProtocolError::BadParticleRange { .. })
+            ),
+            "{bad:?}"
+        );
+    }
+    let err = decode_err::<Session>(&spec([5.0, -5.0]));
+    assert!(err.contains("particle range 5..-5"), "{err}");
 }
 
 #[test]

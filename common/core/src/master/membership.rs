@@ -364,6 +364,12 @@ impl Master {
             compression: self.cfg.compression,
             windows: self.cfg.windows.clone(),
             data: self.cfg.data.clone(),
+            // Particles whose attributes are all missing have no range: no legend then.
+            particle_range: self
+                .cfg
+                .operator
+                .particle_range
+                .filter(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo <= hi),
         })
         .expect("displays are checked against the wall, and for duplicates, when they join")
     }

@@ -11,6 +11,7 @@ use crate::assemble::{AssembleError, FrameAssembler, PresentedFrame};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
+use tessera_model::colormap::ColorMap;
 use tessera_model::params::RenderParams;
 use tessera_model::state::StateId;
 use tessera_model::wall::{ScreenRect, TileGrid, TileId};
@@ -47,9 +48,13 @@ pub struct Overlay {
     pub tiles: Vec<TileInfo>,
     /// The state and quality the frame was rendered with: the status line.
     pub status: Option<FrameStatus>,
+    /// The particles' attribute range `[lo, hi]` the colour map spans, where the scene has
+    /// particles: the legend's ends.
+    pub particles: Option<[f32; 2]>,
 }
 
-/// What a frame shows, as its status line says: the state's id and the quality knobs.
+/// What a frame shows, as its status line and legend say: the state's id, the quality knobs,
+/// and how particles are coloured.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameStatus {
     /// The wall state the frame renders.
@@ -60,6 +65,10 @@ pub struct FrameStatus {
     pub ao_samples: u32,
     /// Whether shadow rays are traced.
     pub shadows: bool,
+    /// The colour map of particles' attributes.
+    pub colormap: ColorMap,
+    /// The attribute range `(lo, hi)` of the particles drawn, if cropped.
+    pub crop: Option<(f32, f32)>,
 }
 
 impl FrameStatus {
@@ -70,6 +79,8 @@ impl FrameStatus {
             spp: params.spp(),
             ao_samples: params.ao_samples(),
             shadows: params.shadows(),
+            colormap: params.colormap(),
+            crop: params.crop(),
         }
     }
 }
@@ -203,6 +214,8 @@ pub struct DisplaySession {
     present_times: VecDeque<Instant>,
     /// The latest frames' states and quality, for the status line.
     starts: VecDeque<(FrameId, FrameStatus)>,
+    /// The particles' attribute range, where the scene has particles: the overlay's legend.
+    particle_range: Option<[f32; 2]>,
     transmit: VecDeque<FromNode>,
     events: VecDeque<DisplayEvent>,
 }
@@ -224,9 +237,17 @@ impl DisplaySession {
             last_shown: None,
             present_times: VecDeque::new(),
             starts: VecDeque::new(),
+            particle_range: None,
             transmit: VecDeque::new(),
             events: VecDeque::new(),
         }
+    }
+
+    /// The session, its scene's particles' attribute range being `range` (as the master's
+    /// session says): the overlay then carries it, for the colour map's legend.
+    pub fn with_particle_range(mut self, range: Option<[f32; 2]>) -> Self {
+        self.particle_range = range;
+        self
     }
 
     /// Frames presented so far.
@@ -446,6 +467,7 @@ impl DisplaySession {
             frame_ms,
             tiles,
             status,
+            particles: self.particle_range,
         }
     }
 }

@@ -277,3 +277,57 @@ fn pings_are_answered_and_the_shutdown_reports_the_sessions_figures() {
         (32 * 16, 1, 1)
     );
 }
+
+#[test]
+fn the_overlay_carries_the_frames_colour_map_and_crop_and_the_particle_range() {
+    let wall = WallSpec::grid(2, 1, 32, 16).tile_size(16).build().unwrap();
+    let screen = wall.screen(DisplayId(1)).unwrap();
+    let grid = Arc::new(TileGrid::new(wall));
+    let tiles = [grid.tiles()[2].id, grid.tiles()[3].id];
+    let mut s = DisplaySession::new(grid, screen, None).with_particle_range(Some([-3.0, 7.5]));
+    let params = tessera_model::params::RenderParamsSpec {
+        colormap: tessera_model::colormap::ColorMap::Magma,
+        crop: Some((0.0, 2.0)),
+        ..tessera_model::params::RenderParamsSpec::INTERACTIVE
+    }
+    .build()
+    .unwrap();
+    let camera = Camera::new(Vec3::Z, Vec3::ZERO, Vec3::Y, 45.0).unwrap();
+    s.handle_message(ToNode::FrameStart(FrameStart::new(
+        FrameId(0),
+        STATE,
+        camera,
+        params,
+    )))
+    .unwrap();
+    for t in tiles {
+        s.handle_tile(FrameId(0), STATE, t, &[0; 16 * 16 * 3], source(5, 1500))
+            .unwrap();
+    }
+    s.handle_message(ToNode::Overlay { on: true }).unwrap();
+    s.handle_message(ToNode::Present { frame: FrameId(0) })
+        .unwrap();
+    assert!(matches!(s.poll_event(), Some(DisplayEvent::Redraw)));
+    let order = present_order(&mut s);
+    let overlay = s.handle_shown(&order, at_ms(0)).expect("the overlay is on");
+    let status = overlay.status.expect("the frame's start is known");
+    assert_eq!(status.colormap, tessera_model::colormap::ColorMap::Magma);
+    assert_eq!(status.crop, Some((0.0, 2.0)));
+    assert_eq!(overlay.particles, Some([-3.0, 7.5]));
+    assert_eq!(s.status_of(FrameId(0)), Some(status));
+    // A scene without particles has no legend.
+    let (mut plain, tiles) = display(None);
+    assemble(&mut plain, tiles, 0);
+    plain.handle_message(ToNode::Overlay { on: true }).unwrap();
+    plain
+        .handle_message(ToNode::Present { frame: FrameId(0) })
+        .unwrap();
+    let _ = plain.poll_event();
+    let order = present_order(&mut plain);
+    let overlay = plain.handle_shown(&order, at_ms(0)).unwrap();
+    assert_eq!(overlay.particles, None);
+    assert_eq!(
+        overlay.status.unwrap().colormap,
+        tessera_model::colormap::ColorMap::Viridis
+    );
+}
