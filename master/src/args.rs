@@ -345,6 +345,27 @@ pub fn load_scene(args: &SceneArgs) -> Result<Scene> {
     Ok(scene)
 }
 
+/// `--play` needs a series, `--out` a folder it can create, `--save-frame` a frame the run has.
+fn check_run_outputs(run: &RunArgs, scene: &Scene) -> Result<()> {
+    if run.play && scene.series.is_empty() {
+        bail!("--play needs a scene with a time series (`series` in a .scene.toml)");
+    }
+    if let Some(dir) = &run.out {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create --out {}", dir.display()))?;
+    }
+    if let Some(k) = run.save_frame {
+        if run.frames != 0 && k >= run.frames {
+            bail!(
+                "--save-frame {k} is not one of the {} frames (0..{})",
+                run.frames,
+                run.frames
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Refuses quality flags the loaded scene has nothing for, naming the flag and why: volume
 /// flags without a volume, a time step outside the series, particle flags without particles.
 /// Silently ignoring them would leave a person wondering why `--iso 300` shows nothing.
@@ -423,22 +444,7 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
     let scene = load_scene(&run.scene)?;
     let params = run.quality.params(&scene.render_from_world)?;
     refuse_what_does_not_apply(&run.quality, &scene, &run.scene.scene)?;
-    if run.play && scene.series.is_empty() {
-        bail!("--play needs a scene with a time series (`series` in a .scene.toml)");
-    }
-    if let Some(dir) = &run.out {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create --out {}", dir.display()))?;
-    }
-    if let Some(k) = run.save_frame {
-        if run.frames != 0 && k >= run.frames {
-            bail!(
-                "--save-frame {k} is not one of the {} frames (0..{})",
-                run.frames,
-                run.frames
-            );
-        }
-    }
+    check_run_outputs(run, &scene)?;
     // A camera path (.toml) becomes a session in the scene's frame, with the run's quality.
     let replay = run
         .replay

@@ -24,17 +24,7 @@ impl Master {
                 }
             }
             Output::ToDisplays(ToNode::Present { frame }) => self.present(frame, now),
-            Output::ToDisplays(msg) => {
-                if let ToNode::FrameStart(start) = msg {
-                    self.live.last_start = Some(start);
-                    let started = Box::new((start, self.frame_state));
-                    self.events.push_back(MasterEvent::FrameStarted(started));
-                }
-                let peers: Vec<PeerId> = self.displays.values().copied().collect();
-                for peer in peers {
-                    self.send(peer, msg.clone());
-                }
-            }
+            Output::ToDisplays(msg) => self.send_to_displays(msg),
             Output::FrameStarted(frame) => {
                 self.record.frame_started.insert(frame, now.instant);
                 self.record.timing.frame_started(frame, now.unix_ns);
@@ -96,6 +86,19 @@ impl Master {
             | Output::DisplaySuspected { .. }
             | Output::RenderBack { .. }
             | Output::DisplayBack { .. } => self.suspicion(&out),
+        }
+    }
+
+    /// A message for every display; a frame start is also the frame shown next.
+    fn send_to_displays(&mut self, msg: ToNode) {
+        if let ToNode::FrameStart(start) = msg {
+            self.live.last_start = Some(start);
+            let started = Box::new((start, self.frame_state));
+            self.events.push_back(MasterEvent::FrameStarted(started));
+        }
+        let peers: Vec<PeerId> = self.displays.values().copied().collect();
+        for peer in peers {
+            self.send(peer, msg.clone());
         }
     }
 

@@ -330,8 +330,22 @@ impl Master {
                 v.iter().sum::<f64>() / v.len() as f64
             }
         };
-        let render_nodes = self
-            .peers
+        LiveFigures {
+            frames_presented: self.record.presents.len() as u64,
+            fps: recent.len() as f64,
+            frame_ms_last: gaps.first().copied().unwrap_or(0.0),
+            frame_ms_mean: mean(&gaps),
+            changes_applied: self.record.changes_applied,
+            idle,
+            rendering_s: self.rendering_time(now).as_secs_f64(),
+            render_nodes: self.render_node_figures(),
+            displays: self.display_figures(),
+        }
+    }
+
+    /// Each render node's figures as its last progress report gave them.
+    fn render_node_figures(&self) -> Vec<NodeFigures> {
+        self.peers
             .values()
             .filter_map(|p| match p.role {
                 PeerRole::Render { node, cores } => {
@@ -350,9 +364,12 @@ impl Master {
                 }
                 _ => None,
             })
-            .collect();
-        let displays = self
-            .displays
+            .collect()
+    }
+
+    /// Each display's frames presented so far.
+    fn display_figures(&self) -> Vec<DisplayFigures> {
+        self.displays
             .iter()
             .map(|(d, peer)| DisplayFigures {
                 id: d.0,
@@ -362,17 +379,6 @@ impl Master {
                     .map_or_else(String::new, |p| p.host.clone()),
                 frames_presented: self.live.presented.get(d).copied().unwrap_or(0),
             })
-            .collect();
-        LiveFigures {
-            frames_presented: self.record.presents.len() as u64,
-            fps: recent.len() as f64,
-            frame_ms_last: gaps.first().copied().unwrap_or(0.0),
-            frame_ms_mean: mean(&gaps),
-            changes_applied: self.record.changes_applied,
-            idle,
-            rendering_s: self.rendering_time(now).as_secs_f64(),
-            render_nodes,
-            displays,
-        }
+            .collect()
     }
 }

@@ -33,26 +33,7 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
     let base = path.parent().unwrap_or(Path::new("."));
     let buffers = load_buffers(&document, base, blob).map_err(err)?;
 
-    let mut mesh = Mesh::default();
-    if document.materials().len() >= u16::MAX as usize {
-        return Err(err(format!(
-            "has {} materials; at most 65534 are supported",
-            document.materials().len()
-        )));
-    }
-    let mut textures = TextureFiles::new(path);
-    mesh.materials = document
-        .materials()
-        .map(|m| gltf_material(&m, &buffers, &mut textures))
-        .collect();
-    mesh.colors.textures = textures.textures;
-    mesh.material_names = document
-        .materials()
-        .map(|m| m.name().unwrap_or("unnamed").to_string())
-        .collect();
-    // glTF's default material (primitives without one) goes last.
-    mesh.materials.push(super::NEUTRAL);
-    mesh.material_names.push("glTF default".into());
+    let mut mesh = materials_of(&document, &buffers, path)?;
     let mut decoded: HashMap<usize, Mesh> = HashMap::new();
     for (node, world) in instances(&document).map_err(err)? {
         let Some(source) = node.mesh() else { continue };
@@ -104,6 +85,38 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, SceneError> {
             });
         }
     }
+    Ok(mesh)
+}
+
+/// A mesh with no triangles yet and the file's materials, its textures read, glTF's default
+/// material (for primitives without one) last.
+fn materials_of(
+    document: &gltf::Document,
+    buffers: &[Vec<u8>],
+    path: &Path,
+) -> Result<Mesh, SceneError> {
+    let mut mesh = Mesh::default();
+    if document.materials().len() >= u16::MAX as usize {
+        return Err(file_error(
+            path,
+            format!(
+                "has {} materials; at most 65534 are supported",
+                document.materials().len()
+            ),
+        ));
+    }
+    let mut textures = TextureFiles::new(path);
+    mesh.materials = document
+        .materials()
+        .map(|m| gltf_material(&m, buffers, &mut textures))
+        .collect();
+    mesh.colors.textures = textures.textures;
+    mesh.material_names = document
+        .materials()
+        .map(|m| m.name().unwrap_or("unnamed").to_string())
+        .collect();
+    mesh.materials.push(super::NEUTRAL);
+    mesh.material_names.push("glTF default".into());
     Ok(mesh)
 }
 

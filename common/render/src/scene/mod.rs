@@ -13,6 +13,7 @@ pub mod composite;
 mod files;
 pub mod footprint;
 pub mod gltf;
+mod obj_lines;
 pub mod particles;
 pub mod points;
 mod procedural;
