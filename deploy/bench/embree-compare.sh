@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # A Tessera render node next to Embree 3 (Debian 12's embree-tools) at its best: primary rays
 # against both `viewer` (single rays) and `viewer_stream` (8x8 ray streams), each at every ISA
-# the CPU has (avx2, avx512), the faster taken; ambient-occlusion rays against `viewer --shader
+# the CPU has (avx2, avx512), the faster taken; the like-for-like frame (Tessera's eye-light
+# shading, the frame Embree's viewers draw) against the same, with Tessera's full frame (lights,
+# shadows) beside it; ambient-occlusion rays against `viewer --shader
 # ao`; BVH build rate against Embree's Mprim/s; bytes per triangle; 1 and N threads.
 #
 #   deploy/bench/embree-compare.sh [--size 1920x1080] [--threads N] [--mesh FILE|knot:S:T]...
@@ -169,7 +171,7 @@ fi
 
 # --- 4. Per mesh -------------------------------------------------------------------------------
 RESULTS=$OUT/results.tsv
-printf 'mesh\ttriangles\tsize\tthreads\tviewer\tviewer_stream\tembree_best\tembree_mode\ttessera_primary\tratio\ttessera_shaded\tshaded_ratio\n' >"$RESULTS"
+printf 'mesh\ttriangles\tsize\tthreads\tviewer\tviewer_stream\tembree_best\tembree_mode\ttessera_primary\tratio\ttessera_shaded\tshaded_ratio\ttessera_eyelight\teyelight_ratio\ttessera_full\tfull_ratio\n' >"$RESULTS"
 AO_TSV=$OUT/ao.tsv
 printf 'mesh\tthreads\thits\tembree_ao_fps\tembree_ao_mrayps\ttessera_ao_mrayps\tratio\n' >"$AO_TSV"
 BUILD_TSV=$OUT/build.tsv
@@ -280,25 +282,29 @@ for MESH in "${MESHES[@]}"; do
     TLOG=$(tessera_run "${THREADS}t" "$THREADS" --frames "$FRAMES" $([[ $SCALING -eq 1 ]] || echo --no-scaling))
     T_MAIN=$(figure TESSERA_PRIMARY_MRAYPS "$TLOG")
     T_SHADED=$(figure TESSERA_SHADED_MRAYPS "$TLOG")
+    T_EYE=$(figure TESSERA_EYELIGHT_MRAYPS "$TLOG")
+    T_FULL=$(figure TESSERA_FULL_MRAYPS "$TLOG")
     T_BUILD=$(figure TESSERA_BUILD_MTRIS_PER_S "$TLOG")
     T_BYTES=$(figure TESSERA_BYTES_PER_TRIANGLE "$TLOG")
     T_ARRAY=$(figure TESSERA_ARRAY_BYTES_PER_TRIANGLE "$TLOG")
     embree_primary "$THREADS" "${ISAS[@]}"
-    ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s' "$LABEL" "$TRIS" "$THREADS" \
-        "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_MAIN" \
-        "$(ratio "$T_MAIN" "$E_BEST")" "$T_SHADED" "$(ratio "$T_SHADED" "$E_BEST")")")
-    printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "$TRIS" "$SIZE" "$THREADS" \
-        "$E_VIEWER" "$E_STREAM" "$E_BEST" "$E_MODE" "$T_MAIN" "$(ratio "$T_MAIN" "$E_BEST")" \
-        "$T_SHADED" "$(ratio "$T_SHADED" "$E_BEST")" >>"$RESULTS"
+    ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s %9s %9s %9s %9s' "$LABEL" "$TRIS" \
+        "$THREADS" "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_MAIN" \
+        "$(ratio "$T_MAIN" "$E_BEST")" "$T_EYE" "$(ratio "$T_EYE" "$E_BEST")" \
+        "$T_SHADED" "$(ratio "$T_SHADED" "$E_BEST")" "$T_FULL" "$(ratio "$T_FULL" "$E_BEST")")")
+    printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$LABEL" "$TRIS" \
+        "$SIZE" "$THREADS" "$E_VIEWER" "$E_STREAM" "$E_BEST" "$E_MODE" "$T_MAIN" \
+        "$(ratio "$T_MAIN" "$E_BEST")" "$T_SHADED" "$(ratio "$T_SHADED" "$E_BEST")" \
+        "$T_EYE" "$(ratio "$T_EYE" "$E_BEST")" "$T_FULL" "$(ratio "$T_FULL" "$E_BEST")" >>"$RESULTS"
     BEST_ISA_N=$E_BEST_ISA
     if [[ $SCALING -eq 1 && $THREADS -gt 1 ]]; then
         T_1T=$(figure TESSERA_PRIMARY_MRAYPS_1T "$TLOG")
         E_N=$E_BEST
         embree_primary 1 "$BEST_ISA_N"
-        ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s' "$LABEL" "$TRIS" 1 \
-            "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_1T" \
-            "$(ratio "$T_1T" "$E_BEST")" - -)")
-        printf '%s\t%s\t%s\t1\t%s\t%s\t%s\t%s\t%s\t%s\t\t\n' "$LABEL" "$TRIS" "$SIZE" \
+        ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s %9s %9s %9s %9s' "$LABEL" \
+            "$TRIS" 1 "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_1T" \
+            "$(ratio "$T_1T" "$E_BEST")" - - - - - -)")
+        printf '%s\t%s\t%s\t1\t%s\t%s\t%s\t%s\t%s\t%s\t\t\t\t\t\t\n' "$LABEL" "$TRIS" "$SIZE" \
             "$E_VIEWER" "$E_STREAM" "$E_BEST" "$E_MODE" "$T_1T" "$(ratio "$T_1T" "$E_BEST")" >>"$RESULTS"
         ROWS+=("$(printf '%-22s %9s %7s   scaling %dt/1t: embree %s, tessera %s' "$LABEL" "" "" "$THREADS" \
             "$(ratio "$E_N" "$E_BEST")" "$(ratio "$T_MAIN" "$T_1T")")")
@@ -340,9 +346,12 @@ done
 echo
 echo "Primary rays, Mrays/s at $SIZE ($FRAMES timed frames; Embree: BENCHMARK_RENDER_MRAYPS_AVG of"
 echo "viewer and viewer_stream at each ISA, the faster named; Tessera: render-node bench, fastest"
-echo "frame; 'shaded' adds shading and the pixel store, as Embree's frames include):"
-printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s\n' mesh triangles threads "viewer/isa" \
-    "stream/isa" "faster" tessera ratio shaded ratio
+echo "frame). Whole frames, rays generated, traced, shaded and stored as RGB8: 'eyelight' is the"
+echo "like-for-like one (|N.D| times the base colour, the frame Embree's viewers draw, their ratio"
+echo "against the faster viewer), 'shaded' lights without shadows, 'full' lights and shadows (the"
+echo "wall's default, its shadow rays not counted in Mrays/s):"
+printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s %9s %9s %9s %9s\n' mesh triangles threads \
+    "viewer/isa" "stream/isa" "faster" primary ratio eyelight ratio shaded ratio full ratio
 printf '%s\n' "${ROWS[@]}"
 echo
 echo "BVH build, million triangles/s (Embree: its BVH8 SAH builder's Mprim/s; Tessera: obvhs build"

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use std::time::Instant;
 use tessera_cli::SceneArgs;
 use tessera_model::camera::Camera;
-use tessera_model::params::RenderParamsSpec;
+use tessera_model::params::{RenderParams, RenderParamsSpec, Shading};
 use tessera_model::wall::{parse_size, TileGrid, WallSpec};
 use tessera_render::bench::{time_passes, AoReach, Pass, PassTimes};
 use tessera_render::bvh::cache::{load_or_build_timed, Source};
@@ -81,14 +81,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let bench = Bench {
         prepared: &prepared,
         view: FrameView::new(0, &camera, params, width, height),
-        shaded_view: FrameView::new(0, &camera, eyelight_params()?, width, height),
+        frame_views: frame_params()?.map(|(name, params, what)| {
+            (
+                name,
+                FrameView::new(0, &camera, params, width, height),
+                what,
+            )
+        }),
         grid: TileGrid::new(wall),
         size: (width, height),
         ao: (args.ao, reach),
         frames: args.frames,
     };
     let frames = bench.measure(&pool);
-    frames.print_all(width as u64 * height as u64, args.ao);
+    frames.print_all(&bench.frame_views, width as u64 * height as u64, args.ao);
     if threads > 1 && !args.no_scaling {
         let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
         let single = bench.measure(&one);
@@ -174,8 +180,9 @@ struct Bench<'a> {
     prepared: &'a PreparedScene,
     /// The passes' view, with the ambient-occlusion rays asked for.
     view: FrameView,
-    /// The shaded pass's view: one primary ray a pixel, as Embree's viewer shades.
-    shaded_view: FrameView,
+    /// The whole frames timed (rays generated, traced, shaded and stored as RGB8 tiles): their
+    /// figure's name, view and what it is.
+    frame_views: [(&'static str, FrameView, &'static str); 3],
     grid: TileGrid,
     size: (u32, u32),
     ao: (u32, AoReach),
@@ -187,32 +194,59 @@ impl Bench<'_> {
     fn measure(&self, pool: &rayon::ThreadPool) -> Frames {
         let (width, height) = self.size;
         let passes = || time_passes(self.prepared, &self.view, width, height, self.ao);
-        let shaded = || render_tiles(self.prepared, &self.shaded_view, self.grid.tiles());
-        let mut frames = Frames::default();
+        let shaded = |view: &FrameView| render_tiles(self.prepared, view, self.grid.tiles());
+        let mut frames = Frames {
+            shaded: vec![Vec::new(); self.frame_views.len()],
+            ..Frames::default()
+        };
         pool.install(passes);
-        pool.install(shaded);
+        for (_, view, _) in &self.frame_views {
+            pool.install(|| shaded(view));
+        }
         for _ in 0..self.frames {
             frames.passes.push(pool.install(passes));
-            let t = Instant::now();
-            std::hint::black_box(pool.install(shaded));
-            frames.shaded.push(Pass {
-                rays: width as u64 * height as u64,
-                seconds: t.elapsed().as_secs_f64(),
-            });
+            for (k, (_, view, _)) in self.frame_views.iter().enumerate() {
+                let t = Instant::now();
+                std::hint::black_box(pool.install(|| shaded(view)));
+                frames.shaded[k].push(Pass {
+                    rays: width as u64 * height as u64,
+                    seconds: t.elapsed().as_secs_f64(),
+                });
+            }
         }
         frames
     }
 }
 
-/// Shading as Embree's viewer does it: one primary ray a pixel, shaded and stored, no shadow or
-/// ambient-occlusion rays.
-fn eyelight_params() -> Result<tessera_model::params::RenderParams> {
-    Ok(RenderParamsSpec {
-        shadows: false,
-        ao_samples: 0,
+/// The whole frames timed, one primary ray a pixel each: Embree's viewer's eye light (the
+/// like-for-like figure), the lights without shadows, and the wall's default (lights and
+/// shadows).
+fn frame_params() -> Result<[(&'static str, RenderParams, &'static str); 3]> {
+    let eye_light = RenderParamsSpec {
+        shading: Shading::EyeLight,
         ..RenderParamsSpec::INTERACTIVE
-    }
-    .build()?)
+    };
+    let unshadowed = RenderParamsSpec {
+        shadows: false,
+        ..RenderParamsSpec::INTERACTIVE
+    };
+    Ok([
+        (
+            "TESSERA_EYELIGHT_MRAYPS",
+            eye_light.build()?,
+            "the eye light, |N.D| times the base colour, as Embree's viewer and viewer_stream shade; written as RGB8 tiles",
+        ),
+        (
+            "TESSERA_SHADED_MRAYPS",
+            unshadowed.build()?,
+            "full frame, lights without shadows; written as RGB8 tiles",
+        ),
+        (
+            "TESSERA_FULL_MRAYPS",
+            RenderParamsSpec::INTERACTIVE.build()?,
+            "full frame, lights and shadows (the wall's default; shadow rays not counted); written as RGB8 tiles",
+        ),
+    ])
 }
 
 /// Resident memory of the prepared scene, and what its arrays take by count.
@@ -248,7 +282,8 @@ fn report_memory(prepared: &PreparedScene, triangles: usize, before: Option<u64>
 #[derive(Default)]
 struct Frames {
     passes: Vec<PassTimes>,
-    shaded: Vec<Pass>,
+    /// Per frame view of [`Bench::frame_views`], each timed frame.
+    shaded: Vec<Vec<Pass>>,
 }
 
 impl Frames {
@@ -277,13 +312,15 @@ impl Frames {
     }
 
     /// Prints every pass's figures; `pixels` primary rays a frame, `ao` rays per hit.
-    fn print_all(&self, pixels: u64, ao: u32) {
+    fn print_all(&self, views: &[(&str, FrameView, &str)], pixels: u64, ao: u32) {
         self.print(
             "TESSERA_PRIMARY_MRAYPS",
             |p| p.primary,
             "8x8 packets: ray generation, traversal and intersection, closest hit only, no shading",
         );
-        self.print_shaded();
+        for ((name, _, what), passes) in views.iter().zip(&self.shaded) {
+            Self::line(name, &Self::sorted(passes.iter().copied()), what);
+        }
         self.print(
             "TESSERA_SHADOW_MRAYPS",
             |p| p.shadow,
@@ -302,14 +339,6 @@ impl Frames {
         println!(
             "TESSERA_PRIMARY_HITS {} (of {pixels} primary rays; {ao} AO rays per hit)",
             self.passes[0].hits,
-        );
-    }
-
-    fn print_shaded(&self) {
-        Self::line(
-            "TESSERA_SHADED_MRAYPS",
-            &Self::sorted(self.shaded.iter().copied()),
-            "primary rays shaded (one light, no shadow rays) and written as RGB8 tiles, as Embree's viewer does",
         );
     }
 }

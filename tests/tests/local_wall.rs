@@ -192,6 +192,31 @@ fn lz4_wall_equals_reference_and_sends_fewer_bytes_than_pixels() {
 }
 
 #[test]
+fn eyelight_wall_equals_reference_and_differs_from_full_shading() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("wall");
+    run_local_wall(&out, &["--shading", "eyelight"]);
+    let reference = |name: &str, shading: &str| {
+        let path = dir.path().join(name);
+        let mut args = vec!["render"];
+        args.extend(WALL);
+        args.extend(["--frame", "3", "--shading", shading]);
+        args.extend(["--out", path.to_str().unwrap()]);
+        run("tessera-master", &args, Duration::from_secs(120)).assert_success("reference render");
+        load_rgb(&path.join("wall.png"))
+    };
+    let (w, h, wall) = load_rgb(&out.join("wall.png"));
+    let (rw, rh, expected) = reference("eyelight", "eyelight");
+    assert_eq!((w, h), (rw, rh));
+    assert!(
+        wall == expected,
+        "the eye-light wall differs from the reference"
+    );
+    let (_, _, full) = reference("full", "full");
+    assert!(full != expected, "--shading eyelight drew the full shading");
+}
+
+#[test]
 fn bad_inputs_fail_with_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
     let bad_obj = dir.path().join("broken.obj");

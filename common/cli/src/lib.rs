@@ -24,7 +24,7 @@ use std::path::PathBuf;
 use tessera_model::camera::{check_fov, Camera, CameraError, CameraMode, DEFAULT_FOV_DEG};
 use tessera_model::cut::{CutError, CutPlanes};
 use tessera_model::local_origin::RenderFromWorld;
-use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec, MAX_SPP};
+use tessera_model::params::{ParamsError, RenderParams, RenderParamsSpec, Shading, MAX_SPP};
 use tessera_model::scene_spec::{SceneSpec, SceneSpecError};
 use tessera_model::stereo::{Stereo, StereoMode, DEFAULT_EYE_SEPARATION};
 use tessera_model::volume_params::VolumeParams;
@@ -332,6 +332,15 @@ pub struct QualityArgs {
     /// this linear colour R,G,B (0 to 1 each) instead of transparent (particles: grey).
     #[arg(long, value_name = "R,G,B", value_parser = parse_color)]
     pub nan_color: Option<Vec3>,
+    /// How hits are lit: `full` (headlight, lights, shadows, the other knobs) or `eyelight`
+    /// (|N·D| times the base colour and nothing else, as Embree's viewer draws).
+    #[arg(long, default_value = "full", value_parser = parse_shading)]
+    pub shading: Shading,
+}
+
+/// Parses a shading mode's name (`full`, `eyelight`).
+pub fn parse_shading(text: &str) -> Result<Shading, String> {
+    text.parse()
 }
 
 /// Parses a colour map's name.
@@ -366,6 +375,7 @@ impl QualityArgs {
             ao_samples: self.ao,
             crop: self.crop,
             colormap: self.colormap,
+            shading: self.shading,
             cuts: CutPlanes::new(&cuts)?,
             spp: self.spp,
             volume: VolumeParams {

@@ -60,6 +60,48 @@ pub struct RenderParamsSpec {
     /// The colours of particles' attributes (ignored by scenes without particles).
     #[serde(default)]
     pub colormap: crate::colormap::ColorMap,
+    /// How hits are lit: the full model, or only the eye light (as Embree's viewer shades).
+    #[serde(default)]
+    pub shading: Shading,
+}
+
+/// How a hit is lit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Shading {
+    /// Headlight, the scene's lights with shadows, ambient occlusion, highlights, mirrors and
+    /// transparency, as the other knobs ask.
+    #[default]
+    Full,
+    /// Only a light at the eye: |N·D| times the surface's base colour, no other ray traced
+    /// (the frame Embree's `viewer` and `viewer_stream` draw, for like-for-like timing).
+    EyeLight,
+}
+
+impl Shading {
+    /// Every mode, by the name [`Shading::name`] gives.
+    pub const ALL: [Shading; 2] = [Shading::Full, Shading::EyeLight];
+
+    /// The mode's name on the command line: `full` or `eyelight`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Shading::Full => "full",
+            Shading::EyeLight => "eyelight",
+        }
+    }
+}
+
+impl std::str::FromStr for Shading {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Self, String> {
+        Shading::ALL
+            .into_iter()
+            .find(|s| s.name() == name)
+            .ok_or_else(|| {
+                let name: String = name.chars().take(40).collect();
+                format!("shading `{name}` is not one of full, eyelight")
+            })
+    }
 }
 
 /// Why render parameters were refused.
@@ -114,6 +156,7 @@ impl RenderParamsSpec {
         first_sample: 0,
         volume: VolumeParams::DEFAULT,
         colormap: crate::colormap::ColorMap::Viridis,
+        shading: Shading::Full,
     };
 
     /// Checks every knob.
@@ -250,6 +293,19 @@ impl RenderParams {
     pub const fn colormap(&self) -> crate::colormap::ColorMap {
         self.0.colormap
     }
+
+    /// How hits are lit.
+    #[inline]
+    pub const fn shading(&self) -> Shading {
+        self.0.shading
+    }
+
+    /// Whether hits are lit by the eye light alone: no shadow, ambient-occlusion, reflected or
+    /// transmitted ray is traced, whatever the other knobs say.
+    #[inline]
+    pub const fn eye_light(&self) -> bool {
+        matches!(self.0.shading, Shading::EyeLight)
+    }
 }
 
 impl Default for RenderParams {
@@ -313,6 +369,15 @@ mod tests {
         assert!(with(|s| s.ao_range = 0.0).is_err());
         assert!(with(|s| s.crop = Some((2.0, 1.0))).is_err());
         assert!(with(|s| s.crop = Some((f32::NEG_INFINITY, 1.0))).is_err());
+    }
+
+    #[test]
+    fn shading_names_round_trip_and_unknown_ones_are_named() {
+        for shading in Shading::ALL {
+            assert_eq!(shading.name().parse::<Shading>(), Ok(shading));
+        }
+        let err = "eye".parse::<Shading>().unwrap_err();
+        assert!(err.contains("`eye`"), "{err}");
     }
 
     #[test]

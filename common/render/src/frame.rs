@@ -5,12 +5,13 @@
 //! on whichever node renders it and the single-process reference equals the wall.
 
 use crate::cancel::Cancel;
+use crate::geometry::triangle_normal;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::SampleStream;
 use crate::shade::{self, background, encode_srgb_ish, Shader};
 use crate::shadow_packet;
-use crate::surface_hit::{nearest_surface, SurfaceHit};
+use crate::surface_hit::{nearest_surface, PrimaryHit, SurfaceHit};
 use crate::tracer::Tracer;
 use glam::Vec3;
 use tessera_model::wall::Tile;
@@ -55,7 +56,9 @@ pub fn render_tiles_footprints(
     render_tiles_with(scene, view, tiles, ShadowRays::Packets, cancel)
 }
 
-/// How primary hits trace their shadow rays; both give the same pixels.
+/// How primary hits trace their shadow rays; both give the same pixels. `Single` also shades
+/// every eye-light hit through the general per-ray path: the reference the fast path of
+/// [`eye_light_packet`] is checked against.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum ShadowRays {
     Packets,
@@ -295,6 +298,14 @@ fn shade_packet(
         // trace secondary rays from wrong points and fetch blocks nobody needs.
         return RayCounts::default();
     }
+    if shadow_rays == ShadowRays::Packets
+        && eye_light_packet(scene, view, packet, &surfaces, tracer, sum)
+    {
+        return RayCounts {
+            primary: packet.len() as u64,
+            ..RayCounts::default()
+        };
+    }
     let mut shader = Shader {
         scene,
         view,
@@ -307,19 +318,9 @@ fn shade_packet(
         first_ao_key: sample * view.params.ao_samples(),
         primary: None,
     };
-    let packet_shadows = shadow_rays == ShadowRays::Packets;
-    let shadows =
-        (packet_shadows && view.params.shadows() && !view.lights(scene).is_empty()).then(|| {
-            let directions: [Vec3; 64] = std::array::from_fn(|i| packet.direction(i));
-            shadow_packet::primary_shadows(
-                scene,
-                view,
-                eye,
-                &directions[..packet.len()],
-                &surfaces[..packet.len()],
-                shader.tracer,
-            )
-        });
+    let shadows = (shadow_rays == ShadowRays::Packets)
+        .then(|| shadow_packet_of(scene, view, packet, &surfaces, shader.tracer))
+        .flatten();
     // Sub-packets of consecutive rays that hit the same material (or nothing) are shaded
     // together, the material looked up once per run: ranges of the packet, not copies.
     let keys: [Option<u16>; 64] =
@@ -352,4 +353,61 @@ fn shade_packet(
         }
     }
     shader.counts
+}
+
+/// The shadow packet of `packet`'s hits (which lights each sees), if the frame traces shadow
+/// rays towards any light.
+fn shadow_packet_of(
+    scene: &PreparedScene,
+    view: &FrameView,
+    packet: &RayPacket,
+    surfaces: &[Option<SurfaceHit>; 64],
+    tracer: &mut Tracer<'_>,
+) -> Option<[Option<PrimaryHit>; 64]> {
+    let params = &view.params;
+    if !params.shadows() || params.eye_light() || view.lights(scene).is_empty() {
+        return None;
+    }
+    let directions: [Vec3; 64] = std::array::from_fn(|i| packet.direction(i));
+    Some(shadow_packet::primary_shadows(
+        scene,
+        view,
+        packet.origin,
+        &directions[..packet.len()],
+        &surfaces[..packet.len()],
+        tracer,
+    ))
+}
+
+/// Eye-light shading of a packet of a triangle-only scene without textures or vertex colours,
+/// straight from its closest hits: the normal from the triangle, the albedo from its material.
+/// The same bits as `Shader::shade` (its normal is the same one, flipped towards the eye, which
+/// the absolute value of [`shade::eye_light`] ignores), without its per-hit machinery. False,
+/// with nothing shaded, for any other frame or scene.
+fn eye_light_packet(
+    scene: &PreparedScene,
+    view: &FrameView,
+    packet: &RayPacket,
+    surfaces: &[Option<SurfaceHit>; 64],
+    tracer: &mut Tracer<'_>,
+    sum: &mut [Vec3; 64],
+) -> bool {
+    let plain = scene.spheres.is_none() && scene.volume.is_none() && scene.colors.is_none();
+    if !(view.params.eye_light() && plain) {
+        return false;
+    }
+    for (i, surface) in surfaces.iter().enumerate().take(packet.len()) {
+        let dir = packet.direction(i);
+        sum[i] += match surface {
+            Some(SurfaceHit::Triangle(hit)) => {
+                let tri = tracer.triangle(hit.slot);
+                let normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
+                let material = scene.slot_material.of(hit.slot) as usize;
+                shade::eye_light(dir, normal, scene.materials[material].albedo)
+            }
+            // Triangle-only scenes have no other surface.
+            _ => background(dir),
+        };
+    }
+    true
 }

@@ -7,7 +7,7 @@ use crate::*;
 use glam::Vec3;
 use tessera_model::camera::Camera;
 use tessera_model::cut::CutPlanes;
-use tessera_model::params::{RenderParams, RenderParamsSpec};
+use tessera_model::params::{RenderParams, RenderParamsSpec, Shading};
 use tessera_model::wall::{TileGrid, WallLayout, WallSpec};
 
 #[test]
@@ -472,4 +472,78 @@ fn a_render_nobody_cancels_is_the_plain_render() {
         !sibling.is_cancelled(),
         "a child does not cancel its parent"
     );
+}
+
+/// Eye-light parameters: the wall's defaults (shadows on, lights) but the eye light alone.
+fn eye_light_params(spec: RenderParamsSpec) -> RenderParams {
+    RenderParamsSpec {
+        shading: Shading::EyeLight,
+        ..spec
+    }
+    .build()
+    .unwrap()
+}
+
+#[test]
+fn an_eye_light_pixel_is_the_cosine_to_the_eye_times_the_albedo() {
+    // A quad through the origin turned 60° about y, in front of a camera at z = 5.
+    let normal = Vec3::new(60f32.to_radians().sin(), 0.0, 60f32.to_radians().cos());
+    let (u, v) = (normal.cross(Vec3::Y), Vec3::Y);
+    let albedo = Vec3::new(0.9, 0.5, 0.2);
+    let scene = Scene {
+        positions: vec![-u - v, u - v, u + v, -u + v],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+        triangle_material: vec![0, 0],
+        materials: vec![crate::scene::Material::lambert(albedo)],
+        ..Scene::default()
+    };
+    let prepared = PreparedScene::new(&scene);
+    let camera = Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 30.0).unwrap();
+    let view = FrameView::new(
+        0,
+        &camera,
+        eye_light_params(RenderParamsSpec::INTERACTIVE),
+        33,
+        33,
+    );
+    let (image, counts) = render_all(&prepared, &view, 33, 33);
+    assert_eq!(
+        counts.total(),
+        counts.primary,
+        "no ray but the primary ones"
+    );
+    for (x, y) in [(16, 16), (14, 10), (18, 21)] {
+        let dir = view.rays.direction_at(x, y, 0.5, 0.5);
+        let expected = encode_srgb_ish(albedo * normal.dot(dir).abs());
+        let at = ((y * 33 + x) * 3) as usize;
+        assert_eq!(&image[at..at + 3], &expected[..], "pixel {x},{y}");
+    }
+}
+
+#[test]
+fn the_eye_light_fast_path_gives_the_pixels_of_the_general_shading() {
+    // Three materials, a cutting plane and two samples a pixel.
+    let scene = knot_scene(64, 8);
+    let prepared = PreparedScene::new(&scene);
+    assert!(prepared.spheres.is_none() && prepared.volume.is_none() && prepared.colors.is_none());
+    let grid = TileGrid::new(WallSpec::grid(2, 1, 60, 44).tile_size(20).build().unwrap());
+    let camera = orbit_of(&scene.bounds(), 45.0).unwrap().camera_for_frame(2);
+    let cut = CutPlanes::new(&[(Vec3::new(0.2, 1.0, 0.1), 0.3)]).unwrap();
+    let never = Cancel::new();
+    for (cuts, spp) in [(CutPlanes::EMPTY, 1), (cut, 2)] {
+        let params = eye_light_params(RenderParamsSpec {
+            cuts,
+            spp,
+            ..RenderParamsSpec::INTERACTIVE
+        });
+        let view = FrameView::new(2, &camera, params, 120, 44);
+        let render = |rays| render_tiles_with(&prepared, &view, grid.tiles(), rays, &never);
+        let (fast, fast_counts, _) = render(ShadowRays::Packets).unwrap();
+        let (general, general_counts, _) = render(ShadowRays::Single).unwrap();
+        assert_eq!(fast_counts, general_counts);
+        assert_eq!(fast_counts.total(), fast_counts.primary);
+        assert_eq!(fast, general);
+        let full = FrameView::new(2, &camera, RenderParams::interactive(), 120, 44);
+        assert_ne!(fast, render_tiles(&prepared, &full, grid.tiles()).0);
+    }
 }

@@ -157,7 +157,8 @@ impl Shader<'_, '_> {
                 // Where shadow, AO and reflected rays leave; a hit that sends none (an
                 // eyelight view) skips the offset, a tenth of its shading.
                 let params = &self.view.params;
-                let sends = params.shadows() || params.ao_samples() > 0 || material.is_mirror();
+                let sends = !params.eye_light()
+                    && (params.shadows() || params.ao_samples() > 0 || material.is_mirror());
                 let start = if sends {
                     leaving_point(self.scene, hit, point, normal)
                 } else {
@@ -177,6 +178,9 @@ impl Shader<'_, '_> {
             }
             _ => material,
         };
+        if self.view.params.eye_light() {
+            return eye_light(dir, normal, material.albedo);
+        }
         let mut color = self.local(
             dir,
             point,
@@ -327,6 +331,14 @@ impl PreparedScene {
             }
         }
     }
+}
+
+/// A hit lit by the eye light alone, as Embree's viewer shades: |N·D| times the base colour.
+/// The absolute value makes the side the normal faces irrelevant, so the fast path of
+/// triangle-only packets (`frame`) need not flip it and gets the same bits.
+#[inline(always)]
+pub fn eye_light(dir: Vec3, normal: Vec3, albedo: Vec3) -> Vec3 {
+    albedo * normal.dot(dir).abs()
 }
 
 /// The colour of a particle whose attribute is missing (NaN in its file): a neutral grey, a
