@@ -14,6 +14,7 @@ use crate::shadow_packet;
 use crate::surface_hit::{nearest_surface, PrimaryHit, SurfaceHit};
 use crate::tracer::Tracer;
 use glam::Vec3;
+use rayon::prelude::*;
 use tessera_model::wall::Tile;
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
@@ -97,25 +98,54 @@ pub(crate) fn render_tiles_with(
     if cancel.is_cancelled() {
         return None;
     }
-    let mut images: Vec<Vec<u8>> = tiles.iter().map(|t| vec![0; t.pixel_count() * 3]).collect();
     let mut counts = RayCounts::default();
-    for (&(i, px, py), (pixels, c, footprint)) in packets.iter().zip(&traced) {
+    for (&(i, _, _), (_, c, footprint)) in packets.iter().zip(&traced) {
         footprints[i].extend_from_slice(footprint);
         counts = counts.add(*c);
-        let tile = &tiles[i];
-        let w = PACKET.min(tile.width - px) as usize;
-        let h = PACKET.min(tile.height - py);
-        for row in 0..h {
-            let dst = (((py + row) * tile.width + px) * 3) as usize;
-            let src = (row * PACKET * 3) as usize;
-            images[i][dst..dst + w * 3].copy_from_slice(&pixels[src..src + w * 3]);
-        }
     }
     for f in &mut footprints {
         f.sort_unstable();
         f.dedup();
     }
-    Some((images, counts, footprints))
+    Some((assemble_tiles(tiles, &packets, &traced), counts, footprints))
+}
+
+/// The tiles' images from their packets' pixels (`packets_of`'s order: each tile's packets
+/// together), a tile per task: done on one thread this copy and the images' first touch were
+/// a tenth of an eye-light frame at two threads.
+fn assemble_tiles<T: Sync>(
+    tiles: &[Tile],
+    packets: &[(usize, u32, u32)],
+    traced: &[(
+        [u8; (PACKET * PACKET * 3) as usize],
+        T,
+        Vec<tessera_core::dsm::BlockId>,
+    )],
+) -> Vec<Vec<u8>> {
+    let mut per_tile = Vec::with_capacity(tiles.len());
+    let mut rest = (packets, traced);
+    for t in tiles {
+        let n = (t.width.div_ceil(PACKET) * t.height.div_ceil(PACKET)) as usize;
+        let (p, later_p) = rest.0.split_at(n);
+        let (q, later_q) = rest.1.split_at(n);
+        per_tile.push((t, p, q));
+        rest = (later_p, later_q);
+    }
+    per_tile
+        .into_par_iter()
+        .map(|(tile, packets, traced)| {
+            let mut image = vec![0; tile.pixel_count() * 3];
+            for (&(_, px, py), (pixels, _, _)) in packets.iter().zip(traced) {
+                let w = PACKET.min(tile.width - px) as usize;
+                for row in 0..PACKET.min(tile.height - py) {
+                    let dst = (((py + row) * tile.width + px) * 3) as usize;
+                    let src = (row * PACKET * 3) as usize;
+                    image[dst..dst + w * 3].copy_from_slice(&pixels[src..src + w * 3]);
+                }
+            }
+            image
+        })
+        .collect()
 }
 
 /// Renders `tiles` as linear colour (what [`render_tiles`] encodes to 8 bits, before encoding),
@@ -292,19 +322,19 @@ fn shade_packet(
     // The eye of the packet's viewport (each eye of a stereo wall has its own).
     let eye = packet.origin;
     packet.clip(view.params.cuts());
+    if shadow_rays == ShadowRays::Packets && eye_light_packet(scene, view, packet, tracer, sum) {
+        // After a miss the packet is traced again (`parking`): nothing counted.
+        let traced = if tracer.has_missed() { 0 } else { packet.len() };
+        return RayCounts {
+            primary: traced as u64,
+            ..RayCounts::default()
+        };
+    }
     let surfaces = first_surfaces(scene, view, packet, tracer);
     if tracer.has_missed() {
         // Some first hits are void (a block of the tree was not here): shading them would
         // trace secondary rays from wrong points and fetch blocks nobody needs.
         return RayCounts::default();
-    }
-    if shadow_rays == ShadowRays::Packets
-        && eye_light_packet(scene, view, packet, &surfaces, tracer, sum)
-    {
-        return RayCounts {
-            primary: packet.len() as u64,
-            ..RayCounts::default()
-        };
     }
     let mut shader = Shader {
         scene,
@@ -380,15 +410,15 @@ fn shadow_packet_of(
 }
 
 /// Eye-light shading of a packet of a triangle-only scene without textures or vertex colours,
-/// straight from its closest hits: the normal from the triangle, the albedo from its material.
-/// The same bits as `Shader::shade` (its normal is the same one, flipped towards the eye, which
-/// the absolute value of [`shade::eye_light`] ignores), without its per-hit machinery. False,
-/// with nothing shaded, for any other frame or scene.
+/// traced and shaded straight from its closest hits: the normal from the triangle, the albedo
+/// from its material. The same bits as `Shader::shade` (its normal is the same one, flipped
+/// towards the eye, which the absolute value of [`shade::eye_light`] ignores), without its
+/// per-hit machinery. False, with nothing traced, for any other frame or scene; after a miss
+/// (`tracer.has_missed`) nothing is shaded.
 fn eye_light_packet(
     scene: &PreparedScene,
     view: &FrameView,
-    packet: &RayPacket,
-    surfaces: &[Option<SurfaceHit>; 64],
+    packet: &mut RayPacket,
     tracer: &mut Tracer<'_>,
     sum: &mut [Vec3; 64],
 ) -> bool {
@@ -396,17 +426,21 @@ fn eye_light_packet(
     if !(view.params.eye_light() && plain) {
         return false;
     }
-    for (i, surface) in surfaces.iter().enumerate().take(packet.len()) {
+    let mut hits = [PacketHit::MISS; 64];
+    tracer.closest_hits(packet, &mut hits);
+    if tracer.has_missed() {
+        return true;
+    }
+    for (i, hit) in hits.iter().enumerate().take(packet.len()) {
         let dir = packet.direction(i);
-        sum[i] += match surface {
-            Some(SurfaceHit::Triangle(hit)) => {
-                let tri = tracer.triangle(hit.slot);
+        sum[i] += match hit.slot() {
+            Some(slot) => {
+                let tri = tracer.triangle(slot);
                 let normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
-                let material = scene.slot_material.of(hit.slot) as usize;
+                let material = scene.slot_material.of(slot) as usize;
                 shade::eye_light(dir, normal, scene.materials[material].albedo)
             }
-            // Triangle-only scenes have no other surface.
-            _ => background(dir),
+            None => background(dir),
         };
     }
     true
