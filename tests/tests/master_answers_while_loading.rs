@@ -43,9 +43,11 @@ async fn time_state(link: &mut MasterLink, id: u32) -> Option<Duration> {
         request,
         stamp_ns: 0,
     };
-    link.send(&msg).await.expect("the master takes requests");
+    // A link closed by a run that is over is the same goodbye (the assertions after the
+    // questioning check that the wall did start and finish).
+    link.send(&msg).await.ok()?;
     loop {
-        match link.recv().await.expect("the master answers") {
+        match link.recv().await.ok()? {
             ToNode::ControlReply { id: got, reply } if got == id => {
                 assert!(matches!(reply, ControlReply::State { .. }), "{reply:?}");
                 return Some(asked.elapsed());
