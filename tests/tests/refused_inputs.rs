@@ -258,6 +258,7 @@ struct RawParams {
     first_sample: u32,
     volume: tessera_model::volume_params::VolumeParams,
     colormap: tessera_model::colormap::ColorMap,
+    shading: tessera_model::params::Shading,
 }
 
 impl RawParams {
@@ -273,6 +274,7 @@ impl RawParams {
             first_sample: i.first_sample,
             volume: i.volume,
             colormap: i.colormap,
+            shading: i.shading,
         }
     }
 }
