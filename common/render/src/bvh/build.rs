@@ -74,7 +74,13 @@ impl Accel {
     }
 
     /// The accelerator from flattened nodes and the scene triangle of each leaf slot.
-    fn from_order(nodes: Vec<BvhNode>, tris: &[Triangle], order: Vec<u32>, depth: usize) -> Accel {
+    fn from_order(
+        mut nodes: Vec<BvhNode>,
+        tris: &[Triangle],
+        order: Vec<u32>,
+        depth: usize,
+    ) -> Accel {
+        let order = leaves_depth_first(&mut nodes, &order);
         let triangles = order
             .iter()
             .map(|&i| {
@@ -124,6 +130,26 @@ impl Accel {
             _ => "very_fast",
         }
     }
+}
+
+/// Renumbers the leaf slots in depth-first order, so every subtree's triangles are one run of
+/// slots (obvhs' order is not: 62 % of the dragon's subtrees were split) and the collapse may
+/// make any small subtree one leaf. Returns the scene triangle of each new slot.
+fn leaves_depth_first(nodes: &mut [BvhNode], order: &[u32]) -> Vec<u32> {
+    let mut renumbered = Vec::with_capacity(order.len());
+    let mut stack = vec![0u32];
+    while let Some(i) = stack.pop() {
+        let node = &mut nodes[i as usize];
+        if node.count == 0 {
+            // The second child pushed first, so the first is numbered first.
+            stack.extend([node.first + 1, node.first]);
+            continue;
+        }
+        let slots = node.first as usize..(node.first + node.count) as usize;
+        node.first = renumbered.len() as u32;
+        renumbered.extend_from_slice(&order[slots]);
+    }
+    renumbered
 }
 
 #[cfg(test)]
@@ -218,5 +244,31 @@ mod tests {
             "{} wide nodes for {inner} inner ones",
             wide.len()
         );
+    }
+
+    /// The collapse fills wide nodes and joins small subtrees into leaves: the greedy one it
+    /// replaced left the knot's nodes half full (4.2 children on average, leaves of 1.3; now 7.3 and
+    /// 1.9).
+    #[test]
+    fn wide_nodes_are_nearly_full_and_leaves_join_small_subtrees() {
+        let accel = Accel::build(&knot_scene(400, 48));
+        let children: usize = accel
+            .wide
+            .iter()
+            .map(|n| n.count.iter().filter(|&&c| c != EMPTY).count())
+            .sum();
+        let leaves: Vec<u32> = accel
+            .wide
+            .iter()
+            .flat_map(|n| n.count.into_iter().filter(|&c| c != EMPTY && c > 0))
+            .collect();
+        let fill = children as f64 / accel.wide.len() as f64;
+        let leaf = accel.triangles.len() as f64 / leaves.len() as f64;
+        eprintln!(
+            "{} wide nodes, {fill:.2} children each, leaves of {leaf:.2}",
+            accel.wide.len()
+        );
+        assert!(fill > 6.5, "{fill:.2} children per wide node");
+        assert!(leaf > 1.6, "{leaf:.2} triangles per leaf");
     }
 }

@@ -15,8 +15,9 @@ use std::time::{Duration, Instant};
 
 const MAGIC: [u8; 4] = *b"TBVH";
 /// Bumped whenever the node layout, the build or the file layout changes (2: payload hash;
-/// 3: obvhs' parallel build, which makes another tree than its serial one).
-const FORMAT: u32 = 3;
+/// 3: obvhs' parallel build, which makes another tree than its serial one; 4: leaf slots in
+/// depth-first order).
+const FORMAT: u32 = 4;
 /// Magic, format, three counts, then the payload's hash.
 const HEADER: usize = 4 + 4 + 8 * 3 + 32;
 

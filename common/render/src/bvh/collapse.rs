@@ -1,13 +1,56 @@
 //! The 8-wide tree that every ray walks, collapsed from the binary one obvhs builds. A binary
 //! tree costs a dependent memory load per level; this one has about a third as many levels, and
-//! one ray tests a node's eight boxes with a few 8-lane instructions (`node_test_ray`). Leaves
-//! are the binary tree's own: the same triangle slots.
+//! one ray tests a node's eight boxes with a few 8-lane instructions (`node_test_ray`).
 //!
-//! Measured against a 4-wide collapse (1 thread, AVX2/AVX-512 builds; bunny and the 4.2M
-//! knot): single shadow and AO rays 15-20 % faster, packets the same within noise, 3.9 bytes a
-//! triangle more (its nodes are fuller at 4).
+//! The collapse chooses, by the surface area heuristic, which binary subtrees become one leaf
+//! and which inner nodes a wide node takes as its children: the dynamic programme of Ylitie,
+//! Karras and Laine (2017, "Efficient incoherent ray traversal on GPUs through compressed wide
+//! BVHs", §3.1). Per binary node it keeps the cost of the subtree as at most 1..=8 roots, so a
+//! wide node is as full, and a leaf as large, as pays. obvhs leaves most scanned triangles in
+//! leaves of one (its SAH stops there); a greedy collapse of that tree gave the Stanford dragon
+//! 212,284 wide nodes, a third of them with only two children, and leaves of 1.18 triangles.
+//!
+//! Leaves only ever join binary subtrees whose triangle slots form one run, so the slots, and
+//! with them which triangle wins a tie, are the binary tree's: every pixel stays the same.
 
 use crate::bvh::node::{set_child, BvhNode, WideNode, BLANK, WIDTH};
+
+/// Cost of visiting a wide node, relative to [`TRIANGLE_COST`], per unit of box area.
+const NODE_COST: f32 = 1.0;
+
+/// Cost of testing one triangle of a leaf. Leaves of 6 or more are tested 8 at a time
+/// (`leaf_ray`) and packets test every triangle across their rays, so a triangle costs well
+/// under a node.
+const TRIANGLE_COST: f32 = 0.3;
+
+/// Cost of entering a leaf at all (a stack entry, the loop over its triangles): without it the
+/// programme keeps the binary tree's leaves of one, since a wide node's eight boxes cost what
+/// two do. On the dragon, against none: 68,870 wide nodes instead of 81,513 and leaves of 2.0
+/// triangles instead of 1.6; primary rays 88-90 against 81-83 Mrays/s, AO the same (2 threads).
+const LEAF_COST: f32 = 1.0;
+
+/// The most triangles one leaf the collapse makes may hold (the binary tree's own leaves may
+/// hold more and stay as they are).
+const LEAF_LIMIT: u32 = 8;
+
+/// A count of [`Span`] for a subtree whose slots are not one run.
+const NOT_CONTIGUOUS: u32 = u32::MAX;
+
+/// What the programme chose for one binary node and a number of roots.
+#[derive(Clone, Copy)]
+enum Choice {
+    /// One root: the whole subtree as one leaf.
+    Leaf,
+    /// One root: a wide node whose children are the subtree as 8 roots of its children.
+    Inner,
+    /// As many roots as one fewer allows.
+    Fewer,
+    /// This many roots to the first child, the rest to the second.
+    Split(u8),
+}
+
+/// A subtree's leaf slots: the first and how many.
+type Span = (u32, u32);
 
 fn area(n: &BvhNode) -> f32 {
     let d = (n.max - n.min).max(glam::Vec3::ZERO);
@@ -15,48 +58,32 @@ fn area(n: &BvhNode) -> f32 {
 }
 
 /// Collapses a binary BVH (children of inner node `i` at `first` and `first + 1`) into a
-/// wide one: each wide node takes its binary node's children and keeps opening the largest
-/// inner one among them until it has [`WIDTH`]. Deterministic, linear in the node count.
+/// wide one, the root first and every wide node before its children. Deterministic, linear in
+/// the node count.
 pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
     let Some(root) = nodes.first() else {
         return Vec::new();
     };
-    // Every 8-wide node opens at least one binary inner node, so this never grows: growing by
-    // doubling copied the array and left the old copies resident (83 MB for a 49 MB tree).
-    // The untouched rest of the reservation is never resident, and is given back below.
-    let inner = nodes.iter().filter(|n| n.count == 0).count();
-    let mut out = Vec::with_capacity(inner.max(1));
-    out.push(BLANK);
-    let mut stack: Vec<(u32, usize)> = Vec::new();
+    let mut out = vec![BLANK];
     if root.count > 0 {
-        set_child(&mut out[0], 0, root, 0);
+        set_child(&mut out[0], 0, root, root.first);
         return out;
     }
-    stack.push((0, 0));
+    let plan = Plan::new(nodes);
+    let mut stack = vec![(0u32, 0usize)];
+    let mut roots = Vec::with_capacity(WIDTH);
     while let Some((index, at)) = stack.pop() {
-        let node = &nodes[index as usize];
-        // The children so far, in a fixed array (no allocation per wide node).
-        let mut children = [0u32; WIDTH];
-        (children[0], children[1]) = (node.first, node.first + 1);
-        let mut len = 2;
-        while len < WIDTH {
-            let widest = children[..len]
-                .iter()
-                .enumerate()
-                .filter(|(_, &c)| nodes[c as usize].count == 0)
-                .max_by(|a, b| area(&nodes[*a.1 as usize]).total_cmp(&area(&nodes[*b.1 as usize])))
-                .map(|(k, _)| k);
-            let Some(k) = widest else { break };
-            // Child k opens into its two children, in its place.
-            let first = nodes[children[k] as usize].first;
-            children.copy_within(k + 1..len, k + 2);
-            (children[k], children[k + 1]) = (first, first + 1);
-            len += 1;
-        }
-        for (k, &c) in children[..len].iter().enumerate() {
+        roots.clear();
+        plan.roots_of_children(index, &mut roots);
+        for (k, &c) in roots.iter().enumerate() {
             let child = &nodes[c as usize];
-            if child.count > 0 {
-                set_child(&mut out[at], k, child, child.first);
+            if let Some((first, count)) = plan.leaf(c) {
+                let leaf = BvhNode {
+                    first,
+                    count,
+                    ..*child
+                };
+                set_child(&mut out[at], k, &leaf, first);
             } else {
                 let next = out.len();
                 out.push(BLANK);
@@ -67,4 +94,142 @@ pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
     }
     out.shrink_to_fit();
     out
+}
+
+/// The programme's table: per binary node and number of roots, the choice.
+struct Plan<'a> {
+    nodes: &'a [BvhNode],
+    spans: Vec<Span>,
+    /// Per node, the choice for 1..=8 roots, then the split of a wide node's children.
+    choices: Vec<[Choice; WIDTH + 1]>,
+}
+
+impl<'a> Plan<'a> {
+    fn new(nodes: &'a [BvhNode]) -> Self {
+        let order = children_first(nodes);
+        let mut spans = vec![(0, NOT_CONTIGUOUS); nodes.len()];
+        let mut costs = vec![[0f32; WIDTH]; nodes.len()];
+        let mut choices = vec![[Choice::Leaf; WIDTH + 1]; nodes.len()];
+        for &i in &order {
+            let n = &nodes[i as usize];
+            let i = i as usize;
+            if n.count > 0 {
+                spans[i] = (n.first, n.count);
+                costs[i] = [area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH];
+                continue;
+            }
+            let (l, r) = (n.first as usize, n.first as usize + 1);
+            spans[i] = join(spans[l], spans[r]);
+            let (cost, choice) = node_costs(area(n), spans[i], &costs[l], &costs[r]);
+            (costs[i], choices[i]) = (cost, choice);
+        }
+        Plan {
+            nodes,
+            spans,
+            choices,
+        }
+    }
+
+    /// The slots of binary node `c` if the plan makes it a leaf.
+    fn leaf(&self, c: u32) -> Option<Span> {
+        let leaf =
+            self.nodes[c as usize].count > 0 || matches!(self.choices[c as usize][0], Choice::Leaf);
+        leaf.then_some(self.spans[c as usize])
+    }
+
+    /// Appends the roots that inner node `index`'s children become as a wide node's children.
+    fn roots_of_children(&self, index: u32, out: &mut Vec<u32>) {
+        let Choice::Split(k) = self.choices[index as usize][WIDTH] else {
+            unreachable!("an inner node keeps its wide split")
+        };
+        self.split(index, k as usize, WIDTH, out);
+    }
+
+    /// Appends the roots of inner node `index`'s children: `k` of the first, the rest of the
+    /// `roots` of the second.
+    fn split(&self, index: u32, k: usize, roots: usize, out: &mut Vec<u32>) {
+        let first = self.nodes[index as usize].first;
+        self.roots_of(first, k, out);
+        self.roots_of(first + 1, roots - k, out);
+    }
+
+    /// Appends the roots binary node `c` becomes as at most `roots` of them.
+    fn roots_of(&self, c: u32, roots: usize, out: &mut Vec<u32>) {
+        let mut count = roots;
+        loop {
+            match self.choices[c as usize][count - 1] {
+                _ if self.nodes[c as usize].count > 0 || count == 1 => return out.push(c),
+                Choice::Fewer => count -= 1,
+                Choice::Split(k) => return self.split(c, k as usize, count, out),
+                Choice::Leaf | Choice::Inner => return out.push(c),
+            }
+        }
+    }
+}
+
+/// An inner node's cost as at most 1..=8 roots, and the choices, from its children's.
+fn node_costs(
+    area: f32,
+    span: Span,
+    left: &[f32; WIDTH],
+    right: &[f32; WIDTH],
+) -> ([f32; WIDTH], [Choice; WIDTH + 1]) {
+    let mut cost = [f32::INFINITY; WIDTH];
+    let mut choice = [Choice::Fewer; WIDTH + 1];
+    // As `roots` roots of the two children: the best split of the roots between them.
+    let mut split = [(f32::INFINITY, 0u8); WIDTH];
+    for roots in 2..=WIDTH {
+        for k in 1..roots {
+            let c = left[k - 1] + right[roots - k - 1];
+            if c < split[roots - 1].0 {
+                split[roots - 1] = (c, k as u8);
+            }
+        }
+    }
+    let inner = area * NODE_COST + split[WIDTH - 1].0;
+    choice[WIDTH] = Choice::Split(split[WIDTH - 1].1);
+    let leaf = if span.1 != NOT_CONTIGUOUS && span.1 <= LEAF_LIMIT {
+        area * (LEAF_COST + span.1 as f32 * TRIANGLE_COST)
+    } else {
+        f32::INFINITY
+    };
+    (cost[0], choice[0]) = if leaf <= inner {
+        (leaf, Choice::Leaf)
+    } else {
+        (inner, Choice::Inner)
+    };
+    for roots in 2..=WIDTH {
+        let (c, k) = split[roots - 1];
+        (cost[roots - 1], choice[roots - 1]) = if c < cost[roots - 2] {
+            (c, Choice::Split(k))
+        } else {
+            (cost[roots - 2], Choice::Fewer)
+        };
+    }
+    (cost, choice)
+}
+
+/// The two children's slot runs as one, if they adjoin.
+fn join(a: Span, b: Span) -> Span {
+    let whole = a.1 != NOT_CONTIGUOUS && b.1 != NOT_CONTIGUOUS;
+    match () {
+        _ if whole && a.0 + a.1 == b.0 => (a.0, a.1 + b.1),
+        _ if whole && b.0 + b.1 == a.0 => (b.0, a.1 + b.1),
+        _ => (0, NOT_CONTIGUOUS),
+    }
+}
+
+/// The binary tree's node indices, every node after its children.
+fn children_first(nodes: &[BvhNode]) -> Vec<u32> {
+    let mut order = Vec::with_capacity(nodes.len());
+    let mut stack = vec![0u32];
+    while let Some(i) = stack.pop() {
+        order.push(i);
+        let n = &nodes[i as usize];
+        if n.count == 0 {
+            stack.extend([n.first, n.first + 1]);
+        }
+    }
+    order.reverse();
+    order
 }
