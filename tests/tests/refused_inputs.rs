@@ -344,6 +344,7 @@ fn render_node_told(lie: &[u8]) -> Output {
             let welcome = ToNode::Welcome {
                 node: Some(RenderNodeId(0)),
                 session,
+                term: 0,
             };
             send.write_all(&codec::encode(&welcome).unwrap()).await?;
             let ready = read_msg::<FromNode>(&mut recv).await?;

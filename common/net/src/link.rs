@@ -221,7 +221,8 @@ impl MasterLink {
         };
         write_msg(&mut send, &FromNode::Hello(hello)).await?;
         let welcome = match read_msg::<ToNode>(&mut recv).await? {
-            Some(ToNode::Welcome { node, session }) => Welcome { node, session },
+            // The term is for a node that follows a list of masters (see `MasterTerm`).
+            Some(ToNode::Welcome { node, session, .. }) => Welcome { node, session },
             Some(ToNode::Refused { reason }) => return Err(LinkError::Refused(reason)),
             Some(other) => return Err(LinkError::NoWelcome(format!("{other:?}"))),
             None => return Err(LinkError::ClosedInHandshake),
@@ -350,6 +351,7 @@ mod tests {
             let welcome = ToNode::Welcome {
                 node: Some(RenderNodeId(0)),
                 session,
+                term: 0,
             };
             write_msg(&mut send, &welcome).await.unwrap();
             let mut beats = 0;

@@ -152,6 +152,7 @@ mod tests {
             FromNode::BlocksAt {
                 addr: "10.0.0.7:7401".parse().unwrap(),
             },
+            FromNode::StaleMaster { seen: 4 },
             FromNode::Loading {
                 step: crate::LoadStep::BuildingBvh {
                     triangles: 2_180_000,
@@ -194,6 +195,7 @@ mod tests {
                     particle_range: Some([-1.5, 2.0]),
                 })
                 .unwrap(),
+                term: 3,
             },
             ToNode::BlockHolders {
                 rank: Some(2),

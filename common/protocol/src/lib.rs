@@ -36,7 +36,7 @@ use tessera_model::wall::{DisplayId, TileId, WallLayout};
 use tessera_model::window::WindowPlacement;
 
 /// Bumped on any incompatible change of a message or of the pixel stream format.
-pub const PROTOCOL_VERSION: u32 = 12;
+pub const PROTOCOL_VERSION: u32 = 13;
 
 /// ALPN of Tessera's QUIC connections; a peer speaking anything else is refused by TLS.
 pub const ALPN: &[u8] = b"tessera/1";
@@ -410,6 +410,11 @@ pub enum ToNode {
         node: Option<RenderNodeId>,
         /// What the run renders and where: the wall, the scene, the displays' addresses.
         session: Session,
+        /// The master's term: 0 for the first master of a run, one more at each takeover by a
+        /// standby. A node refuses a master whose term is below the highest it has seen
+        /// (answering [`FromNode::StaleMaster`]): an old primary that comes back cannot lead
+        /// it again.
+        term: u64,
     },
     /// The master turned the peer's hello down (another protocol version, a certificate for
     /// another role, a display already taken): it cannot join.
@@ -630,6 +635,13 @@ pub enum FromNode {
     BlocksAt {
         /// Where it answers block requests.
         addr: SocketAddr,
+    },
+    /// The node has followed a master of a higher term than this master's welcome said
+    /// (a standby took over): this master is stale and steps down. The node closes the
+    /// connection after it.
+    StaleMaster {
+        /// The highest term the node has seen.
+        seen: u64,
     },
 }
 

@@ -34,6 +34,7 @@ mod frames;
 mod liveness;
 mod output;
 mod refine;
+mod resume;
 mod shares;
 mod speculate;
 mod steering;
@@ -188,6 +189,8 @@ pub struct Coordinator {
     /// frame starts until something does.
     converged: bool,
     frame_limit: Option<u64>,
+    /// No frame at or past this one starts (see [`Coordinator::set_frame_horizon`]).
+    frame_horizon: Option<FrameId>,
     running: bool,
     nodes: BTreeMap<RenderNodeId, RenderNode>,
     /// Nodes that asked for work and got none; they get returned tiles first. A set of its
@@ -248,6 +251,7 @@ impl Coordinator {
             state_since: FrameId(0),
             converged: false,
             frame_limit,
+            frame_horizon: None,
             running: false,
             nodes: BTreeMap::new(),
             waiting: BTreeSet::new(),
@@ -567,6 +571,7 @@ impl Coordinator {
         if self
             .frame_limit
             .is_some_and(|limit| self.next_frame.0 >= limit)
+            || self.frame_horizon.is_some_and(|h| self.next_frame >= h)
         {
             return false;
         }

@@ -95,6 +95,7 @@ impl Master {
             self.live.last_start = Some(start);
             let started = Box::new((start, self.frame_state));
             self.events.push_back(MasterEvent::FrameStarted(started));
+            self.note_session_line(start);
         }
         let peers: Vec<PeerId> = self.displays.values().copied().collect();
         for peer in peers {

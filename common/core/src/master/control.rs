@@ -17,7 +17,7 @@ const MAX_SNAPSHOTS: usize = 10_000;
 #[derive(Default)]
 pub(super) struct Live {
     /// Saved views, by name.
-    views: BTreeMap<ViewName, CameraMode>,
+    pub(super) views: BTreeMap<ViewName, CameraMode>,
     /// Tiles each render node reported done since it joined.
     pub(super) tiles: BTreeMap<RenderNodeId, u64>,
     /// Presents each display reported.

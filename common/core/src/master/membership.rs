@@ -98,7 +98,7 @@ impl Master {
             Role::Render { cores } => {
                 let node = RenderNodeId(self.next_render_id);
                 self.next_render_id += 1;
-                let rank = self.take_rank(node);
+                let rank = self.take_rank(node, &host);
                 let holds = rank.map_or(String::new(), |r| format!(", holds rank {r}"));
                 tracing::info!(
                     "render node {} joined from {host} ({remote}), {cores} cores{holds}",
@@ -386,7 +386,15 @@ impl Master {
         if let Some(p) = self.peers.get_mut(&peer) {
             p.welcomed = true;
         }
-        self.send(peer, ToNode::Welcome { node, session });
+        let term = self.term;
+        self.send(
+            peer,
+            ToNode::Welcome {
+                node,
+                session,
+                term,
+            },
+        );
         if let Some(node) = node {
             self.send_holders(peer, node);
         }

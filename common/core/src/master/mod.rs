@@ -49,6 +49,7 @@
 
 mod barrier;
 mod control;
+pub mod figures;
 mod liveness;
 mod loading;
 mod membership;
@@ -62,6 +63,10 @@ pub use operate::{ConsoleEvent, OperatorConfig};
 mod ranks;
 pub mod report;
 mod report_of;
+pub mod standby;
+#[cfg(test)]
+mod standby_tests;
+mod takeover;
 #[cfg(test)]
 mod tests;
 pub mod timing;
@@ -190,6 +195,8 @@ pub enum CloseReason {
     RunOver,
     /// The same display joined again on a new connection (it was restarted).
     Replaced,
+    /// A node follows a master of a higher term: this master steps down.
+    SteppedDown,
 }
 
 impl CloseReason {
@@ -201,6 +208,7 @@ impl CloseReason {
             CloseReason::SilentPastDeadline => 5,
             CloseReason::RunOver => 0,
             CloseReason::Replaced => 6,
+            CloseReason::SteppedDown => 7,
         }
     }
 
@@ -212,6 +220,7 @@ impl CloseReason {
             CloseReason::SilentPastDeadline => b"silent past the deadline",
             CloseReason::RunOver => b"run over",
             CloseReason::Replaced => b"replaced by a new connection",
+            CloseReason::SteppedDown => b"stepped down: a newer master leads the wall",
         }
     }
 }
@@ -280,6 +289,17 @@ pub enum RunError {
     /// Frames are in flight but every render node, or every display, is gone.
     #[error("every render node or every display is gone; the frames in flight cannot complete")]
     Stalled,
+    /// A node follows a master of a higher term (a standby took over): this one stepped
+    /// down, so that the wall never has two masters.
+    #[error(
+        "stepped down: a node follows a master of term {seen}, newer than this master's {term} (a standby took the wall over)"
+    )]
+    SteppedDown {
+        /// This master's term.
+        term: u64,
+        /// The term the node follows.
+        seen: u64,
+    },
 }
 
 /// Why a master could not be set up.
@@ -483,6 +503,18 @@ pub struct Master {
     closes: VecDeque<(PeerId, CloseReason)>,
     events: VecDeque<MasterEvent>,
     outcome: Option<Result<Report, RunError>>,
+    /// 0 for the first master of a run; one more at each takeover.
+    term: u64,
+    /// The session record: a line each time a frame starts with another state.
+    session: Vec<standby::SessionLine>,
+    /// What the standby has been sent, while one is attached.
+    replication: Option<takeover::Replication>,
+    /// The figures of the masters before this one, after a takeover.
+    prior: Option<takeover::Prior>,
+    /// The run's takeovers so far.
+    takeovers: Vec<report::Takeover>,
+    /// Who held each rank under the master before a takeover.
+    former_ranks: Vec<standby::RankHolder>,
 }
 
 impl Master {
@@ -537,6 +569,12 @@ impl Master {
             closes: VecDeque::new(),
             events: VecDeque::new(),
             outcome: None,
+            term: 0,
+            session: Vec::new(),
+            replication: None,
+            prior: None,
+            takeovers: Vec::new(),
+            former_ranks: Vec::new(),
             cfg,
         })
     }
@@ -559,6 +597,10 @@ impl Master {
             return;
         }
         self.credit_own_pause(now);
+        if let FromNode::StaleMaster { seen } = msg {
+            self.stale_master(peer, seen, now);
+            return;
+        }
         if let Phase::Collecting { .. } = self.phase {
             self.collect(peer, msg, now);
             return;

@@ -29,9 +29,9 @@ pub struct OperatorConfig {
 #[derive(Debug, Default)]
 pub(super) struct Operating {
     /// Whether the series plays.
-    playing: bool,
+    pub(super) playing: bool,
     /// Steps per second while playing; `None`: a step each frame.
-    steps_per_second: Option<f32>,
+    pub(super) steps_per_second: Option<f32>,
     /// When the next step is due, while playing at a speed.
     next_step_at: Option<Instant>,
     /// A snapshot at the final quality waits for the wall to converge.

@@ -15,6 +15,14 @@ pub(super) struct Ranks {
 }
 
 impl Ranks {
+    /// Each rank held, its holder and where it answers (once it said).
+    pub(super) fn held(&self) -> Vec<(u32, RenderNodeId, Option<SocketAddr>)> {
+        self.rank_of
+            .iter()
+            .map(|(&node, &rank)| (rank, node, self.addr.get(&rank).copied()))
+            .collect()
+    }
+
     fn list(&self) -> Vec<BlockHolder> {
         self.addr
             .iter()
@@ -36,12 +44,21 @@ impl Master {
         }
     }
 
-    /// The lowest rank nobody holds, for a render node that just joined (none when the
-    /// scene is replicated or every rank is held).
-    pub(super) fn take_rank(&mut self, node: RenderNodeId) -> Option<u32> {
+    /// The lowest rank nobody holds, for a render node from `host` that just joined (none
+    /// when the scene is replicated or every rank is held). After a takeover, a rank its host
+    /// held under the old master comes first: the node likely has its blocks loaded.
+    pub(super) fn take_rank(&mut self, node: RenderNodeId, host: &str) -> Option<u32> {
         let ranks = self.rank_count()?;
         let held: BTreeSet<u32> = self.ranks.rank_of.values().copied().collect();
-        let rank = (0..ranks).find(|r| !held.contains(r))?;
+        let free = |r: &u32| *r < ranks && !held.contains(r);
+        let former = self
+            .former_ranks
+            .iter()
+            .find(|h| h.host == host && free(&h.rank));
+        let rank = match former {
+            Some(h) => h.rank,
+            None => (0..ranks).find(free)?,
+        };
         self.ranks.rank_of.insert(node, rank);
         Some(rank)
     }

@@ -1,6 +1,6 @@
 //! `report.json`: what a run measured.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tessera_model::wall::WallLayout;
 use tessera_protocol::pixels::Compression;
 use tessera_protocol::{DisplayStats, RenderStats};
@@ -79,10 +79,29 @@ pub struct Report {
     pub data: &'static str,
     /// A shared scene's reads over every render node (each node's own under its `dsm`).
     pub dsm: Option<DsmSummary>,
+    /// Each time a standby master took the run over, in order (absent when none did).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub takeovers: Vec<Takeover>,
+}
+
+/// A standby master took the run over.
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+pub struct Takeover {
+    /// The term of the master that took over.
+    pub term: u64,
+    /// The first frame it could start (frames from the snapshot's on to this one were
+    /// started by no one, or by the old master and never shown).
+    pub frame: u64,
+    /// When it took over, in ns since the Unix epoch on its clock.
+    pub at_unix_ns: u64,
+    /// How long the wall was dark: from the last present of the old master that the driver
+    /// knows of to the first present of the new one, as the driver measured it (`None`
+    /// until it said, see [`super::Master::record_takeover_dark`]).
+    pub dark_ms: Option<f64>,
 }
 
 /// A node lost while the wall ran.
-#[derive(Serialize, Debug, Clone, PartialEq, Eq)]
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq, Eq)]
 pub struct LostNode {
     /// The node as log lines name it: `render node 2 (host)`, `display 1 (host)`.
     pub node: String,
@@ -257,6 +276,11 @@ impl Percentiles {
         for &ms in samples {
             hist.saturating_record((ms * 1e6).round().max(0.0) as u64);
         }
+        Percentiles::of_histogram(&hist)
+    }
+
+    /// Percentiles of a histogram of durations in ns.
+    pub(super) fn of_histogram(hist: &hdrhistogram::Histogram<u64>) -> Self {
         if hist.is_empty() {
             return Percentiles::default();
         }

@@ -108,10 +108,23 @@ impl Master {
 
     pub(super) fn report(&self) -> Report {
         let record = &self.record;
+        let elapsed = record.started.map_or(Duration::ZERO, |start| {
+            let last = record.presents.last().map_or(start, |(_, t)| *t);
+            last.duration_since(start)
+        });
+        let (frame_ms, start_to_present) = self.frame_times();
+        let mut report = self.report_of_frames(elapsed, &frame_ms, &start_to_present);
+        self.merge_prior(&mut report, &frame_ms, &start_to_present);
+        report
+    }
+
+    /// Each present's time since the one before (the first: since the start), and each
+    /// frame's from its start to its present, in ms.
+    pub(super) fn frame_times(&self) -> (Vec<f64>, Vec<f64>) {
+        let record = &self.record;
         let Some(start) = record.started else {
-            return self.report_of_frames(Duration::ZERO, Vec::new(), Vec::new());
+            return (Vec::new(), Vec::new());
         };
-        let last = record.presents.last().map_or(start, |(_, t)| *t);
         let mut previous = start;
         let mut frame_ms = Vec::new();
         let mut start_to_present = Vec::new();
@@ -126,7 +139,7 @@ impl Master {
             }
             frame_ms.push(gap.as_secs_f64() * 1000.0);
         }
-        self.report_of_frames(last.duration_since(start), frame_ms, start_to_present)
+        (frame_ms, start_to_present)
     }
 
     /// The report of a run whose frames took `elapsed` from the first start to the last
@@ -134,8 +147,8 @@ impl Master {
     fn report_of_frames(
         &self,
         elapsed: Duration,
-        frame_ms: Vec<f64>,
-        start_to_present: Vec<f64>,
+        frame_ms: &[f64],
+        start_to_present: &[f64],
     ) -> Report {
         let elapsed = elapsed.as_secs_f64();
         let record = &self.record;
@@ -157,8 +170,8 @@ impl Master {
                 0.0
             },
             rendering_s: rendering,
-            frame_ms: Percentiles::of_ms(&frame_ms),
-            start_to_present_ms: Percentiles::of_ms(&start_to_present),
+            frame_ms: Percentiles::of_ms(frame_ms),
+            start_to_present_ms: Percentiles::of_ms(start_to_present),
             frame_period_ms: if frames > 0 {
                 elapsed * 1000.0 / frames as f64
             } else {
@@ -183,6 +196,7 @@ impl Master {
                 DataSpec::Dsm(_) => "dsm",
             },
             dsm,
+            takeovers: Vec::new(),
         }
     }
 

@@ -57,6 +57,19 @@ pub struct InputParts {
     pub barrier_to_present_ms: Percentiles,
 }
 
+/// The durations behind a [`TimingSummary`]'s percentiles, in ms.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct TimingSamples {
+    /// Each measured frame's latency.
+    pub latency: Vec<f64>,
+    /// Each measured frame's skew.
+    pub skew: Vec<f64>,
+    /// Each measured input's latency.
+    pub input_latency: Vec<f64>,
+    /// Each measured input's parts: entry → master, master → barrier, barrier → present.
+    pub parts: [Vec<f64>; 3],
+}
+
 /// One frame's figures, for the per-frame CSV.
 #[derive(Clone, Copy, Debug, Serialize, PartialEq)]
 pub struct FrameTiming {
@@ -192,6 +205,17 @@ impl Timing {
     /// Each measured input's entry → master, master → barrier and barrier → present, ms.
     fn input_parts(&self, displays: u32) -> InputParts {
         let mut parts: [Vec<f64>; 3] = Default::default();
+        self.each_input_part(displays, |i, ms| parts[i].push(ms));
+        InputParts {
+            entry_to_master_ms: Percentiles::of_ms(&parts[0]),
+            master_to_barrier_ms: Percentiles::of_ms(&parts[1]),
+            barrier_to_present_ms: Percentiles::of_ms(&parts[2]),
+        }
+    }
+
+    /// Calls `part(i, ms)` with each measured input's part `i` (0: entry → master, 1: master →
+    /// barrier, 2: barrier → present).
+    fn each_input_part(&self, displays: u32, mut part: impl FnMut(usize, f64)) {
         for (frame, stamps) in &self.inputs {
             let (Some(last), Some(&start)) =
                 (self.last_present(*frame, displays), self.starts.get(frame))
@@ -203,20 +227,29 @@ impl Timing {
                     continue;
                 };
                 let ms = |a: i128, b: i128| (b - a) as f64 / 1e6;
-                parts[0].push(ms(*s as i128, arrived as i128));
-                parts[1].push(ms(arrived as i128, start as i128));
-                parts[2].push(ms(start as i128, last));
+                part(0, ms(*s as i128, arrived as i128));
+                part(1, ms(arrived as i128, start as i128));
+                part(2, ms(start as i128, last));
             }
-        }
-        InputParts {
-            entry_to_master_ms: Percentiles::of_ms(&parts[0]),
-            master_to_barrier_ms: Percentiles::of_ms(&parts[1]),
-            barrier_to_present_ms: Percentiles::of_ms(&parts[2]),
         }
     }
 
-    /// Figures over the frames that every one of `displays` presented.
-    pub fn summary(&self, displays: u32) -> TimingSummary {
+    /// The durations behind [`Timing::summary`]'s percentiles, in ms: what a standby carries
+    /// over a takeover, where percentiles would not merge.
+    pub fn samples(&self, displays: u32) -> TimingSamples {
+        let per_frame = self.per_frame(displays);
+        let mut parts: [Vec<f64>; 3] = Default::default();
+        self.each_input_part(displays, |i, ms| parts[i].push(ms));
+        TimingSamples {
+            latency: per_frame.iter().map(|f| f.latency_ms).collect(),
+            skew: per_frame.iter().map(|f| f.skew_ms).collect(),
+            input_latency: self.input_latencies(displays).iter().map(|p| p.1).collect(),
+            parts,
+        }
+    }
+
+    /// Each frame's figures, over the frames that every one of `displays` presented.
+    fn per_frame(&self, displays: u32) -> Vec<FrameTiming> {
         let mut per_frame = Vec::new();
         for (frame, presents) in &self.presents {
             let Some(&start) = self.starts.get(frame) else {
@@ -237,6 +270,12 @@ impl Timing {
                 skew_ms: (last - first) as f64 / 1e6,
             });
         }
+        per_frame
+    }
+
+    /// Figures over the frames that every one of `displays` presented.
+    pub fn summary(&self, displays: u32) -> TimingSummary {
+        let per_frame = self.per_frame(displays);
         let latency: Vec<f64> = per_frame.iter().map(|f| f.latency_ms).collect();
         let skew: Vec<f64> = per_frame.iter().map(|f| f.skew_ms).collect();
         let per_input = self.input_latencies(displays);

@@ -11,6 +11,7 @@
 
 pub mod display;
 pub mod render;
+pub mod term;
 
 #[cfg(test)]
 mod display_tests;
