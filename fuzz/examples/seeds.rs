@@ -185,6 +185,7 @@ fn codec(root: &Path) {
                 particle_range: Some([-1.5, 2.0]),
             })
             .unwrap(),
+            term: 0,
         },
         ToNode::BlockHolders {
             rank: Some(1),
