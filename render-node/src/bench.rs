@@ -253,12 +253,11 @@ fn frame_params() -> Result<[(&'static str, RenderParams, &'static str); 3]> {
 fn report_memory(prepared: &PreparedScene, triangles: usize, before: Option<u64>) {
     let per = |bytes: usize| bytes as f64 / triangles.max(1) as f64;
     let a = &prepared.accel;
-    let nodes = std::mem::size_of_val(&a.nodes[..]);
     let wide = std::mem::size_of_val(&a.wide[..]);
     let leaf = std::mem::size_of_val(&a.triangles[..]);
     let index = std::mem::size_of_val(&a.scene_index[..]);
     let materials = prepared.slot_material_bytes();
-    let counted = nodes + wide + leaf + index + materials;
+    let counted = wide + leaf + index + materials;
     match (before, resident_bytes()) {
         (Some(before), Some(after)) => println!(
             "TESSERA_BYTES_PER_TRIANGLE {:.1} (resident {:.1} MB more after the scene was prepared and the loaded copy freed)",
@@ -268,9 +267,8 @@ fn report_memory(prepared: &PreparedScene, triangles: usize, before: Option<u64>
         _ => println!("TESSERA_BYTES_PER_TRIANGLE n/a (no /proc/self/statm here)"),
     }
     println!(
-        "TESSERA_ARRAY_BYTES_PER_TRIANGLE {:.1} (binary BVH nodes {:.1}, 8-wide nodes {:.1}, leaf triangles {:.1}, triangle index {:.1}, materials {:.1})",
+        "TESSERA_ARRAY_BYTES_PER_TRIANGLE {:.1} (8-wide nodes {:.1}, leaf triangles {:.1}, triangle index {:.1}, materials {:.1})",
         per(counted),
-        per(nodes),
         per(wide),
         per(leaf),
         per(index),

@@ -79,12 +79,9 @@ impl PreparedScene {
         }
     }
 
-    /// Frees what only building, caching and AOVs read, for a render node: the binary tree
-    /// (packets and single rays both walk its 8-wide collapse) and the map from leaf slots to
-    /// scene triangles (only AOVs' primitive index needs it). 16 bytes a triangle on the 4.2M
-    /// knot.
+    /// Frees what only caching and AOVs read, for a render node: the map from leaf slots to
+    /// scene triangles (only AOVs' primitive index needs it), 4 bytes a triangle.
     pub fn slim_for_rendering(&mut self) {
-        self.accel.nodes = Vec::new();
         self.accel.scene_index = Vec::new();
     }
 

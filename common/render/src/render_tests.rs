@@ -122,7 +122,7 @@ fn particles_are_drawn_colour_mapped_and_cropped_and_only_they_get_a_sphere_bvh(
     let scene = Scene::load(&tessera_model::scene_spec::SceneSpec::File(path)).unwrap();
     assert_eq!(scene.particles.len(), 50);
     let prepared = PreparedScene::new(&scene);
-    assert!(prepared.spheres.is_some() && prepared.accel.nodes.is_empty());
+    assert!(prepared.spheres.is_some() && prepared.accel.wide.is_empty());
     let wall = WallSpec::grid(1, 1, 64, 48).tile_size(32).build().unwrap();
     let grid = TileGrid::new(wall.clone());
     // The file's world point (4.5, 2, 0) is the middle of the particles, the render origin.

@@ -7,7 +7,7 @@
 //! other checks cannot: a flipped bit in a bounding box or a vertex is still a well-formed
 //! file, and trusting it would render wrong pixels on one node only.
 
-use crate::bvh::node::{BvhNode, LeafTriangle};
+use crate::bvh::node::{LeafTriangle, WideNode, EMPTY, WIDTH};
 use crate::bvh::tree::Accel;
 use crate::scene::Scene;
 use std::path::{Path, PathBuf};
@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 
 const MAGIC: [u8; 4] = *b"TBVH";
 /// Bumped whenever the node layout, the build or the file layout changes (2: payload hash;
-/// 3: obvhs' parallel build, which makes another tree than its serial one; 4: leaf slots in
-/// depth-first order).
+/// 3: obvhs' parallel build, which makes another tree than its serial one; 4: the 8-wide tree,
+/// collapsed by the SAH, in place of the binary one).
 const FORMAT: u32 = 4;
 /// Magic, format, three counts, then the payload's hash.
 const HEADER: usize = 4 + 4 + 8 * 3 + 32;
@@ -89,7 +89,7 @@ fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
     use std::io::Write;
     std::fs::create_dir_all(dir)?;
     let payload: [&[u8]; 3] = [
-        bytemuck::cast_slice(&accel.nodes),
+        bytemuck::cast_slice(&accel.wide),
         bytemuck::cast_slice(&accel.triangles),
         bytemuck::cast_slice(&accel.scene_index),
     ];
@@ -101,7 +101,7 @@ fn store(accel: &Accel, dir: &Path, path: &Path) -> std::io::Result<()> {
     let mut header = Vec::with_capacity(HEADER);
     header.extend(MAGIC);
     header.extend(FORMAT.to_le_bytes());
-    header.extend((accel.nodes.len() as u64).to_le_bytes());
+    header.extend((accel.wide.len() as u64).to_le_bytes());
     header.extend((accel.triangles.len() as u64).to_le_bytes());
     header.extend((accel.max_depth() as u64).to_le_bytes());
     header.extend(hasher.finalize().as_bytes());
@@ -159,7 +159,7 @@ fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Ac
         return Err(Damage::OtherScene);
     }
     let sizes = nodes
-        .checked_mul(std::mem::size_of::<BvhNode>())
+        .checked_mul(std::mem::size_of::<WideNode>())
         .zip(tris.checked_mul(std::mem::size_of::<LeafTriangle>()))
         .zip(tris.checked_mul(4));
     let Some(((node_bytes, tri_bytes), index_bytes)) = sizes else {
@@ -179,7 +179,7 @@ fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Ac
         hasher.update(bytes);
         Ok(())
     };
-    let mut nodes: Vec<BvhNode> = vec![bytemuck::Zeroable::zeroed(); nodes];
+    let mut nodes: Vec<WideNode> = vec![bytemuck::Zeroable::zeroed(); nodes];
     read(bytemuck::cast_slice_mut(&mut nodes))?;
     let mut leaf: Vec<LeafTriangle> = vec![bytemuck::Zeroable::zeroed(); tris];
     read(bytemuck::cast_slice_mut(&mut leaf))?;
@@ -195,27 +195,26 @@ fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Ac
 }
 
 /// Whether `nodes` is a tree that traversal can trust: leaves within the `leaves` triangles,
-/// and an inner node's two children in range, neither the root nor another node's child (so
-/// what hangs from the root has no cycle and no shared subtree; children may sit before their
-/// parent, as reinsertion leaves them). In range alone was not enough: a node that was its own
-/// child sent the 8-wide collapse, and traversal, round for ever (found by
+/// and every inner child after its parent, in range, and no other node's child (so what hangs
+/// from the root has no cycle and no shared subtree). In range alone was not enough: a node
+/// that was its own child sent traversal round for ever (found by
 /// `fuzz/fuzz_targets/bvh_cache.rs`).
-fn is_tree(nodes: &[BvhNode], leaves: usize) -> bool {
+fn is_tree(nodes: &[WideNode], leaves: usize) -> bool {
     let mut has_parent = vec![false; nodes.len()];
-    for n in nodes {
-        if n.count > 0 {
-            let end = (n.first as usize).checked_add(n.count as usize);
-            if end.is_none_or(|end| end > leaves) {
+    for (index, node) in nodes.iter().enumerate() {
+        for k in (0..WIDTH).filter(|&k| node.count[k] != EMPTY) {
+            let (child, count) = (node.child[k] as usize, node.count[k] as usize);
+            if count > 0 {
+                if child.checked_add(count).is_none_or(|end| end > leaves) {
+                    return false;
+                }
+                continue;
+            }
+            if child <= index || child >= nodes.len() || has_parent[child] {
                 return false;
             }
-            continue;
+            has_parent[child] = true;
         }
-        let first = n.first as usize;
-        if first == 0 || first + 1 >= nodes.len() || has_parent[first] || has_parent[first + 1] {
-            return false;
-        }
-        has_parent[first] = true;
-        has_parent[first + 1] = true;
     }
     true
 }
@@ -234,8 +233,8 @@ mod tests {
         assert_eq!((first, second), (Source::Built, Source::Cached));
         assert_eq!(built.scene_index, cached.scene_index);
         assert_eq!(
-            bytemuck::cast_slice::<_, u8>(&built.nodes),
-            bytemuck::cast_slice::<_, u8>(&cached.nodes)
+            bytemuck::cast_slice::<_, u8>(&built.wide),
+            bytemuck::cast_slice::<_, u8>(&cached.wide)
         );
         assert_eq!(
             bytemuck::cast_slice::<_, u8>(&built.triangles),
@@ -284,23 +283,29 @@ mod tests {
         let (rebuilt, source) = load_or_build(&scene, Some(dir.path()));
         assert_eq!(source, Source::Built);
         assert_eq!(
-            bytemuck::cast_slice::<_, u8>(&rebuilt.nodes),
-            bytemuck::cast_slice::<_, u8>(&built.nodes)
+            bytemuck::cast_slice::<_, u8>(&rebuilt.wide),
+            bytemuck::cast_slice::<_, u8>(&built.wide)
         );
         // ...and the rebuild replaced the damaged file.
         assert_eq!(std::fs::read(&path).unwrap(), good);
         assert_eq!(load_or_build(&scene, Some(dir.path())).1, Source::Cached);
     }
 
-    /// A cache file of `nodes` (first, count) and `triangles` zero triangles, its hash made to
-    /// match, so only the checks behind the hash can refuse it.
-    fn file_of(nodes: &[(u32, u32)], triangles: usize) -> Vec<u8> {
-        let mut payload = Vec::new();
-        for &(first, count) in nodes {
-            payload.extend([0u8; 24]);
-            payload.extend(first.to_le_bytes());
-            payload.extend(count.to_le_bytes());
-        }
+    /// A cache file of wide nodes, each its slots' (child, count) (the rest empty), and
+    /// `triangles` zero triangles, its hash made to match, so only the checks behind the hash
+    /// can refuse it.
+    fn file_of(nodes: &[&[(u32, u32)]], triangles: usize) -> Vec<u8> {
+        let wide: Vec<WideNode> = nodes
+            .iter()
+            .map(|slots| {
+                let mut node = crate::bvh::node::BLANK;
+                for (k, &(child, count)) in slots.iter().enumerate() {
+                    (node.child[k], node.count[k]) = (child, count);
+                }
+                node
+            })
+            .collect();
+        let mut payload = bytemuck::cast_slice::<_, u8>(&wide).to_vec();
         payload.resize(payload.len() + triangles * (36 + 4), 0);
         header(&[nodes.len() as u64, triangles as u64, 0], &payload)
     }
@@ -316,24 +321,29 @@ mod tests {
 
     #[test]
     fn a_node_that_is_its_own_child_is_refused_not_walked_for_ever() {
-        // The fuzzer's input: three nodes, the root its own first child. The collapse looped.
-        let looped = file_of(&[(0, 0), (0, 0), (0, 0)], 0);
         let refused = Some("an index is out of range");
+        // The root its own child: traversal looped.
+        let looped = file_of(&[&[(0, 0)]], 0);
         assert_eq!(decode_bytes(&looped, 0).err().as_deref(), refused);
-        // A child that is the root again, and two parents sharing children: a cycle, a blow-up.
-        let back = file_of(&[(1, 0), (0, 1), (0, 0)], 1);
+        // A child that is the root again, and two parents sharing a child: a cycle, a blow-up.
+        let back = file_of(&[&[(1, 0)], &[(0, 0), (0, 1)]], 1);
         assert_eq!(decode_bytes(&back, 1).err().as_deref(), refused);
-        let shared = file_of(&[(1, 0), (3, 0), (3, 0), (0, 1), (0, 1)], 1);
+        let shared = file_of(&[&[(1, 0), (2, 0)], &[(3, 0)], &[(3, 0)], &[(0, 1)]], 1);
         assert_eq!(decode_bytes(&shared, 1).err().as_deref(), refused);
-        let tree = file_of(&[(1, 0), (3, 0), (0, 1), (0, 1), (0, 1)], 1);
+        // A leaf past the triangles, and one whose end wraps.
+        let past = file_of(&[&[(0, 2)]], 1);
+        assert_eq!(decode_bytes(&past, 1).err().as_deref(), refused);
+        let wraps = file_of(&[&[(u32::MAX - 1, 3)]], 1);
+        assert_eq!(decode_bytes(&wraps, 1).err().as_deref(), refused);
+        let tree = file_of(&[&[(1, 0), (2, 0)], &[(0, 1)], &[(0, 1)]], 1);
         assert!(decode_bytes(&tree, 1).is_ok());
     }
 
     #[test]
     fn counts_whose_byte_total_wraps_are_refused_before_allocating() {
-        // 2^59 - 1 nodes of 32 bytes and one triangle wrapped the total to 72 bytes: the file's
-        // own length, so the node array was allocated from the count.
-        let file = header(&[(1 << 59) - 1, 1, 0], &[0; 8]);
+        // 2^56 nodes of 256 bytes and one triangle wrap the total to 72 bytes: the file's own
+        // length, so the node array would be allocated from the count.
+        let file = header(&[1 << 56, 1, 0], &[0; 8]);
         assert_eq!(file.len(), 72);
         assert_eq!(
             decode_bytes(&file, 1).err().as_deref(),

@@ -105,23 +105,33 @@ struct Plan<'a> {
 }
 
 impl<'a> Plan<'a> {
+    /// Fills the table children first. A subtree's costs are needed only until its parent's
+    /// are known, so they live on a stack as deep as the tree, not in a table: a table of them
+    /// was 32 bytes a binary node, about 55 a triangle, during the build.
     fn new(nodes: &'a [BvhNode]) -> Self {
-        let order = children_first(nodes);
         let mut spans = vec![(0, NOT_CONTIGUOUS); nodes.len()];
-        let mut costs = vec![[0f32; WIDTH]; nodes.len()];
         let mut choices = vec![[Choice::Leaf; WIDTH + 1]; nodes.len()];
-        for &i in &order {
+        let mut costs: Vec<[f32; WIDTH]> = Vec::new();
+        // (node, whether its children are done); the second child is pushed first so that its
+        // costs end on top of the first's.
+        let mut stack = vec![(0u32, false)];
+        while let Some((i, children_done)) = stack.pop() {
             let n = &nodes[i as usize];
             let i = i as usize;
             if n.count > 0 {
                 spans[i] = (n.first, n.count);
-                costs[i] = [area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH];
-                continue;
+                costs.push([area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH]);
+            } else if !children_done {
+                stack.extend([(i as u32, true), (n.first + 1, false), (n.first, false)]);
+            } else {
+                let (l, r) = (n.first as usize, n.first as usize + 1);
+                spans[i] = join(spans[l], spans[r]);
+                let right = costs.pop().expect("the second child's costs");
+                let left = costs.pop().expect("the first child's costs");
+                let (cost, choice) = node_costs(area(n), spans[i], &left, &right);
+                costs.push(cost);
+                choices[i] = choice;
             }
-            let (l, r) = (n.first as usize, n.first as usize + 1);
-            spans[i] = join(spans[l], spans[r]);
-            let (cost, choice) = node_costs(area(n), spans[i], &costs[l], &costs[r]);
-            (costs[i], choices[i]) = (cost, choice);
         }
         Plan {
             nodes,
@@ -217,19 +227,4 @@ fn join(a: Span, b: Span) -> Span {
         _ if whole && b.0 + b.1 == a.0 => (b.0, a.1 + b.1),
         _ => (0, NOT_CONTIGUOUS),
     }
-}
-
-/// The binary tree's node indices, every node after its children.
-fn children_first(nodes: &[BvhNode]) -> Vec<u32> {
-    let mut order = Vec::with_capacity(nodes.len());
-    let mut stack = vec![0u32];
-    while let Some(i) = stack.pop() {
-        order.push(i);
-        let n = &nodes[i as usize];
-        if n.count == 0 {
-            stack.extend([n.first, n.first + 1]);
-        }
-    }
-    order.reverse();
-    order
 }

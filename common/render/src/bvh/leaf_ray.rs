@@ -14,7 +14,7 @@ const LANES: usize = 8;
 
 /// Leaves smaller than this are tested one triangle at a time: gathering the corners into lanes
 /// costs more than it saves on a few.
-const WIDE_FROM: usize = 6;
+const WIDE_FROM: usize = 2;
 
 /// A leaf chunk's answers for one ray.
 struct ChunkHits {

@@ -1,13 +1,11 @@
-//! The tree as a whole ([`Accel`]): a binary BVH built by obvhs (`build`), flattened into our
-//! own node array with the triangles stored in leaf order, so a leaf's triangles are contiguous
-//! in memory, and its 8-wide collapse (`collapse`), which every ray walks and which shares its
-//! leaves. The binary tree is what obvhs builds and what the cache stores; a render node frees
-//! it once the 8-wide one is made. Searching it is the traversals' (`traverse_ray`,
+//! The tree as a whole ([`Accel`]): a binary BVH built by obvhs (`build`), collapsed 8-wide
+//! (`collapse`), with the triangles stored in leaf order, so a leaf's triangles are contiguous
+//! in memory. The binary tree lives only during the build: the cache stores the 8-wide one, so
+//! loading it makes no second tree. Searching it is the traversals' (`traverse_ray`,
 //! `traverse_packet`), which add their methods to [`Accel`] there.
 
-use crate::bvh::collapse::collapse;
 use crate::bvh::memory::Resident;
-use crate::bvh::node::{BvhNode, LeafTriangle, WideNode, EMPTY, WIDTH};
+use crate::bvh::node::{LeafTriangle, WideNode, EMPTY, WIDTH};
 use crate::geometry::Bounds;
 use glam::Vec3;
 
@@ -43,9 +41,8 @@ use glam::Vec3;
 /// assert!(bvh.closest_hit(&up, 0.0, f32::INFINITY, &mut stack).is_none());
 /// ```
 pub struct Accel {
-    /// The binary tree as built (and cached); empty once slimmed for rendering.
-    pub nodes: Vec<BvhNode>,
-    /// The same tree collapsed 8-wide, which every traversal walks (see `collapse`).
+    /// The tree, 8-wide (see `collapse`), the root first and every node before its children:
+    /// what every traversal walks and the cache stores.
     pub wide: Vec<WideNode>,
     /// The triangles' corners in leaf order (render coordinates): leaf slots index this.
     pub triangles: Vec<LeafTriangle>,
@@ -57,14 +54,13 @@ pub struct Accel {
 impl Accel {
     /// Reassembles a BVH from its arrays (see `cache`).
     pub fn from_parts(
-        nodes: Vec<BvhNode>,
+        wide: Vec<WideNode>,
         triangles: Vec<LeafTriangle>,
         scene_index: Vec<u32>,
         max_depth: usize,
     ) -> Self {
         Accel {
-            wide: collapse(&nodes),
-            nodes,
+            wide,
             triangles,
             scene_index,
             max_depth: max_depth.clamp(64, 1 << 16),
@@ -76,8 +72,7 @@ impl Accel {
         self.max_depth
     }
 
-    /// The box around every triangle, from the wide tree's root (which a render node keeps
-    /// when it frees the binary tree).
+    /// The box around every triangle, from the wide tree's root.
     pub fn bounds(&self) -> Bounds {
         let mut bounds = Bounds::EMPTY;
         if let Some(root) = self.wide.first() {

@@ -317,6 +317,9 @@ impl ply_rs_bw::ply::PropertyAccess for PlyRow {
     }
 }
 
+/// Reads a PLY file row by row into the mesh: no element's rows are held, so the load's peak
+/// is the mesh itself (the crate's own payload reader kept every row, each face with its own
+/// index list: 150 MB, 172 bytes a triangle, for the 871k-triangle dragon).
 fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
     use ply_rs_bw::parser::{Parser, Reader};
     use ply_rs_bw::ply::Encoding;
@@ -332,33 +335,38 @@ fn load_ply(path: &Path) -> Result<Mesh, SceneError> {
         ))
     })?;
     check_ply_header(path, &header)?;
-    let rows = PlyRows {
+    let mut rows = PlyRows {
         path,
         ascii: header.encoding == Encoding::Ascii,
+        first_line: reader.line().max(1),
     };
-    let (mut vertices, mut faces) = (None, None);
-    for (name, def) in &header.elements {
-        // The crate counts one "line" per element row in binary files too, so this gives the
-        // row index whatever the encoding.
-        let first_line = reader.line().max(1);
-        let read = parser
-            .read_payload_for_element(&mut reader, def, &header)
-            .map_err(|e| rows.error(name, first_line, e))?;
-        match name.as_str() {
-            "vertex" => vertices = Some((read, first_line)),
-            "face" => faces = Some((read, first_line)),
-            _ => {}
-        }
-    }
     let mut mesh = Mesh::default();
-    rows.vertices(
-        vertices.ok_or_else(|| err("has no `vertex` element".into()))?,
-        &mut mesh,
-    )?;
-    rows.faces(
-        faces.ok_or_else(|| err("has no `face` element".into()))?,
-        &mut mesh,
-    )?;
+    let mut colors = Some(Vec::new());
+    let mut seen_vertices = false;
+    for (name, def) in &header.elements {
+        let each = |index: usize, row: PlyRow, rows: &PlyRows| match name.as_str() {
+            "vertex" => rows.vertex(index, row, &mut mesh, &mut colors),
+            "face" if !seen_vertices => Err(err("has its `face` element before `vertex`".into())),
+            "face" => rows.face(index, row, &mut mesh),
+            _ => Ok(()),
+        };
+        rows.read_element(
+            &parser,
+            reader.get_mut(),
+            (name, def),
+            header.encoding,
+            each,
+        )?;
+        seen_vertices |= name == "vertex";
+        rows.first_line += def.count;
+    }
+    if u32::try_from(mesh.positions.len()).is_err() {
+        return Err(err(format!(
+            "{} vertices is more than 32-bit indices reach",
+            mesh.positions.len()
+        )));
+    }
+    mesh.colors.vertex = colors.unwrap_or_default();
     Ok(mesh)
 }
 
@@ -401,6 +409,8 @@ fn check_ply_header(path: &Path, header: &ply_rs_bw::ply::Header) -> Result<(), 
 struct PlyRows<'a> {
     path: &'a Path,
     ascii: bool,
+    /// The line of the element being read's first row (ascii files).
+    first_line: usize,
 }
 
 impl PlyRows<'_> {
@@ -408,93 +418,138 @@ impl PlyRows<'_> {
         file_error(self.path, message)
     }
 
-    /// Where row `index` of element `name`, which starts at `first_line`, is.
-    fn row(&self, name: &str, index: usize, first_line: usize) -> String {
+    /// Where row `index` of element `name` is.
+    fn row(&self, name: &str, index: usize) -> String {
         if self.ascii {
-            format!("{name} {index} (line {})", first_line + index)
+            format!("{name} {index} (line {})", self.first_line + index)
         } else {
             format!("{name} {index}")
         }
     }
 
-    /// The crate's error reading element `name` (from `first_line`), naming the row at fault.
-    fn error(&self, name: &str, first_line: usize, e: ply_rs_bw::parser::ParseError) -> SceneError {
-        let text = e.to_string();
-        match e.line() {
-            Some(line) if line >= first_line => {
-                let prefix = format!("Line {line}: ");
-                let text = text.strip_prefix(&prefix).unwrap_or(&text);
-                let at = self.row(name, line - first_line, first_line);
-                self.err(format!("{at}: {}", one_line(text)))
-            }
-            _ => self.err(format!("element `{name}`: {}", one_line(&text))),
-        }
-    }
-
-    /// The vertex rows (from `vertex_line`) as the mesh's positions.
-    fn vertices(
+    /// Reads element `name`'s rows one at a time, handing each to `each` with its index.
+    fn read_element<R: std::io::BufRead>(
         &self,
-        (vertices, vertex_line): (Vec<PlyRow>, usize),
-        mesh: &mut Mesh,
+        parser: &ply_rs_bw::parser::Parser<PlyRow>,
+        reader: &mut R,
+        (name, def): (&str, &ply_rs_bw::ply::ElementDef),
+        encoding: ply_rs_bw::ply::Encoding,
+        mut each: impl FnMut(usize, PlyRow, &Self) -> Result<(), SceneError>,
     ) -> Result<(), SceneError> {
-        for (index, vertex) in vertices.iter().enumerate() {
-            let at = || self.row("vertex", index, vertex_line);
-            let [Some(x), Some(y), Some(z)] = vertex.xyz else {
-                return Err(self.err(format!("{} lacks one of x, y, z", at())));
+        use ply_rs_bw::ply::Encoding;
+        let mut line = String::with_capacity(128);
+        for index in 0..def.count {
+            let row = match encoding {
+                Encoding::Ascii => self.ascii_row(parser, reader, &mut line, (name, def), index)?,
+                Encoding::BinaryLittleEndian => parser
+                    .read_little_endian_element(reader, def)
+                    .map_err(|e| self.binary_error(name, def.count, index, e))?,
+                Encoding::BinaryBigEndian => parser
+                    .read_big_endian_element(reader, def)
+                    .map_err(|e| self.binary_error(name, def.count, index, e))?,
             };
-            let p = DVec3::new(x, y, z);
-            if !in_range(p) {
-                return Err(self.err(format!("{} has a non-finite coordinate {p}", at())));
-            }
-            mesh.positions.push(p);
-        }
-        // Colours when every vertex has all three channels; a partial set is no colour.
-        if vertices.iter().all(|v| v.has_rgb == 0b111) {
-            mesh.colors.vertex = vertices
-                .iter()
-                .map(|v| SurfaceColors::encode_unit(v.rgb))
-                .collect();
-        }
-        let count = mesh.positions.len();
-        if u32::try_from(count).is_err() {
-            return Err(self.err(format!(
-                "{count} vertices is more than 32-bit indices reach"
-            )));
+            each(index, row, self)?;
         }
         Ok(())
     }
 
-    /// The face rows (from `face_line`) as the mesh's triangles, each polygon a fan.
-    fn faces(
+    /// Ascii row `index` of element `name`, read through `line`.
+    fn ascii_row<R: std::io::BufRead>(
         &self,
-        (faces, face_line): (Vec<PlyRow>, usize),
+        parser: &ply_rs_bw::parser::Parser<PlyRow>,
+        reader: &mut R,
+        line: &mut String,
+        (name, def): (&str, &ply_rs_bw::ply::ElementDef),
+        index: usize,
+    ) -> Result<PlyRow, SceneError> {
+        let at = || self.row(name, index);
+        line.clear();
+        let read = reader
+            .read_line(line)
+            .map_err(|e| self.err(e.to_string()))?;
+        if read == 0 {
+            return Err(self.err(format!(
+                "{}: Unexpected end of file while reading element '{name}' (expected {}, got {index}).",
+                at(),
+                def.count
+            )));
+        }
+        parser.read_ascii_element(line, def).map_err(|e| {
+            let text = line.trim_end();
+            let why = format!("Couldn't read element line.\n\tString: '{text}'\n\tError: {e}");
+            self.err(format!("{}: {}", at(), one_line(&why)))
+        })
+    }
+
+    /// The crate's error reading binary row `index` of `count`, naming the row at fault.
+    fn binary_error(
+        &self,
+        name: &str,
+        count: usize,
+        index: usize,
+        e: ply_rs_bw::parser::ParseError,
+    ) -> SceneError {
+        let at = self.row(name, index);
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            return self.err(format!(
+                "{at}: Unexpected end of file while reading binary element '{name}' (expected {count}, got {index})"
+            ));
+        }
+        self.err(format!("{at}: {}", one_line(&e.to_string())))
+    }
+
+    /// Vertex row `index` as the mesh's next position, and its colour while every vertex so
+    /// far has all three channels (a partial set is no colour).
+    fn vertex(
+        &self,
+        index: usize,
+        vertex: PlyRow,
         mesh: &mut Mesh,
+        colors: &mut Option<Vec<[u8; 3]>>,
     ) -> Result<(), SceneError> {
+        let at = || self.row("vertex", index);
+        let [Some(x), Some(y), Some(z)] = vertex.xyz else {
+            return Err(self.err(format!("{} lacks one of x, y, z", at())));
+        };
+        let p = DVec3::new(x, y, z);
+        if !in_range(p) {
+            return Err(self.err(format!("{} has a non-finite coordinate {p}", at())));
+        }
+        mesh.positions.push(p);
+        match colors {
+            Some(list) if vertex.has_rgb == 0b111 => {
+                list.push(SurfaceColors::encode_unit(vertex.rgb))
+            }
+            _ => *colors = None,
+        }
+        Ok(())
+    }
+
+    /// Face row `index` as the mesh's triangles, a polygon as a fan.
+    fn face(&self, index: usize, face: PlyRow, mesh: &mut Mesh) -> Result<(), SceneError> {
         let count = mesh.positions.len();
-        for (index, face) in faces.iter().enumerate() {
-            let at = || self.row("face", index, face_line);
-            let list = face
-                .indices
-                .as_deref()
-                .ok_or_else(|| self.err(format!("{} has no `vertex_indices` list", at())))?;
-            if list.len() < 3 {
-                return Err(self.err(format!(
-                    "{} has {} vertices, fewer than 3",
-                    at(),
-                    list.len()
-                )));
-            }
-            if let Some(&bad) = list.iter().find(|&&v| v < 0 || v as usize >= count) {
-                return Err(self.err(format!(
-                    "{} uses vertex {bad}, but there are only {count} vertices",
-                    at()
-                )));
-            }
-            // In range of a u32-indexed vertex list, checked just above.
-            let v = |k: usize| list[k] as u32;
-            for k in 1..list.len() - 1 {
-                mesh.triangles.push([v(0), v(k), v(k + 1)]);
-            }
+        let at = || self.row("face", index);
+        let list = face
+            .indices
+            .as_deref()
+            .ok_or_else(|| self.err(format!("{} has no `vertex_indices` list", at())))?;
+        if list.len() < 3 {
+            return Err(self.err(format!(
+                "{} has {} vertices, fewer than 3",
+                at(),
+                list.len()
+            )));
+        }
+        if let Some(&bad) = list.iter().find(|&&v| v < 0 || v as usize >= count) {
+            return Err(self.err(format!(
+                "{} uses vertex {bad}, but there are only {count} vertices",
+                at()
+            )));
+        }
+        // In range of a u32-indexed vertex list, checked just above.
+        let v = |k: usize| list[k] as u32;
+        for k in 1..list.len() - 1 {
+            mesh.triangles.push([v(0), v(k), v(k + 1)]);
         }
         Ok(())
     }
