@@ -247,16 +247,19 @@ fn load(
         },
     });
     let t0 = Instant::now();
-    let (accel, source) =
-        pool.install(|| tessera_render::bvh::cache::load_or_build(&scene, bvh_cache.as_deref()));
+    let triangles = scene.triangles.len();
+    // The mesh's vertices and triangles go before a cached tree is read (see `load_lean`).
+    let lean = pool.install(|| {
+        tessera_render::bvh::cache::load_lean(scene, bvh_cache.as_deref(), || Scene::load(spec))
+    })?;
     set(LoadStep::Preparing);
     tracing::info!(
-        "BVH of {} triangles {:?} in {:.2} s",
-        scene.triangles.len(),
-        source,
+        "BVH of {triangles} triangles {:?} in {:.2} s",
+        lean.source,
         t0.elapsed().as_secs_f64()
     );
-    let mut prepared = PreparedScene::from_accel(&scene, accel);
+    let scene = lean.scene;
+    let mut prepared = PreparedScene::from_accel_in(&scene, lean.accel, lean.bounds);
     prepared.slim_for_rendering();
     // Two readers: one step ahead while the next loads, on a node whose cores render.
     let series = (!scene.series.is_empty()).then(|| {

@@ -53,6 +53,13 @@ impl PreparedScene {
 
     /// Uses an already built (e.g. cached) BVH of `scene`.
     pub fn from_accel(scene: &Scene, accel: Accel) -> Self {
+        Self::from_accel_in(scene, accel, scene.bounds())
+    }
+
+    /// [`PreparedScene::from_accel`] with the scene's [`Scene::bounds`] measured before its
+    /// triangles were freed (see [`crate::bvh::cache::load_lean`]); a scene with texture
+    /// coordinates or vertex colours must keep its triangles.
+    pub fn from_accel_in(scene: &Scene, accel: Accel, bounds: crate::geometry::Bounds) -> Self {
         let slot_material = SlotMaterials::PerSlot(
             accel
                 .scene_index
@@ -62,7 +69,7 @@ impl PreparedScene {
         );
         let colors = SlotColors::of(scene, &accel.scene_index).map(Box::new);
         PreparedScene {
-            diagonal: scene.bounds().diagonal().length(),
+            diagonal: bounds.diagonal().length(),
             colors,
             accel,
             shared: None,
