@@ -258,8 +258,13 @@ fn load(
         lean.source,
         t0.elapsed().as_secs_f64()
     );
-    let scene = lean.scene;
-    let mut prepared = PreparedScene::from_accel_in(&scene, lean.accel, lean.bounds);
+    let mut scene = lean.scene;
+    if lean.slot_material.is_some() {
+        // Mapped to the slots already: the scene's own order is not needed again.
+        scene.triangle_material = Vec::new();
+    }
+    let mut prepared =
+        PreparedScene::from_accel_in(&scene, lean.accel, lean.bounds, lean.slot_material);
     prepared.slim_for_rendering();
     // Two readers: one step ahead while the next loads, on a node whose cores render.
     let series = (!scene.series.is_empty()).then(|| {

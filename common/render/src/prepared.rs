@@ -53,20 +53,26 @@ impl PreparedScene {
 
     /// Uses an already built (e.g. cached) BVH of `scene`.
     pub fn from_accel(scene: &Scene, accel: Accel) -> Self {
-        Self::from_accel_in(scene, accel, scene.bounds())
+        Self::from_accel_in(scene, accel, scene.bounds(), None)
     }
 
     /// [`PreparedScene::from_accel`] with the scene's [`Scene::bounds`] measured before its
-    /// triangles were freed (see [`crate::bvh::cache::load_lean`]); a scene with texture
-    /// coordinates or vertex colours must keep its triangles.
-    pub fn from_accel_in(scene: &Scene, accel: Accel, bounds: crate::geometry::Bounds) -> Self {
-        let slot_material = SlotMaterials::PerSlot(
+    /// triangles were freed, and its slots' materials when its scene index was not kept (see
+    /// [`crate::bvh::cache::load_lean`]); a scene with texture coordinates or vertex colours
+    /// must keep its triangles.
+    pub fn from_accel_in(
+        scene: &Scene,
+        accel: Accel,
+        bounds: crate::geometry::Bounds,
+        slot_material: Option<Vec<u16>>,
+    ) -> Self {
+        let slot_material = SlotMaterials::PerSlot(slot_material.unwrap_or_else(|| {
             accel
                 .scene_index
                 .iter()
                 .map(|&i| scene.triangle_material[i as usize])
-                .collect(),
-        );
+                .collect()
+        }));
         let colors = SlotColors::of(scene, &accel.scene_index).map(Box::new);
         PreparedScene {
             diagonal: bounds.diagonal().length(),

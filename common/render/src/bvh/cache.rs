@@ -96,6 +96,9 @@ pub struct LeanScene {
     pub bounds: crate::geometry::Bounds,
     /// Where the tree came from.
     pub source: Source,
+    /// The material of each leaf slot, when the tree came from the cache: its scene index
+    /// was mapped as it was read and not kept (`accel.scene_index` is empty then).
+    pub slot_material: Option<Vec<u16>>,
 }
 
 /// [`load_or_build`] for a render node, which needs the loaded mesh only to find and check
@@ -122,21 +125,29 @@ pub fn load_lean<E>(
             accel,
             bounds,
             source,
+            slot_material: None,
         });
     };
     let triangles = scene.triangles.len();
     scene.positions = Vec::new();
     scene.triangles = Vec::new();
+    let mut slot_material = Vec::with_capacity(triangles);
+    let mut map = |index: &[u32]| {
+        slot_material.extend(index.iter().map(|&i| scene.triangle_material[i as usize]));
+    };
     let read = std::fs::File::open(&path)
         .and_then(|f| Ok((f.metadata()?.len(), f)))
         .map_err(|e| e.to_string())
-        .and_then(|(len, file)| decode(file, len, triangles).map_err(|e| e.to_string()));
+        .and_then(|(len, file)| {
+            decode_mapping(file, len, triangles, Some(&mut map)).map_err(|e| e.to_string())
+        });
     match read {
         Ok(accel) => Ok(LeanScene {
             scene,
             accel,
             bounds,
             source: Source::Cached,
+            slot_material: Some(slot_material),
         }),
         Err(why) => {
             tracing::warn!(
@@ -151,6 +162,7 @@ pub fn load_lean<E>(
                 accel,
                 bounds,
                 source,
+                slot_material: None,
             })
         }
     }
@@ -214,7 +226,24 @@ pub fn decode_bytes(bytes: &[u8], triangles: usize) -> Result<Accel, String> {
 
 /// Reads a cache file of `len` bytes straight into the arrays (no copy of the whole file is
 /// held: on a multi-million-triangle mesh that copy was the load's peak) and checks it.
-fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Accel, Damage> {
+fn decode(file: impl std::io::Read, len: u64, triangles: usize) -> Result<Accel, Damage> {
+    decode_mapping(file, len, triangles, None)
+}
+
+/// What takes the scene index in pieces instead of keeping it (see [`decode_mapping`]).
+type IndexMap<'a> = dyn FnMut(&[u32]) + 'a;
+
+/// Slots read from the scene index at a time when it is mapped rather than kept.
+const INDEX_CHUNK: usize = 1 << 16;
+
+/// [`decode`]; with `map`, the scene index is handed to it in pieces, in slot order, and not
+/// kept (the accelerator's `scene_index` is empty): a render node needs only what it maps to.
+fn decode_mapping(
+    mut file: impl std::io::Read,
+    len: u64,
+    triangles: usize,
+    map: Option<&mut IndexMap<'_>>,
+) -> Result<Accel, Damage> {
     let mut header = [0u8; HEADER];
     file.read_exact(&mut header).map_err(|_| Damage::Format)?;
     if header[..4] != MAGIC {
@@ -254,12 +283,32 @@ fn decode(mut file: impl std::io::Read, len: u64, triangles: usize) -> Result<Ac
     read(bytemuck::cast_slice_mut(&mut nodes))?;
     let mut leaf: Vec<LeafTriangle> = vec![bytemuck::Zeroable::zeroed(); tris];
     read(bytemuck::cast_slice_mut(&mut leaf))?;
-    let mut scene_index = vec![0u32; tris];
-    read(bytemuck::cast_slice_mut(&mut scene_index))?;
+    let in_range = |index: &[u32]| index.iter().all(|&i| (i as usize) < triangles);
+    let mut all_in_range = true;
+    let scene_index = match map {
+        None => {
+            let mut scene_index = vec![0u32; tris];
+            read(bytemuck::cast_slice_mut(&mut scene_index))?;
+            all_in_range = in_range(&scene_index);
+            scene_index
+        }
+        Some(map) => {
+            let mut chunk = vec![0u32; INDEX_CHUNK.min(tris)];
+            for start in (0..tris).step_by(INDEX_CHUNK) {
+                let piece = &mut chunk[..INDEX_CHUNK.min(tris - start)];
+                read(bytemuck::cast_slice_mut(piece))?;
+                all_in_range &= in_range(piece);
+                if all_in_range {
+                    map(piece);
+                }
+            }
+            Vec::new()
+        }
+    };
     if hasher.finalize().as_bytes()[..] != header[HEADER - 32..] {
         return Err(Damage::Checksum);
     }
-    if !is_tree(&nodes, leaf.len()) || scene_index.iter().any(|&i| i as usize >= triangles) {
+    if !is_tree(&nodes, leaf.len()) || !all_in_range {
         return Err(Damage::Index);
     }
     Ok(Accel::from_parts(nodes, leaf, scene_index, depth))
@@ -327,6 +376,11 @@ mod tests {
         let second = load_lean(scene(), Some(dir.path()), reload).unwrap();
         assert_eq!(second.source, Source::Cached);
         assert!(second.scene.triangles.is_empty() && second.scene.positions.is_empty());
+        assert!(second.accel.scene_index.is_empty(), "mapped, not kept");
+        let by_slot: Vec<u16> = (first.accel.scene_index.iter())
+            .map(|&i| first.scene.triangle_material[i as usize])
+            .collect();
+        assert_eq!(second.slot_material, Some(by_slot));
         assert_eq!(second.bounds, scene().bounds());
         assert_eq!(
             bytemuck::cast_slice::<_, u8>(&second.accel.wide),
