@@ -17,6 +17,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tessera_cli::png::PngFile;
 use tessera_core::node::display::{DisplayEvent, DisplaySession, PresentOrder};
+use tessera_core::node::term::MasterTerm;
 use tessera_model::image::RgbImage;
 use tessera_model::input::InputEvent;
 use tessera_model::wall::{DisplayId, ScreenRect, TileGrid};
@@ -26,7 +27,7 @@ use tessera_net::link::{LinkError, MasterLink, Welcome};
 use tessera_net::quic;
 use tessera_net::reconnect::Reconnect;
 use tessera_net::sd_notify;
-use tessera_protocol::{DisplayStats, FrameId, FromNode, NodeStats, Role};
+use tessera_protocol::{DisplayStats, FrameId, FromNode, NodeStats, Role, ToNode};
 use tokio::sync::mpsc;
 
 /// What the window thread and the network side hand each other (see `run_with_window`).
@@ -74,25 +75,31 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let identity = NodeIdentity::load(&cli.cert_dir)?;
     let endpoint = quic::endpoint(cli.listen, &identity, true)?;
     let pixel_addr = cli.advertise.unwrap_or(endpoint.local_addr()?);
-    let master_addr = tessera_net::resolve(&cli.master).await?;
-    let reconnect = Reconnect {
-        endpoint: endpoint.clone(),
-        master: master_addr,
-        role: Role::Display {
+    let masters = tessera_net::reconnect::resolve_masters(&cli.master).await?;
+    let reconnect = Reconnect::new(
+        endpoint.clone(),
+        masters,
+        Role::Display {
             display: me,
             pixel_addr,
         },
-        wait: cli.reconnect.wait(),
-        name: format!("display {}", me.0),
-    };
+        cli.reconnect.wait(),
+        format!("display {}", me.0),
+    );
     let first = reconnect
         .join()
         .await
         .with_context(|| format!("display {} could not join", me.0))
         .context("is tessera-master running there? see --help")?;
     let mut window = window.map_or(WindowState::Headless, WindowState::ToOpen);
+    let mut term = MasterTerm::default();
     reconnect
         .run(first, async |link, welcome| {
+            if let Err(stale) = term.admit(welcome.term) {
+                tracing::warn!("display {}: {stale}; trying the next master", me.0);
+                link.refuse_stale(&stale.message()).await;
+                return Err(LinkError::StaleMaster(stale.to_string()).into());
+            }
             session(&cli, &endpoint, link, welcome, &mut window).await
         })
         .await
@@ -189,6 +196,7 @@ async fn session(
         window,
         out: cli.out.clone(),
         last_shown: None,
+        started: false,
     };
     driver.drive(&mut link, tiles, window_io).await?;
     let stats = DisplayStats {
@@ -224,6 +232,8 @@ struct Driver {
     out: Option<PathBuf>,
     /// The frame shown now: what a still wall's snapshot, overlay and thumbnail are of.
     last_shown: Option<(FrameId, RgbImage)>,
+    /// Whether a frame started in this session.
+    started: bool,
 }
 
 impl Driver {
@@ -245,7 +255,7 @@ impl Driver {
                 // The master's messages first: a Present waiting behind a burst of tiles would
                 // let tiles of later frames be judged against a stale frame count, and refused.
                 biased;
-                msg = link.recv() => self.session.handle_message(msg?)?,
+                msg = link.recv() => self.message(msg?)?,
                 Some((frame, clock_ns)) = async { presents.as_mut()?.recv().await } => {
                     link.send(&FromNode::Presented { frame: FrameId(frame), clock_ns }).await?;
                 }
@@ -256,6 +266,21 @@ impl Driver {
                 Some(tile) = tiles.recv() => self.tile(tile),
             }
         }
+    }
+
+    /// Hands the master's message to the session. A session's first frame need not be 0: a
+    /// standby that took the wall over starts at its horizon, so the first `FrameStart` of a
+    /// session is where this display starts.
+    fn message(&mut self, msg: ToNode) -> Result<()> {
+        if let ToNode::FrameStart(start) = &msg {
+            if !self.started {
+                self.started = true;
+                let frame = start.frame;
+                self.session.handle_message(ToNode::StartAt { frame })?;
+            }
+        }
+        self.session.handle_message(msg)?;
+        Ok(())
     }
 
     fn tile(&mut self, tile: IncomingTile) {

@@ -204,6 +204,16 @@ pub struct ServeArgs {
     /// wall's network.
     #[arg(long, value_name = "ADDR")]
     pub console: Option<SocketAddr>,
+    /// Start as the standby of the master at ADDR (HOST:PORT, the primary's --listen): join
+    /// it over the cluster's mutual TLS with this --cluster-dir's master certificate, follow
+    /// its run (every change of the wall's state, the frames started, the report so far) and,
+    /// once the primary is gone (its connection closes, or it is silent for 3 s), take the
+    /// wall over on --listen: nodes started with `--master PRIMARY,STANDBY` rejoin it and
+    /// frames resume with the next state, the camera where it was. Give it the primary's run
+    /// flags (scene, wall, --frames). It exits, as the primary does, when the primary's run
+    /// ends without it.
+    #[arg(long, value_name = "ADDR")]
+    pub standby_of: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -498,5 +508,6 @@ pub fn prepare_run(run: &RunArgs, render_nodes: u32, show_progress: bool) -> Res
         master,
         show_progress,
         record: run.record.clone(),
+        takeover: None,
     })
 }

@@ -29,6 +29,7 @@ mod reference;
 mod relay;
 mod server;
 mod simulate;
+mod standby_link;
 mod validate;
 mod wall_run;
 

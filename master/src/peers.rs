@@ -38,6 +38,13 @@ pub enum Event {
     Msg(PeerId, FromNode),
     /// A joined peer's stream or connection ended; the text says why.
     Closed(PeerId, String),
+    /// A standby master connected (it negotiated the standby ALPN); its certificate is yet to
+    /// be checked.
+    Standby(quinn::Connection),
+    /// The standby of this generation acknowledged a replica.
+    StandbyAck(u64, tessera_core::master::standby::ReplicaAck),
+    /// The standby of this generation is gone; the text says why.
+    StandbyClosed(u64, String),
 }
 
 /// How long a connecting peer has for the TLS handshake, and then for its hello.
@@ -51,6 +58,11 @@ pub async fn accept_peer(incoming: quinn::Incoming, peer: PeerId, events: mpsc::
     let Some(conn) = handshake(incoming, remote).await else {
         return;
     };
+    if tessera_net::quic::is_standby(&conn) {
+        // No hello: the driver replicates to it (`standby_link`).
+        let _ = events.send(Event::Standby(conn)).await;
+        return;
+    }
     let Some((send, recv, hello)) = read_hello(&conn, remote).await else {
         return;
     };

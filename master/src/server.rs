@@ -6,6 +6,7 @@
 use crate::console::{Bridge, Incoming};
 use crate::peers::{accept_peer, Event, PeerSender};
 use crate::record::Recorder;
+use crate::standby_link::{serve_standby, StandbyPeer};
 use anyhow::{Context, Result};
 use std::collections::HashMap;
 use std::future::Future;
@@ -15,6 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tessera_core::master::report::Report;
+use tessera_core::master::standby::{MasterSnapshot, StandbyConfig, ToStandby};
 use tessera_core::master::{
     CertifiedRole, CloseReason, Credentials, Join, Master, MasterConfig, MasterEvent, Now, PeerId,
 };
@@ -36,6 +38,18 @@ pub struct RunConfig {
     pub record: Option<PathBuf>,
     /// The volume's histogram, for the console; `None` without a volume.
     pub histogram: Option<crate::console::Histogram>,
+    /// With `serve --standby-of`: the run this master takes over, once its primary is gone.
+    pub takeover: Option<TakeoverFrom>,
+}
+
+/// What a standby that took over carries on from.
+#[derive(Clone, Debug)]
+pub struct TakeoverFrom {
+    /// The primary's last replicated snapshot.
+    pub snapshot: Box<MasterSnapshot>,
+    /// When the primary last spoke: the wall's dark time runs from then to the first frame
+    /// this master presents.
+    pub last_heard: Instant,
 }
 
 /// What the driver tells the tools around the run (the launcher) while the wall runs.
@@ -107,6 +121,14 @@ struct Driver {
     console: Option<Bridge>,
     /// Where the session is being recorded, by `--record` or from the console.
     recording: Option<PathBuf>,
+    /// Where peers' tasks send their events: a standby's task gets a copy.
+    events_tx: mpsc::Sender<Event>,
+    /// The attached standby master, if any.
+    standby: Option<StandbyPeer>,
+    /// Standbys attached so far: the next one's generation.
+    standbys: u64,
+    /// After a takeover, until its first frame is presented: when the old primary last spoke.
+    dark_since: Option<Instant>,
 }
 
 /// This moment on both of the master's clocks, for the event about to be handed to it.
@@ -136,6 +158,7 @@ pub async fn run_wall(
     console: Option<Bridge>,
 ) -> Result<RunEnd> {
     let (events_tx, mut events) = mpsc::channel(crate::peers::EVENT_QUEUE);
+    let events_own = events_tx.clone();
     let acceptor = {
         let endpoint = endpoint.clone();
         tokio::spawn(async move {
@@ -152,9 +175,18 @@ pub async fn run_wall(
         cfg.master.render_nodes,
         endpoint.local_addr()?
     );
+    let dark_since = cfg.takeover.as_ref().map(|t| t.last_heard);
+    let master = match cfg.takeover {
+        Some(from) => Master::take_over(cfg.master, *from.snapshot, now())?,
+        None => Master::new(cfg.master, now())?,
+    };
     let mut driver = Driver {
         recorder: cfg.record.as_deref().map(Recorder::create).transpose()?,
-        master: Master::new(cfg.master, now())?,
+        master,
+        events_tx: events_own,
+        standby: None,
+        standbys: 0,
+        dark_since,
         links: HashMap::new(),
         progress: None,
         show_progress: cfg.show_progress,
@@ -171,6 +203,12 @@ pub async fn run_wall(
     }
     for link in driver.links.values() {
         link.close(CloseReason::RunOver);
+    }
+    if let Some(standby) = &driver.standby {
+        // Said on purpose: a standby takes over from a primary that is gone, not from one
+        // whose run is over.
+        let code = crate::standby_link::RUN_OVER;
+        standby.conn.close(code.into(), b"run over");
     }
     acceptor.abort();
     endpoint.close(0u32.into(), b"run over");
@@ -201,6 +239,8 @@ impl Driver {
         let mut stopping = false;
         let mut tick = tokio::time::interval(crate::console::TICK);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut beat = tokio::time::interval(StandbyConfig::default().heartbeat_interval);
+        beat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
             if let Some(outcome) = self.master.take_outcome() {
                 return Ok(outcome?);
@@ -241,6 +281,9 @@ impl Driver {
                     }
                 },
                 _ = tick.tick(), if self.console.is_some() => self.console_tick(),
+                _ = beat.tick(), if self.standby.is_some() => {
+                    self.send_standby(ToStandby::Heartbeat);
+                }
                 changed = stop.changed(), if !stopping => {
                     stopping = true;
                     // The interrupt watcher gone without an interrupt: nothing to stop.
@@ -284,6 +327,58 @@ impl Driver {
                 self.links.remove(&peer);
                 self.master.handle_closed(peer, &reason, now());
             }
+            Event::Standby(conn) => self.attach_standby(conn),
+            Event::StandbyAck(generation, ack) => {
+                if self
+                    .standby
+                    .as_ref()
+                    .is_some_and(|s| s.generation == generation)
+                {
+                    self.master.handle_replica_ack(ack, now());
+                }
+            }
+            Event::StandbyClosed(generation, reason) => {
+                if self
+                    .standby
+                    .as_ref()
+                    .is_some_and(|s| s.generation == generation)
+                {
+                    tracing::warn!("the standby master's connection closed: {reason}");
+                    self.standby = None;
+                    self.master.detach_standby(now());
+                }
+            }
+        }
+    }
+
+    /// A standby master connected: one with a `master` certificate is attached (replacing
+    /// any before it) and sent the whole snapshot; any other is closed.
+    fn attach_standby(&mut self, conn: quinn::Connection) {
+        let remote = conn.remote_address();
+        let roles = tessera_net::quic::peer_roles(&conn);
+        if !roles.contains(&CertRole::Master) {
+            tracing::warn!(
+                "refused a standby from {remote}: its certificate is not a master's (roles {roles:?})"
+            );
+            conn.close(1u32.into(), b"a standby needs a master certificate");
+            return;
+        }
+        if let Some(old) = self.standby.take() {
+            old.conn.close(1u32.into(), b"replaced by another standby");
+        }
+        tracing::info!("standby master at {remote} attached");
+        let replica = self.master.attach_standby(now());
+        self.standbys += 1;
+        let first = ToStandby::Replica(Box::new(replica));
+        let peer = serve_standby(conn, self.standbys, first, self.events_tx.clone());
+        self.standby = Some(peer);
+    }
+
+    /// Queues a message for the standby's writer.
+    fn send_standby(&self, msg: ToStandby) {
+        if let Some(standby) = &self.standby {
+            // A writer that ended has its `StandbyClosed` on the way.
+            let _ = standby.tx.send(msg);
         }
     }
 
@@ -354,6 +449,10 @@ impl Driver {
 
     /// Carries out what the master decided: messages, closes, and its events.
     fn carry_out(&mut self) -> Result<()> {
+        // Before the transmits: the standby learns of a frame no later than the nodes do.
+        while let Some(replica) = self.master.poll_replica() {
+            self.send_standby(ToStandby::Replica(Box::new(replica)));
+        }
         loop {
             if let Some(t) = self.master.poll_transmit() {
                 self.send(t.peer, t.msg);
@@ -391,6 +490,15 @@ impl Driver {
             }
             MasterEvent::FrameRendered(_) => {}
             MasterEvent::FramePresented(_) => {
+                if let Some(since) = self.dark_since.take() {
+                    let dark = since.elapsed();
+                    self.master.record_takeover_dark(dark);
+                    // Scripts and tests read this line.
+                    eprintln!(
+                        "tessera-master: took the wall over; dark for {} ms",
+                        dark.as_millis()
+                    );
+                }
                 if let Some(bar) = &self.progress {
                     bar.inc(1);
                 }

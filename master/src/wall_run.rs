@@ -452,6 +452,37 @@ async fn serve_console(
     Ok(bridge)
 }
 
+/// Follows the primary at `primary` as its standby (`serve --standby-of`) until it is gone:
+/// the run to take over, or `None` when the primary's run ended without it.
+async fn standby_of(
+    primary: &str,
+    endpoint: &quinn::Endpoint,
+    identity: &NodeIdentity,
+) -> Result<Option<crate::server::TakeoverFrom>> {
+    use crate::standby_link::{follow, Followed};
+    let addr = tessera_net::resolve(primary)
+        .await
+        .with_context(|| format!("--standby-of {primary}"))?;
+    eprintln!("tessera-master: standby of the master at {addr}");
+    let cfg = tessera_core::master::standby::StandbyConfig::default();
+    match follow(endpoint, identity, addr, cfg).await? {
+        Followed::RunOver => {
+            eprintln!("tessera-master: the primary's run is over; the standby leaves");
+            Ok(None)
+        }
+        Followed::TakeOver {
+            snapshot,
+            last_heard,
+        } => {
+            eprintln!("tessera-master: the primary at {addr} is gone; taking the wall over");
+            Ok(Some(crate::server::TakeoverFrom {
+                snapshot,
+                last_heard,
+            }))
+        }
+    }
+}
+
 pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     let cfg = prepare_run(&args.run, args.render_nodes, true)?;
     let ca = ClusterCa::open_or_create(&args.cluster_dir)?;
@@ -464,6 +495,13 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     // Read back, not echoed: with port 0 the kernel picks the port, and scripts and tests
     // wait for this line to learn it.
     eprintln!("tessera-master: listening on {}", endpoint.local_addr()?);
+    let mut cfg = cfg;
+    if let Some(primary) = &args.standby_of {
+        match standby_of(primary, &endpoint, &identity).await? {
+            Some(takeover) => cfg.takeover = Some(takeover),
+            None => return Ok(ExitCode::SUCCESS),
+        }
+    }
     let console = match args.console {
         Some(bind) => Some(serve_console(bind, &cfg, &identity, &ca).await?),
         None => None,

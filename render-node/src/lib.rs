@@ -39,8 +39,12 @@ pub const MAX_THREADS: usize = 1024;
 pub struct Cli {
     #[command(subcommand)]
     command: Option<Tool>,
-    /// The master's address, HOST:PORT.
-    #[arg(long)]
+    /// The master's address, HOST:PORT; or a comma-separated list, A,B: a primary and its
+    /// standby (`tessera-master serve --standby-of`). The node joins the first that answers;
+    /// a master lost or silent for 3 s is left for the next of the list, round it (with
+    /// --reconnect, within --reconnect-timeout), and one of an older term than the node has
+    /// followed is refused.
+    #[arg(long, value_name = "ADDR[,ADDR...]")]
     master: Option<String>,
     /// This node's certificate directory (node.pem, node.key, ca.pem) from `tessera-master issue-cert`.
     #[arg(long)]

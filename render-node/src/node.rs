@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use tessera_core::node::render::{
     BatchOrder, LinkId, RenderEvent, RenderSession, RenderSetup, VolumeSteps,
 };
+use tessera_core::node::term::MasterTerm;
 use tessera_model::wall::{DisplayId, TileGrid};
 use tessera_net::cluster::NodeIdentity;
 use tessera_net::link::{LinkError, MasterLink, Welcome};
@@ -86,23 +87,23 @@ pub async fn run(options: Options) -> Result<()> {
             .build()?,
     );
     let identity = NodeIdentity::load(&options.cert_dir)?;
-    let master = tessera_net::resolve(&options.master).await?;
-    let bind: SocketAddr = if master.is_ipv6() {
+    let masters = tessera_net::reconnect::resolve_masters(&options.master).await?;
+    let bind: SocketAddr = if masters[0].is_ipv6() {
         "[::]:0"
     } else {
         "0.0.0.0:0"
     }
     .parse()?;
     let endpoint = quic::endpoint(bind, &identity, false)?;
-    let reconnect = Reconnect {
-        endpoint: endpoint.clone(),
-        master,
-        role: Role::Render {
+    let reconnect = Reconnect::new(
+        endpoint.clone(),
+        masters,
+        Role::Render {
             cores: threads as u32,
         },
-        wait: options.reconnect,
-        name: "render node".into(),
-    };
+        options.reconnect,
+        "render node".into(),
+    );
     let first = reconnect
         .join()
         .await
@@ -120,8 +121,14 @@ pub async fn run(options: Options) -> Result<()> {
         },
     };
     let mut loaded = None;
+    let mut term = MasterTerm::default();
     reconnect
         .run(first, async |link, welcome| {
+            if let Err(stale) = term.admit(welcome.term) {
+                tracing::warn!("render node: {stale}; trying the next master");
+                link.refuse_stale(&stale.message()).await;
+                return Err(LinkError::StaleMaster(stale.to_string()).into());
+            }
             session(&side, link, welcome, &mut loaded).await
         })
         .await

@@ -52,6 +52,11 @@ pub enum LinkError {
     /// With `--reconnect`: the master was lost and not back within this wait.
     #[error("the master did not come back within {} s (--reconnect-timeout)", .0.as_secs())]
     NotBack(Duration),
+    /// The master's welcome carried a term older than one this node followed: it is an old
+    /// primary that a standby replaced (the text says the terms). The node told it so and
+    /// tries the next master of its list.
+    #[error("{0}")]
+    StaleMaster(String),
 }
 
 impl LinkError {
@@ -61,7 +66,7 @@ impl LinkError {
     pub fn is_lost_master(&self) -> bool {
         match self {
             LinkError::Lost(e) => !is_run_over(e),
-            LinkError::Ended | LinkError::ClosedInHandshake => true,
+            LinkError::Ended | LinkError::ClosedInHandshake | LinkError::StaleMaster(_) => true,
             LinkError::Net(e) => matches!(e, NetError::Connect { .. }),
             _ => false,
         }
@@ -109,6 +114,9 @@ pub struct Welcome {
     pub node: Option<RenderNodeId>,
     /// The session the node is to run: the wall, the scene and the displays' addresses.
     pub session: Session,
+    /// The master's term (see `tessera_core::node::term::MasterTerm`): a node with a list of
+    /// masters follows none older than one it followed.
+    pub term: u64,
 }
 
 /// A master this long without a packet (its keep-alives come every 250 ms) is suspected: a
@@ -117,6 +125,16 @@ pub struct Welcome {
 /// a master stopped for seconds keeps its wall (the connection closes only after
 /// [`quic::IDLE_TIMEOUT`]). Holding is harmless for a master that was only paused.
 pub const MASTER_SILENCE: Duration = Duration::from_millis(1000);
+
+/// A master silent this long is given up on by a node with a list of masters (`--master
+/// A,B`): its standby takes the wall over after the same silence (the default failure bound
+/// of `tessera_core::master::standby::StandbyConfig`), so the node goes to find it rather
+/// than wait out [`quic::IDLE_TIMEOUT`].
+pub const FAILOVER_SILENCE: Duration = Duration::from_secs(3);
+
+/// The application code a node closes a silent master's connection with (see
+/// [`MasterLink::give_up_when_silent`]).
+pub const MASTER_SILENT: u32 = 7;
 
 /// How often the watch looks at what arrived from the master.
 const WATCH_EVERY: Duration = Duration::from_millis(100);
@@ -221,8 +239,15 @@ impl MasterLink {
         };
         write_msg(&mut send, &FromNode::Hello(hello)).await?;
         let welcome = match read_msg::<ToNode>(&mut recv).await? {
-            // The term is for a node that follows a list of masters (see `MasterTerm`).
-            Some(ToNode::Welcome { node, session, .. }) => Welcome { node, session },
+            Some(ToNode::Welcome {
+                node,
+                session,
+                term,
+            }) => Welcome {
+                node,
+                session,
+                term,
+            },
             Some(ToNode::Refused { reason }) => return Err(LinkError::Refused(reason)),
             Some(other) => return Err(LinkError::NoWelcome(format!("{other:?}"))),
             None => return Err(LinkError::ClosedInHandshake),
@@ -240,6 +265,39 @@ impl MasterLink {
             tasks,
         };
         Ok((link, welcome))
+    }
+
+    /// Closes the connection once nothing arrived from the master for `bound`: the session
+    /// then ends as with a lost master, and the node joins the next of its masters.
+    pub fn give_up_when_silent(&mut self, bound: Duration) {
+        let conn = self.conn.clone();
+        self.tasks.push(tokio::spawn(async move {
+            let mut last = conn.stats().udp_rx.datagrams;
+            let mut heard = tokio::time::Instant::now();
+            while conn.close_reason().is_none() {
+                tokio::time::sleep(WATCH_EVERY).await;
+                let now = conn.stats().udp_rx.datagrams;
+                if now != last {
+                    (last, heard) = (now, tokio::time::Instant::now());
+                } else if heard.elapsed() >= bound {
+                    tracing::warn!(
+                        "the master at {} has been silent for {} ms: giving it up for the next master",
+                        conn.remote_address(),
+                        heard.elapsed().as_millis()
+                    );
+                    conn.close(MASTER_SILENT.into(), b"the master is silent");
+                    return;
+                }
+            }
+        }));
+    }
+
+    /// Tells a stale master so (the node follows a newer one) and closes its connection.
+    pub async fn refuse_stale(mut self, msg: &FromNode) {
+        let _ = write_msg(&mut self.send, msg).await;
+        let _ = self.send.finish();
+        let _ = tokio::time::timeout(Duration::from_secs(1), self.send.stopped()).await;
+        self.conn.close(MASTER_SILENT.into(), b"stale master");
     }
 
     /// Set while the master has been silent for [`MASTER_SILENCE`] or longer (see

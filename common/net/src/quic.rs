@@ -98,12 +98,14 @@ const DATAGRAM_BUFFER: usize = 64 << 10;
 /// The server side of control and pixel connections, with windows for pixel traffic: it
 /// accepts only peers whose certificate the cluster CA signed.
 pub fn server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
-    server_config_with(id, transport())
+    // A master's endpoint also takes its standby (see [`STANDBY_ALPN`]); the role is the
+    // driver's to check, from the certificate.
+    server_config_with(id, transport(), &[ALPN, STANDBY_ALPN])
 }
 
 /// The server side of render nodes' block connections (see [`BLOCK_WINDOW`]).
 pub fn block_server_config(id: &NodeIdentity) -> Result<quinn::ServerConfig> {
-    server_config_with(id, block_transport())
+    server_config_with(id, block_transport(), &[ALPN])
 }
 
 /// The client side of render nodes' block connections (see [`BLOCK_WINDOW`]).
@@ -116,6 +118,7 @@ pub fn block_client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
 fn server_config_with(
     id: &NodeIdentity,
     transport: Arc<quinn::TransportConfig>,
+    alpns: &[&[u8]],
 ) -> Result<quinn::ServerConfig> {
     let verifier = WebPkiClientVerifier::builder_with_provider(roots(id)?, provider())
         .build()
@@ -126,7 +129,7 @@ fn server_config_with(
         .with_client_cert_verifier(verifier)
         .with_single_cert(vec![id.cert.clone()], id.key.clone_key())
         .map_err(NetError::KeyMismatch)?;
-    tls.alpn_protocols = vec![ALPN.to_vec()];
+    tls.alpn_protocols = alpns.iter().map(|a| a.to_vec()).collect();
     let crypto = QuicServerConfig::try_from(tls).map_err(|e| NetError::Tls(e.to_string()))?;
     let mut config = quinn::ServerConfig::with_crypto(Arc::new(crypto));
     config.transport_config(transport);
@@ -169,16 +172,38 @@ pub fn https_client_config(id: &NodeIdentity, present: bool) -> Result<rustls::C
     Ok(tls)
 }
 
+/// ALPN of a standby master's connection to its primary (`serve --standby-of`): the same
+/// mutual TLS as nodes, with a `master` certificate, but the primary replicates its state on
+/// it instead of taking a hello.
+pub const STANDBY_ALPN: &[u8] = b"tessera-standby/1";
+
+/// Whether `conn` is a standby master's (it negotiated [`STANDBY_ALPN`]).
+pub fn is_standby(conn: &quinn::Connection) -> bool {
+    conn.handshake_data()
+        .and_then(|d| d.downcast::<quinn::crypto::rustls::HandshakeData>().ok())
+        .and_then(|d| d.protocol)
+        .is_some_and(|p| p == STANDBY_ALPN)
+}
+
+/// The client side of a standby master's connection to its primary (see [`STANDBY_ALPN`]).
+pub fn standby_client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
+    client_config_alpn(id, STANDBY_ALPN)
+}
+
 /// The client side of control and pixel connections: it presents `id`'s certificate and trusts
 /// only servers whose certificate the cluster CA signed.
 pub fn client_config(id: &NodeIdentity) -> Result<quinn::ClientConfig> {
+    client_config_alpn(id, ALPN)
+}
+
+fn client_config_alpn(id: &NodeIdentity, alpn: &[u8]) -> Result<quinn::ClientConfig> {
     let mut tls = rustls::ClientConfig::builder_with_provider(provider())
         .with_protocol_versions(&[&rustls::version::TLS13])
         .map_err(|e| NetError::Tls(e.to_string()))?
         .with_root_certificates(roots(id)?)
         .with_client_auth_cert(vec![id.cert.clone()], id.key.clone_key())
         .map_err(NetError::KeyMismatch)?;
-    tls.alpn_protocols = vec![ALPN.to_vec()];
+    tls.alpn_protocols = vec![alpn.to_vec()];
     let crypto = QuicClientConfig::try_from(tls).map_err(|e| NetError::Tls(e.to_string()))?;
     let mut config = quinn::ClientConfig::new(Arc::new(crypto));
     config.transport_config(transport());

@@ -7,65 +7,129 @@
 //! a failure of the node's own ends the node whatever the flags say: waiting would not mend
 //! them. A master that closes the connection because its run is over (it failed, or ended
 //! without a shutdown) ends the node as a shutdown does: its part is done.
+//!
+//! A node given a list of masters (`--master A,B`: a primary and its standby) joins the first
+//! that answers, gives a master silent for [`FAILOVER_SILENCE`] up, and rejoins the next of the
+//! list, round it: the standby that took the wall over. Which master's term it follows is the
+//! node's (`tessera_core::node::term::MasterTerm`, from [`Welcome::term`]).
 
-use crate::link::{LinkError, MasterLink, Welcome};
+use crate::link::{LinkError, MasterLink, Welcome, FAILOVER_SILENCE};
+use crate::NetError;
 use std::error::Error;
 use std::fmt::Display;
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 use tessera_protocol::Role;
 
 /// How often a node that waits for its master to come back knocks again.
 pub const REJOIN_INTERVAL: Duration = Duration::from_millis(250);
 
-/// Where a node's master is, as whom the node joins it, and whether it waits for it when lost.
+/// Where a node's masters are, as whom the node joins them, and whether it waits for one
+/// when lost.
 #[derive(Clone, Debug)]
 pub struct Reconnect {
-    /// The node's endpoint: every session's link to the master goes through it.
+    /// The node's endpoint: every session's link to a master goes through it.
     pub endpoint: quinn::Endpoint,
-    /// The master's address.
-    pub master: SocketAddr,
+    /// The masters' addresses (`--master A,B`), never empty: the node joins the first that
+    /// answers, and after losing one tries the next, round the list (a primary and its
+    /// standbys, see `tessera_core::master::standby`).
+    pub masters: Vec<SocketAddr>,
     /// What the node says it is in its hello.
     pub role: Role,
     /// With `--reconnect`: how long to wait for a lost master each time, before giving up.
     pub wait: Option<Duration>,
     /// The node as its log lines name it (`render node`, `display 2`).
     pub name: String,
+    /// The index in `masters` of the master joined last.
+    current: Arc<AtomicUsize>,
 }
 
 impl Reconnect {
-    /// Joins the master the first time (see [`MasterLink::join`]).
+    /// A node that joins `masters` (see the fields).
     ///
-    /// # Errors
-    /// No master there, a refusal (its reason), or anything but a welcome.
-    pub async fn join(&self) -> Result<(MasterLink, Welcome), LinkError> {
-        MasterLink::join(&self.endpoint, self.master, self.role.clone()).await
+    /// # Panics
+    /// `masters` is empty.
+    pub fn new(
+        endpoint: quinn::Endpoint,
+        masters: Vec<SocketAddr>,
+        role: Role,
+        wait: Option<Duration>,
+        name: String,
+    ) -> Reconnect {
+        assert!(!masters.is_empty(), "a node needs a master's address");
+        Reconnect {
+            endpoint,
+            masters,
+            role,
+            wait,
+            name,
+            current: Arc::new(AtomicUsize::new(0)),
+        }
     }
 
-    /// Joins a master that may not be up yet (one restarting after a crash): tries again
-    /// every [`REJOIN_INTERVAL`] while the master is not there, for at most `within`.
+    /// The address of the master joined last (the first before any join).
+    pub fn master(&self) -> SocketAddr {
+        self.masters[self.current.load(Ordering::Relaxed) % self.masters.len()]
+    }
+
+    /// Joins the master at index `at` of the list (see [`MasterLink::join`]).
+    async fn join_at(&self, at: usize) -> Result<(MasterLink, Welcome), LinkError> {
+        let at = at % self.masters.len();
+        let joined = MasterLink::join(&self.endpoint, self.masters[at], self.role.clone()).await;
+        if joined.is_ok() {
+            self.current.store(at, Ordering::Relaxed);
+        }
+        joined
+    }
+
+    /// Joins a master the first time: the first of the list that is there (see
+    /// [`MasterLink::join`]).
+    ///
+    /// # Errors
+    /// No master there (the last one's error), a refusal (its reason), or anything but a
+    /// welcome.
+    pub async fn join(&self) -> Result<(MasterLink, Welcome), LinkError> {
+        let mut at = 0;
+        loop {
+            match self.join_at(at).await {
+                Err(e) if e.is_lost_master() && at + 1 < self.masters.len() => {
+                    tracing::warn!("{}: {e}; trying the next master", self.name);
+                    at += 1;
+                }
+                joined => return joined,
+            }
+        }
+    }
+
+    /// Joins a master that may not be up yet (one restarting after a crash, or a standby
+    /// taking the wall over): tries the masters after the one lost, round the list, one every
+    /// [`REJOIN_INTERVAL`] while none is there, for at most `within`.
     ///
     /// # Errors
     /// [`LinkError::NotBack`] once `within` has passed; a refusal or a broken handshake at
     /// once.
     pub async fn rejoin(&self, within: Duration) -> Result<(MasterLink, Welcome), LinkError> {
         let give_up = tokio::time::Instant::now() + within;
+        let lost = self.current.load(Ordering::Relaxed);
         // A `Type=notify` unit stays active meanwhile; its status says why frames stopped.
         crate::sd_notify::status(&format!(
-            "waiting up to {} s for the master at {} to come back",
+            "waiting up to {} s for a master of {:?} to come back",
             within.as_secs(),
-            self.master
+            self.masters
         ));
         let attempts = async {
-            loop {
-                match self.join().await {
+            for attempt in 1.. {
+                match self.join_at(lost + attempt).await {
                     Err(e) if e.is_lost_master() => {
-                        tracing::debug!("the master is not back yet: {e}");
+                        tracing::debug!("no master back yet: {e}");
                         tokio::time::sleep(REJOIN_INTERVAL).await;
                     }
                     joined => return joined,
                 }
             }
+            unreachable!("attempts are counted in usize")
         };
         tokio::time::timeout_at(give_up, attempts)
             .await
@@ -74,6 +138,8 @@ impl Reconnect {
 
     /// Runs `session` on the link `first` joined, and, while the master is lost and the node
     /// waits for it, on each link [`Reconnect::rejoin`] makes, until a session ends well.
+    /// With more than one master, a master silent for [`FAILOVER_SILENCE`] is given up on
+    /// (see [`MasterLink::give_up_when_silent`]).
     ///
     /// # Errors
     /// The first session error that is not a lost master (anywhere in its chain), or a lost
@@ -87,15 +153,40 @@ impl Reconnect {
     where
         E: From<LinkError> + AsRef<dyn Error + Send + Sync + 'static> + Display,
     {
+        let failover = self.masters.len() > 1;
         sessions(
             &self.name,
             self.wait,
             first,
-            async |(link, welcome)| session(link, welcome).await,
+            async |(mut link, welcome): (MasterLink, Welcome)| {
+                if failover {
+                    link.give_up_when_silent(FAILOVER_SILENCE);
+                }
+                session(link, welcome).await
+            },
             async |within| self.rejoin(within).await,
         )
         .await
     }
+}
+
+/// Reads a node's `--master` value: one address, or a comma-separated list of them (a primary
+/// and its standbys), each HOST:PORT, resolved in order.
+///
+/// # Errors
+/// An empty list or entry, or an address that does not resolve (it is named).
+pub async fn resolve_masters(list: &str) -> Result<Vec<SocketAddr>, NetError> {
+    let mut masters = Vec::new();
+    for entry in list.split(',').map(str::trim) {
+        if entry.is_empty() {
+            return Err(NetError::Resolve {
+                addr: list.to_string(),
+                reason: "an empty entry in the list of masters".into(),
+            });
+        }
+        masters.push(crate::resolve(entry).await?);
+    }
+    Ok(masters)
 }
 
 /// What to do once a session has ended.
@@ -161,7 +252,6 @@ where
 mod tests {
     use super::*;
     use crate::cluster::{CertRole, ClusterCa, NodeIdentity};
-    use crate::NetError;
 
     type BoxError = Box<dyn Error + Send + Sync>;
 
@@ -255,6 +345,26 @@ mod tests {
     }
 
     #[tokio::test]
+    async fn a_list_of_masters_resolves_in_order_and_an_empty_entry_is_named() {
+        let masters = resolve_masters("127.0.0.1:7400, 127.0.0.1:7401")
+            .await
+            .unwrap();
+        let want: Vec<SocketAddr> = vec![
+            "127.0.0.1:7400".parse().unwrap(),
+            "127.0.0.1:7401".parse().unwrap(),
+        ];
+        assert_eq!(masters, want);
+        let one = resolve_masters("127.0.0.1:7400").await.unwrap();
+        assert_eq!(one, want[..1]);
+        let e = resolve_masters("127.0.0.1:7400,,127.0.0.1:7401")
+            .await
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("127.0.0.1:7400,,127.0.0.1:7401"), "{e}");
+        assert!(e.contains("empty entry"), "{e}");
+    }
+
+    #[tokio::test]
     async fn rejoining_a_master_that_never_answers_gives_up_at_its_bound() {
         let dir = tempfile::tempdir().unwrap();
         let ca = ClusterCa::open_or_create(&dir.path().join("ca")).unwrap();
@@ -264,13 +374,13 @@ mod tests {
         let endpoint = crate::quic::endpoint("127.0.0.1:0".parse().unwrap(), &id, false).unwrap();
         // A socket that takes datagrams and answers none: a master host that is down.
         let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-        let reconnect = Reconnect {
+        let reconnect = Reconnect::new(
             endpoint,
-            master: silent.local_addr().unwrap(),
-            role: Role::Render { cores: 1 },
-            wait: Some(Duration::from_millis(300)),
-            name: "test node".into(),
-        };
+            vec![silent.local_addr().unwrap()],
+            Role::Render { cores: 1 },
+            Some(Duration::from_millis(300)),
+            "test node".into(),
+        );
         let t = std::time::Instant::now();
         let Err(e) = reconnect.rejoin(Duration::from_millis(300)).await else {
             panic!("joined a master that is not there");

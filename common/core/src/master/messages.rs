@@ -112,6 +112,12 @@ impl Master {
                     .get_mut(&peer)
                     .expect("the caller found it")
                     .ready = true;
+                let first = self.coordinator.next_frame();
+                if self.record.started.is_none() && first > FrameId(0) {
+                    // A master that took a wall over starts at its standby's horizon: the
+                    // display is told before any tile of that frame can reach it.
+                    self.send(peer, ToNode::StartAt { frame: first });
+                }
                 self.display_ready(peer, d, now);
                 for seq in 0..timing::PINGS {
                     self.record.timing.ping_sent(d, seq, now.unix_ns);

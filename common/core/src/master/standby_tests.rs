@@ -417,3 +417,39 @@ fn replicas_survive_their_encoding() {
     let back: super::standby::ToStandby = super::standby::decode(&bytes).unwrap();
     assert_eq!(back, msg);
 }
+
+/// Regression: a display that joined a master that took the wall over was sent its first
+/// frame (the horizon, not 0) without a word, and refused it as too far ahead.
+#[test]
+fn a_display_joining_a_taken_over_wall_is_told_its_first_frame_before_it() {
+    let mut pair = Pair::new();
+    pair.ms += 10;
+    let now = pair.now();
+    pair.standby.handle_primary_closed(now.instant);
+    let Some(StandbyEvent::TakeOver(snapshot)) = pair.standby.poll_event() else {
+        panic!("the standby took over");
+    };
+    let mut master = Master::take_over(config(), *snapshot, now).unwrap();
+    master.handle_join(join(11, display_role()), now);
+    master.handle_join(join(12, Role::Render { cores: 1 }), now);
+    master.handle_message(PeerId(11), FromNode::Ready, now);
+    master.handle_message(PeerId(12), FromNode::Ready, now);
+    let to_display: Vec<ToNode> = std::iter::from_fn(|| master.poll_transmit())
+        .filter(|t| t.peer == PeerId(11))
+        .map(|t| t.msg)
+        .filter(|m| matches!(m, ToNode::StartAt { .. } | ToNode::FrameStart(_)))
+        .collect();
+    let [ToNode::StartAt { frame: from }, ToNode::FrameStart(first), ..] = &to_display[..] else {
+        panic!("expected StartAt then FrameStart, got {to_display:?}");
+    };
+    assert!(from.0 > 0, "a taken-over wall starts past frame 0");
+    assert_eq!(*from, first.frame);
+    // A master of a fresh run says nothing of the kind: its displays start at frame 0.
+    let now = at(Instant::now(), 0);
+    let mut first_master = Master::new(config(), now).unwrap();
+    first_master.handle_join(join(1, display_role()), now);
+    first_master.handle_message(PeerId(1), FromNode::Ready, now);
+    let start_at = std::iter::from_fn(|| first_master.poll_transmit())
+        .any(|t| matches!(t.msg, ToNode::StartAt { .. }));
+    assert!(!start_at);
+}
