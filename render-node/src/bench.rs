@@ -334,6 +334,11 @@ impl Frames {
             |p| p.ambient,
             "single rays, cosine-distributed, any hit",
         );
+        self.print(
+            "TESSERA_AO_PACKET_MRAYPS",
+            |p| p.ambient_packets,
+            "the same rays, each hit's traced together as packets from their common origin",
+        );
         println!(
             "TESSERA_PRIMARY_HITS {} (of {pixels} primary rays; {ao} AO rays per hit)",
             self.passes[0].hits,

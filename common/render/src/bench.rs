@@ -48,6 +48,8 @@ pub struct PassTimes {
     pub shadow_single: Pass,
     /// Ambient-occlusion rays, `ao_samples` per hit.
     pub ambient: Pass,
+    /// The same rays, each hit's as packets of up to 64 with a common origin.
+    pub ambient_packets: Pass,
 }
 
 /// How far ambient-occlusion rays reach in [`time_passes`].
@@ -95,6 +97,7 @@ pub fn time_passes(
         shadow: time_shadow_packets(scene, view, &traced, towards),
         shadow_single: time_shadow_rays(scene, &starts, towards),
         ambient: time_ambient(scene, view, &starts, (ao_samples, reach)),
+        ambient_packets: time_ambient_packets(scene, view, &starts, (ao_samples, reach)),
     }
 }
 
@@ -222,6 +225,43 @@ fn time_shadow_rays(scene: &PreparedScene, starts: &[(Vec3, Vec3)], towards: Opt
     Pass {
         rays: shadow_rays,
         seconds: t1.elapsed().as_secs_f64(),
+    }
+}
+
+/// Times the same ambient-occlusion rays as [`time_ambient`], those of each start traced
+/// together as packets of up to 64 from their common origin.
+fn time_ambient_packets(
+    scene: &PreparedScene,
+    view: &FrameView,
+    starts: &[(Vec3, Vec3)],
+    (ao_samples, reach): (u32, f32),
+) -> Pass {
+    let t2 = Instant::now();
+    let ao_rays: u64 = starts
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || scene.tracer(),
+            |tracer, (i, &(o, n))| {
+                let hemisphere = Hemisphere::around(n);
+                let mut s = 0;
+                while s < ao_samples {
+                    let end = (s + PACKET_RAYS as u32).min(ao_samples);
+                    let directions = (s..end).map(|s| {
+                        let mut stream = SampleStream::new(view.frame, i as u32, 0, s);
+                        hemisphere.cosine_direction(&mut stream)
+                    });
+                    let mut packet = RayPacket::from_origin(o, directions, reach);
+                    std::hint::black_box(tracer.occluded_lanes(&mut packet));
+                    s = end;
+                }
+                ao_samples as u64
+            },
+        )
+        .sum();
+    Pass {
+        rays: ao_rays,
+        seconds: t2.elapsed().as_secs_f64(),
     }
 }
 

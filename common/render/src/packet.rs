@@ -119,6 +119,21 @@ impl RayPacket {
         p
     }
 
+    /// Rays from one `origin` in `directions` (unit length), each searched up to `t_max`: the
+    /// ambient-occlusion rays of one hit, which the packet traversal's common-origin tests
+    /// serve.
+    pub fn from_origin(
+        origin: Vec3,
+        directions: impl IntoIterator<Item = Vec3>,
+        t_max: f32,
+    ) -> Self {
+        let mut p = Self::from_rays(directions.into_iter().map(|d| (origin, d)));
+        p.flags = COMMON_ORIGIN | NORMALIZED;
+        p.origin = origin;
+        p.t_max = [t_max; PACKET_RAYS];
+        p
+    }
+
     /// Limits every ray to the part of it that the cutting planes keep.
     pub fn clip(&mut self, cuts: &CutPlanes) {
         if cuts.is_empty() {
