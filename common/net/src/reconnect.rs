@@ -364,6 +364,76 @@ mod tests {
         assert!(e.contains("empty entry"), "{e}");
     }
 
+    /// A master at `server` that welcomes one node and holds its connection until the
+    /// returned task is dropped.
+    fn welcoming_master(server: quinn::Endpoint) -> tokio::task::JoinHandle<()> {
+        use crate::framed::{read_msg, write_msg};
+        use tessera_model::scene_spec::SceneSpec;
+        use tessera_model::wall::WallLayout;
+        use tessera_protocol::{dsm::DataSpec, pixels::Compression, FromNode, Session};
+        use tessera_protocol::{RenderNodeId, SessionSpec, ToNode};
+        tokio::spawn(async move {
+            let conn = server.accept().await.unwrap().await.unwrap();
+            let (mut send, mut recv) = conn.accept_bi().await.unwrap();
+            let hello = read_msg::<FromNode>(&mut recv).await.unwrap();
+            assert!(matches!(hello, Some(FromNode::Hello(_))), "{hello:?}");
+            let session = Session::new(SessionSpec {
+                wall: WallLayout::grid(1, 1, 64, 64).unwrap(),
+                scene: SceneSpec::Empty,
+                scene_hash: [0; 32],
+                displays: Vec::new(),
+                save_frame: None,
+                compression: Compression::None,
+                windows: Default::default(),
+                data: DataSpec::Replicated,
+                particle_range: None,
+            })
+            .unwrap();
+            let node = Some(RenderNodeId(0));
+            let welcome = ToNode::Welcome {
+                node,
+                session,
+                term: 1,
+            };
+            write_msg(&mut send, &welcome).await.unwrap();
+            conn.closed().await;
+        })
+    }
+
+    /// Regression: a node knew one master only, so the standby that took the wall over was
+    /// never joined. One that lost the first of its list tries the next first (a dead master
+    /// would hold each attempt for the whole connect timeout).
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_node_that_lost_its_master_joins_the_next_of_its_list_first() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca = ClusterCa::open_or_create(&dir.path().join("ca")).unwrap();
+        for (name, role) in [("master", CertRole::Master), ("node", CertRole::Render)] {
+            ca.issue(name, &dir.path().join(name), Some(role)).unwrap();
+        }
+        let load = |name: &str| NodeIdentity::load(&dir.path().join(name)).unwrap();
+        let any = "127.0.0.1:0".parse().unwrap();
+        let server = crate::quic::endpoint(any, &load("master"), true).unwrap();
+        let standby = server.local_addr().unwrap();
+        let master = welcoming_master(server);
+        // The lost primary: a socket that takes datagrams and answers none.
+        let dead = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let endpoint = crate::quic::endpoint(any, &load("node"), false).unwrap();
+        let reconnect = Reconnect::new(
+            endpoint,
+            vec![dead.local_addr().unwrap(), standby],
+            Role::Render { cores: 1 },
+            Some(Duration::from_secs(60)),
+            "test node".into(),
+        );
+        assert_eq!(reconnect.master(), dead.local_addr().unwrap());
+        let within = crate::quic::CONNECT_TIMEOUT / 2;
+        let (link, welcome) = reconnect.rejoin(within).await.expect("joined the standby");
+        assert_eq!(reconnect.master(), standby);
+        assert_eq!(welcome.term, 1);
+        drop(link);
+        master.abort();
+    }
+
     #[tokio::test]
     async fn rejoining_a_master_that_never_answers_gives_up_at_its_bound() {
         let dir = tempfile::tempdir().unwrap();
