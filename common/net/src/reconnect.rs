@@ -26,6 +26,10 @@ use tessera_protocol::Role;
 /// How often a node that waits for its master to come back knocks again.
 pub const REJOIN_INTERVAL: Duration = Duration::from_millis(250);
 
+/// How long a node with a list of masters started without `--reconnect` waits for one of
+/// them when it lost its master (`--reconnect-timeout`'s default).
+pub const FAILOVER_WAIT: Duration = Duration::from_secs(60);
+
 /// Where a node's masters are, as whom the node joins them, and whether it waits for one
 /// when lost.
 #[derive(Clone, Debug)]
@@ -139,7 +143,8 @@ impl Reconnect {
     /// Runs `session` on the link `first` joined, and, while the master is lost and the node
     /// waits for it, on each link [`Reconnect::rejoin`] makes, until a session ends well.
     /// With more than one master, a master silent for [`FAILOVER_SILENCE`] is given up on
-    /// (see [`MasterLink::give_up_when_silent`]).
+    /// (see [`MasterLink::give_up_when_silent`]), and a lost master is waited for (up to
+    /// [`FAILOVER_WAIT`] without `--reconnect`).
     ///
     /// # Errors
     /// The first session error that is not a lost master (anywhere in its chain), or a lost
@@ -154,9 +159,11 @@ impl Reconnect {
         E: From<LinkError> + AsRef<dyn Error + Send + Sync + 'static> + Display,
     {
         let failover = self.masters.len() > 1;
+        // A list of masters is there to be failed over to, `--reconnect` or not.
+        let wait = self.wait.or(failover.then_some(FAILOVER_WAIT));
         sessions(
             &self.name,
-            self.wait,
+            wait,
             first,
             async |(mut link, welcome): (MasterLink, Welcome)| {
                 if failover {
