@@ -76,7 +76,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
     let endpoint = quic::endpoint(cli.listen, &identity, true)?;
     let pixel_addr = cli.advertise.unwrap_or(endpoint.local_addr()?);
     let masters = tessera_net::reconnect::resolve_masters(&cli.master).await?;
-    let reconnect = Reconnect::new(
+    let mut reconnect = Reconnect::new(
         endpoint.clone(),
         masters,
         Role::Display {
@@ -86,6 +86,7 @@ pub async fn run(cli: Cli, window: Option<WindowHandshake>) -> Result<()> {
         cli.reconnect.wait(),
         format!("display {}", me.0),
     );
+    reconnect.failover_after = cli.reconnect.failover_after();
     let first = reconnect
         .join()
         .await

@@ -207,13 +207,21 @@ pub struct ServeArgs {
     /// Start as the standby of the master at ADDR (HOST:PORT, the primary's --listen): join
     /// it over the cluster's mutual TLS with this --cluster-dir's master certificate, follow
     /// its run (every change of the wall's state, the frames started, the report so far) and,
-    /// once the primary is gone (its connection closes, or it is silent for 3 s), take the
-    /// wall over on --listen: nodes started with `--master PRIMARY,STANDBY` rejoin it and
-    /// frames resume with the next state, the camera where it was. Give it the primary's run
-    /// flags (scene, wall, --frames). It exits, as the primary does, when the primary's run
-    /// ends without it.
+    /// once the primary is gone (its connection closes, or it is silent for
+    /// --failover-after), take the wall over on --listen: nodes started with `--master
+    /// PRIMARY,STANDBY` rejoin it and frames resume with the next state, the camera where it
+    /// was. Give it the primary's run flags (scene, wall, --frames). It exits, as the primary
+    /// does, when the primary's run ends without it.
     #[arg(long, value_name = "ADDR")]
     pub standby_of: Option<String>,
+    /// With --standby-of: the primary is gone once silent this many ms (its heartbeats come
+    /// every 50 ms; 100 to 60000). Give the nodes the same `--failover-after`. The default
+    /// lets a LAN's wall present again within a second of its primary's death; a standby that
+    /// acts on a live primary's stall does no harm (the nodes stay with the primary).
+    #[arg(long, value_name = "MS", requires = "standby_of",
+          default_value_t = tessera_protocol::FAILOVER_AFTER.as_millis() as u64,
+          value_parser = clap::value_parser!(u64).range(100..=60_000))]
+    pub failover_after: u64,
 }
 
 #[derive(clap::Args)]

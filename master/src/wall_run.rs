@@ -458,13 +458,17 @@ async fn standby_of(
     primary: &str,
     endpoint: &quinn::Endpoint,
     identity: &NodeIdentity,
+    failover_after: Duration,
 ) -> Result<Option<crate::server::TakeoverFrom>> {
     use crate::standby_link::{follow, Followed};
     let addr = tessera_net::resolve(primary)
         .await
         .with_context(|| format!("--standby-of {primary}"))?;
     eprintln!("tessera-master: standby of the master at {addr}");
-    let cfg = tessera_core::master::standby::StandbyConfig::default();
+    let cfg = tessera_core::master::standby::StandbyConfig {
+        failure_bound: failover_after,
+        ..Default::default()
+    };
     match follow(endpoint, identity, addr, cfg).await? {
         Followed::RunOver => {
             eprintln!("tessera-master: the primary's run is over; the standby leaves");
@@ -497,7 +501,8 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode> {
     eprintln!("tessera-master: listening on {}", endpoint.local_addr()?);
     let mut cfg = cfg;
     if let Some(primary) = &args.standby_of {
-        match standby_of(primary, &endpoint, &identity).await? {
+        let bound = Duration::from_millis(args.failover_after);
+        match standby_of(primary, &endpoint, &identity, bound).await? {
             Some(takeover) => cfg.takeover = Some(takeover),
             None => return Ok(ExitCode::SUCCESS),
         }

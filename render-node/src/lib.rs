@@ -132,6 +132,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 bvh_cache: cache_dir(cli.bvh_cache, cli.no_bvh_cache),
                 volume_cache_bytes: cli.volume_cache_mb.saturating_mul(1 << 20),
                 reconnect: cli.reconnect.wait(),
+                failover_after: cli.reconnect.failover_after(),
                 dsm: dsm::DsmOptions {
                     prepared: cli.prepared,
                     memory_budget: cli.memory_budget,

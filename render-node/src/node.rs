@@ -40,6 +40,8 @@ pub struct Options {
     pub volume_cache_bytes: usize,
     /// With `--reconnect`: how long to wait for a lost master to come back and rejoin it.
     pub reconnect: Option<Duration>,
+    /// With a list of masters: how long a master may be silent before the node joins the next.
+    pub failover_after: Duration,
     /// This host's copy of a shared scene, and its own memory budget.
     pub dsm: crate::dsm::DsmOptions,
 }
@@ -95,7 +97,7 @@ pub async fn run(options: Options) -> Result<()> {
     }
     .parse()?;
     let endpoint = quic::endpoint(bind, &identity, false)?;
-    let reconnect = Reconnect::new(
+    let mut reconnect = Reconnect::new(
         endpoint.clone(),
         masters,
         Role::Render {
@@ -104,6 +106,7 @@ pub async fn run(options: Options) -> Result<()> {
         options.reconnect,
         "render node".into(),
     );
+    reconnect.failover_after = options.failover_after;
     let first = reconnect
         .join()
         .await

@@ -127,10 +127,10 @@ pub struct Welcome {
 pub const MASTER_SILENCE: Duration = Duration::from_millis(1000);
 
 /// A master silent this long is given up on by a node with a list of masters (`--master
-/// A,B`): its standby takes the wall over after the same silence (the default failure bound
-/// of `tessera_core::master::standby::StandbyConfig`), so the node goes to find it rather
-/// than wait out [`quic::IDLE_TIMEOUT`].
-pub const FAILOVER_SILENCE: Duration = Duration::from_secs(3);
+/// A,B`) unless its `--failover-after` says otherwise: its standby takes the wall over after
+/// the same silence (the default failure bound of `tessera_core::master::standby::
+/// StandbyConfig`), so the node goes to find it rather than wait out [`quic::IDLE_TIMEOUT`].
+pub const FAILOVER_SILENCE: Duration = tessera_protocol::FAILOVER_AFTER;
 
 /// The application code a node closes a silent master's connection with (see
 /// [`MasterLink::give_up_when_silent`]).

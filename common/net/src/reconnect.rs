@@ -46,6 +46,10 @@ pub struct Reconnect {
     pub wait: Option<Duration>,
     /// The node as its log lines name it (`render node`, `display 2`).
     pub name: String,
+    /// With more than one master: a master silent this long is given up on for the next
+    /// (`--failover-after`; [`FAILOVER_SILENCE`] unless set). Its standby's `serve
+    /// --failover-after` should be the same, so that the node leaves when the standby acts.
+    pub failover_after: Duration,
     /// The index in `masters` of the master joined last.
     current: Arc<AtomicUsize>,
 }
@@ -69,6 +73,7 @@ impl Reconnect {
             role,
             wait,
             name,
+            failover_after: FAILOVER_SILENCE,
             current: Arc::new(AtomicUsize::new(0)),
         }
     }
@@ -142,8 +147,8 @@ impl Reconnect {
 
     /// Runs `session` on the link `first` joined, and, while the master is lost and the node
     /// waits for it, on each link [`Reconnect::rejoin`] makes, until a session ends well.
-    /// With more than one master, a master silent for [`FAILOVER_SILENCE`] is given up on
-    /// (see [`MasterLink::give_up_when_silent`]), and a lost master is waited for (up to
+    /// With more than one master, a master silent for [`Reconnect::failover_after`] is given
+    /// up on (see [`MasterLink::give_up_when_silent`]), and a lost master is waited for (up to
     /// [`FAILOVER_WAIT`] without `--reconnect`).
     ///
     /// # Errors
@@ -167,7 +172,7 @@ impl Reconnect {
             first,
             async |(mut link, welcome): (MasterLink, Welcome)| {
                 if failover {
-                    link.give_up_when_silent(FAILOVER_SILENCE);
+                    link.give_up_when_silent(self.failover_after);
                 }
                 session(link, welcome).await
             },

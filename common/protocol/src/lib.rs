@@ -649,6 +649,14 @@ pub enum FromNode {
 /// (`--node-deadline`) must be several of these, so that a late packet or two is not a death.
 pub const HEARTBEAT_INTERVAL: std::time::Duration = std::time::Duration::from_millis(50);
 
+/// The default failure bound of a primary master: a standby takes the wall over once its
+/// primary has been silent this long (`serve --failover-after`), and a node with a list of
+/// masters gives a master silent this long up for the next (the nodes' `--failover-after`).
+/// Ten missed 50 ms beats: a wall on a LAN presents again within a second of its master's
+/// death, while a primary's stall shorter than this is no death. A standby that does act on a
+/// live primary's stall is harmless: the nodes, which never lost the primary, stay with it.
+pub const FAILOVER_AFTER: std::time::Duration = std::time::Duration::from_millis(500);
+
 /// The payload of a heartbeat datagram (see [`FromNode::Heartbeat`]). A datagram is never
 /// retransmitted nor queued behind a lost packet of the control stream, so a beat says that the
 /// node is alive now, not that the stream caught up. The version is in it so that a stray

@@ -202,13 +202,15 @@ pub struct StandbyConfig {
 }
 
 impl Default for StandbyConfig {
-    /// Beats every 50 ms, gone after 3 s of silence: the bound a served wall's render nodes
-    /// get before their connection is closed (a stopped process or a network blip of two
-    /// seconds is not a death), so a standby is no quicker to act than the primary is.
+    /// Beats every 50 ms, gone after [`tessera_protocol::FAILOVER_AFTER`] of silence (500 ms):
+    /// short enough for a LAN's wall to present again within a second of its primary's death.
+    /// A standby that acts on a live primary's stall does no harm: the nodes judge the primary
+    /// by its packets, which its connection keeps sending, and stay with it (term fencing
+    /// leaves the standby's higher term without a wall).
     fn default() -> Self {
         StandbyConfig {
             heartbeat_interval: tessera_protocol::HEARTBEAT_INTERVAL,
-            failure_bound: crate::balance::DEFAULT_ACCEPTABLE_PAUSE,
+            failure_bound: tessera_protocol::FAILOVER_AFTER,
         }
     }
 }
