@@ -14,6 +14,7 @@ use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::Path;
+use tessera_core::master::standby::SessionLine;
 use tessera_model::camera::Camera;
 use tessera_model::state::{StateId, WallState};
 use tessera_protocol::FrameStart;
@@ -83,16 +84,37 @@ impl Recorder {
             params: start.params,
             ..wall
         };
-        if self.last == Some(wall) {
-            return Ok(());
-        }
-        self.last = Some(wall);
-        let line = Recorded {
+        self.write(Recorded {
             frame: start.frame.0,
             state: start.state,
             wall,
             camera_at_frame: start.camera,
-        };
+        })
+    }
+
+    /// Writes the lines a primary master recorded before this master took its wall over
+    /// (`serve --standby-of`), so that one file holds the whole run's session.
+    ///
+    /// # Errors
+    /// As [`Recorder::frame`].
+    pub fn taken_over(&mut self, lines: &[SessionLine]) -> Result<()> {
+        for l in lines {
+            self.write(Recorded {
+                frame: l.frame.0,
+                state: l.state,
+                wall: l.wall,
+                camera_at_frame: l.camera_at_frame,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Writes `line` unless it renders as the line before.
+    fn write(&mut self, line: Recorded) -> Result<()> {
+        if self.last == Some(line.wall) {
+            return Ok(());
+        }
+        self.last = Some(line.wall);
         let mut bytes = serde_json::to_vec(&line)?;
         bytes.push(b'\n');
         let sent = self.lines.as_ref().is_some_and(|l| l.send(bytes).is_ok());

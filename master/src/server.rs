@@ -180,8 +180,13 @@ pub async fn run_wall(
         Some(from) => Master::take_over(cfg.master, *from.snapshot, now())?,
         None => Master::new(cfg.master, now())?,
     };
+    let mut recorder = cfg.record.as_deref().map(Recorder::create).transpose()?;
+    if let Some(recorder) = &mut recorder {
+        // A taken-over run's file starts with what its primary recorded (none for a new run).
+        recorder.taken_over(master.session_lines())?;
+    }
     let mut driver = Driver {
-        recorder: cfg.record.as_deref().map(Recorder::create).transpose()?,
+        recorder,
         master,
         events_tx: events_own,
         standby: None,
