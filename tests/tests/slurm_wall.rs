@@ -210,6 +210,18 @@ PartitionName=wall Nodes=tessera-test Default=YES MaxTime=10 State=UP OverSubscr
 
 #[test]
 fn slurm_runs_a_wall_from_the_batch_script() {
+    slurm_wall(false);
+}
+
+/// `TESSERA_STANDBY=1`: rank 1 runs a standby master that follows the primary's whole run and
+/// leaves with it, and the nodes are given both masters.
+#[test]
+fn slurm_runs_a_wall_with_a_standby_master() {
+    slurm_wall(true);
+}
+
+/// Runs a 2x1 wall of 20 frames from the batch script, with a standby master or without.
+fn slurm_wall(standby: bool) {
     if !is_root() {
         skip(
             TEST,
@@ -225,12 +237,13 @@ fn slurm_runs_a_wall_from_the_batch_script() {
     let script = repo().join("deploy/slurm/tessera-wall.sbatch");
     let master = bin("tessera-master");
     let frames = 20u64;
+    let ntasks = format!("--ntasks={}", 4 + u32::from(standby));
     let o = cluster.client(
         "sbatch",
         &[
             "--wait",
-            // 1 master + 1 render node + 2 displays on a node of fewer cores.
-            "--ntasks=4",
+            // 1 master [+ 1 standby] + 1 render node + 2 displays on a node of fewer cores.
+            &ntasks,
             "--overcommit",
             "--time=2",
             &format!("--chdir={}", job_dir.display()),
@@ -246,6 +259,7 @@ fn slurm_runs_a_wall_from_the_batch_script() {
             // The kernel picks the master's port: nothing else on this machine is disturbed.
             ("TESSERA_PORT", "0"),
             ("TESSERA_JOIN_TIMEOUT", "60"),
+            ("TESSERA_STANDBY", if standby { "1" } else { "0" }),
         ],
         Duration::from_secs(150),
     );
@@ -276,6 +290,11 @@ fn slurm_runs_a_wall_from_the_batch_script() {
     }
     assert_eq!(report["render_nodes"].as_array().unwrap().len(), 1);
     assert!(job_out.contains("report:"), "{job_out}");
+    if standby {
+        let log = std::fs::read_to_string(run_dir.join("logs/standby.log")).unwrap_or_default();
+        assert!(master_log.contains("standby master at"), "{master_log}");
+        assert!(log.contains("the primary's run is over"), "{log}");
+    }
     // The run's CA and certificates are gone with the job.
     assert!(!run_dir.join("certs").exists() && !run_dir.join("cluster").exists());
     // Every node's command line names its certificate in the run directory.
