@@ -245,3 +245,83 @@ fn unit_command_lines_run_nodes_that_notify_systemd() {
     let report = read_json(&out.join("report.json"));
     assert_eq!(report["frames"].as_u64(), Some(8));
 }
+
+/// `tessera-master-standby.service`: passes `systemd-analyze verify` (where it is installed),
+/// and the very command line its `ExecStart` gives follows a live primary as its standby and
+/// leaves, with status 0, when the primary's run ends.
+#[test]
+fn the_standby_unit_verifies_and_its_command_line_follows_a_primary() {
+    let name = "tessera-master-standby.service";
+    let (_, text) = unit(name);
+    let dir = tempfile::tempdir().unwrap();
+    let master = bin("tessera-master");
+    let install = "apt-get install systemd";
+    let test = "the_standby_unit_verifies_and_its_command_line_follows_a_primary";
+    if let Some(tools) = require_tools(test, &["systemd-analyze"], install) {
+        let copy = dir.path().join(name);
+        std::fs::write(&copy, text.replace(INSTALLED, master.to_str().unwrap())).unwrap();
+        let o = std::process::Command::new(&tools[0])
+            .arg("verify")
+            .arg(&copy)
+            .output()
+            .expect("run systemd-analyze");
+        let said =
+            String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success() && said.trim().is_empty(),
+            "{name}:\n{said}"
+        );
+    }
+    let cluster = dir.path().join("cluster");
+    let run = [
+        "--render-nodes",
+        "1",
+        "--wall",
+        "1x1",
+        "--screen",
+        "64x36",
+        "--frames",
+        "0",
+    ];
+    let mut args = vec!["serve", "--listen", "127.0.0.1:0", "--cluster-dir"];
+    args.push(cluster.to_str().unwrap());
+    args.extend(run);
+    let primary = Proc::start("tessera-master", &args);
+    let line = primary.wait_for_stderr("listening on", Duration::from_secs(60));
+    let addr = line.rsplit(' ').next().expect("an address").to_string();
+    let serve_args = run.join(" ");
+    let env = [
+        ("TESSERA_PRIMARY", addr.as_str()),
+        ("TESSERA_STANDBY_LISTEN", "127.0.0.1:0"),
+        ("TESSERA_SERVE_ARGS", serve_args.as_str()),
+    ];
+    let vars = environment(&text, &env);
+    let state = dir.path().join("state");
+    let words = expand(
+        &exec_start(&text),
+        &vars,
+        &[("%S", state.to_str().unwrap())],
+    );
+    assert_eq!(
+        words[0], INSTALLED,
+        "{name}: ExecStart runs the installed path"
+    );
+    // The test's cluster directory stands for /etc/tessera/cluster.
+    let words: Vec<String> = words[1..]
+        .iter()
+        .map(|w| w.replace("/etc/tessera/cluster", cluster.to_str().unwrap()))
+        .collect();
+    let words: Vec<&str> = words.iter().map(String::as_str).collect();
+    let standby = Proc::start_program(&master, "standby", &words, &[]);
+    primary.wait_for_stderr("standby master at", Duration::from_secs(30));
+    standby.wait_for_stderr("following its run", Duration::from_secs(30));
+    primary.signal(libc::SIGINT);
+    primary.wait(Duration::from_secs(60));
+    let o = standby.wait(Duration::from_secs(30));
+    o.assert_success("the standby of a primary whose run ended");
+    assert!(
+        o.stderr.contains("the primary's run is over"),
+        "{}",
+        o.stderr
+    );
+}
