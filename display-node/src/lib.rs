@@ -38,9 +38,10 @@ use window::{window_presenter, WindowCallbacks, WindowSender};
 pub struct Cli {
     /// The master's address, HOST:PORT; or a comma-separated list, A,B: a primary and its
     /// standby (`tessera-master serve --standby-of`). The node joins the first that answers;
-    /// a master lost or silent for 3 s is left for the next of the list, round it, for up to
-    /// --reconnect-timeout (a list waits so without --reconnect too), and one of an older
-    /// term than the node has followed is refused. The window keeps the last frame meanwhile.
+    /// a master lost or silent for --failover-after is left for the next of the list, round
+    /// it, for up to --reconnect-timeout (a list waits so without --reconnect too), and one of
+    /// an older term than the node has followed is refused. The window keeps the last frame
+    /// meanwhile.
     #[arg(long, value_name = "ADDR[,ADDR...]")]
     master: String,
     /// Which screen of the wall this node shows (row-major from the top left, from 0).

@@ -41,9 +41,9 @@ pub struct Cli {
     command: Option<Tool>,
     /// The master's address, HOST:PORT; or a comma-separated list, A,B: a primary and its
     /// standby (`tessera-master serve --standby-of`). The node joins the first that answers;
-    /// a master lost or silent for 3 s is left for the next of the list, round it, for up to
-    /// --reconnect-timeout (a list waits so without --reconnect too), and one of an older
-    /// term than the node has followed is refused.
+    /// a master lost or silent for --failover-after is left for the next of the list, round
+    /// it, for up to --reconnect-timeout (a list waits so without --reconnect too), and one of
+    /// an older term than the node has followed is refused.
     #[arg(long, value_name = "ADDR[,ADDR...]")]
     master: Option<String>,
     /// This node's certificate directory (node.pem, node.key, ca.pem) from `tessera-master issue-cert`.
