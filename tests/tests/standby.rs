@@ -2,7 +2,8 @@
 //! the standby takes the wall over, every node (started with `--master PRIMARY,STANDBY`)
 //! rejoins it, every display presents again, and the dark time is measured and reported; the
 //! run's report and session record go on in the standby's. A standby cut off from a live
-//! primary takes over without a wall and does no harm; a chain of standbys outlives two masters.
+//! primary takes over without a wall and does no harm; a stopped primary that comes back
+//! after a takeover ends its run; a chain of standbys outlives two masters.
 //! `failover_dark_time_p95_over_repeated_kills` (ignored) measures the dark time over kills.
 
 use std::path::Path;
@@ -367,4 +368,43 @@ fn failover_dark_time_p95_over_repeated_kills() {
         dark.last().unwrap(),
         p95(&mut seen)
     );
+}
+
+/// Item 3 of the issue, the other way round: a primary stopped (SIGSTOP) past the failure
+/// bound loses its wall to the standby. Resumed, it finds its nodes gone (they closed its
+/// connections as silent) and ends its run, so the wall never has two masters; the standby
+/// keeps the wall. (The nodes would refuse its older term should they meet it again:
+/// `FromNode::StaleMaster`, after which it steps down; unit-tested in the core.)
+#[test]
+fn a_stopped_primary_resumed_after_a_takeover_ends_its_run_and_the_standby_keeps_the_wall() {
+    let dir = tempfile::tempdir().unwrap();
+    let cluster = dir.path().join("cluster");
+    let (out, out_standby) = (dir.path().join("out"), dir.path().join("out-standby"));
+    let (primary, primary_addr) = master(&cluster, &out, &["--save-frame", "2"]);
+    let (standby, standby_addr) = master(&cluster, &out_standby, &["--standby-of", &primary_addr]);
+    primary.wait_for_stderr("standby master at", Duration::from_secs(30));
+    let nodes = nodes(&cluster, &out, &format!("{primary_addr},{standby_addr}"));
+    assert!(
+        wait_for(Duration::from_secs(60), || out
+            .join("display-1.png")
+            .exists()),
+        "the primary's wall never presented frame 2"
+    );
+    primary.signal(libc::SIGSTOP);
+    let dark = dark_ms(&standby);
+    eprintln!("the standby took over a stopped primary; dark for {dark} ms");
+    primary.signal(libc::SIGCONT);
+    let old = primary.wait(Duration::from_secs(60));
+    assert!(!old.status.success(), "{}", old.stderr);
+    assert!(
+        old.stderr
+            .contains("every render node or every display is gone"),
+        "the resumed primary did not end its run for want of nodes:\n{}",
+        old.stderr
+    );
+    let end = interrupt(standby);
+    let presented = presented_per_display(&end);
+    assert_eq!(presented.len(), 2, "{end}");
+    assert!(presented.iter().all(|&n| n > 0), "{presented:?}\n{end}");
+    reap_nodes(nodes);
 }
