@@ -67,6 +67,10 @@ pub enum Command {
         /// Samples per pixel.
         #[arg(long)]
         spp: Option<u32>,
+        /// How hits are lit: `full` (lights, shadows, AO, as the other knobs ask) or
+        /// `eyelight` (|N·D| times the base colour, no other ray: Embree's viewers' frame).
+        #[arg(long, value_parser = tessera_cli::parse_shading)]
+        shading: Option<tessera_model::params::Shading>,
     },
     /// Set the cutting planes (NX,NY,NZ,D, up to 4), or --clear them. In render coordinates,
     /// as `state` shows them: a file's mesh is centred on its middle.
@@ -331,7 +335,12 @@ impl ControlClient {
             } => change(StateChange::Camera(
                 self.camera(*eye, *target, *up, *fov, *orbit).await?,
             )),
-            Command::Quality { shadows, ao, spp } => quality(*shadows, *ao, *spp)?,
+            Command::Quality {
+                shadows,
+                ao,
+                spp,
+                shading,
+            } => quality(*shadows, *ao, *spp, *shading)?,
             Command::Cut { planes, clear } => change(cuts(planes, *clear)?),
             Command::Colormap { map } => change(StateChange::ColorMap(*map)),
             Command::Crop { range, off } => {
@@ -454,13 +463,15 @@ pub(crate) fn quality(
     shadows: Option<bool>,
     ao: Option<u32>,
     spp: Option<u32>,
+    shading: Option<tessera_model::params::Shading>,
 ) -> Result<ControlRequest> {
     let mut changes = Vec::new();
     changes.extend(shadows.map(StateChange::Shadows));
     changes.extend(ao.map(StateChange::AoSamples));
     changes.extend(spp.map(StateChange::Spp));
+    changes.extend(shading.map(StateChange::Shading));
     if changes.is_empty() {
-        bail!("quality: give --shadows, --ao or --spp");
+        bail!("quality: give --shadows, --ao, --spp or --shading");
     }
     Ok(ControlRequest::Change(changes))
 }

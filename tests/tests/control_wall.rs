@@ -80,7 +80,15 @@ fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
         &[
             "camera", "--eye", "3,2.5,6", "--target", "0,0.5,0", "--fov", "40",
         ][..],
-        &["quality", "--ao", "2", "--shadows", "off"],
+        &[
+            "quality",
+            "--ao",
+            "2",
+            "--shadows",
+            "off",
+            "--shading",
+            "eyelight",
+        ],
         &["cut", "--plane", "0,0,1,0.5"],
     ] {
         wall.control(command).assert_success(&command.join(" "));
@@ -112,8 +120,8 @@ fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
     let (out, record) = (wall.out.clone(), wall.record.clone());
     let report = wall.stop();
     assert_eq!(
-        report["changes_applied"], 4,
-        "camera, ao, shadows, cut: {report}"
+        report["changes_applied"], 5,
+        "camera, ao, shadows, shading, cut: {report}"
     );
 
     // The recorded state at that frame holds every change...
@@ -128,6 +136,7 @@ fn changes_land_at_the_next_barrier_and_equal_the_replayed_session() {
     let v: serde_json::Value = serde_json::from_str(at_frame).unwrap();
     assert_eq!(v["wall"]["params"]["ao_samples"], 2, "{at_frame}");
     assert_eq!(v["wall"]["params"]["shadows"], false, "{at_frame}");
+    assert_eq!(v["wall"]["params"]["shading"], "EyeLight", "{at_frame}");
     assert_eq!(v["wall"]["params"]["cuts"].as_array().unwrap().len(), 1);
     assert_eq!(v["camera_at_frame"]["fov_y_deg"], 40.0, "{at_frame}");
     // ...and the wall showed exactly what rendering that frame of the session gives.

@@ -58,6 +58,9 @@ pub enum StateChange {
     ColorMap(crate::colormap::ColorMap),
     /// A whole state at once (a replayed session, a saved view).
     All(WallState),
+    /// How hits are lit: the full shading, or the eye light alone (last, so that the wire
+    /// numbers of the changes before it stay as they were).
+    Shading(crate::params::Shading),
 }
 
 impl WallState {
@@ -80,6 +83,7 @@ impl WallState {
             StateChange::Volume(volume) => spec.volume = volume,
             StateChange::ColorMap(map) => spec.colormap = map,
             StateChange::All(state) => return Ok(state),
+            StateChange::Shading(shading) => spec.shading = shading,
         }
         next.params = spec.build()?;
         Ok(next)
@@ -116,6 +120,10 @@ mod tests {
 
     #[test]
     fn a_combination_over_the_budget_is_refused_and_changes_nothing() {
+        let eye = state()
+            .apply(&StateChange::Shading(crate::params::Shading::EyeLight))
+            .unwrap();
+        assert!(eye.params.eye_light() && !state().params.eye_light());
         let s = state().apply(&StateChange::Spp(4096)).unwrap();
         assert!(s.apply(&StateChange::AoSamples(1024)).is_err());
         assert!(matches!(

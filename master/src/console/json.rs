@@ -274,7 +274,7 @@ fn change(c: StateChange) -> ControlRequest {
 
 /// The request of a quality body.
 pub fn quality_request(body: &QualityBody) -> Result<ControlRequest> {
-    crate::control::quality(body.shadows, body.ao, body.spp)
+    crate::control::quality(body.shadows, body.ao, body.spp, None)
 }
 
 /// The request of a cuts body.
