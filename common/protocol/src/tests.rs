@@ -1,5 +1,6 @@
 //! The messages' checks on arrival and their round trips.
 use super::*;
+use tessera_model::wall::TileId;
 
 #[test]
 fn ranges_merge_consecutive_ids() {
