@@ -257,6 +257,7 @@ impl CameraPath {
                 state: StateId(lines.len() as u64),
                 wall,
                 camera_at_frame: camera,
+                takeover: None,
             });
         }
         Ok(Session { lines })

@@ -29,6 +29,20 @@ pub struct Recorded {
     pub wall: WallState,
     /// The camera of `frame` itself (the orbit's position there), for reading; not replayed.
     pub camera_at_frame: Camera,
+    /// On the line of the first frame a standby master started after taking the wall over:
+    /// its term and how long the wall was dark. Absent on every other line.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub takeover: Option<RecordedTakeover>,
+}
+
+/// A takeover as the session record holds it (`serve --standby-of`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordedTakeover {
+    /// The term of the master that took over.
+    pub term: u64,
+    /// From the old master's last word to this master's first presented frame.
+    pub dark_ms: u64,
 }
 
 /// Writes a session file as the wall runs, on a thread of its own: the master's loop only
@@ -40,6 +54,8 @@ pub struct Recorder {
     /// The writer, which ends with the first error it meets.
     writer: Option<std::thread::JoinHandle<Result<()>>>,
     last: Option<WallState>,
+    /// The last frame started, written or not: a takeover is marked on it.
+    last_started: Option<Recorded>,
 }
 
 impl Recorder {
@@ -70,6 +86,7 @@ impl Recorder {
             lines: Some(lines),
             writer: Some(writer),
             last: None,
+            last_started: None,
         })
     }
 
@@ -84,12 +101,32 @@ impl Recorder {
             params: start.params,
             ..wall
         };
-        self.write(Recorded {
+        let line = Recorded {
             frame: start.frame.0,
             state: start.state,
             wall,
             camera_at_frame: start.camera,
-        })
+            takeover: None,
+        };
+        self.last_started = Some(line.clone());
+        self.write(line)
+    }
+
+    /// Marks the takeover of term `term` on the last frame started (the first this master
+    /// presented): always a line, even where the state is the line before's.
+    ///
+    /// # Errors
+    /// As [`Recorder::frame`].
+    pub fn takeover(&mut self, term: u64, dark: std::time::Duration) -> Result<()> {
+        let Some(mut line) = self.last_started.clone() else {
+            return Ok(());
+        };
+        line.takeover = Some(RecordedTakeover {
+            term,
+            dark_ms: dark.as_millis() as u64,
+        });
+        self.last = None;
+        self.write(line)
     }
 
     /// Writes the lines a primary master recorded before this master took its wall over
@@ -104,6 +141,7 @@ impl Recorder {
                 state: l.state,
                 wall: l.wall,
                 camera_at_frame: l.camera_at_frame,
+                takeover: None,
             })?;
         }
         Ok(())
@@ -161,7 +199,12 @@ impl Session {
             }
             let recorded: Recorded = serde_json::from_str(line)
                 .with_context(|| format!("{}: line {}", path.display(), n + 1))?;
-            if let Some(last) = lines.last() {
+            // A takeover's mark may come on a frame already written: it stands for it.
+            if let Some(last) = lines.last_mut() {
+                if recorded.frame == last.frame && recorded.takeover.is_some() {
+                    *last = recorded;
+                    continue;
+                }
                 if recorded.frame <= last.frame {
                     bail!(
                         "{}: line {}: frame {} does not come after frame {}",
@@ -229,6 +272,32 @@ mod tests {
             FrameStart::new(FrameId(frame), StateId(state), camera, params),
             wall,
         )
+    }
+
+    /// A standby's record: the takeover marks the frame it first presented, even one with the
+    /// state of the line before, and the file still loads and replays.
+    #[test]
+    fn a_takeover_is_marked_on_its_frame_and_the_session_still_loads() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.jsonl");
+        let mut rec = Recorder::create(&path).unwrap();
+        for frame in [0, 16] {
+            let (s, w) = start(frame, frame, 0);
+            rec.frame(&s, w).unwrap();
+        }
+        rec.takeover(1, std::time::Duration::from_millis(612))
+            .unwrap();
+        drop(rec);
+        let session = Session::load(&path).unwrap();
+        assert_eq!(session.lines.len(), 2);
+        assert_eq!(
+            session.lines[1].takeover,
+            Some(RecordedTakeover {
+                term: 1,
+                dark_ms: 612
+            })
+        );
+        assert!(session.lines[0].takeover.is_none());
     }
 
     #[test]

@@ -498,6 +498,9 @@ impl Driver {
                 if let Some(since) = self.dark_since.take() {
                     let dark = since.elapsed();
                     self.master.record_takeover_dark(dark);
+                    if let Some(recorder) = &mut self.recorder {
+                        recorder.takeover(self.master.term(), dark)?;
+                    }
                     // Scripts and tests read this line.
                     eprintln!(
                         "tessera-master: took the wall over; dark for {} ms",

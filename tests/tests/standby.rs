@@ -202,6 +202,12 @@ fn a_standby_takes_over_a_wall_whose_primary_was_killed_and_every_display_presen
         "the record does not start at the run's start"
     );
     assert!(whole.len() >= theirs.len(), "{whole:?}\n{theirs:?}");
+    // ...with the takeover marked in it: its term and the dark time the report gives.
+    let marked: Vec<&serde_json::Value> =
+        whole.iter().filter(|l| !l["takeover"].is_null()).collect();
+    assert_eq!(marked.len(), 1, "{whole:?}");
+    assert_eq!(marked[0]["takeover"]["term"], 1, "{whole:?}");
+    assert_eq!(marked[0]["takeover"]["dark_ms"], dark, "{whole:?}");
     reap_nodes(nodes);
 }
 
