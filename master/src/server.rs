@@ -127,9 +127,21 @@ struct Driver {
     standby: Option<StandbyPeer>,
     /// Standbys attached so far: the next one's generation.
     standbys: u64,
+    /// Since when the attached standby has left a replica unacknowledged (`None`: none
+    /// outstanding). A standby cut off from the primary acks nothing, and the primary, which
+    /// runs no further than its standby acknowledged, would stall until the connection's idle
+    /// timeout (12 s): past [`STANDBY_ACK_BOUND`] it is dropped instead.
+    standby_unacked_since: Option<Instant>,
     /// After a takeover, until its first frame is presented: when the old primary last spoke.
     dark_since: Option<Instant>,
 }
+
+/// How long a primary waits for its standby to acknowledge a replica before it goes on
+/// without it: four failure bounds, so that a standby host starved for a moment (a busy
+/// machine) is not dropped, while a standby cut off stalls the wall for 2 s, not for the
+/// connection's 12 s idle timeout (found by the partition test under CI load: the primary had
+/// stopped at its standby's horizon).
+const STANDBY_ACK_BOUND: Duration = Duration::from_millis(4 * 500);
 
 /// This moment on both of the master's clocks, for the event about to be handed to it.
 fn now() -> Now {
@@ -191,6 +203,7 @@ pub async fn run_wall(
         events_tx: events_own,
         standby: None,
         standbys: 0,
+        standby_unacked_since: None,
         dark_since,
         links: HashMap::new(),
         progress: None,
@@ -288,6 +301,7 @@ impl Driver {
                 _ = tick.tick(), if self.console.is_some() => self.console_tick(),
                 _ = beat.tick(), if self.standby.is_some() => {
                     self.send_standby(ToStandby::Heartbeat);
+                    self.drop_silent_standby();
                 }
                 changed = stop.changed(), if !stopping => {
                     stopping = true;
@@ -339,6 +353,7 @@ impl Driver {
                     .as_ref()
                     .is_some_and(|s| s.generation == generation)
                 {
+                    self.standby_unacked_since = None;
                     self.master.handle_replica_ack(ack, now());
                 }
             }
@@ -350,7 +365,10 @@ impl Driver {
                 {
                     tracing::warn!("the standby master's connection closed: {reason}");
                     self.standby = None;
+                    self.standby_unacked_since = None;
                     self.master.detach_standby(now());
+                } else {
+                    tracing::info!("a dropped standby master's connection closed: {reason}");
                 }
             }
         }
@@ -377,6 +395,32 @@ impl Driver {
         let first = ToStandby::Replica(Box::new(replica));
         let peer = serve_standby(conn, self.standbys, first, self.events_tx.clone());
         self.standby = Some(peer);
+        // Its first replica, sent with the stream, is outstanding.
+        self.standby_unacked_since = Some(Instant::now());
+    }
+
+    /// Drops the standby if it left a replica unacknowledged past the failure bound (see
+    /// `standby_unacked_since`).
+    fn drop_silent_standby(&mut self) {
+        let bound = STANDBY_ACK_BOUND;
+        if self
+            .standby_unacked_since
+            .is_none_or(|t| t.elapsed() <= bound)
+        {
+            return;
+        }
+        if let Some(standby) = self.standby.take() {
+            tracing::warn!(
+                "the standby master acknowledged nothing for {} ms: going on without it",
+                bound.as_millis()
+            );
+            let code = crate::standby_link::DROPPED;
+            standby
+                .conn
+                .close(code.into(), b"no acknowledgement within the failure bound");
+        }
+        self.standby_unacked_since = None;
+        self.master.detach_standby(now());
     }
 
     /// Queues a message for the standby's writer.
@@ -457,6 +501,9 @@ impl Driver {
         // Before the transmits: the standby learns of a frame no later than the nodes do.
         while let Some(replica) = self.master.poll_replica() {
             self.send_standby(ToStandby::Replica(Box::new(replica)));
+            if self.standby.is_some() {
+                self.standby_unacked_since.get_or_insert_with(Instant::now);
+            }
         }
         loop {
             if let Some(t) = self.master.poll_transmit() {

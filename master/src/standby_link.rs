@@ -24,6 +24,11 @@ use tokio::sync::mpsc;
 /// the failure bound) is a primary gone, which the standby replaces.
 pub const RUN_OVER: u32 = 0;
 
+/// The code a primary closes its standby's connection with when the standby acknowledged
+/// nothing for a while (`server::STANDBY_ACK_BOUND`, 2 s): the primary goes on without it, and the
+/// standby, if it hears this, leaves rather than take over a wall whose primary is alive.
+pub const DROPPED: u32 = 2;
+
 /// The code a standby closes its connection to the primary with when it takes over.
 const TAKING_OVER: u32 = 9;
 
@@ -180,6 +185,9 @@ pub async fn follow(
                         if primary_run_over(&conn) {
                             return Ok(Followed::RunOver);
                         }
+                        if closed_with(&conn, DROPPED) {
+                            bail!("the primary dropped this standby: it acknowledged nothing for 2 s (an overloaded standby host, or a slow link?)");
+                        }
                         tracing::warn!("the primary's connection closed: {:?}", conn.close_reason());
                         standby.handle_primary_closed(now);
                     }
@@ -206,9 +214,14 @@ pub async fn follow(
 
 /// Whether the primary closed the connection because its run is over (see [`RUN_OVER`]).
 fn primary_run_over(conn: &quinn::Connection) -> bool {
+    closed_with(conn, RUN_OVER)
+}
+
+/// Whether the peer closed `conn` with the application code `code`.
+fn closed_with(conn: &quinn::Connection, code: u32) -> bool {
     matches!(
         conn.close_reason(),
-        Some(quinn::ConnectionError::ApplicationClosed(c)) if c.error_code == RUN_OVER.into()
+        Some(quinn::ConnectionError::ApplicationClosed(c)) if c.error_code == code.into()
     )
 }
 

@@ -240,11 +240,34 @@ fn a_standby_cut_off_from_a_live_primary_takes_over_no_wall_and_the_primary_keep
     // The partition: the primary and its nodes still see each other, the standby sees nobody.
     kill(relay);
     standby.wait_for_stderr("taking the wall over", Duration::from_secs(30));
-    // The primary keeps the wall until it gives its silent standby up (the connection's idle
-    // timeout, 12 s): all that while the standby holds the higher term.
+    // The primary, which runs no further than its standby acknowledged, drops the silent
+    // standby and goes on (under CI load it had stalled at the standby's horizon until the
+    // connection's idle timeout); the connection itself closes later (12 s): all that while
+    // the standby holds the higher term.
+    primary.wait_for_stderr("acknowledged nothing", Duration::from_secs(60));
     primary.wait_for_stderr(
         "standby master's connection closed",
         Duration::from_secs(60),
+    );
+    // ...and presents on: two readings of its count apart, the second higher.
+    let connect = [
+        "--connect".to_string(),
+        primary_addr.clone(),
+        "--cert-dir".into(),
+        issue_cert(&cluster, "control-0"),
+    ];
+    let presented_now = || {
+        let o = control(&connect, &["figures"], Duration::from_secs(30));
+        o.assert_success("figures");
+        let figures: serde_json::Value = serde_json::from_str(&o.stdout).expect("JSON figures");
+        figures["Figures"]["frames_presented"]
+            .as_u64()
+            .expect("a count")
+    };
+    let dropped_at = presented_now();
+    assert!(
+        wait_for(Duration::from_secs(30), || presented_now() > dropped_at + 1),
+        "the primary stood still after dropping its standby (at {dropped_at} frames)"
     );
     let end = interrupt(primary);
     let presented = presented_per_display(&end);
