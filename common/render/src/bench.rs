@@ -236,33 +236,14 @@ fn time_ambient_packets(
     starts: &[(Vec3, Vec3)],
     (ao_samples, reach): (u32, f32),
 ) -> Pass {
-    let t2 = Instant::now();
-    let ao_rays: u64 = starts
-        .par_iter()
-        .enumerate()
-        .map_init(
-            || scene.tracer(),
-            |tracer, (i, &(o, n))| {
-                let hemisphere = Hemisphere::around(n);
-                let mut s = 0;
-                while s < ao_samples {
-                    let end = (s + PACKET_RAYS as u32).min(ao_samples);
-                    let directions = (s..end).map(|s| {
-                        let mut stream = SampleStream::new(view.frame, i as u32, 0, s);
-                        hemisphere.cosine_direction(&mut stream)
-                    });
-                    let mut packet = RayPacket::from_origin(o, directions, reach);
-                    std::hint::black_box(tracer.occluded_lanes(&mut packet));
-                    s = end;
-                }
-                ao_samples as u64
-            },
-        )
-        .sum();
-    Pass {
-        rays: ao_rays,
-        seconds: t2.elapsed().as_secs_f64(),
-    }
+    time_ambient_with(scene, view, starts, ao_samples, |tracer, o, directions| {
+        let mut directions = directions.peekable();
+        while directions.peek().is_some() {
+            let chunk = directions.by_ref().take(PACKET_RAYS);
+            let mut packet = RayPacket::from_origin(o, chunk, reach);
+            std::hint::black_box(tracer.occluded_lanes(&mut packet));
+        }
+    })
 }
 
 /// Times `ao_samples` ambient-occlusion rays from each start, reaching `reach`.
@@ -272,7 +253,23 @@ fn time_ambient(
     starts: &[(Vec3, Vec3)],
     (ao_samples, reach): (u32, f32),
 ) -> Pass {
-    let t2 = Instant::now();
+    time_ambient_with(scene, view, starts, ao_samples, |tracer, o, directions| {
+        for d in directions {
+            std::hint::black_box(tracer.occluded(&Ray::new(o, d), 0.0, reach));
+        }
+    })
+}
+
+/// Times `trace`, handed each start's origin and its `ao_samples` cosine-distributed
+/// directions (the same for every way of tracing them), on every thread of the pool.
+fn time_ambient_with(
+    scene: &PreparedScene,
+    view: &FrameView,
+    starts: &[(Vec3, Vec3)],
+    ao_samples: u32,
+    trace: impl Fn(&mut crate::Tracer<'_>, Vec3, &mut dyn Iterator<Item = Vec3>) + Sync,
+) -> Pass {
+    let t0 = Instant::now();
     let ao_rays: u64 = starts
         .par_iter()
         .enumerate()
@@ -280,17 +277,17 @@ fn time_ambient(
             || scene.tracer(),
             |tracer, (i, &(o, n))| {
                 let hemisphere = Hemisphere::around(n);
-                for s in 0..ao_samples {
+                let mut directions = (0..ao_samples).map(|s| {
                     let mut stream = SampleStream::new(view.frame, i as u32, 0, s);
-                    let d = hemisphere.cosine_direction(&mut stream);
-                    std::hint::black_box(tracer.occluded(&Ray::new(o, d), 0.0, reach));
-                }
+                    hemisphere.cosine_direction(&mut stream)
+                });
+                trace(tracer, o, &mut directions);
                 ao_samples as u64
             },
         )
         .sum();
     Pass {
         rays: ao_rays,
-        seconds: t2.elapsed().as_secs_f64(),
+        seconds: t0.elapsed().as_secs_f64(),
     }
 }
