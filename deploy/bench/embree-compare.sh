@@ -22,6 +22,9 @@
 #   --cache DIR        exported meshes (default ${XDG_CACHE_HOME:-$HOME/.cache}/tessera-bench)
 #   --out DIR          logs, images, results.tsv, commands.txt (default CACHE/runs/DATE)
 #   --timeout S        limit for each benchmark or export command (default 1200)
+#   --isa NAME         one instruction set for both: Embree's --isa NAME and Tessera's
+#                      TESSERA_ISA=NAME (avx2, avx512; default: each Embree ISA this CPU has,
+#                      the faster taken, and Tessera's best)
 #   --no-scaling       skip the 1-thread runs
 #   --no-ao            skip the ambient-occlusion comparison (64 rays per hit: the slowest part)
 #   --reference        also render Tessera's reference image (tessera-master render) per mesh
@@ -66,6 +69,7 @@ while [[ $# -gt 0 ]]; do
         --cache) need_arg "$@"; CACHE=$2; shift 2 ;;
         --out) need_arg "$@"; OUT=$2; shift 2 ;;
         --timeout) need_arg "$@"; LIMIT=$2; shift 2 ;;
+        --isa) need_arg "$@"; ONE_ISA=$2; shift 2 ;;
         --no-scaling) SCALING=0; shift ;;
         --no-ao) AO=0; shift ;;
         --reference) REFERENCE=1; shift ;;
@@ -140,6 +144,15 @@ STREAM=/usr/bin/viewer_stream
 ISAS=(avx2)
 grep -qw avx512f /proc/cpuinfo && ISAS+=(avx512)
 grep -qw avx2 /proc/cpuinfo || ISAS=(sse4.2)
+if [[ -n ${ONE_ISA:-} ]]; then
+    case $ONE_ISA in
+        avx2) grep -qw avx2 /proc/cpuinfo || die "--isa avx2: this CPU has no AVX2" ;;
+        avx512) grep -qw avx512f /proc/cpuinfo || die "--isa avx512: this CPU has no AVX-512" ;;
+        *) die "--isa must be avx2 or avx512, got $ONE_ISA" ;;
+    esac
+    ISAS=("$ONE_ISA")
+    export TESSERA_ISA=$ONE_ISA
+fi
 for mesh in "${MESHES[@]}"; do
     [[ $mesh =~ ^knot:[0-9]+:[0-9]+$ ]] && continue
     [[ -f $mesh ]] || die "mesh $mesh not found"
@@ -354,8 +367,8 @@ printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s %9s %9s %9s %9s\n' mesh tri
     "viewer/isa" "stream/isa" "faster" primary ratio eyelight ratio shaded ratio full ratio
 printf '%s\n' "${ROWS[@]}"
 echo
-echo "BVH build, million triangles/s (Embree: its BVH8 SAH builder's Mprim/s; Tessera: obvhs build"
-echo "and flattening), the cache's load time, and the render node's bytes per triangle:"
+echo "BVH build, million triangles/s (Embree: its BVH8 SAH builder's Mprim/s; Tessera: binned SAH"
+echo "build and the 8-wide collapse), the cache's load time, and the render node's bytes per triangle:"
 printf '%-22s %7s %14s %16s %8s %14s %10s %10s\n' mesh threads "embree Mprim/s" "tessera Mtris/s" \
     ratio "cache load s" "B/tri" "array B/tri"
 printf '%s\n' "${BUILD_ROWS[@]}"
