@@ -237,6 +237,8 @@ fn load(
 ) -> Result<Prepared> {
     let set = |now: LoadStep| *step.lock().unwrap_or_else(|e| e.into_inner()) = now;
     let scene = Scene::load(spec)?;
+    // The parser's garbage goes before the tree arrives, or it stays resident under them.
+    crate::memory::release_freed();
     if scene.content_hash() != expected {
         bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");
     }
@@ -250,7 +252,12 @@ fn load(
     let triangles = scene.triangles.len();
     // The mesh's vertices and triangles go before a cached tree is read (see `load_lean`).
     let lean = pool.install(|| {
-        tessera_render::bvh::cache::load_lean(scene, bvh_cache.as_deref(), || Scene::load(spec))
+        tessera_render::bvh::cache::load_lean(
+            scene,
+            bvh_cache.as_deref(),
+            || Scene::load(spec),
+            crate::memory::release_freed,
+        )
     })?;
     set(LoadStep::Preparing);
     tracing::info!(
