@@ -16,8 +16,8 @@ use std::time::{Duration, Instant};
 const MAGIC: [u8; 4] = *b"TBVH";
 /// Bumped whenever the node layout, the build or the file layout changes (2: payload hash;
 /// 3: obvhs' parallel build, which makes another tree than its serial one; 4: the 8-wide tree,
-/// collapsed by the SAH, in place of the binary one; 5: the binned SAH build in place of obvhs').
-const FORMAT: u32 = 5;
+/// collapsed by the SAH, in place of the binary one).
+const FORMAT: u32 = 4;
 /// Magic, format, three counts, then the payload's hash.
 const HEADER: usize = 4 + 4 + 8 * 3 + 32;
 
@@ -34,7 +34,7 @@ fn cache_path(dir: &Path, scene: &Scene) -> PathBuf {
     let mut key = blake3::Hasher::new();
     key.update(&scene.content_hash());
     key.update(&FORMAT.to_le_bytes());
-    key.update(Accel::BUILDER.as_bytes());
+    key.update(Accel::preset_name(scene.triangles.len()).as_bytes());
     dir.join(format!("{}.bvh", &key.finalize().to_hex()[..32]))
 }
 

@@ -1,4 +1,4 @@
-//! The 8-wide tree that every ray walks, collapsed from the binary one `binned` builds. A binary
+//! The 8-wide tree that every ray walks, collapsed from the binary one obvhs builds. A binary
 //! tree costs a dependent memory load per level; this one has about a third as many levels, and
 //! one ray tests a node's eight boxes with a few 8-lane instructions (`node_test_ray`).
 //!
@@ -6,10 +6,9 @@
 //! and which inner nodes a wide node takes as its children: the dynamic programme of Ylitie,
 //! Karras and Laine (2017, "Efficient incoherent ray traversal on GPUs through compressed wide
 //! BVHs", §3.1). Per binary node it keeps the cost of the subtree as at most 1..=8 roots, so a
-//! wide node is as full, and a leaf as large, as pays. obvhs' build, used before `binned`, left
-//! most scanned triangles in leaves of one; a greedy collapse of that tree gave the Stanford
-//! dragon 212,284 wide nodes, a third of them with only two children, and leaves of 1.18
-//! triangles.
+//! wide node is as full, and a leaf as large, as pays. obvhs leaves most scanned triangles in
+//! leaves of one (its SAH stops there); a greedy collapse of that tree gave the Stanford dragon
+//! 212,284 wide nodes, a third of them with only two children, and leaves of 1.18 triangles.
 //!
 //! Leaves only ever join binary subtrees whose triangle slots form one run, so the slots, and
 //! with them which triangle wins a tie, are the binary tree's: every pixel stays the same.

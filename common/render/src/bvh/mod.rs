@@ -7,20 +7,20 @@
 //!
 //! 1. `node`: the node formats (binary, 8-wide), the leaf triangle, the hit.
 //! 2. `memory` (where a traversal reads the tree: [`memory::TreeMemory`]), `collapse` (binary
-//!    to 8-wide), `binned` (the binary tree, by the binned SAH), `node_test_ray` (a ray against a node's
+//!    to 8-wide), `coincident` (groups of equal boxes), `node_test_ray` (a ray against a node's
 //!    children), `leaf_ray` and `leaf_packet` (a leaf's triangles against a ray, or a packet).
 //! 3. `node_test_packet` (a packet against a box or a node's children, on `node_test_ray`'s
 //!    finite inverses) and `tree` ([`Accel`]: the arrays, on `collapse` and `memory`).
-//! 4. `build` (`binned`, then `collapse`) and `traverse_ray` (single rays).
+//! 4. `build` (obvhs' build, with `coincident`) and `traverse_ray` (single rays).
 //! 5. `cache` (the built tree on disk, on `build`) and `traverse_packet` (64-ray packets, which
 //!    fall back to `traverse_ray`).
 //!
 //! Outside `bvh`, it uses only the crate's lower modules (`geometry`, `packet`, `isa`,
 //! `scene`); the distributed shared memory (`dsm`) and the [`crate::Tracer`] build on it.
 
-mod binned;
 mod build;
 pub mod cache;
+mod coincident;
 pub mod collapse;
 mod leaf_packet;
 mod leaf_ray;

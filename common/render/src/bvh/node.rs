@@ -1,6 +1,6 @@
-//! The formats the tree is stored in: the binary node the build makes (and obvhs' particle
-//! tree is flattened into), the 8-wide node every traversal walks and the cache stores, the leaf
-//! triangle, and the hit a search returns. Everything else in `bvh` reads these; this file reads nothing of `bvh`.
+//! The formats the tree is stored in: the binary node obvhs' tree is flattened into (what the
+//! cache stores), the 8-wide node every traversal walks, the leaf triangle, and the hit a search
+//! returns. Everything else in `bvh` reads these; this file reads nothing of `bvh`.
 
 use glam::Vec3;
 

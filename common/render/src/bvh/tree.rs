@@ -1,4 +1,4 @@
-//! The tree as a whole ([`Accel`]): a binary BVH built by the binned SAH (`build`), collapsed 8-wide
+//! The tree as a whole ([`Accel`]): a binary BVH built by obvhs (`build`), collapsed 8-wide
 //! (`collapse`), with the triangles stored in leaf order, so a leaf's triangles are contiguous
 //! in memory. The binary tree lives only during the build: the cache stores the 8-wide one, so
 //! loading it makes no second tree. Searching it is the traversals' (`traverse_ray`,
@@ -9,7 +9,7 @@ use crate::bvh::node::{LeafTriangle, WideNode, EMPTY, WIDTH};
 use crate::geometry::Bounds;
 use glam::Vec3;
 
-/// The scene's bounding volume hierarchy: built by the binned surface area heuristic into
+/// The scene's bounding volume hierarchy: obvhs builds it, and it is flattened here into
 /// depth-first nodes with the triangles copied in leaf order, so traversal reads memory in the
 /// order it visits it. Single rays use [`Accel::closest_hit`] and [`Accel::occluded`], 8×8
 /// packets [`Accel::closest_hits`] and [`Accel::occluded_lanes`], all on the 8-wide collapse of

@@ -145,20 +145,14 @@ mod tests {
         total
     }
 
-    /// Against the tree laid out breadth first (one block as large as the tree), the layout a
-    /// writer that knows nothing of blocks would give. The binned build's own depth-first order
-    /// is printed, not compared: on the knot it changes blocks 1 % less than the block layout at
-    /// 32 nodes a block (the DSM's 8 KB), 41 % more at 128.
     #[test]
     fn a_block_holds_a_subtree_so_paths_down_the_tree_change_blocks_less() {
         let accel = Accel::build(&knot_scene(600, 32));
-        let breadth_first = reorder_for_blocks(&accel.wide, accel.wide.len());
         for per_block in [32, 128] {
             let reordered = reorder_for_blocks(&accel.wide, per_block);
-            let before = path_switches(&breadth_first, per_block);
+            let before = path_switches(&accel.wide, per_block);
             let after = path_switches(&reordered, per_block);
-            let built = path_switches(&accel.wide, per_block);
-            eprintln!("{per_block} a block: {before} block changes on the paths down breadth first, {after} in blocks, {built} as built");
+            eprintln!("{per_block} a block: {before} block changes on the paths down before, {after} after");
             assert!(
                 after < before,
                 "{per_block} a block: {before} before, {after} after"
