@@ -270,8 +270,17 @@ fn a_shared_volume_stays_within_each_render_nodes_memory_budget() {
             cache > 0 && cache < 11 << 20,
             "the cache must hold part of the volume: {node}"
         );
-        assert!(dsm["fetched"].as_u64().unwrap() > 0, "{node}");
+        // Each node reads blocks it does not hold. Whether it must fetch any depends on the
+        // tiles it is given: its cache is warmed from the prepared files at start (about half
+        // the volume here), and a node whose tiles stayed within its share and the warmed
+        // lines fetched nothing (3 runs of 4 in a row once, node 2: 183 cache hits, no miss).
+        let reads = |key: &str| dsm[key].as_u64().unwrap();
+        assert!(reads("block_reads") > reads("local_reads"), "{node}");
     }
+    let fetched: u64 = (nodes.iter())
+        .map(|n| n["dsm"]["fetched"].as_u64().unwrap())
+        .sum();
+    assert!(fetched > 0, "no node fetched a block: {nodes:?}");
 }
 
 #[test]
