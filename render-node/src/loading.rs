@@ -237,7 +237,7 @@ fn load(
 ) -> Result<Prepared> {
     let set = |now: LoadStep| *step.lock().unwrap_or_else(|e| e.into_inner()) = now;
     let scene = Scene::load(spec)?;
-    // The parser's garbage goes before the tree arrives, or it stays resident under them.
+    // The parser's garbage goes before the tree arrives, or it stays resident beside it.
     crate::memory::release_freed();
     if scene.content_hash() != expected {
         bail!("this node's copy of the scene {spec:?} differs from the master's; every render node needs the same file");

@@ -108,8 +108,8 @@ pub struct LeanScene {
 /// slots' colours are read through the triangles). If the cached file then proves unusable,
 /// the scene is loaded again with `reload` and the tree built. `freed` runs once the mesh is
 /// freed and before the tree is read: a render node returns the freed heap to the system there,
-/// or the tree's arrays may land beside the hole instead of in it (on the dragon the peak was 61
-/// or 73 bytes a triangle, by where glibc put them).
+/// or the tree's arrays may land beside the hole instead of in it (a render node of a dragon
+/// wall peaked at 66 or 76 MB from run to run, by where glibc put them).
 ///
 /// # Errors
 /// What `reload` returns.
