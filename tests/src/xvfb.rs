@@ -47,6 +47,24 @@ impl Xvfb {
             skip(test, &msg);
             return None;
         }
+        // A server that dies while it starts (once in CI: the first Xvfb after its install,
+        // started beside two others) is started again on another number; what it said is
+        // printed, and after three such deaths the test fails with it.
+        let mut deaths = Vec::new();
+        for _ in 0..3 {
+            match Self::start_once(size) {
+                Ok(xvfb) => return Some(xvfb),
+                Err(why) => {
+                    eprintln!("{test}: {why}");
+                    deaths.push(why);
+                }
+            }
+        }
+        panic!("Xvfb did not start: {deaths:#?}");
+    }
+
+    /// One server, ready to take clients, or why not (its own words where it said any).
+    fn start_once(size: &str) -> Result<Xvfb, String> {
         // Tests of one binary run in parallel: a number per server of this process, skipping
         // numbers whose socket another server (a leftover, another test binary) holds.
         static NEXT: AtomicU32 = AtomicU32::new(0);
@@ -55,6 +73,7 @@ impl Xvfb {
             .find(|n| !Path::new(&format!("/tmp/.X11-unix/X{n}")).exists())
             .expect("a free X display number");
         let display = format!(":{number}");
+        let log = tempfile::NamedTempFile::new().expect("a file for Xvfb's messages");
         let child = Command::new("Xvfb")
             .args([
                 display.as_str(),
@@ -65,23 +84,31 @@ impl Xvfb {
                 "tcp",
             ])
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(log.reopen().expect("Xvfb's log"))
             .spawn()
             .expect("start Xvfb");
         let mut xvfb = Xvfb { child, display };
         let socket = format!("/tmp/.X11-unix/X{number}");
-        assert!(
-            wait_for(Duration::from_secs(10), || Path::new(&socket).exists()),
-            "Xvfb did not start on {}",
-            xvfb.display
-        );
-        // A server that found its display taken exits at once; the socket is then another's.
-        assert!(
-            matches!(xvfb.child.try_wait(), Ok(None)),
-            "Xvfb on {} exited at start",
-            xvfb.display
-        );
-        Some(xvfb)
+        // The socket appears before the server has set itself up (its keyboard map among
+        // other things), and a server that then fails leaves it behind: ready is when a
+        // client's connection is accepted.
+        let ready = wait_for(Duration::from_secs(10), || {
+            accepts_a_client(&socket) || !matches!(xvfb.child.try_wait(), Ok(None))
+        });
+        let said = || std::fs::read_to_string(log.path()).unwrap_or_default();
+        match xvfb.child.try_wait() {
+            Ok(None) if ready => Ok(xvfb),
+            Ok(None) => Err(format!(
+                "Xvfb on {} took no client within 10 s: {}",
+                xvfb.display,
+                said()
+            )),
+            _ => Err(format!(
+                "Xvfb on {} exited at start: {}",
+                xvfb.display,
+                said()
+            )),
+        }
     }
 
     /// Runs an X client (xdotool, xwininfo) on this server and returns its stdout.
@@ -157,6 +184,19 @@ pub fn xwininfo_field(info: &str, label: &str) -> i64 {
         .find_map(|l| l.trim().strip_prefix(label))
         .and_then(|v| v.trim().parse().ok())
         .unwrap_or_else(|| panic!("no {label:?} in:\n{info}"))
+}
+
+/// Whether the X server at unix socket `socket` accepts a connection: the setup request of the
+/// X protocol (little-endian, version 11.0, no authorization), answered with success (1).
+fn accepts_a_client(socket: &str) -> bool {
+    use std::io::{Read, Write};
+    let Ok(mut stream) = std::os::unix::net::UnixStream::connect(socket) else {
+        return false;
+    };
+    let _ = stream.set_read_timeout(Some(Duration::from_secs(2)));
+    let setup = [b'l', 0, 11, 0, 0, 0, 0, 0, 0, 0, 0, 0];
+    let mut answer = [0u8; 1];
+    stream.write_all(&setup).is_ok() && stream.read_exact(&mut answer).is_ok() && answer[0] == 1
 }
 
 impl Drop for Xvfb {
