@@ -167,14 +167,14 @@ fn a_shared_volume_renders_the_reference_pixels_through_the_transfer_function_an
         assert_wall_is_the_reference(&run_dir, (&volume, "2"), &all, &what);
         let report = read_json(&run_dir.join("out/report.json"));
         assert_eq!(report["data"], "dsm", "{report}");
-        let fetched: u64 = report["render_nodes"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|n| n["dsm"]["fetched"].as_u64().unwrap())
-            .sum();
+        let fetched = dsm_total(report["render_nodes"].as_array().unwrap(), "fetched");
         assert!(fetched > 0, "{name}: no brick was fetched: {report}");
     }
+}
+
+/// The sum over `nodes` (a report's `render_nodes`) of their DSM figure `key`.
+fn dsm_total(nodes: &[serde_json::Value], key: &str) -> u64 {
+    nodes.iter().map(|n| n["dsm"][key].as_u64().unwrap()).sum()
 }
 
 /// Writes `DIR/mixed.scene.toml`: the blobs of [`write_blob_volume`] (72x40x40), 400 particles
@@ -277,9 +277,7 @@ fn a_shared_volume_stays_within_each_render_nodes_memory_budget() {
         let reads = |key: &str| dsm[key].as_u64().unwrap();
         assert!(reads("block_reads") > reads("local_reads"), "{node}");
     }
-    let fetched: u64 = (nodes.iter())
-        .map(|n| n["dsm"]["fetched"].as_u64().unwrap())
-        .sum();
+    let fetched = dsm_total(nodes, "fetched");
     assert!(fetched > 0, "no node fetched a block: {nodes:?}");
 }
 
@@ -301,10 +299,7 @@ fn every_render_node_stays_within_its_memory_budget() {
     let report = read_json(&dir.path().join("out/report.json"));
     let nodes = report["render_nodes"].as_array().unwrap();
     assert_eq!(nodes.len(), 4);
-    let scene_bytes: u64 = nodes
-        .iter()
-        .map(|n| n["dsm"]["resident_bytes"].as_u64().unwrap())
-        .sum();
+    let scene_bytes = dsm_total(nodes, "resident_bytes");
     for node in nodes {
         let rss = node["max_rss_bytes"].as_u64().unwrap();
         eprintln!(
