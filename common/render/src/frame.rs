@@ -6,6 +6,7 @@
 
 use crate::cancel::Cancel;
 use crate::geometry::triangle_normal;
+use crate::isa::Isa;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::SampleStream;
@@ -14,7 +15,7 @@ use crate::shadow_packet;
 use crate::surface_hit::{nearest_surface, PrimaryHit, SurfaceHit};
 use crate::tracer::Tracer;
 use glam::Vec3;
-use rayon::prelude::*;
+use std::sync::Mutex;
 use tessera_model::wall::Tile;
 
 /// Edge of a packet: tiles are traced as 8×8 = 64-ray packets.
@@ -83,6 +84,16 @@ pub(crate) fn render_tiles_with(
         return Some((images, RayCounts::default(), footprints));
     }
     let packets = packets_of(tiles);
+    // Each packet's pixels go straight into its tile: collected per packet and copied into
+    // the tiles afterwards, they were 9 MB a 1920x1080 frame written, read and faulted in
+    // again, a twentieth of an eye-light frame. A tile's lock is taken once per packet, for
+    // a copy of its rows (the threads work on distant packets, so it is hardly ever waited for).
+    // A packet of a shared scene set aside for a block (`parking`) is traced again and copies
+    // its pixels again: the last trace's, which read only real blocks, are the ones kept.
+    let images: Vec<Mutex<Vec<u8>>> = tiles
+        .iter()
+        .map(|t| Mutex::new(vec![0; t.pixel_count() * 3]))
+        .collect();
     let traced = crate::parking::trace_all(scene, packets.len(), cancel, |tracer, p| {
         let (i, px, py) = packets[p];
         let (pixels, counts) = trace_packet(
@@ -93,13 +104,15 @@ pub(crate) fn render_tiles_with(
             (shadow_rays, cancel),
             tracer,
         );
-        (pixels, counts, tracer.take_footprint())
+        let mut image = images[i].lock().unwrap_or_else(|e| e.into_inner());
+        copy_packet(&mut image, &tiles[i], (px, py), &pixels);
+        (counts, tracer.take_footprint())
     })?;
     if cancel.is_cancelled() {
         return None;
     }
     let mut counts = RayCounts::default();
-    for (&(i, _, _), (_, c, footprint)) in packets.iter().zip(&traced) {
+    for (&(i, _, _), (c, footprint)) in packets.iter().zip(&traced) {
         footprints[i].extend_from_slice(footprint);
         counts = counts.add(*c);
     }
@@ -107,45 +120,27 @@ pub(crate) fn render_tiles_with(
         f.sort_unstable();
         f.dedup();
     }
-    Some((assemble_tiles(tiles, &packets, &traced), counts, footprints))
+    let images = images
+        .into_iter()
+        .map(|m| m.into_inner().unwrap_or_else(|e| e.into_inner()))
+        .collect();
+    Some((images, counts, footprints))
 }
 
-/// The tiles' images from their packets' pixels (`packets_of`'s order: each tile's packets
-/// together), a tile per task: done on one thread this copy and the images' first touch were
-/// a tenth of an eye-light frame at two threads.
-fn assemble_tiles<T: Sync>(
-    tiles: &[Tile],
-    packets: &[(usize, u32, u32)],
-    traced: &[(
-        [u8; (PACKET * PACKET * 3) as usize],
-        T,
-        Vec<tessera_core::dsm::BlockId>,
-    )],
-) -> Vec<Vec<u8>> {
-    let mut per_tile = Vec::with_capacity(tiles.len());
-    let mut rest = (packets, traced);
-    for t in tiles {
-        let n = (t.width.div_ceil(PACKET) * t.height.div_ceil(PACKET)) as usize;
-        let (p, later_p) = rest.0.split_at(n);
-        let (q, later_q) = rest.1.split_at(n);
-        per_tile.push((t, p, q));
-        rest = (later_p, later_q);
+/// Copies the packet at `(px, py)` of `tile` (8×8 pixels, rows of [`PACKET`], those outside
+/// the tile unused) into the tile's RGB8 `image`.
+fn copy_packet(
+    image: &mut [u8],
+    tile: &Tile,
+    (px, py): (u32, u32),
+    pixels: &[u8; (PACKET * PACKET * 3) as usize],
+) {
+    let w = PACKET.min(tile.width - px) as usize;
+    for row in 0..PACKET.min(tile.height - py) {
+        let dst = (((py + row) * tile.width + px) * 3) as usize;
+        let src = (row * PACKET * 3) as usize;
+        image[dst..dst + w * 3].copy_from_slice(&pixels[src..src + w * 3]);
     }
-    per_tile
-        .into_par_iter()
-        .map(|(tile, packets, traced)| {
-            let mut image = vec![0; tile.pixel_count() * 3];
-            for (&(_, px, py), (pixels, _, _)) in packets.iter().zip(traced) {
-                let w = PACKET.min(tile.width - px) as usize;
-                for row in 0..PACKET.min(tile.height - py) {
-                    let dst = (((py + row) * tile.width + px) * 3) as usize;
-                    let src = (row * PACKET * 3) as usize;
-                    image[dst..dst + w * 3].copy_from_slice(&pixels[src..src + w * 3]);
-                }
-            }
-            image
-        })
-        .collect()
 }
 
 /// Renders `tiles` as linear colour (what [`render_tiles`] encodes to 8 bits, before encoding),
@@ -225,9 +220,7 @@ fn trace_packet(
         // one flat loop that runs several channels at once.
         let flat: &[f32] = bytemuck::cast_slice(&sum[..]);
         let n = (w * h * 3) as usize;
-        for (o, &c) in out[..n].iter_mut().zip(&flat[..n]) {
-            *o = shade::encode_channel(c / spp as f32);
-        }
+        crate::lanes::encode_channels(Isa::best(), &flat[..n], spp as f32, &mut out[..n]);
     } else {
         for (i, color) in sum.iter().enumerate().take((w * h) as usize) {
             let o = (((i as u32 / w) * PACKET + i as u32 % w) * 3) as usize;
@@ -431,16 +424,26 @@ fn eye_light_packet(
     if tracer.has_missed() {
         return true;
     }
+    // In three passes, so that the middle one, the square root and the division of each
+    // lane, runs eight or sixteen lanes at a time: one lane after another they were a latency
+    // chain, a seventh of an eye-light frame.
+    let mut normals = [[0.0f32; 64]; 3];
     for (i, hit) in hits.iter().enumerate().take(packet.len()) {
-        let dir = packet.direction(i);
+        if let Some(slot) = hit.slot() {
+            let tri = tracer.triangle(slot);
+            let n = triangle_normal(tri.a, tri.b, tri.c);
+            (normals[0][i], normals[1][i], normals[2][i]) = (n.x, n.y, n.z);
+        }
+    }
+    let mut cosines = [0.0f32; 64];
+    crate::lanes::eye_light_cosines_on(Isa::best(), &normals, &packet.dir, &mut cosines);
+    for (i, hit) in hits.iter().enumerate().take(packet.len()) {
         sum[i] += match hit.slot() {
             Some(slot) => {
-                let tri = tracer.triangle(slot);
-                let normal = triangle_normal(tri.a, tri.b, tri.c).normalize_or_zero();
                 let material = scene.slot_material.of(slot) as usize;
-                shade::eye_light(dir, normal, scene.materials[material].albedo)
+                scene.materials[material].albedo * cosines[i]
             }
-            None => background(dir),
+            None => background(packet.direction(i)),
         };
     }
     true

@@ -39,6 +39,7 @@ pub mod dsm;
 mod frame;
 pub mod geometry;
 pub mod isa;
+mod lanes;
 pub mod packet;
 mod parking;
 mod pixel_rays;

@@ -370,12 +370,15 @@ pub fn encode_srgb_ish(color: Vec3) -> [u8; 3] {
 /// channels vectorize.
 #[inline(always)]
 pub fn encode_channel(c: f32) -> u8 {
-    // `clamp` passes a NaN through, and `as u8` turns it into 0: the non-finite case for
-    // NaN; an infinity is caught by the select.
-    let encoded = (c.clamp(0.0, 1.0).sqrt() * 255.0 + 0.5) as u8;
-    if c.is_finite() {
-        encoded
+    // Clamped to 0..=1, and a non-finite channel to 0 (NaN fails both compares): written as
+    // the compares and selects SIMD has, so that the loop vectorizes.
+    let linear = if c > 0.0 && c < f32::INFINITY {
+        c.min(1.0)
     } else {
-        0
-    }
+        0.0
+    };
+    let encoded = linear.sqrt() * 255.0 + 0.5;
+    // SAFETY: `encoded` is in 0.5..=255.5, well inside `i32`. The saturating `as` conversion
+    // `to_int_unchecked` avoids does not vectorize: SSE and AVX convert without saturating.
+    unsafe { encoded.to_int_unchecked::<i32>() as u8 }
 }

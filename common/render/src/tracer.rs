@@ -294,6 +294,7 @@ impl<'s> Tracer<'s> {
     }
 
     /// Leaf triangle `slot` (a hit's), for shading.
+    #[inline]
     pub fn triangle(&mut self, slot: u32) -> LeafTriangle {
         match &mut self.memory {
             Memory::Resident(m) => *m.triangle(slot),
