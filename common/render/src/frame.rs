@@ -7,6 +7,7 @@
 use crate::cancel::Cancel;
 use crate::geometry::triangle_normal;
 use crate::isa::Isa;
+use crate::lanes::EyeLightLanes;
 use crate::packet::{runs_by, PacketHit, RayPacket};
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::SampleStream;
@@ -424,27 +425,30 @@ fn eye_light_packet(
     if tracer.has_missed() {
         return true;
     }
-    // In three passes, so that the middle one, the square root and the division of each
-    // lane, runs eight or sixteen lanes at a time: one lane after another they were a latency
-    // chain, a seventh of an eye-light frame.
-    let mut normals = [[0.0f32; 64]; 3];
+    // In three passes, so that the middle one, a square root and a division per lane, runs
+    // eight or sixteen lanes at a time: lane after lane they were a latency chain, a seventh
+    // of an eye-light frame.
+    let mut lanes = EyeLightLanes {
+        normals: [[0.0; 64]; 3],
+        albedo: [[0.0; 64]; 3],
+        hit: [0; 64],
+    };
     for (i, hit) in hits.iter().enumerate().take(packet.len()) {
         if let Some(slot) = hit.slot() {
             let tri = tracer.triangle(slot);
-            let n = triangle_normal(tri.a, tri.b, tri.c);
-            (normals[0][i], normals[1][i], normals[2][i]) = (n.x, n.y, n.z);
+            let normal = triangle_normal(tri.a, tri.b, tri.c);
+            let albedo = scene.materials[scene.slot_material.of(slot) as usize].albedo;
+            for axis in 0..3 {
+                lanes.normals[axis][i] = normal[axis];
+                lanes.albedo[axis][i] = albedo[axis];
+            }
+            lanes.hit[i] = u32::MAX;
         }
     }
-    let mut cosines = [0.0f32; 64];
-    crate::lanes::eye_light_cosines_on(Isa::best(), &normals, &packet.dir, &mut cosines);
-    for (i, hit) in hits.iter().enumerate().take(packet.len()) {
-        sum[i] += match hit.slot() {
-            Some(slot) => {
-                let material = scene.slot_material.of(slot) as usize;
-                scene.materials[material].albedo * cosines[i]
-            }
-            None => background(packet.direction(i)),
-        };
+    let mut colors = [[0.0f32; 64]; 3];
+    crate::lanes::eye_light_colors_on(Isa::best(), &lanes, &packet.dir, &mut colors);
+    for (i, sum) in sum.iter_mut().enumerate().take(packet.len()) {
+        *sum += Vec3::new(colors[0][i], colors[1][i], colors[2][i]);
     }
     true
 }

@@ -1,4 +1,4 @@
-//! The per-pixel loops of a frame around its traversal, the eye light's cosines and the
+//! The per-pixel loops of a frame around its traversal, the eye light's colours and the
 //! 8-bit encoding, with SIMD builds (`isa_builds!`). Compiled for the baseline they ran four
 //! lanes at a time, a tenth of an eye-light frame; the builds run the same operations in the
 //! same order, so every one gives the bits of the portable one (the tests check it).
@@ -15,38 +15,69 @@ isa_builds! {
 
 #[inline(always)]
 fn encode_kernel<B: Build>(_: B, linear: &[f32], spp: f32, out: &mut [u8]) {
+    // One sample (interactive frames) divides by 1, which changes no bit: skipped, as the
+    // division and the square root each had the vector unit to themselves.
+    if spp == 1.0 {
+        for (o, &c) in out.iter_mut().zip(linear) {
+            *o = encode_channel(c);
+        }
+        return;
+    }
     for (o, &c) in out.iter_mut().zip(linear) {
         *o = encode_channel(c / spp);
     }
 }
 
-isa_builds! {
-    /// Per lane, `|N̂·D|` for the unnormalised normals `normals` and directions `dirs` (one
-    /// array per axis), on the build `isa`: what [`crate::shade::eye_light`] multiplies the
-    /// albedo by, with the normal normalised as `Vec3::normalize_or_zero` does, operation for
-    /// operation, so the bits are the same (0 for a normal of zero length).
-    pub(crate) fn eye_light_cosines_on<>(
-        normals: &[[f32; 64]; 3],
-        dirs: &[[f32; 64]; 3],
-        cosines: &mut [f32; 64],
-    ) = cosines_kernel on [Avx2, Avx512];
+/// The eye light's inputs for one packet, one array per axis or channel and one lane per ray.
+pub(crate) struct EyeLightLanes {
+    /// Each hit's triangle normal, unnormalised (anything where the ray missed).
+    pub normals: [[f32; 64]; 3],
+    /// Each hit's base colour.
+    pub albedo: [[f32; 64]; 3],
+    /// All ones where the ray hit, zero where it missed.
+    pub hit: [u32; 64],
 }
 
+isa_builds! {
+    /// Each lane's eye-light colour, one array per channel, on the build `isa`: the albedo
+    /// times `|N̂·D|` where the ray hit ([`crate::shade::eye_light`], the normal normalised as
+    /// `Vec3::normalize_or_zero` does, 0 for one of zero length), the backdrop
+    /// ([`crate::shade::background`]) where it missed; operation for operation those
+    /// functions', so the bits are the same.
+    pub(crate) fn eye_light_colors_on<>(
+        lanes: &EyeLightLanes,
+        dirs: &[[f32; 64]; 3],
+        colors: &mut [[f32; 64]; 3],
+    ) = colors_kernel on [Avx2, Avx512];
+}
+
+/// The backdrop's colours at the bottom and the top ([`crate::shade::background`]).
+const BACKDROP: [[f32; 3]; 2] = [[0.05, 0.06, 0.09], [0.32, 0.42, 0.62]];
+
 #[inline(always)]
-fn cosines_kernel<B: Build>(
+fn colors_kernel<B: Build>(
     _: B,
-    normals: &[[f32; 64]; 3],
+    lanes: &EyeLightLanes,
     dirs: &[[f32; 64]; 3],
-    cosines: &mut [f32; 64],
+    colors: &mut [[f32; 64]; 3],
 ) {
-    for (i, cosine) in cosines.iter_mut().enumerate() {
-        let (x, y, z) = (normals[0][i], normals[1][i], normals[2][i]);
+    let [low, high] = BACKDROP;
+    for i in 0..64 {
+        let [x, y, z] = [0, 1, 2].map(|axis| lanes.normals[axis][i]);
         let rcp = 1.0 / (x * x + y * y + z * z).sqrt();
         let dot = (x * rcp) * dirs[0][i] + (y * rcp) * dirs[1][i] + (z * rcp) * dirs[2][i];
         // `normalize_or_zero`'s `rcp.is_finite() && rcp > 0.0`, as a mask of compares SIMD
         // has (written as a branch, the loop did not vectorize).
         let keep = (rcp > 0.0) & (rcp < f32::INFINITY);
-        *cosine = f32::from_bits(dot.abs().to_bits() & u32::from(keep).wrapping_neg());
+        let cosine = f32::from_bits(dot.abs().to_bits() & u32::from(keep).wrapping_neg());
+        // `Vec3::lerp`: `low * (1 - t) + high * t`.
+        let t = 0.5 + 0.5 * dirs[1][i];
+        for c in 0..3 {
+            let lit = (lanes.albedo[c][i] * cosine).to_bits();
+            let backdrop = (low[c] * (1.0 - t) + high[c] * t).to_bits();
+            let hit = lanes.hit[i];
+            colors[c][i] = f32::from_bits((lit & hit) | (backdrop & !hit));
+        }
     }
 }
 
@@ -54,7 +85,7 @@ fn cosines_kernel<B: Build>(
 mod tests {
     use super::*;
     use crate::isa::Isa;
-    use crate::shade::eye_light;
+    use crate::shade::{background, eye_light};
     use glam::Vec3;
 
     /// Floats of every kind: zeros, subnormals, the edges of 0..=1, huge, infinite, NaN, and
@@ -111,40 +142,54 @@ mod tests {
     }
 
     #[test]
-    fn every_build_gives_the_cosines_of_the_eye_light_bit_for_bit() {
+    fn every_build_gives_the_eye_light_and_the_backdrop_of_the_scalar_shading_bit_for_bit() {
         let floats = awkward_floats();
         let pick = |k: usize| floats[k * 7919 % floats.len()];
-        let mut normals = [[0.0f32; 64]; 3];
+        let mut lanes = EyeLightLanes {
+            normals: [[0.0; 64]; 3],
+            albedo: [[0.0; 64]; 3],
+            hit: [0; 64],
+        };
         let mut dirs = [[0.0f32; 64]; 3];
         for round in 0..200 {
             for i in 0..64 {
+                let k0 = (round * 64 + i) * 3;
+                // One lane in five missed.
+                lanes.hit[i] = if k0 % 5 == 0 { 0 } else { u32::MAX };
                 for axis in 0..3 {
-                    let k = (round * 64 + i) * 3 + axis;
+                    let k = k0 + axis;
                     // The special floats first (infinite, NaN, huge and subnormal normals),
                     // then awkward, zero and ordinary ones.
-                    normals[axis][i] = match k % 4 {
+                    lanes.normals[axis][i] = match k % 4 {
                         _ if round == 0 && axis == i % 3 && i < 48 => floats[i / 3],
                         0 => pick(k),
                         1 => 0.0,
                         _ => (k % 13) as f32 * 0.37 - 2.0,
                     };
+                    lanes.albedo[axis][i] = (k % 7) as f32 * 0.15;
                     dirs[axis][i] = (k % 11) as f32 * 0.19 - 1.0;
                 }
             }
-            let expected: [f32; 64] = std::array::from_fn(|i| {
-                let n = Vec3::new(normals[0][i], normals[1][i], normals[2][i]);
-                let d = Vec3::new(dirs[0][i], dirs[1][i], dirs[2][i]);
-                eye_light(d, n.normalize_or_zero(), Vec3::ONE).x
+            let expected: [Vec3; 64] = std::array::from_fn(|i| {
+                let axes = |a: &[[f32; 64]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
+                let (n, d) = (axes(&lanes.normals), axes(&dirs));
+                if lanes.hit[i] == 0 {
+                    background(d)
+                } else {
+                    eye_light(d, n.normalize_or_zero(), axes(&lanes.albedo))
+                }
             });
             for isa in Isa::available() {
-                let mut cosines = [f32::NAN; 64];
-                eye_light_cosines_on(isa, &normals, &dirs, &mut cosines);
-                for i in 0..64 {
+                let mut colors = [[f32::NAN; 64]; 3];
+                eye_light_colors_on(isa, &lanes, &dirs, &mut colors);
+                for (i, want) in expected.iter().enumerate() {
+                    let got = Vec3::new(colors[0][i], colors[1][i], colors[2][i]);
                     assert_eq!(
-                        cosines[i].to_bits(),
-                        expected[i].to_bits(),
-                        "{isa:?} lane {i}: normal {:?}",
-                        [normals[0][i], normals[1][i], normals[2][i]]
+                        got.to_array().map(f32::to_bits),
+                        want.to_array().map(f32::to_bits),
+                        "{isa:?} lane {i}: normal {:?}, hit {}",
+                        [0, 1, 2].map(|a| lanes.normals[a][i]),
+                        lanes.hit[i]
                     );
                 }
             }
