@@ -171,16 +171,7 @@ pub async fn run_wall(
 ) -> Result<RunEnd> {
     let (events_tx, mut events) = mpsc::channel(crate::peers::EVENT_QUEUE);
     let events_own = events_tx.clone();
-    let acceptor = {
-        let endpoint = endpoint.clone();
-        tokio::spawn(async move {
-            let mut next = 0u64;
-            while let Some(incoming) = endpoint.accept().await {
-                next += 1;
-                tokio::spawn(accept_peer(incoming, PeerId(next), events_tx.clone()));
-            }
-        })
-    };
+    let acceptor = spawn_acceptor(endpoint.clone(), events_tx);
     tracing::info!(
         "waiting for {} display node(s) and {} render node(s) on {}",
         cfg.master.wall.display_count(),
@@ -216,18 +207,7 @@ pub async fn run_wall(
         result = driver.run(&mut events, &mut stop) => result,
         error = fatal => Err(error),
     };
-    if let Some(bar) = &driver.progress {
-        bar.finish_and_clear();
-    }
-    for link in driver.links.values() {
-        link.close(CloseReason::RunOver);
-    }
-    if let Some(standby) = &driver.standby {
-        // Said on purpose: a standby takes over from a primary that is gone, not from one
-        // whose run is over.
-        let code = crate::standby_link::RUN_OVER;
-        standby.conn.close(code.into(), b"run over");
-    }
+    driver.close_links();
     acceptor.abort();
     endpoint.close(0u32.into(), b"run over");
     let _ = tokio::time::timeout(Duration::from_secs(2), endpoint.wait_idle()).await;
@@ -243,7 +223,38 @@ pub async fn run_wall(
     })
 }
 
+/// Accepts every peer that connects to `endpoint`, each with the next [`PeerId`], its events
+/// sent to `events`.
+fn spawn_acceptor(
+    endpoint: quinn::Endpoint,
+    events: mpsc::Sender<Event>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut next = 0u64;
+        while let Some(incoming) = endpoint.accept().await {
+            next += 1;
+            tokio::spawn(accept_peer(incoming, PeerId(next), events.clone()));
+        }
+    })
+}
+
 impl Driver {
+    /// The run is over: the progress bar goes, and every node and the standby are told.
+    fn close_links(&self) {
+        if let Some(bar) = &self.progress {
+            bar.finish_and_clear();
+        }
+        for link in self.links.values() {
+            link.close(CloseReason::RunOver);
+        }
+        if let Some(standby) = &self.standby {
+            // Said on purpose: a standby takes over from a primary that is gone, not from one
+            // whose run is over.
+            let code = crate::standby_link::RUN_OVER;
+            standby.conn.close(code.into(), b"run over");
+        }
+    }
+
     /// Feeds the master until its run is over.
     async fn run(
         &mut self,
