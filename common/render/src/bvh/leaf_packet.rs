@@ -15,12 +15,35 @@ use glam::Vec3;
 /// Lanes computed together by [`ShearedLanes::hit`]: one AVX-512 vector, two AVX2 ones.
 pub(crate) const GROUP: usize = 16;
 
+/// A lane's flag as a mask the width of its `f32` (all ones or zero). Kept in `bool` arrays,
+/// the flags cost the AVX2 build a pack to bytes at every store and a widening at every load
+/// (AVX-512 has mask registers for that): 8 % of its eye-light frame on the dragon.
+pub(crate) type LaneMask = u32;
+
+/// The [`LaneMask`] of `flag`.
+#[inline(always)]
+pub(crate) fn lane_mask(flag: bool) -> LaneMask {
+    LaneMask::from(flag).wrapping_neg()
+}
+
+/// Each lane's index, as a 32-bit lane: compared with `usize` indices, the AVX2 build
+/// compared four lanes at a time.
+pub(crate) const LANE_INDEX: [u32; PACKET_RAYS] = {
+    let mut index = [0; PACKET_RAYS];
+    let mut i = 0;
+    while i < PACKET_RAYS {
+        index[i] = i as u32;
+        i += 1;
+    }
+    index
+};
+
 /// Bit `g` set where a lane of group `g` (lanes `g·GROUP ..`) is active.
 #[inline(always)]
-pub(crate) fn active_groups(active: &[bool; PACKET_RAYS]) -> u32 {
+pub(crate) fn active_groups(active: &[LaneMask; PACKET_RAYS]) -> u32 {
     let mut groups = 0;
     for (g, lanes) in active.chunks_exact(GROUP).enumerate() {
-        groups |= (lanes.iter().fold(false, |a, &b| a | b) as u32) << g;
+        groups |= u32::from(lanes.iter().fold(0, |a, &b| a | b) != 0) << g;
     }
     groups
 }
@@ -84,18 +107,18 @@ impl ShearedLanes {
         origin: Vec3,
         tri: &LeafTriangle,
         slot: u32,
-        (active, groups): (&[bool; PACKET_RAYS], u32),
+        (active, groups): (&[LaneMask; PACKET_RAYS], u32),
         (t_min, t_max): (&[f32; PACKET_RAYS], &[f32; PACKET_RAYS]),
         best_t: &mut [f32; PACKET_RAYS],
         best_slot: &mut [u32; PACKET_RAYS],
-        redo: &mut [bool; PACKET_RAYS],
+        redo: &mut [LaneMask; PACKET_RAYS],
     ) -> bool {
         let [kx, ky, kz] = self.axes;
         let (a, b, c) = (tri.a - origin, tri.b - origin, tri.c - origin);
         let (a_x, a_y, a_z) = (a[kx], a[ky], a[kz]);
         let (b_x, b_y, b_z) = (b[kx], b[ky], b[kz]);
         let (c_x, c_y, c_z) = (c[kx], c[ky], c[kz]);
-        let mut any_redo = false;
+        let mut any_redo = 0;
         for group in 0..PACKET_RAYS / GROUP {
             if groups >> group & 1 == 0 {
                 continue;
@@ -117,21 +140,22 @@ impl ShearedLanes {
                 let det = u + v + w;
                 let t = (u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z)) / det;
                 let closer = (t < best_t[i]) | ((t == best_t[i]) & (slot < best_slot[i]));
-                let take = active[i]
+                let live = active[i] != 0;
+                let take = live
                     & !edge
                     & !outside
                     & (det != 0.0)
                     & (t > t_min[i])
                     & (t < t_max[i])
                     & closer;
-                let again = active[i] & edge;
-                redo[i] = again;
-                any_redo |= again;
+                let again = live & edge;
+                redo[i] = lane_mask(again);
+                any_redo |= redo[i];
                 best_t[i] = if take { t } else { best_t[i] };
                 best_slot[i] = if take { slot } else { best_slot[i] };
             }
         }
-        any_redo
+        any_redo != 0
     }
 }
 
@@ -168,8 +192,8 @@ mod tests {
         let (t_min, t_max) = ([0.0; PACKET_RAYS], [f32::INFINITY; PACKET_RAYS]);
         let mut best_t = [f32::INFINITY; PACKET_RAYS];
         let mut best_slot = [u32::MAX; PACKET_RAYS];
-        let mut redo = [false; PACKET_RAYS];
-        let active = [true; PACKET_RAYS];
+        let mut redo = [0; PACKET_RAYS];
+        let active = [lane_mask(true); PACKET_RAYS];
         lanes.hit(
             origin,
             &tri,
@@ -183,7 +207,7 @@ mod tests {
         let mut handed_back = 0;
         for (i, ray) in rays.iter().enumerate() {
             let scalar = ray.hit_triangle(tri.a, tri.b, tri.c, 0.0, f32::INFINITY);
-            if redo[i] {
+            if redo[i] != 0 {
                 handed_back += 1;
                 continue;
             }

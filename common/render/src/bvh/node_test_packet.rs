@@ -3,6 +3,7 @@
 //! each test runs one SIMD lane per ray (or per child), on inverse directions made finite as
 //! for single rays (see `node_test_ray`), with compare-selects for `f32::min`/`max`.
 
+use crate::bvh::leaf_packet::lane_mask;
 use crate::bvh::node::{WideNode, EMPTY, WIDTH};
 use crate::packet::{RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
@@ -67,7 +68,8 @@ impl Lanes<'_> {
     ) -> bool {
         let shared_lo = min - self.origin;
         let shared_hi = max - self.origin;
-        let mut any = false;
+        // Or-ed as a 32-bit mask per lane, not a `bool`: see `leaf_packet::LaneMask`.
+        let mut any = 0;
         for i in 0..PACKET_RAYS {
             let (lo, hi) = if COMMON {
                 (shared_lo, shared_hi)
@@ -95,9 +97,9 @@ impl Lanes<'_> {
             );
             let hit = near <= far;
             out[i] = if hit { near } else { f32::INFINITY };
-            any |= hit;
+            any |= lane_mask(hit);
         }
-        any
+        any != 0
     }
 }
 

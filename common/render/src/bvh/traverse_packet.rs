@@ -17,7 +17,7 @@
 //! because Rust never fuses a multiply and an add into an FMA on its own, so every node of a
 //! wall renders the same pixels whatever its CPU.
 
-use crate::bvh::leaf_packet::{self, ShearedLanes};
+use crate::bvh::leaf_packet::{self, lane_mask, ShearedLanes, LANE_INDEX};
 use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, WIDTH};
 use crate::bvh::node_test_packet::{Frustum, Lanes};
@@ -276,10 +276,14 @@ impl<'a> PacketWalk<'a> {
             return;
         };
         let (n, entry) = (self.n, &self.entry);
-        let active: [bool; PACKET_RAYS] =
-            std::array::from_fn(|i| (i >= first) & (i < n) & (entry[i] != f32::INFINITY));
+        let mut active = [0; PACKET_RAYS];
+        let (from, to) = (first as u32, n as u32);
+        for (i, lane) in active.iter_mut().enumerate() {
+            let index = LANE_INDEX[i];
+            *lane = lane_mask((index >= from) & (index < to) & (entry[i] != f32::INFINITY));
+        }
         let (packet, origin) = (self.packet, self.lanes.origin);
-        let mut redo = [false; PACKET_RAYS];
+        let mut redo = [0; PACKET_RAYS];
         let groups = leaf_packet::active_groups(&active);
         for slot in slots {
             let tri = mem.triangle(slot);
@@ -296,7 +300,7 @@ impl<'a> PacketWalk<'a> {
             if !again {
                 continue;
             }
-            for i in (0..n).filter(|&i| redo[i]) {
+            for i in (0..n).filter(|&i| redo[i] != 0) {
                 let hit = self.rays.get(i, origin, packet).hit_triangle(
                     tri.a,
                     tri.b,
