@@ -4,7 +4,7 @@
 //! same order, so every one gives the bits of the portable one (the tests check it).
 
 use crate::isa::{isa_builds, Build};
-use crate::shade::encode_channel;
+use crate::shade::{encode_channel, BACKDROP};
 
 isa_builds! {
     /// Encodes each of `linear`, divided by `spp`, as [`encode_channel`] does, into `out`
@@ -51,9 +51,6 @@ isa_builds! {
     ) = colors_kernel on [Avx2, Avx512];
 }
 
-/// The backdrop's colours at the bottom and the top ([`crate::shade::background`]).
-const BACKDROP: [[f32; 3]; 2] = [[0.05, 0.06, 0.09], [0.32, 0.42, 0.62]];
-
 #[inline(always)]
 fn colors_kernel<B: Build>(
     _: B,
@@ -61,7 +58,7 @@ fn colors_kernel<B: Build>(
     dirs: &[[f32; 64]; 3],
     colors: &mut [[f32; 64]; 3],
 ) {
-    let [low, high] = BACKDROP;
+    let [low, high] = BACKDROP.map(|c| c.to_array());
     for i in 0..64 {
         let [x, y, z] = [0, 1, 2].map(|axis| lanes.normals[axis][i]);
         let rcp = 1.0 / (x * x + y * y + z * z).sqrt();

@@ -357,8 +357,12 @@ fn phong_lobe(cos: f32, shininess: f32) -> f32 {
 #[inline]
 pub fn background(dir: Vec3) -> Vec3 {
     let t = 0.5 + 0.5 * dir.y;
-    Vec3::new(0.05, 0.06, 0.09).lerp(Vec3::new(0.32, 0.42, 0.62), t)
+    BACKDROP[0].lerp(BACKDROP[1], t)
 }
+
+/// The backdrop straight down and straight up, which [`background`] blends (and the eye
+/// light's SIMD kernel, `lanes`, channel by channel).
+pub(crate) const BACKDROP: [Vec3; 2] = [Vec3::new(0.05, 0.06, 0.09), Vec3::new(0.32, 0.42, 0.62)];
 
 /// Linear to 8-bit with a gamma of 2 (a square root is exact in IEEE arithmetic, so it is the
 /// same on every CPU, unlike `powf`). Non-finite values come out black, never as garbage.
