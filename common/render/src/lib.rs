@@ -14,8 +14,9 @@
 //! `frame` renders tiles, `shade` and `shadow_packet` both work from `surface_hit` (what a ray
 //! hit, and the geometry there) and not from each other, all of them from `prepared` (the
 //! scene and the frame they trace with, which uses none of them), and [`aov`] draws the AOVs. The SIMD
-//! build of the traversals is chosen at run time, the same way for every entry point
-//! (`isa_builds!` in [`isa`]).
+//! build of the traversals, and of `lanes` (the eye light's colours and the 8-bit encoding of
+//! `frame`), is chosen at run time, the same way for every entry point (`isa_builds!` in
+//! [`isa`]).
 //!
 //! Coordinates are read in f64 and moved near the render origin before they become f32
 //! (meshes, particles, volumes and scenes of several alike); volume values keep their scale
