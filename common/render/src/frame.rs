@@ -8,7 +8,7 @@ use crate::cancel::Cancel;
 use crate::geometry::triangle_normal;
 use crate::isa::Isa;
 use crate::lanes::EyeLightLanes;
-use crate::packet::{runs_by, PacketHit, RayPacket};
+use crate::packet::{lane_mask, runs_by, PacketHit, RayPacket};
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
 use crate::sampling::SampleStream;
 use crate::shade::{self, background, encode_srgb_ish, Shader};
@@ -442,7 +442,7 @@ fn eye_light_packet(
                 lanes.normals[axis][i] = normal[axis];
                 lanes.albedo[axis][i] = albedo[axis];
             }
-            lanes.hit[i] = u32::MAX;
+            lanes.hit[i] = lane_mask(true);
         }
     }
     let mut colors = [[0.0f32; 64]; 3];

@@ -4,6 +4,7 @@
 //! same order, so every one gives the bits of the portable one (the tests check it).
 
 use crate::isa::{isa_builds, Build};
+use crate::packet::{lane_mask, LaneMask, PACKET_RAYS};
 use crate::shade::{encode_channel, BACKDROP};
 
 isa_builds! {
@@ -31,11 +32,11 @@ fn encode_kernel<B: Build>(_: B, linear: &[f32], spp: f32, out: &mut [u8]) {
 /// The eye light's inputs for one packet, one array per axis or channel and one lane per ray.
 pub(crate) struct EyeLightLanes {
     /// Each hit's triangle normal, unnormalised (anything where the ray missed).
-    pub normals: [[f32; 64]; 3],
+    pub normals: [[f32; PACKET_RAYS]; 3],
     /// Each hit's base colour.
-    pub albedo: [[f32; 64]; 3],
+    pub albedo: [[f32; PACKET_RAYS]; 3],
     /// All ones where the ray hit, zero where it missed.
-    pub hit: [u32; 64],
+    pub hit: [LaneMask; PACKET_RAYS],
 }
 
 isa_builds! {
@@ -46,8 +47,8 @@ isa_builds! {
     /// functions', so the bits are the same.
     pub(crate) fn eye_light_colors_on<>(
         lanes: &EyeLightLanes,
-        dirs: &[[f32; 64]; 3],
-        colors: &mut [[f32; 64]; 3],
+        dirs: &[[f32; PACKET_RAYS]; 3],
+        colors: &mut [[f32; PACKET_RAYS]; 3],
     ) = colors_kernel on [Avx2, Avx512];
 }
 
@@ -55,18 +56,18 @@ isa_builds! {
 fn colors_kernel<B: Build>(
     _: B,
     lanes: &EyeLightLanes,
-    dirs: &[[f32; 64]; 3],
-    colors: &mut [[f32; 64]; 3],
+    dirs: &[[f32; PACKET_RAYS]; 3],
+    colors: &mut [[f32; PACKET_RAYS]; 3],
 ) {
     let [low, high] = BACKDROP.map(|c| c.to_array());
-    for i in 0..64 {
+    for i in 0..PACKET_RAYS {
         let [x, y, z] = [0, 1, 2].map(|axis| lanes.normals[axis][i]);
         let rcp = 1.0 / (x * x + y * y + z * z).sqrt();
         let dot = (x * rcp) * dirs[0][i] + (y * rcp) * dirs[1][i] + (z * rcp) * dirs[2][i];
         // `normalize_or_zero`'s `rcp.is_finite() && rcp > 0.0`, as a mask of compares SIMD
         // has (written as a branch, the loop did not vectorize).
         let keep = (rcp > 0.0) & (rcp < f32::INFINITY);
-        let cosine = f32::from_bits(dot.abs().to_bits() & u32::from(keep).wrapping_neg());
+        let cosine = f32::from_bits(dot.abs().to_bits() & lane_mask(keep));
         // `Vec3::lerp`: `low * (1 - t) + high * t`.
         let t = 0.5 + 0.5 * dirs[1][i];
         for c in 0..3 {
@@ -168,7 +169,7 @@ mod tests {
                 }
             }
             let expected: [Vec3; 64] = std::array::from_fn(|i| {
-                let axes = |a: &[[f32; 64]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
+                let axes = |a: &[[f32; PACKET_RAYS]; 3]| Vec3::new(a[0][i], a[1][i], a[2][i]);
                 let (n, d) = (axes(&lanes.normals), axes(&dirs));
                 if lanes.hit[i] == 0 {
                     background(d)

@@ -9,34 +9,11 @@
 
 use crate::bvh::node::LeafTriangle;
 use crate::geometry::Ray;
-use crate::packet::PACKET_RAYS;
+use crate::packet::{lane_mask, LaneMask, PACKET_RAYS};
 use glam::Vec3;
 
 /// Lanes computed together by [`ShearedLanes::hit`]: one AVX-512 vector, two AVX2 ones.
 pub(crate) const GROUP: usize = 16;
-
-/// A lane's flag as a mask the width of its `f32` (all ones or zero). Kept in `bool` arrays,
-/// the flags cost the AVX2 build a pack to bytes at every store and a widening at every load
-/// (AVX-512 has mask registers for that): 8 % of its eye-light frame on the dragon.
-pub(crate) type LaneMask = u32;
-
-/// The [`LaneMask`] of `flag`.
-#[inline(always)]
-pub(crate) fn lane_mask(flag: bool) -> LaneMask {
-    LaneMask::from(flag).wrapping_neg()
-}
-
-/// Each lane's index, as a 32-bit lane: compared with `usize` indices, the AVX2 build
-/// compared four lanes at a time.
-pub(crate) const LANE_INDEX: [u32; PACKET_RAYS] = {
-    let mut index = [0; PACKET_RAYS];
-    let mut i = 0;
-    while i < PACKET_RAYS {
-        index[i] = i as u32;
-        i += 1;
-    }
-    index
-};
 
 /// Bit `g` set where a lane of group `g` (lanes `g·GROUP ..`) is active.
 #[inline(always)]

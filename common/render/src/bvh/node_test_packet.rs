@@ -3,9 +3,8 @@
 //! each test runs one SIMD lane per ray (or per child), on inverse directions made finite as
 //! for single rays (see `node_test_ray`), with compare-selects for `f32::min`/`max`.
 
-use crate::bvh::leaf_packet::lane_mask;
 use crate::bvh::node::{WideNode, EMPTY, WIDTH};
-use crate::packet::{RayPacket, COMMON_ORIGIN, PACKET_RAYS};
+use crate::packet::{lane_mask, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
 use glam::Vec3;
 
 /// The packet's rays in lanes: origins, inverse directions and current hit distances.
@@ -68,7 +67,7 @@ impl Lanes<'_> {
     ) -> bool {
         let shared_lo = min - self.origin;
         let shared_hi = max - self.origin;
-        // Or-ed as a 32-bit mask per lane, not a `bool`: see `leaf_packet::LaneMask`.
+        // Or-ed as a 32-bit mask per lane, not a `bool`: see `packet::LaneMask`.
         let mut any = 0;
         for i in 0..PACKET_RAYS {
             let (lo, hi) = if COMMON {

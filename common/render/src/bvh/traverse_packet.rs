@@ -17,7 +17,7 @@
 //! because Rust never fuses a multiply and an add into an FMA on its own, so every node of a
 //! wall renders the same pixels whatever its CPU.
 
-use crate::bvh::leaf_packet::{self, lane_mask, ShearedLanes, LANE_INDEX};
+use crate::bvh::leaf_packet::{self, ShearedLanes};
 use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, WIDTH};
 use crate::bvh::node_test_packet::{Frustum, Lanes};
@@ -26,7 +26,7 @@ use crate::bvh::traverse_ray;
 use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
 use crate::isa::{isa_builds, Build, Isa};
-use crate::packet::{PacketHit, RayPacket, COMMON_ORIGIN, PACKET_RAYS};
+use crate::packet::{lane_mask, PacketHit, RayPacket, COMMON_ORIGIN, LANE_INDEX, PACKET_RAYS};
 use glam::Vec3;
 use std::ops::Range;
 
