@@ -4,7 +4,7 @@
 //! slab distance is a NaN and plain compare-selects stand in for `f32::min`/`max`; the packet
 //! traversal's node tests (`node_test_packet`) rely on the same.
 
-use crate::bvh::node::{WideNode, EMPTY, WIDTH};
+use crate::bvh::node::{WideNode, WIDTH};
 use crate::geometry::Ray;
 
 /// Entry distances into the children's boxes before `t_far`; +inf where the ray misses
@@ -53,17 +53,17 @@ pub(crate) fn enter_mask(
     let mut near = [0f32; WIDTH];
     let mut far = [t_far; WIDTH];
     for axis in 0..3 {
+        let (near_plane, far_plane) = planes(node, axis, inv[axis]);
         for k in 0..WIDTH {
-            let t0 = (node.lo[axis][k] - origin[axis]) * inv[axis];
-            let t1 = (node.hi[axis][k] - origin[axis]) * inv[axis];
-            let (lo, hi) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
-            near[k] = if lo > near[k] { lo } else { near[k] };
-            far[k] = if hi < far[k] { hi } else { far[k] };
+            let t0 = (near_plane[k] - origin[axis]) * inv[axis];
+            let t1 = (far_plane[k] - origin[axis]) * inv[axis];
+            near[k] = if t0 > near[k] { t0 } else { near[k] };
+            far[k] = if t1 < far[k] { t1 } else { far[k] };
         }
     }
     let mut entered = 0u32;
     for k in 0..WIDTH {
-        entered |= (((near[k] <= far[k]) & (node.count[k] != EMPTY)) as u32) << k;
+        entered |= ((near[k] <= far[k]) as u32) << k;
     }
     (near, entered)
 }
@@ -89,30 +89,39 @@ pub(crate) unsafe fn enter_mask_avx2(
     for axis in 0..3 {
         let o = _mm256_set1_ps(origin[axis]);
         let iv = _mm256_set1_ps(inv[axis]);
+        let (near_plane, far_plane) = planes(node, axis, inv[axis]);
         // SAFETY: each array holds WIDTH = 8 floats; unaligned loads need no alignment.
         let (lo, hi) = unsafe {
             (
-                _mm256_loadu_ps(node.lo[axis].as_ptr()),
-                _mm256_loadu_ps(node.hi[axis].as_ptr()),
+                _mm256_loadu_ps(near_plane.as_ptr()),
+                _mm256_loadu_ps(far_plane.as_ptr()),
             )
         };
         let t0 = _mm256_mul_ps(_mm256_sub_ps(lo, o), iv);
         let t1 = _mm256_mul_ps(_mm256_sub_ps(hi, o), iv);
-        near = _mm256_max_ps(_mm256_min_ps(t0, t1), near);
-        far = _mm256_min_ps(_mm256_max_ps(t0, t1), far);
+        near = _mm256_max_ps(t0, near);
+        far = _mm256_min_ps(t1, far);
     }
     let entered = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32;
-    // SAFETY: `count` holds 8 u32s, the 32 bytes the load reads, and an unaligned load
-    // needs no alignment.
-    let count = unsafe { _mm256_loadu_si256(node.count.as_ptr() as *const __m256i) };
-    let empty = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
-        count,
-        _mm256_set1_epi32(EMPTY as i32),
-    ))) as u32;
     let mut out = [0f32; WIDTH];
     // SAFETY: `out` holds 8 floats, the 32 bytes the store writes, unaligned.
     unsafe { _mm256_storeu_ps(out.as_mut_ptr(), near) };
-    (out, entered & !empty)
+    (out, entered)
+}
+
+/// The children's planes on `axis` that a ray with inverse direction component `inv` crosses
+/// first and last: the minima then the maxima where it moves up the axis, else the other way
+/// round. Choosing by sign does what a min/max of the two slab distances would, at half the
+/// operations: `(p - o) · inv` keeps the order of the planes, or reverses it (rounding is
+/// monotonic), and `inv` is never 0. An empty slot (minima +inf, maxima -inf) comes out
+/// entered at +inf and left at -inf, so no ray enters it.
+#[inline(always)]
+fn planes(node: &WideNode, axis: usize, inv: f32) -> (&[f32; WIDTH], &[f32; WIDTH]) {
+    if inv.is_sign_negative() {
+        (&node.hi[axis], &node.lo[axis])
+    } else {
+        (&node.lo[axis], &node.hi[axis])
+    }
 }
 
 /// The ray's inverse direction with an infinite component (a direction parallel to an axis)

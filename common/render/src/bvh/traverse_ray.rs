@@ -104,7 +104,7 @@ fn closest_hit_kernel<M: TreeMemory>(
         let mut at = slots.start;
         while at < slots.end {
             let tris = mem.triangles(at..slots.end);
-            best = leaf_ray::closest_hit(ray, tris, at, (t_min, t_max), best);
+            best = leaf_ray::closest_hit(build, ray, tris, at, (t_min, t_max), best);
             at += tris.len() as u32;
         }
         if let Some(b) = best {
@@ -152,7 +152,7 @@ fn occluded_kernel<M: TreeMemory>(
         let mut at = slots.start;
         while at < slots.end && !blocked {
             let tris = mem.triangles(at..slots.end);
-            blocked = leaf_ray::any_hit(ray, tris, t_min, t_max);
+            blocked = leaf_ray::any_hit(build, ray, tris, t_min, t_max);
             at += tris.len() as u32;
         }
         blocked
