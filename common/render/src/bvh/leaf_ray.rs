@@ -69,7 +69,8 @@ unsafe fn gather_corners_avx2(tris: &[LeafTriangle]) -> [[[f32; LANES]; 3]; 3] {
     // SAFETY: every index is below `tris.len() * FLOATS`; a triangle is FLOATS = 9 floats,
     // so eight from its start stay inside it, and its ninth is at offset 8.
     let (rows, ninth) = unsafe {
-        let rows: [__m256; LANES] = index.map(|i| _mm256_loadu_ps(base.add(i as usize)));
+        let rows: [__m256; LANES] =
+            std::array::from_fn(|j| _mm256_loadu_ps(base.add(index[j] as usize)));
         let vindex = _mm256_loadu_si256(index.as_ptr() as *const __m256i);
         (rows, _mm256_i32gather_ps::<4>(base.add(8), vindex))
     };
@@ -131,10 +132,16 @@ fn test_chunk<B: Build>(
     // axis is known only at run time), 70 instructions a lane.
     let corner = gather_corners(build, tris);
     // Relative to the origin, on the shear frame's axes: what `(p - o)[k]` gives.
-    let rel = |k: usize| -> [[f32; LANES]; 3] {
-        [kx, ky, kz].map(|axis| corner[k][axis].map(|v| v - o[axis]))
-    };
-    let [a, b, c] = [rel(0), rel(1), rel(2)];
+    // (Loops, not `array::map`: that was left a call, compiled without AVX2.)
+    let mut rel = [[[0f32; LANES]; 3]; 3];
+    for k in 0..3 {
+        for (i, axis) in [kx, ky, kz].into_iter().enumerate() {
+            for j in 0..LANES {
+                rel[k][i][j] = corner[k][axis][j] - o[axis];
+            }
+        }
+    }
+    let [a, b, c] = rel;
     let mut out = ChunkHits {
         t: [0.0; LANES],
         hit: [false; LANES],
@@ -172,10 +179,16 @@ pub(crate) fn any_hit<B: Build>(
     t_max: f32,
 ) -> bool {
     if tris.len() < WIDE_FROM {
-        return tris.iter().any(|tri| {
-            ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
+        // A plain loop: `Iter::any` was left a call, compiled without AVX2.
+        for tri in tris {
+            if ray
+                .hit_triangle(tri.a, tri.b, tri.c, t_min, t_max)
                 .is_some()
-        });
+            {
+                return true;
+            }
+        }
+        return false;
     }
     for chunk in tris.chunks(LANES) {
         let hits = test_chunk(build, ray, chunk, t_min, t_max);
