@@ -67,17 +67,20 @@ pub struct RayPacket {
 impl RayPacket {
     /// Primary rays of the `w × h ≤ 8 × 8` pixel block at `(x0, y0)`, row-major.
     pub fn primary(rays: &PixelRays, x0: u32, y0: u32, w: u32, h: u32) -> Self {
-        if w != 8 {
-            return Self::primary_jittered(rays, x0, y0, w, h, |_, _| (0.5, 0.5));
-        }
+        // One packet, returned on every path: an early return of another one made the
+        // compiler build this one aside and copy its 2.8 KB out.
         let mut p = Self::at_eye(rays, (w * h) as usize);
-        // A full-width block (all but the right edge of a tile): lane i is pixel
-        // (i % 8, i / 8), and the directions come lane-wide, with the operations of
-        // `PixelRays::direction_at` in its order, so the bits are the same.
-        let lanes = p.len;
-        let sx: [f32; PACKET_RAYS] = std::array::from_fn(|i| (x0 + (i % 8) as u32) as f32);
-        let sy: [f32; PACKET_RAYS] = std::array::from_fn(|i| (y0 + (i / 8) as u32) as f32);
-        rays.directions_soa(&sx[..lanes], &sy[..lanes], &mut p.dir);
+        if w == 8 {
+            // A full-width block (all but the right edge of a tile): lane i is pixel
+            // (i % 8, i / 8), and the directions come lane-wide, with the operations of
+            // `PixelRays::direction_at` in its order, so the bits are the same.
+            let lanes = p.len;
+            let sx: [f32; PACKET_RAYS] = std::array::from_fn(|i| (x0 + (i % 8) as u32) as f32);
+            let sy: [f32; PACKET_RAYS] = std::array::from_fn(|i| (y0 + (i / 8) as u32) as f32);
+            rays.directions_soa(&sx[..lanes], &sy[..lanes], &mut p.dir);
+        } else {
+            p.aim_jittered(rays, (x0, y0, w), |_, _| (0.5, 0.5));
+        }
         p
     }
 
@@ -106,18 +109,29 @@ impl RayPacket {
         y0: u32,
         w: u32,
         h: u32,
-        mut jitter: impl FnMut(u32, u32) -> (f32, f32),
+        jitter: impl FnMut(u32, u32) -> (f32, f32),
     ) -> Self {
         let mut p = Self::at_eye(rays, (w * h) as usize);
-        for i in 0..p.len {
+        p.aim_jittered(rays, (x0, y0, w), jitter);
+        p
+    }
+
+    /// Points lane i at `jitter(x, y)` of pixel `(x, y)`, the i-th of the block `w` wide from
+    /// `(x0, y0)`, row-major.
+    fn aim_jittered(
+        &mut self,
+        rays: &PixelRays,
+        (x0, y0, w): (u32, u32, u32),
+        mut jitter: impl FnMut(u32, u32) -> (f32, f32),
+    ) {
+        for i in 0..self.len {
             let (x, y) = (x0 + i as u32 % w, y0 + i as u32 / w);
             let (jx, jy) = jitter(x, y);
             let d = rays.direction_at(x, y, jx, jy);
             for axis in 0..3 {
-                p.dir[axis][i] = d[axis];
+                self.dir[axis][i] = d[axis];
             }
         }
-        p
     }
 
     /// Rays with their own origins (shadow and ambient-occlusion packets).

@@ -205,8 +205,10 @@ fn span(values: &[f32]) -> (f32, f32) {
         lo[k] = if v < lo[k] { v } else { lo[k] };
         hi[k] = if v > hi[k] { v } else { hi[k] };
     }
+    // No running bound is a NaN, so compare-selects fold them too: `f32::min`, NaN-aware,
+    // made each fold a chain of 16 four-instruction steps, most of this function's time.
     (
-        lo.iter().fold(f32::INFINITY, |a, &b| a.min(b)),
-        hi.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)),
+        lo.iter().fold(f32::INFINITY, |a, &b| fmin(a, b)),
+        hi.iter().fold(f32::NEG_INFINITY, |a, &b| fmax(a, b)),
     )
 }
