@@ -445,10 +445,7 @@ fn eye_light_packet(
             lanes.hit[i] = lane_mask(true);
         }
     }
-    let mut colors = [[0.0f32; 64]; 3];
-    crate::lanes::eye_light_colors_on(Isa::best(), &lanes, &packet.dir, &mut colors);
-    for (i, sum) in sum.iter_mut().enumerate().take(packet.len()) {
-        *sum += Vec3::new(colors[0][i], colors[1][i], colors[2][i]);
-    }
+    let rgb: &mut [[f32; 3]; 64] = bytemuck::cast_mut(sum);
+    crate::lanes::eye_light_colors_on(Isa::best(), &lanes, &packet.dir, rgb);
     true
 }
