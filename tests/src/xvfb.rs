@@ -82,6 +82,10 @@ impl Xvfb {
                 &format!("{size}x24"),
                 "-nolisten",
                 "tcp",
+                // An X server resets when its last client leaves: the readiness probe below
+                // is one, and a display that connected during the reset was refused ("Failed
+                // to open connection to X server"; once in CI, reproduced under load).
+                "-noreset",
             ])
             .stdout(Stdio::null())
             .stderr(log.reopen().expect("Xvfb's log"))
@@ -127,10 +131,14 @@ impl Xvfb {
     }
 
     /// Waits for a mapped window titled `title` and returns `xwininfo`'s description of it,
-    /// or `None` if none appeared within `limit`.
-    pub fn window(&self, title: &str, limit: Duration) -> Option<String> {
+    /// or `None` if none appeared within `limit` or `alive` says the program that would open it
+    /// is gone (its output then says why, at once instead of after `limit`).
+    pub fn window(&self, title: &str, limit: Duration, alive: impl Fn() -> bool) -> Option<String> {
         let mut info = String::new();
         let found = wait_for(limit, || {
+            if !alive() {
+                return true;
+            }
             let out = Command::new("xwininfo")
                 .args(["-name", title])
                 .env("DISPLAY", &self.display)
@@ -141,7 +149,7 @@ impl Xvfb {
             );
             info.contains("IsViewable")
         });
-        found.then_some(info)
+        (found && info.contains("IsViewable")).then_some(info)
     }
 
     /// Grabs the window titled `title` into `shot` until it shows exactly `expected` (RGB,

@@ -44,7 +44,7 @@ fn grid_windows_open_side_by_side_not_on_top_of_each_other() {
         let (x0, y0) = origin.unwrap_or((0, 0));
         for d in 0..3 {
             let title = format!("Tessera display {d}");
-            let Some(info) = xvfb.window(&title, LIMIT) else {
+            let Some(info) = xvfb.window(&title, LIMIT, || !master.has_exited()) else {
                 master.fail(&format!("no window {title:?} on {}", xvfb.display));
             };
             let at = (

@@ -59,15 +59,22 @@ fn a_drag_and_a_key_in_one_window_steer_the_whole_wall() {
     let control = |command: &[&str]| control(&connect, command, LIMIT);
 
     // The wall file placed the windows: side by side, not on top of each other.
-    let window = |title: &str| match xvfb.window(title, LIMIT) {
-        Some(info) => info,
-        None => panic!(
+    // Once in CI neither window appeared within the limit: the master's output (with its
+    // displays') says why.
+    let window = |title: &str| {
+        xvfb.window(title, LIMIT, || !master.has_exited())
+            .ok_or(title.to_string())
+    };
+    let windows = window("Tessera display 0")
+        .and_then(|left| window("Tessera display 1").map(|right| (left, right)));
+    let (left, right) = match windows {
+        Ok(found) => found,
+        Err(title) => master.fail(&format!(
             "no window {title:?} on {}:\n{}",
             xvfb.display,
             xvfb.client("xwininfo", &["-root", "-tree"])
-        ),
+        )),
     };
-    let (left, right) = (window("Tessera display 0"), window("Tessera display 1"));
     assert_eq!(xwininfo_field(&left, "Absolute upper-left X:"), 0, "{left}");
     assert_eq!(
         xwininfo_field(&right, "Absolute upper-left X:"),
