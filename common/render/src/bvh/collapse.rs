@@ -57,9 +57,9 @@ fn area(n: &BvhNode) -> f32 {
     d.x * d.y + d.y * d.z + d.z * d.x
 }
 
-/// Collapses a binary BVH (children of inner node `i` at `first` and `first + 1`) into a
-/// wide one, the root first and every wide node before its children. Deterministic, linear in
-/// the node count.
+/// Collapses a binary BVH (children of inner node `i` at `first` and `first + 1`, laid out
+/// depth first as `build::depth_first` does) into a wide one, the root first and every wide
+/// node before its children. Deterministic, linear in the node count.
 pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
     let Some(root) = nodes.first() else {
         return Vec::new();
@@ -105,39 +105,45 @@ struct Plan<'a> {
 }
 
 impl<'a> Plan<'a> {
-    /// Fills the table children first. A subtree's costs are needed only until its parent's
-    /// are known, so they live on a stack as deep as the tree, not in a table: a table of them
-    /// was 32 bytes a binary node, about 55 a triangle, during the build.
+    /// Fills the table children first, in one backward sweep of the depth-first layout: there
+    /// every node's pair of children comes after it, the pair before the first child's subtree
+    /// and that before the second's. A subtree's costs are needed only until its parent's are
+    /// known, so they live on a stack as deep as the tree, not in a table: a table of them was
+    /// 32 bytes a binary node, about 55 a triangle, during the build. Sweeping a pair leaves its
+    /// first node's costs on top of its second's, where their parent finds them.
     fn new(nodes: &'a [BvhNode]) -> Self {
-        let mut spans = vec![(0, NOT_CONTIGUOUS); nodes.len()];
-        let mut choices = vec![[Choice::Leaf; WIDTH + 1]; nodes.len()];
-        let mut costs: Vec<[f32; WIDTH]> = Vec::new();
-        // (node, whether its children are done); the second child is pushed first so that its
-        // costs end on top of the first's.
-        let mut stack = vec![(0u32, false)];
-        while let Some((i, children_done)) = stack.pop() {
-            let n = &nodes[i as usize];
-            let i = i as usize;
-            if n.count > 0 {
-                spans[i] = (n.first, n.count);
-                costs.push([area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH]);
-            } else if !children_done {
-                stack.extend([(i as u32, true), (n.first + 1, false), (n.first, false)]);
-            } else {
-                let (l, r) = (n.first as usize, n.first as usize + 1);
-                spans[i] = join(spans[l], spans[r]);
-                let right = costs.pop().expect("the second child's costs");
-                let left = costs.pop().expect("the first child's costs");
-                let (cost, choice) = node_costs(area(n), spans[i], &left, &right);
-                costs.push(cost);
-                choices[i] = choice;
-            }
-        }
-        Plan {
+        let mut plan = Plan {
             nodes,
-            spans,
-            choices,
+            spans: vec![(0, NOT_CONTIGUOUS); nodes.len()],
+            choices: vec![[Choice::Leaf; WIDTH + 1]; nodes.len()],
+        };
+        let mut costs: Vec<[f32; WIDTH]> = Vec::new();
+        let mut pair = nodes.len();
+        while pair > 1 {
+            pair -= 2;
+            let first = plan.settle(pair, &mut costs);
+            let second = plan.settle(pair + 1, &mut costs);
+            costs.extend([second, first]);
         }
+        plan.settle(0, &mut costs);
+        plan
+    }
+
+    /// Node `i`'s costs as 1..=8 roots, and its table entry; an inner node's children's
+    /// costs are popped off `costs`, the first child's on top.
+    fn settle(&mut self, i: usize, costs: &mut Vec<[f32; WIDTH]>) -> [f32; WIDTH] {
+        let n = &self.nodes[i];
+        if n.count > 0 {
+            self.spans[i] = (n.first, n.count);
+            return [area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH];
+        }
+        let (l, r) = (n.first as usize, n.first as usize + 1);
+        self.spans[i] = join(self.spans[l], self.spans[r]);
+        let left = costs.pop().expect("the first child's costs");
+        let right = costs.pop().expect("the second child's costs");
+        let (cost, choice) = node_costs(area(n), self.spans[i], &left, &right);
+        self.choices[i] = choice;
+        cost
     }
 
     /// The slots of binary node `c` if the plan makes it a leaf.

@@ -348,7 +348,6 @@ mod tests {
         }
     }
 
-    /// Render nodes with different core counts must build the same tree: the leaf order
     /// The AVX2 node test gives the portable one's mask and entry distances, on a collapsed
     /// tree's real nodes (with empty slots) and rays from inside and outside, some parallel
     /// to an axis.
