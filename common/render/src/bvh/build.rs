@@ -42,38 +42,12 @@ impl Accel {
     /// The build when many triangles share one box (see `coincident`): each group goes to
     /// obvhs as one triangle and comes back as a balanced subtree.
     fn build_with_groups(tris: &[Triangle], groups: &[Vec<u32>]) -> Accel {
-        let mut grouped = vec![false; tris.len()];
-        for g in groups {
-            for &m in g {
-                grouped[m as usize] = true;
-            }
-        }
-        let mut input: Vec<u32> = (0..tris.len() as u32)
-            .filter(|&i| !grouped[i as usize])
-            .collect();
-        let mut group_of = vec![None; input.len()];
-        for (g, members) in groups.iter().enumerate() {
-            input.push(members[0]);
-            group_of.push(Some(g as u32));
-        }
-        drop(grouped);
-        let subset: Vec<Triangle> = input.iter().map(|&i| tris[i as usize]).collect();
-        let bvh = build_bvh2_from_tris(
-            &subset,
-            Self::preset(subset.len()),
-            &mut Duration::default(),
-        );
-        drop(subset);
-        let (flat, flat_order) = flatten_expanding(&bvh, tris, &input, &group_of, groups);
-        let (nodes, order) = depth_first(flat.len(), |i| flat[i], &flat_order);
-        drop((flat, flat_order));
-        let largest = groups.iter().map(Vec::len).max().unwrap_or(1);
+        let (nodes, order, depth) = grouped_tree(tris, groups);
         tracing::info!(
             "{} triangles in {} groups with equal boxes: each built as one balanced subtree",
             groups.iter().map(Vec::len).sum::<usize>(),
             groups.len()
         );
-        let depth = bvh.max_depth + 2 * (usize::BITS - largest.leading_zeros()) as usize + 2;
         Self::from_order(nodes, tris, order, depth)
     }
 
@@ -138,6 +112,38 @@ impl Accel {
             _ => "very_fast",
         }
     }
+}
+
+/// The binary tree over `tris` when `groups` of them share one box, laid out as
+/// [`depth_first`] lays a tree out (the flattening does that itself), with the scene triangle
+/// of each leaf slot and a bound on the depth.
+fn grouped_tree(tris: &[Triangle], groups: &[Vec<u32>]) -> (Vec<BvhNode>, Vec<u32>, usize) {
+    let mut grouped = vec![false; tris.len()];
+    for g in groups {
+        for &m in g {
+            grouped[m as usize] = true;
+        }
+    }
+    let mut input: Vec<u32> = (0..tris.len() as u32)
+        .filter(|&i| !grouped[i as usize])
+        .collect();
+    let mut group_of = vec![None; input.len()];
+    for (g, members) in groups.iter().enumerate() {
+        input.push(members[0]);
+        group_of.push(Some(g as u32));
+    }
+    drop(grouped);
+    let subset: Vec<Triangle> = input.iter().map(|&i| tris[i as usize]).collect();
+    let bvh = build_bvh2_from_tris(
+        &subset,
+        Accel::preset(subset.len()),
+        &mut Duration::default(),
+    );
+    drop(subset);
+    let (nodes, order) = flatten_expanding(&bvh, tris, &input, &group_of, groups);
+    let largest = groups.iter().map(Vec::len).max().unwrap_or(1);
+    let depth = bvh.max_depth + 2 * (usize::BITS - largest.leading_zeros()) as usize + 2;
+    (nodes, order, depth)
 }
 
 /// The scene's triangles as obvhs takes them, made on every thread: one thread alone took
@@ -236,6 +242,29 @@ mod tests {
             out.sort();
         }
         assert_eq!(leaves.0, leaves.1);
+    }
+
+    /// The grouped build's flattening already lays the tree out depth first: laying it out
+    /// again changes nothing.
+    #[test]
+    fn the_grouped_tree_is_laid_out_depth_first() {
+        let mut scene = knot_scene(64, 12);
+        let base = scene.positions.len() as u32;
+        let centre = scene.bounds().center();
+        scene
+            .positions
+            .extend([centre, centre + glam::Vec3::X, centre + glam::Vec3::Z]);
+        scene.triangles.extend([[base, base + 1, base + 2]; 500]);
+        let tris = obvhs_triangles(&scene);
+        let groups = coincident_groups(&tris);
+        assert_eq!(groups.len(), 1);
+        let (nodes, order, _) = grouped_tree(&tris, &groups);
+        let (again, again_order) = depth_first(nodes.len(), |i| nodes[i], &order);
+        assert_eq!(
+            bytemuck::cast_slice::<_, u8>(&again),
+            bytemuck::cast_slice::<_, u8>(&nodes)
+        );
+        assert_eq!(again_order, order);
     }
 
     /// Render nodes with different core counts must build the same tree: the leaf order
