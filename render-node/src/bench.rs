@@ -10,7 +10,7 @@ use tessera_cli::SceneArgs;
 use tessera_model::camera::Camera;
 use tessera_model::params::{RenderParams, RenderParamsSpec, Shading};
 use tessera_model::wall::{parse_size, TileGrid, WallSpec};
-use tessera_render::bench::{time_passes, AoReach, Pass, PassTimes};
+use tessera_render::bench::{time_passes, AoRays, AoReach, Pass, PassTimes};
 use tessera_render::bvh::cache::{load_or_build_timed, Source};
 use tessera_render::bvh::Accel;
 use tessera_render::isa::Isa;
@@ -39,6 +39,11 @@ pub struct BenchArgs {
     /// renderer's reach a share of the scene's diagonal).
     #[arg(long)]
     ao_unbounded: bool,
+    /// Time the ambient-occlusion rays a second time, each hit's traced together as packets
+    /// from their common origin (`TESSERA_AO_PACKET_MRAYPS`; they lose to single rays and take
+    /// twice their time, so they are left out unless asked for).
+    #[arg(long)]
+    ao_packets: bool,
     /// Skip the 1-thread re-run that measures thread scaling.
     #[arg(long)]
     no_scaling: bool,
@@ -90,7 +95,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }),
         grid: TileGrid::new(wall),
         size: (width, height),
-        ao: (args.ao, reach),
+        ao: AoRays {
+            samples: args.ao,
+            reach,
+            packets: args.ao_packets,
+        },
         frames: args.frames,
     };
     let frames = bench.measure(&pool);
@@ -185,7 +194,7 @@ struct Bench<'a> {
     frame_views: [(&'static str, FrameView, &'static str); 3],
     grid: TileGrid,
     size: (u32, u32),
-    ao: (u32, AoReach),
+    ao: AoRays,
     frames: u32,
 }
 
@@ -334,11 +343,13 @@ impl Frames {
             |p| p.ambient,
             "single rays, cosine-distributed, any hit",
         );
-        self.print(
-            "TESSERA_AO_PACKET_MRAYPS",
-            |p| p.ambient_packets,
-            "the same rays, each hit's traced together as packets from their common origin",
-        );
+        if self.passes[0].ambient_packets.is_some() {
+            self.print(
+                "TESSERA_AO_PACKET_MRAYPS",
+                |p| p.ambient_packets.unwrap_or_default(),
+                "the same rays, each hit's traced together as packets from their common origin",
+            );
+        }
         println!(
             "TESSERA_PRIMARY_HITS {} (of {pixels} primary rays; {ao} AO rays per hit)",
             self.passes[0].hits,

@@ -48,8 +48,20 @@ pub struct PassTimes {
     pub shadow_single: Pass,
     /// Ambient-occlusion rays, `ao_samples` per hit.
     pub ambient: Pass,
-    /// The same rays, each hit's as packets of up to 64 with a common origin.
-    pub ambient_packets: Pass,
+    /// The same rays, each hit's as packets of up to 64 with a common origin; timed only when
+    /// asked for ([`AoRays::packets`]), since they take twice the single rays' time.
+    pub ambient_packets: Option<Pass>,
+}
+
+/// The ambient-occlusion rays [`time_passes`] traces.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AoRays {
+    /// Rays per primary hit.
+    pub samples: u32,
+    /// How far they reach.
+    pub reach: AoReach,
+    /// Whether to time them as common-origin packets too.
+    pub packets: bool,
 }
 
 /// How far ambient-occlusion rays reach in [`time_passes`].
@@ -62,13 +74,13 @@ pub enum AoReach {
 }
 
 /// Traces one frame of `width × height` primary rays, then one shadow ray per hit towards the
-/// first light, then `ao_samples` ambient-occlusion rays per hit, timing each pass.
+/// first light, then `ao.samples` ambient-occlusion rays per hit, timing each pass.
 pub fn time_passes(
     scene: &PreparedScene,
     view: &FrameView,
     width: u32,
     height: u32,
-    (ao_samples, ao_reach): (u32, AoReach),
+    ao: AoRays,
 ) -> PassTimes {
     let blocks: Vec<(u32, u32)> = (0..height.div_ceil(PACKET))
         .flat_map(|by| (0..width.div_ceil(PACKET)).map(move |bx| (bx * PACKET, by * PACKET)))
@@ -87,7 +99,7 @@ pub fn time_passes(
         Light::Directional { towards, .. } => towards,
         Light::Point { position, .. } => position.normalize_or_zero(),
     });
-    let reach = match ao_reach {
+    let reach = match ao.reach {
         AoReach::Renderer => scene.diagonal * view.params.ao_range(),
         AoReach::Unbounded => f32::INFINITY,
     };
@@ -96,8 +108,10 @@ pub fn time_passes(
         primary,
         shadow: time_shadow_packets(scene, view, &traced, towards),
         shadow_single: time_shadow_rays(scene, &starts, towards),
-        ambient: time_ambient(scene, view, &starts, (ao_samples, reach)),
-        ambient_packets: time_ambient_packets(scene, view, &starts, (ao_samples, reach)),
+        ambient: time_ambient(scene, view, &starts, (ao.samples, reach)),
+        ambient_packets: ao
+            .packets
+            .then(|| time_ambient_packets(scene, view, &starts, (ao.samples, reach))),
     }
 }
 
