@@ -7,17 +7,54 @@
 use crate::bvh::node::{WideNode, WIDTH};
 use crate::geometry::Ray;
 
+/// A ray as the node tests read it: its origin, its finite inverse direction (see
+/// [`finite_inverse`]) and, per axis, where in a [`WideNode`] (viewed as floats) the children's
+/// planes it crosses first and last begin: the minima where it moves up the axis, else the
+/// maxima. Choosing by sign does what a min/max of the two slab distances would, at half the
+/// operations: `(p - o) · inv` keeps the order of the planes, or reverses it (rounding is
+/// monotonic), and `inv` is never 0. An empty slot (minima +inf, maxima -inf) comes out entered
+/// at +inf and left at -inf, so no ray enters it. The choice is made once per ray: made per
+/// node, it cost a compare and two conditional moves per axis, and spilled registers.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BoxRay {
+    /// The ray's origin.
+    pub origin: [f32; 3],
+    /// Its finite inverse direction.
+    pub inv: [f32; 3],
+    /// Per axis, the float offset in the node of the planes crossed first.
+    near: [usize; 3],
+    /// Per axis, the float offset of the planes crossed last.
+    far: [usize; 3],
+}
+
+/// Floats in a [`WideNode`].
+const NODE_FLOATS: usize = std::mem::size_of::<WideNode>() / 4;
+
+impl BoxRay {
+    /// The node tests' view of `ray`.
+    pub(crate) fn new(ray: &Ray) -> Self {
+        BoxRay::from_parts(ray.origin.to_array(), finite_inverse(ray))
+    }
+
+    /// The node tests' view of a ray from `origin` with finite inverse direction `inv`.
+    #[inline(always)]
+    pub(crate) fn from_parts(origin: [f32; 3], inv: [f32; 3]) -> Self {
+        let (lo, hi) = (|axis| axis * WIDTH, |axis| (3 + axis) * WIDTH);
+        let down = |axis: usize| inv[axis].is_sign_negative();
+        BoxRay {
+            origin,
+            inv,
+            near: std::array::from_fn(|a| if down(a) { hi(a) } else { lo(a) }),
+            far: std::array::from_fn(|a| if down(a) { lo(a) } else { hi(a) }),
+        }
+    }
+}
+
 /// Entry distances into the children's boxes before `t_far`; +inf where the ray misses
-/// (or the slot is empty). `inv` must be finite (see [`finite_inverse`]), so that no slab
-/// distance is a NaN.
+/// (or the slot is empty).
 #[inline(always)]
-pub(crate) fn enter_wide(
-    node: &WideNode,
-    origin: [f32; 3],
-    inv: [f32; 3],
-    t_far: f32,
-) -> [f32; WIDTH] {
-    let (near, entered) = enter_mask(node, origin, inv, t_far);
+pub(crate) fn enter_wide(node: &WideNode, ray: &BoxRay, t_far: f32) -> [f32; WIDTH] {
+    let (near, entered) = enter_mask(node, ray, t_far);
     std::array::from_fn(|k| {
         if entered >> k & 1 == 1 {
             near[k]
@@ -27,36 +64,31 @@ pub(crate) fn enter_wide(
     })
 }
 
-/// A test of one ray against a wide node's children: (node, origin, finite inverse
-/// direction, `t_far`) to the children's entry distances and, as bits, which of them it
-/// enters ([`enter_mask`], or its AVX2 build [`enter_mask_avx2`]). Traversals take it as a
-/// parameter so that one traversal serves every SIMD build.
-pub(crate) trait NodeTest:
-    Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32)
-{
-}
+/// A test of one ray against a wide node's children: (node, ray, `t_far`) to the children's
+/// entry distances and, as bits, which of them it enters ([`enter_mask`], or its AVX2 build
+/// [`enter_mask_avx2`]). Traversals take it as a parameter so that one traversal serves every
+/// SIMD build.
+pub(crate) trait NodeTest: Fn(&WideNode, &BoxRay, f32) -> ([f32; WIDTH], u32) {}
 
-impl<F: Fn(&WideNode, [f32; 3], [f32; 3], f32) -> ([f32; WIDTH], u32)> NodeTest for F {}
+impl<F: Fn(&WideNode, &BoxRay, f32) -> ([f32; WIDTH], u32)> NodeTest for F {}
 
 /// The children's entry distances, and as bits (child k is bit k) which of them the ray
-/// enters before `t_far`. `inv` must be finite (see [`finite_inverse`]): then no slab
-/// distance is a NaN (box corners are finite or, in empty slots, infinite, and `inv` is
+/// enters before `t_far`. The inverse direction is finite (see [`finite_inverse`]): then no
+/// slab distance is a NaN (box corners are finite or, in empty slots, infinite, and `inv` is
 /// never 0), so plain compare-selects do what `f32::min`/`max` would, without their NaN
 /// handling, which tripled the instructions of this loop.
 #[inline(always)]
-pub(crate) fn enter_mask(
-    node: &WideNode,
-    origin: [f32; 3],
-    inv: [f32; 3],
-    t_far: f32,
-) -> ([f32; WIDTH], u32) {
+pub(crate) fn enter_mask(node: &WideNode, ray: &BoxRay, t_far: f32) -> ([f32; WIDTH], u32) {
+    let floats: &[f32; NODE_FLOATS] = bytemuck::cast_ref(node);
+    let plane = |at: usize| -> &[f32] { &floats[at..at + WIDTH] };
     let mut near = [0f32; WIDTH];
     let mut far = [t_far; WIDTH];
     for axis in 0..3 {
-        let (near_plane, far_plane) = planes(node, axis, inv[axis]);
+        let (near_plane, far_plane) = (plane(ray.near[axis]), plane(ray.far[axis]));
+        let (o, inv) = (ray.origin[axis], ray.inv[axis]);
         for k in 0..WIDTH {
-            let t0 = (near_plane[k] - origin[axis]) * inv[axis];
-            let t1 = (far_plane[k] - origin[axis]) * inv[axis];
+            let t0 = (near_plane[k] - o) * inv;
+            let t1 = (far_plane[k] - o) * inv;
             near[k] = if t0 > near[k] { t0 } else { near[k] };
             far[k] = if t1 < far[k] { t1 } else { far[k] };
         }
@@ -79,22 +111,22 @@ pub(crate) fn enter_mask(
 #[inline]
 pub(crate) unsafe fn enter_mask_avx2(
     node: &WideNode,
-    origin: [f32; 3],
-    inv: [f32; 3],
+    ray: &BoxRay,
     t_far: f32,
 ) -> ([f32; WIDTH], u32) {
     use std::arch::x86_64::*;
+    let floats = node as *const WideNode as *const f32;
     let mut near = _mm256_setzero_ps();
     let mut far = _mm256_set1_ps(t_far);
     for axis in 0..3 {
-        let o = _mm256_set1_ps(origin[axis]);
-        let iv = _mm256_set1_ps(inv[axis]);
-        let (near_plane, far_plane) = planes(node, axis, inv[axis]);
-        // SAFETY: each array holds WIDTH = 8 floats; unaligned loads need no alignment.
+        let o = _mm256_set1_ps(ray.origin[axis]);
+        let iv = _mm256_set1_ps(ray.inv[axis]);
+        // SAFETY: `BoxRay::new` makes every offset the start of one of the node's six plane
+        // arrays of WIDTH = 8 floats; unaligned loads need no alignment.
         let (lo, hi) = unsafe {
             (
-                _mm256_loadu_ps(near_plane.as_ptr()),
-                _mm256_loadu_ps(far_plane.as_ptr()),
+                _mm256_loadu_ps(floats.add(ray.near[axis])),
+                _mm256_loadu_ps(floats.add(ray.far[axis])),
             )
         };
         let t0 = _mm256_mul_ps(_mm256_sub_ps(lo, o), iv);
@@ -107,21 +139,6 @@ pub(crate) unsafe fn enter_mask_avx2(
     // SAFETY: `out` holds 8 floats, the 32 bytes the store writes, unaligned.
     unsafe { _mm256_storeu_ps(out.as_mut_ptr(), near) };
     (out, entered)
-}
-
-/// The children's planes on `axis` that a ray with inverse direction component `inv` crosses
-/// first and last: the minima then the maxima where it moves up the axis, else the other way
-/// round. Choosing by sign does what a min/max of the two slab distances would, at half the
-/// operations: `(p - o) · inv` keeps the order of the planes, or reverses it (rounding is
-/// monotonic), and `inv` is never 0. An empty slot (minima +inf, maxima -inf) comes out
-/// entered at +inf and left at -inf, so no ray enters it.
-#[inline(always)]
-fn planes(node: &WideNode, axis: usize, inv: f32) -> (&[f32; WIDTH], &[f32; WIDTH]) {
-    if inv.is_sign_negative() {
-        (&node.hi[axis], &node.lo[axis])
-    } else {
-        (&node.lo[axis], &node.hi[axis])
-    }
 }
 
 /// The ray's inverse direction with an infinite component (a direction parallel to an axis)
@@ -163,12 +180,7 @@ mod tests {
         );
         // Origin on the x = 0 plane, moving along y: (0 - 0) * inf is NaN on x.
         let ray = Ray::new(Vec3::new(0.0, -1.0, 0.5), Vec3::Y);
-        let t = enter_wide(
-            &node,
-            ray.origin.to_array(),
-            finite_inverse(&ray),
-            f32::INFINITY,
-        );
+        let t = enter_wide(&node, &BoxRay::new(&ray), f32::INFINITY);
         assert_eq!(t[0], 1.0);
         assert!(t[1..].iter().all(|t| *t == f32::INFINITY));
     }

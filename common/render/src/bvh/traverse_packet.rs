@@ -21,7 +21,7 @@ use crate::bvh::leaf_packet::{self, ShearedLanes};
 use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, WIDTH};
 use crate::bvh::node_test_packet::{Frustum, Lanes};
-use crate::bvh::node_test_ray::{enter_wide, finite};
+use crate::bvh::node_test_ray::{enter_wide, finite, BoxRay};
 use crate::bvh::traverse_ray;
 use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
@@ -397,12 +397,11 @@ impl<'a> PacketWalk<'a> {
         // it enters on top, nearest last, in an insertion sort of the few (1-3 typically)
         // it enters.
         let node = mem.node(child);
-        let t = enter_wide(
-            node,
+        let ray = BoxRay::from_parts(
             lanes.origin_of::<COMMON>(active),
             lanes.finite_inv_of(active),
-            f32::INFINITY,
         );
+        let t = enter_wide(node, &ray, f32::INFINITY);
         let culled = frustum.misses_children(node);
         // The node's children as it names them: the node is not read again once the hints
         // below go out through the memory.

@@ -10,7 +10,7 @@ use crate::bvh::memory::TreeMemory;
 use crate::bvh::node::{Hit, WideNode, WIDTH};
 #[cfg(target_arch = "x86_64")]
 use crate::bvh::node_test_ray::enter_mask_avx2;
-use crate::bvh::node_test_ray::{enter_mask, finite_inverse, NodeTest};
+use crate::bvh::node_test_ray::{enter_mask, BoxRay, NodeTest};
 use crate::bvh::tree::Accel;
 use crate::geometry::Ray;
 use crate::isa::{isa_builds, Build, Isa};
@@ -167,14 +167,14 @@ fn occluded_kernel<M: TreeMemory>(
 /// instructions).
 #[inline(always)]
 fn node_test<B: Build>(_: B) -> impl NodeTest {
-    move |node: &WideNode, origin: [f32; 3], inv: [f32; 3], t_far: f32| {
+    move |node: &WideNode, ray: &BoxRay, t_far: f32| {
         #[cfg(target_arch = "x86_64")]
         if B::ISA != Isa::Portable {
             // SAFETY: a `B` exists only where the CPU runs its build (see `Build`), and every
             // build above portable has AVX2.
-            return unsafe { enter_mask_avx2(node, origin, inv, t_far) };
+            return unsafe { enter_mask_avx2(node, ray, t_far) };
         }
-        enter_mask(node, origin, inv, t_far)
+        enter_mask(node, ray, t_far)
     }
 }
 
@@ -197,10 +197,9 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
     if mem.is_empty() {
         return;
     }
-    let origin = ray.origin.to_array();
-    let inv = finite_inverse(ray);
+    let ray = BoxRay::new(ray);
     if !ORDERED {
-        traverse_unordered(mem, enter, (origin, inv), stack, t_far, visit);
+        traverse_unordered(mem, enter, &ray, stack, t_far, visit);
         return;
     }
     // Entries are (child, count) pairs: count 0 is an inner node.
@@ -213,7 +212,7 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
             continue;
         }
         let node = mem.node(child);
-        let (t, mut entered) = enter(node, origin, inv, *t_far);
+        let (t, mut entered) = enter(node, &ray, *t_far);
         let (children, counts) = (node.child, node.count);
         // The entered children, nearest first (an insertion sort of at most WIDTH).
         let mut order = [0usize; WIDTH];
@@ -244,7 +243,7 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
 fn traverse_unordered<M: TreeMemory>(
     mem: &mut M,
     enter: impl NodeTest,
-    (origin, inv): ([f32; 3], [f32; 3]),
+    ray: &BoxRay,
     stack: &mut Vec<u32>,
     t_far: &mut f32,
     mut visit: impl FnMut(&mut M, std::ops::Range<u32>, &mut f32) -> bool,
@@ -258,7 +257,7 @@ fn traverse_unordered<M: TreeMemory>(
             }
         } else {
             let node = mem.node(child);
-            let (_, mut entered) = enter(node, origin, inv, *t_far);
+            let (_, mut entered) = enter(node, ray, *t_far);
             let (children, counts) = (node.child, node.count);
             if entered != 0 {
                 let next = (u32::BITS - 1 - entered.leading_zeros()) as usize;
@@ -375,12 +374,11 @@ mod tests {
                     _ => Vec3::new((f * 0.7).cos(), (f * 1.3).sin(), (f * 0.3).cos() - 0.2),
                 };
                 let ray = Ray::new(origin, dir);
-                let (o, inv) = (origin.to_array(), finite_inverse(&ray));
+                let ray = BoxRay::new(&ray);
                 let t_far = if r % 3 == 0 { f32::INFINITY } else { 1.5 };
-                let portable = enter_mask(node, o, inv, t_far);
+                let portable = enter_mask(node, &ray, t_far);
                 // SAFETY: the CPU has AVX2, checked above.
-                let avx2 =
-                    unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, o, inv, t_far) };
+                let avx2 = unsafe { crate::bvh::node_test_ray::enter_mask_avx2(node, &ray, t_far) };
                 assert_eq!(avx2.1, portable.1, "node {n} ray {r}");
                 for k in (0..WIDTH).filter(|k| portable.1 >> k & 1 == 1) {
                     assert_eq!(avx2.0[k], portable.0[k], "node {n} ray {r} child {k}");
