@@ -35,6 +35,7 @@ fn cache_path(dir: &Path, scene: &Scene) -> PathBuf {
     key.update(&scene.content_hash());
     key.update(&FORMAT.to_le_bytes());
     key.update(Accel::preset_name(scene.triangles.len()).as_bytes());
+    key.update(bytemuck::bytes_of(&crate::bvh::collapse::COSTS_KEY));
     dir.join(format!("{}.bvh", &key.finalize().to_hex()[..32]))
 }
 
