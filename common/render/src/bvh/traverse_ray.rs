@@ -100,18 +100,26 @@ fn closest_hit_kernel<M: TreeMemory>(
     let mut best: Option<Hit> = None;
     let mut t_far = t_max;
     let enter = node_test(build);
-    traverse_wide::<true, M>(mem, enter, ray, stack, &mut t_far, |mem, slots, t_far| {
-        let mut at = slots.start;
-        while at < slots.end {
-            let tris = mem.triangles(at..slots.end);
-            best = leaf_ray::closest_hit(build, ray, tris, at, (t_min, t_max), best);
-            at += tris.len() as u32;
-        }
-        if let Some(b) = best {
-            *t_far = b.t;
-        }
-        false
-    });
+    let boxes = BoxRay::new(ray, t_min);
+    traverse_wide::<true, M>(
+        mem,
+        enter,
+        &boxes,
+        stack,
+        &mut t_far,
+        |mem, slots, t_far| {
+            let mut at = slots.start;
+            while at < slots.end {
+                let tris = mem.triangles(at..slots.end);
+                best = leaf_ray::closest_hit(build, ray, tris, at, (t_min, t_max), best);
+                at += tris.len() as u32;
+            }
+            if let Some(b) = best {
+                *t_far = b.t;
+            }
+            false
+        },
+    );
     best
 }
 
@@ -148,7 +156,9 @@ fn occluded_kernel<M: TreeMemory>(
     let mut t_far = t_max;
     let mut blocked = false;
     let enter = node_test(build);
-    traverse_wide::<ORDERED_OCCLUSION, M>(mem, enter, ray, stack, &mut t_far, |mem, slots, _| {
+    let boxes = BoxRay::new(ray, t_min);
+    let boxes = &boxes;
+    traverse_wide::<ORDERED_OCCLUSION, M>(mem, enter, boxes, stack, &mut t_far, |mem, slots, _| {
         let mut at = slots.start;
         while at < slots.end && !blocked {
             let tris = mem.triangles(at..slots.end);
@@ -188,7 +198,7 @@ const ORDERED_OCCLUSION: bool = false;
 pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
     mem: &mut M,
     enter: impl NodeTest,
-    ray: &Ray,
+    ray: &BoxRay,
     stack: &mut Vec<u32>,
     t_far: &mut f32,
     mut visit: impl FnMut(&mut M, std::ops::Range<u32>, &mut f32) -> bool,
@@ -197,9 +207,8 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
     if mem.is_empty() {
         return;
     }
-    let ray = BoxRay::new(ray);
     if !ORDERED {
-        traverse_unordered(mem, enter, &ray, stack, t_far, visit);
+        traverse_unordered(mem, enter, ray, stack, t_far, visit);
         return;
     }
     // Entries are (child, count) pairs: count 0 is an inner node.
@@ -212,7 +221,7 @@ pub(crate) fn traverse_wide<const ORDERED: bool, M: TreeMemory>(
             continue;
         }
         let node = mem.node(child);
-        let (t, mut entered) = enter(node, &ray, *t_far);
+        let (t, mut entered) = enter(node, ray, *t_far);
         let (children, counts) = (node.child, node.count);
         // The entered children, nearest first (an insertion sort of at most WIDTH).
         let mut order = [0usize; WIDTH];
@@ -323,6 +332,40 @@ mod tests {
         }
     }
 
+    /// A ray that starts beyond its origin skips the boxes it leaves before then: the hits it
+    /// finds are still every triangle's nearest beyond `t_min`, one by one.
+    #[test]
+    fn a_ray_from_t_min_finds_what_brute_force_finds_beyond_it() {
+        let scene = knot_scene(64, 12);
+        let accel = Accel::build(&scene);
+        let mut stack = accel.new_stack();
+        let center = scene.bounds().center();
+        let mut skipped = 0;
+        for i in 0..400 {
+            let a = i as f32 * 0.29;
+            let origin = center + Vec3::new(a.cos() * 6.0, (a * 0.7).sin(), a.sin() * 6.0);
+            let ray = Ray::new(
+                origin,
+                center - origin + Vec3::new(0.0, (a * 2.3).sin(), 0.0),
+            );
+            let t_min = [0.0, 0.3, 0.5, 0.8][i % 4];
+            let brute = accel
+                .triangles
+                .iter()
+                .filter_map(|t| ray.hit_triangle(t.a, t.b, t.c, t_min, f32::INFINITY))
+                .min_by(f32::total_cmp);
+            let got = accel.closest_hit(&ray, t_min, f32::INFINITY, &mut stack);
+            assert_eq!(got.map(|h| h.t), brute, "ray {i} from {t_min}");
+            let blocked = accel.occluded(&ray, t_min, f32::INFINITY, &mut stack);
+            assert_eq!(blocked, brute.is_some(), "ray {i} from {t_min}");
+            skipped += (brute_force_t(&accel, &ray) != brute) as u32;
+        }
+        assert!(
+            skipped > 20,
+            "some rays must pass a hit before t_min ({skipped})"
+        );
+    }
+
     #[test]
     fn single_rays_give_the_portable_answers_on_the_simd_build() {
         let scene = knot_scene(96, 12);
@@ -374,7 +417,7 @@ mod tests {
                     _ => Vec3::new((f * 0.7).cos(), (f * 1.3).sin(), (f * 0.3).cos() - 0.2),
                 };
                 let ray = Ray::new(origin, dir);
-                let ray = BoxRay::new(&ray);
+                let ray = BoxRay::new(&ray, if r % 5 == 0 { 0.7 } else { 0.0 });
                 let t_far = if r % 3 == 0 { f32::INFINITY } else { 1.5 };
                 let portable = enter_mask(node, &ray, t_far);
                 // SAFETY: the CPU has AVX2, checked above.
