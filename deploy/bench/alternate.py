@@ -7,6 +7,8 @@ busy machine slows both alike, and prints each figure's median for each and thei
 OLD and NEW are binaries (e.g. one built from main before a change, one after). Each round
 runs OLD then NEW (then NEW then OLD the next round) for every mesh and thread count; every
 run is `bench --scene MESH --threads N --frames F --no-scaling --ao 16 --ao-unbounded`.
+A figure one binary does not print (binaries before 2026-12-04 print no `ao-surface`, and their
+`ao` is that figure's rays, t from 0) shows as a dash.
 """
 import argparse
 import os
@@ -21,6 +23,7 @@ FIGURES = [
     ("TESSERA_FULL_MRAYPS", "full"),
     ("TESSERA_SHADOW_SINGLE_MRAYPS", "shadow1"),
     ("TESSERA_AO_MRAYPS", "ao"),
+    ("TESSERA_AO_SURFACE_MRAYPS", "ao-surface"),
     ("TESSERA_BYTES_PER_TRIANGLE", "B/tri"),
 ]
 
@@ -64,8 +67,12 @@ def main():
                     runs[b].append(bench(b, mesh, threads, a.frames))
             cells = []
             for n in names:
-                old = statistics.median(x[n] for x in runs[a.old] if n in x)
-                new = statistics.median(x[n] for x in runs[a.new] if n in x)
+                olds = [x[n] for x in runs[a.old] if n in x]
+                news = [x[n] for x in runs[a.new] if n in x]
+                if not olds or not news:
+                    cells.append("-")
+                    continue
+                old, new = statistics.median(olds), statistics.median(news)
                 cells.append(f"{old:7.1f} {new:7.1f} {new / old:5.2f}")
             print(f"{os.path.basename(mesh):<22}{threads:>4}  " + "  ".join(f"{c:>22}" for c in cells),
                   flush=True)

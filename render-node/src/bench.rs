@@ -35,8 +35,11 @@ pub struct BenchArgs {
     /// Ambient-occlusion rays per hit.
     #[arg(long, default_value_t = 4)]
     ao: u32,
-    /// Ambient-occlusion rays of unbounded length, as Embree's `ao` shader traces them (the
-    /// renderer's reach a share of the scene's diagonal).
+    /// Ambient-occlusion rays as Embree's `ao` shader traces them: from the hit point, from
+    /// t = 0.001 (its `tnear`, in scene units), unbounded (`TESSERA_AO_MRAYPS`); the same
+    /// directions from where the renderer starts them (a few ulps off the surface, from t = 0),
+    /// unbounded, are timed too (`TESSERA_AO_SURFACE_MRAYPS`). Without it, AO rays are the
+    /// renderer's: from there, reaching a share of the scene's diagonal.
     #[arg(long)]
     ao_unbounded: bool,
     /// Time the ambient-occlusion rays a second time, each hit's traced together as packets
@@ -338,11 +341,24 @@ impl Frames {
             |p| p.shadow_single,
             "the same shadow rays one by one",
         );
+        let unbounded = self.passes[0].ambient_from_surface.is_some();
         self.print(
             "TESSERA_AO_MRAYPS",
             |p| p.ambient,
-            "single rays, cosine-distributed, any hit",
+            if unbounded {
+                "single rays, cosine-distributed, any hit, as Embree's ao shader: from the hit \
+                 point, t from 0.001, unbounded"
+            } else {
+                "single rays, cosine-distributed, any hit, the renderer's reach"
+            },
         );
+        if unbounded {
+            self.print(
+                "TESSERA_AO_SURFACE_MRAYPS",
+                |p| p.ambient_from_surface.unwrap_or_default(),
+                "the same directions from the renderer's offset origin, t from 0, unbounded",
+            );
+        }
         if self.passes[0].ambient_packets.is_some() {
             self.print(
                 "TESSERA_AO_PACKET_MRAYPS",

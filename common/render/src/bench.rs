@@ -46,8 +46,12 @@ pub struct PassTimes {
     pub shadow: Pass,
     /// The same shadow rays one by one.
     pub shadow_single: Pass,
-    /// Ambient-occlusion rays, `ao_samples` per hit.
+    /// Ambient-occlusion rays, `ao_samples` per hit, as [`AoRays::reach`] says.
     pub ambient: Pass,
+    /// With [`AoReach::Unbounded`], the same directions from where the renderer starts them
+    /// (the offset origin, from t = 0), unbounded: what [`PassTimes::ambient`] measured before
+    /// it traced Embree's rays.
+    pub ambient_from_surface: Option<Pass>,
     /// The same rays, each hit's as packets of up to 64 with a common origin; timed only when
     /// asked for ([`AoRays::packets`]), since they take twice the single rays' time.
     pub ambient_packets: Option<Pass>,
@@ -69,9 +73,28 @@ pub struct AoRays {
 pub enum AoReach {
     /// As the renderer traces them: a share of the scene's diagonal (`RenderParams::ao_range`).
     Renderer,
-    /// Unbounded, as Embree's `ao` tutorial shader traces them.
+    /// As Embree's `ao` tutorial shader traces them: from the hit point itself, from
+    /// t = [`EMBREE_AO_T_NEAR`] (in scene units), unbounded.
     Unbounded,
 }
+
+/// Where Embree's `ao` shader starts its rays (`tnear`, in the scene's units; 3.13's
+/// `tutorial_device.cpp`): on the dragon, about three triangles' widths, so those rays skip the
+/// triangles around the hit, which the renderer's rays (from an origin pushed a few ulps off
+/// the surface, t from 0) test.
+pub const EMBREE_AO_T_NEAR: f32 = 0.001;
+
+/// Where a primary ray hit: the point, the origin secondary rays start from (pushed off the
+/// surface, see [`offset_origin`]), and the normal facing the eye.
+#[derive(Clone, Copy, Debug)]
+struct Start {
+    point: Vec3,
+    origin: Vec3,
+    normal: Vec3,
+}
+
+/// An ambient-occlusion ray's start and reach: origin, t_min, t_max.
+type AoFrom = fn(&Start, f32) -> (Vec3, f32, f32);
 
 /// Traces one frame of `width × height` primary rays, then one shadow ray per hit towards the
 /// first light, then `ao.samples` ambient-occlusion rays per hit, timing each pass.
@@ -99,19 +122,26 @@ pub fn time_passes(
         Light::Directional { towards, .. } => towards,
         Light::Point { position, .. } => position.normalize_or_zero(),
     });
-    let reach = match ao.reach {
-        AoReach::Renderer => scene.diagonal * view.params.ao_range(),
-        AoReach::Unbounded => f32::INFINITY,
+    let reach = scene.diagonal * view.params.ao_range();
+    let renderer: AoFrom = |s, reach| (s.origin, 0.0, reach);
+    let embree: AoFrom = |s, _| (s.point, EMBREE_AO_T_NEAR, f32::INFINITY);
+    let surface: AoFrom = |s, _| (s.origin, 0.0, f32::INFINITY);
+    let ao_from = match ao.reach {
+        AoReach::Renderer => renderer,
+        AoReach::Unbounded => embree,
     };
+    let samples = (ao.samples, reach);
     PassTimes {
         hits: starts.len() as u64,
         primary,
         shadow: time_shadow_packets(scene, view, &traced, towards),
         shadow_single: time_shadow_rays(scene, &starts, towards),
-        ambient: time_ambient(scene, view, &starts, (ao.samples, reach)),
+        ambient: time_ambient(scene, view, &starts, samples, ao_from),
+        ambient_from_surface: (ao.reach == AoReach::Unbounded)
+            .then(|| time_ambient(scene, view, &starts, samples, surface)),
         ambient_packets: ao
             .packets
-            .then(|| time_ambient_packets(scene, view, &starts, (ao.samples, reach))),
+            .then(|| time_ambient_packets(scene, view, &starts, samples, ao_from)),
     }
 }
 
@@ -152,7 +182,7 @@ fn ray_starts(
     scene: &PreparedScene,
     view: &FrameView,
     traced: &[(RayPacket, [PacketHit; PACKET_RAYS])],
-) -> Vec<(Vec3, Vec3)> {
+) -> Vec<Start> {
     let primary: Vec<(Vec3, Vec3, Option<Hit>)> = traced
         .iter()
         .flat_map(|(packet, hits)| {
@@ -172,7 +202,11 @@ fn ray_starts(
             |tracer, &(o, d, hit)| hit.map(|h| surface(tracer, o, d, h)),
         )
         .flatten()
-        .map(|(p, n)| (offset_origin(p, n, scene.diagonal), n))
+        .map(|(point, normal)| Start {
+            point,
+            origin: offset_origin(point, normal, scene.diagonal),
+            normal,
+        })
         .collect()
 }
 
@@ -221,15 +255,16 @@ fn time_shadow_packets(
 }
 
 /// Times the same shadow rays one by one.
-fn time_shadow_rays(scene: &PreparedScene, starts: &[(Vec3, Vec3)], towards: Option<Vec3>) -> Pass {
+fn time_shadow_rays(scene: &PreparedScene, starts: &[Start], towards: Option<Vec3>) -> Pass {
     let t1 = Instant::now();
     let shadow_rays: u64 = match towards {
         Some(l) => starts
             .par_iter()
             .map_init(
                 || scene.tracer(),
-                |tracer, &(o, _)| {
-                    std::hint::black_box(tracer.occluded(&Ray::new(o, l), 0.0, f32::INFINITY));
+                |tracer, s| {
+                    let ray = Ray::new(s.origin, l);
+                    std::hint::black_box(tracer.occluded(&ray, 0.0, f32::INFINITY));
                     1u64
                 },
             )
@@ -242,46 +277,52 @@ fn time_shadow_rays(scene: &PreparedScene, starts: &[(Vec3, Vec3)], towards: Opt
     }
 }
 
-/// Times the same ambient-occlusion rays as [`time_ambient`], those of each start traced
-/// together as packets of up to 64 from their common origin.
+/// Times the same ambient-occlusion directions as [`time_ambient`], those of each start traced
+/// together as packets of up to 64 from their common origin (to `from`'s reach; packets start
+/// at t = 0).
 fn time_ambient_packets(
     scene: &PreparedScene,
     view: &FrameView,
-    starts: &[(Vec3, Vec3)],
+    starts: &[Start],
     (ao_samples, reach): (u32, f32),
+    from: AoFrom,
 ) -> Pass {
-    time_ambient_with(scene, view, starts, ao_samples, |tracer, o, directions| {
+    time_ambient_with(scene, view, starts, ao_samples, |tracer, s, directions| {
+        let (o, _, t_max) = from(s, reach);
         let mut directions = directions.peekable();
         while directions.peek().is_some() {
             let chunk = directions.by_ref().take(PACKET_RAYS);
-            let mut packet = RayPacket::from_origin(o, chunk, reach);
+            let mut packet = RayPacket::from_origin(o, chunk, t_max);
             std::hint::black_box(tracer.occluded_lanes(&mut packet));
         }
     })
 }
 
-/// Times `ao_samples` ambient-occlusion rays from each start, reaching `reach`.
+/// Times `ao_samples` ambient-occlusion rays from each start, each from where and to where
+/// `from` says (`reach` the renderer's).
 fn time_ambient(
     scene: &PreparedScene,
     view: &FrameView,
-    starts: &[(Vec3, Vec3)],
+    starts: &[Start],
     (ao_samples, reach): (u32, f32),
+    from: AoFrom,
 ) -> Pass {
-    time_ambient_with(scene, view, starts, ao_samples, |tracer, o, directions| {
+    time_ambient_with(scene, view, starts, ao_samples, |tracer, s, directions| {
+        let (o, t_min, t_max) = from(s, reach);
         for d in directions {
-            std::hint::black_box(tracer.occluded(&Ray::new(o, d), 0.0, reach));
+            std::hint::black_box(tracer.occluded(&Ray::new(o, d), t_min, t_max));
         }
     })
 }
 
-/// Times `trace`, handed each start's origin and its `ao_samples` cosine-distributed
-/// directions (the same for every way of tracing them), on every thread of the pool.
+/// Times `trace`, handed each start and its `ao_samples` cosine-distributed directions (the
+/// same for every way of tracing them), on every thread of the pool.
 fn time_ambient_with(
     scene: &PreparedScene,
     view: &FrameView,
-    starts: &[(Vec3, Vec3)],
+    starts: &[Start],
     ao_samples: u32,
-    trace: impl Fn(&mut crate::Tracer<'_>, Vec3, &mut dyn Iterator<Item = Vec3>) + Sync,
+    trace: impl Fn(&mut crate::Tracer<'_>, &Start, &mut dyn Iterator<Item = Vec3>) + Sync,
 ) -> Pass {
     let t0 = Instant::now();
     let ao_rays: u64 = starts
@@ -289,13 +330,13 @@ fn time_ambient_with(
         .enumerate()
         .map_init(
             || scene.tracer(),
-            |tracer, (i, &(o, n))| {
-                let hemisphere = Hemisphere::around(n);
-                let mut directions = (0..ao_samples).map(|s| {
-                    let mut stream = SampleStream::new(view.frame, i as u32, 0, s);
+            |tracer, (i, s)| {
+                let hemisphere = Hemisphere::around(s.normal);
+                let mut directions = (0..ao_samples).map(|k| {
+                    let mut stream = SampleStream::new(view.frame, i as u32, 0, k);
                     hemisphere.cosine_direction(&mut stream)
                 });
-                trace(tracer, o, &mut directions);
+                trace(tracer, s, &mut directions);
                 ao_samples as u64
             },
         )
