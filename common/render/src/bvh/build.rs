@@ -267,6 +267,25 @@ mod tests {
         assert_eq!(again_order, order);
     }
 
+    /// The collapse fills its table in halves at once for large subtrees: the wide tree is the
+    /// same bit for bit as from one sweep, whichever size is split.
+    #[test]
+    fn the_collapse_is_the_same_swept_in_halves() {
+        let tris = obvhs_triangles(&knot_scene(96, 12));
+        let bvh = build_bvh2_from_tris(&tris, Accel::preset(tris.len()), &mut Duration::default());
+        let node_at = |i: usize| (&bvh.nodes[i]).into();
+        let (nodes, _) = depth_first(bvh.nodes.len(), node_at, &bvh.primitive_indices);
+        let one = crate::bvh::collapse::collapse_with(&nodes, usize::MAX);
+        for parallel_from in [4, 64, 1000] {
+            let halves = crate::bvh::collapse::collapse_with(&nodes, parallel_from);
+            assert_eq!(
+                bytemuck::cast_slice::<_, u8>(&halves),
+                bytemuck::cast_slice::<_, u8>(&one),
+                "split from {parallel_from} nodes"
+            );
+        }
+    }
+
     /// Render nodes with different core counts must build the same tree: the leaf order
     /// breaks ties between equally near hits, so another tree could mean other pixels.
     #[test]

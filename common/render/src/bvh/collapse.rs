@@ -68,6 +68,12 @@ fn area(n: &BvhNode) -> f32 {
 /// depth first as `build::depth_first` does) into a wide one, the root first and every wide
 /// node before its children. Deterministic, linear in the node count.
 pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
+    collapse_with(nodes, PARALLEL_FROM)
+}
+
+/// [`collapse`], the table filled in two halves at once for subtrees of `parallel_from` binary
+/// nodes or more (see `Table::sweep`): the tree is the same for any `parallel_from`.
+pub(crate) fn collapse_with(nodes: &[BvhNode], parallel_from: usize) -> Vec<WideNode> {
     let Some(root) = nodes.first() else {
         return Vec::new();
     };
@@ -76,7 +82,7 @@ pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
         set_child(&mut out[0], 0, root, root.first);
         return out;
     }
-    let plan = Plan::new(nodes);
+    let plan = Plan::new(nodes, parallel_from);
     let mut stack = vec![(0u32, 0usize)];
     let mut roots = Vec::with_capacity(WIDTH);
     while let Some((index, at)) = stack.pop() {
@@ -112,45 +118,34 @@ struct Plan<'a> {
 }
 
 impl<'a> Plan<'a> {
-    /// Fills the table children first, in one backward sweep of the depth-first layout: there
+    /// Fills the table children first, in backward sweeps of the depth-first layout: there
     /// every node's pair of children comes after it, the pair before the first child's subtree
     /// and that before the second's. A subtree's costs are needed only until its parent's are
     /// known, so they live on a stack as deep as the tree, not in a table: a table of them was
     /// 32 bytes a binary node, about 55 a triangle, during the build. Sweeping a pair leaves its
-    /// first node's costs on top of its second's, where their parent finds them.
-    fn new(nodes: &'a [BvhNode]) -> Self {
-        let mut plan = Plan {
+    /// first node's costs on top of its second's, where their parent finds them. The two
+    /// subtrees below a node are two runs of the layout, so large ones are swept on two
+    /// threads ([`Table::sweep`]) from `parallel_from` nodes on; the table is the same.
+    fn new(nodes: &'a [BvhNode], parallel_from: usize) -> Self {
+        let mut spans = vec![(0, NOT_CONTIGUOUS); nodes.len()];
+        let mut choices = vec![[Choice::Leaf; WIDTH + 1]; nodes.len()];
+        let mut table = Table {
             nodes,
-            spans: vec![(0, NOT_CONTIGUOUS); nodes.len()],
-            choices: vec![[Choice::Leaf; WIDTH + 1]; nodes.len()],
+            parallel_from,
+            base: 0,
+            spans: &mut spans,
+            choices: &mut choices,
         };
         let mut costs: Vec<[f32; WIDTH]> = Vec::new();
-        let mut pair = nodes.len();
-        while pair > 1 {
-            pair -= 2;
-            let first = plan.settle(pair, &mut costs);
-            let second = plan.settle(pair + 1, &mut costs);
-            costs.extend([second, first]);
+        if nodes.len() > 1 {
+            table.sweep(1, nodes.len(), &mut costs);
         }
-        plan.settle(0, &mut costs);
-        plan
-    }
-
-    /// Node `i`'s costs as 1..=8 roots, and its table entry; an inner node's children's
-    /// costs are popped off `costs`, the first child's on top.
-    fn settle(&mut self, i: usize, costs: &mut Vec<[f32; WIDTH]>) -> [f32; WIDTH] {
-        let n = &self.nodes[i];
-        if n.count > 0 {
-            self.spans[i] = (n.first, n.count);
-            return [area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH];
+        table.settle(0, &mut costs);
+        Plan {
+            nodes,
+            spans,
+            choices,
         }
-        let (l, r) = (n.first as usize, n.first as usize + 1);
-        self.spans[i] = join(self.spans[l], self.spans[r]);
-        let left = costs.pop().expect("the first child's costs");
-        let right = costs.pop().expect("the second child's costs");
-        let (cost, choice) = node_costs(area(n), self.spans[i], &left, &right);
-        self.choices[i] = choice;
-        cost
     }
 
     /// The slots of binary node `c` if the plan makes it a leaf.
@@ -187,6 +182,103 @@ impl<'a> Plan<'a> {
                 Choice::Leaf | Choice::Inner => return out.push(c),
             }
         }
+    }
+}
+
+/// Subtrees below this many binary nodes are swept on one thread.
+const PARALLEL_FROM: usize = 1 << 16;
+
+/// The part of the programme's table from binary node `base` on: what one sweep writes.
+struct Table<'t> {
+    nodes: &'t [BvhNode],
+    /// Subtrees of this many nodes or more are swept in two halves at once.
+    parallel_from: usize,
+    base: usize,
+    spans: &'t mut [Span],
+    choices: &'t mut [[Choice; WIDTH + 1]],
+}
+
+impl Table<'_> {
+    /// Fills the table for the nodes `pair..end`: the subtree below a node whose children are
+    /// at `pair` and `pair + 1`, laid out depth first. Leaves the pair's costs on `costs`, the
+    /// first node's on top. Large subtrees sweep their two halves on two threads.
+    fn sweep(&mut self, pair: usize, end: usize, costs: &mut Vec<[f32; WIDTH]>) {
+        if end - pair < self.parallel_from {
+            let mut at = end;
+            while at > pair {
+                at -= 2;
+                let first = self.settle(at, costs);
+                let second = self.settle(at + 1, costs);
+                costs.extend([second, first]);
+            }
+            return;
+        }
+        // The first child's subtree, then the second's: the second's starts at its pair.
+        let second = &self.nodes[pair + 1];
+        let middle = if second.count > 0 {
+            end
+        } else {
+            second.first as usize
+        };
+        let (mut first_costs, mut second_costs) = (Vec::new(), Vec::new());
+        {
+            let (mut below_first, mut below_second) = self.split(pair + 2, middle);
+            rayon::join(
+                || {
+                    if middle > pair + 2 {
+                        below_first.sweep(pair + 2, middle, &mut first_costs);
+                    }
+                },
+                || {
+                    if end > middle {
+                        below_second.sweep(middle, end, &mut second_costs);
+                    }
+                },
+            );
+        }
+        let first = self.settle(pair, &mut first_costs);
+        let second = self.settle(pair + 1, &mut second_costs);
+        costs.extend([second, first]);
+    }
+
+    /// The table from node `from` to `middle`, and from `middle` on.
+    fn split(&mut self, from: usize, middle: usize) -> (Table<'_>, Table<'_>) {
+        let at = from - self.base;
+        let (spans, choices) = (&mut self.spans[at..], &mut self.choices[at..]);
+        let (first_spans, second_spans) = spans.split_at_mut(middle - from);
+        let (first_choices, second_choices) = choices.split_at_mut(middle - from);
+        let table = |base, spans, choices| Table {
+            nodes: self.nodes,
+            parallel_from: self.parallel_from,
+            base,
+            spans,
+            choices,
+        };
+        (
+            table(from, first_spans, first_choices),
+            table(middle, second_spans, second_choices),
+        )
+    }
+
+    /// Node `i`'s costs as 1..=8 roots, and its table entry; an inner node's children's
+    /// costs are popped off `costs`, the first child's on top.
+    fn settle(&mut self, i: usize, costs: &mut Vec<[f32; WIDTH]>) -> [f32; WIDTH] {
+        let n = &self.nodes[i];
+        let at = i - self.base;
+        if n.count > 0 {
+            self.spans[at] = (n.first, n.count);
+            return [area(n) * (LEAF_COST + n.count as f32 * TRIANGLE_COST); WIDTH];
+        }
+        let (l, r) = (
+            n.first as usize - self.base,
+            n.first as usize + 1 - self.base,
+        );
+        self.spans[at] = join(self.spans[l], self.spans[r]);
+        let left = costs.pop().expect("the first child's costs");
+        let right = costs.pop().expect("the second child's costs");
+        let (cost, choice) = node_costs(area(n), self.spans[at], &left, &right);
+        self.choices[at] = choice;
+        cost
     }
 }
 
