@@ -163,7 +163,7 @@ fn obvhs_triangles(scene: &Scene) -> Vec<Triangle> {
 /// The binary tree of `len` nodes (`node_at(i)` is node `i`, the root 0) laid out again
 /// depth first, with the scene triangle of each new leaf slot. Siblings stay side by side and
 /// every inner node's pair of children comes after it: the pair, then the first child's
-/// subtree, then the second's. The collapse then fills its table in one backward sweep of the
+/// subtree, then the second's. The collapse then fills its table in backward sweeps of the
 /// array (`collapse::Plan`); walking obvhs' layout, where a node's children lie anywhere, it
 /// missed the cache at every node (140 of the dragon's 560 ms build). Leaf slots are numbered
 /// in the same depth-first order, so every subtree's triangles are one run of slots (obvhs'
