@@ -8,9 +8,9 @@ use crate::bvh::node::{WideNode, WIDTH};
 use crate::geometry::Ray;
 
 /// A ray as the node tests read it: its origin, its finite inverse direction (see
-/// [`finite_inverse`]), where its interval starts and, per axis, where in a [`WideNode`] (viewed as floats) the children's
-/// planes it crosses first and last begin: the minima where it moves up the axis, else the
-/// maxima. Choosing by sign does what a min/max of the two slab distances would, at half the
+/// [`finite_inverse`]), where its interval starts and, per axis, where in a [`WideNode`]
+/// (viewed as floats) the children's planes it crosses first and last begin: the minima where
+/// it moves up the axis, else the maxima. Choosing by sign does what a min/max of the two slab distances would, at half the
 /// operations: `(p - o) · inv` keeps the order of the planes, or reverses it (rounding is
 /// monotonic), and `inv` is never 0. An empty slot (minima +inf, maxima -inf) comes out entered
 /// at +inf and left at -inf, so no ray enters it. The choice is made once per ray: made per
@@ -130,8 +130,8 @@ pub(crate) unsafe fn enter_mask_avx2(
     for axis in 0..3 {
         let o = _mm256_set1_ps(ray.origin[axis]);
         let iv = _mm256_set1_ps(ray.inv[axis]);
-        // SAFETY: `BoxRay::new` makes every offset the start of one of the node's six plane
-        // arrays of WIDTH = 8 floats; unaligned loads need no alignment.
+        // SAFETY: `BoxRay::from_parts` makes every offset the start of one of the node's six
+        // plane arrays of WIDTH = 8 floats; unaligned loads need no alignment.
         let (lo, hi) = unsafe {
             (
                 _mm256_loadu_ps(floats.add(ray.near[axis])),

@@ -380,8 +380,8 @@ impl<'a> PacketWalk<'a> {
             for slot in slots.clone() {
                 let tri = mem.triangle(slot);
                 let lanes = &mut self.lanes;
-                let interval = (lanes.t_min[i], packet.t_max[i]);
-                if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, interval.0, interval.1) {
+                let (t_min, t_max) = (lanes.t_min[i], packet.t_max[i]);
+                if let Some(t) = ray.hit_triangle(tri.a, tri.b, tri.c, t_min, t_max) {
                     // Closest hits accept a tie on a lower slot too (see `Hit::closer`),
                     // so they agree with the single-ray traversal of the 8-wide tree.
                     let best = Some(Hit {

@@ -157,16 +157,22 @@ fn occluded_kernel<M: TreeMemory>(
     let mut blocked = false;
     let enter = node_test(build);
     let boxes = BoxRay::new(ray, t_min);
-    let boxes = &boxes;
-    traverse_wide::<ORDERED_OCCLUSION, M>(mem, enter, boxes, stack, &mut t_far, |mem, slots, _| {
-        let mut at = slots.start;
-        while at < slots.end && !blocked {
-            let tris = mem.triangles(at..slots.end);
-            blocked = leaf_ray::any_hit(build, ray, tris, t_min, t_max);
-            at += tris.len() as u32;
-        }
-        blocked
-    });
+    traverse_wide::<ORDERED_OCCLUSION, M>(
+        mem,
+        enter,
+        &boxes,
+        stack,
+        &mut t_far,
+        |mem, slots, _| {
+            let mut at = slots.start;
+            while at < slots.end && !blocked {
+                let tris = mem.triangles(at..slots.end);
+                blocked = leaf_ray::any_hit(build, ray, tris, t_min, t_max);
+                at += tris.len() as u32;
+            }
+            blocked
+        },
+    );
     blocked
 }
 
