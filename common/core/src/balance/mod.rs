@@ -336,6 +336,17 @@ impl Coordinator {
         Ok(())
     }
 
+    /// The id of the state that holds every change queued so far, and the first frame that
+    /// renders it: the next barrier's, or, where a change started a frame at once (an idle
+    /// or converged wall), the state and frame already started.
+    pub fn queued_state(&self) -> (StateId, FrameId) {
+        if self.pending_changes > 0 {
+            (StateId(self.state_id.0 + 1), self.next_frame)
+        } else {
+            (self.state_id, self.state_since)
+        }
+    }
+
     /// The state the next barrier will apply: the current one with every queued change.
     pub fn next_state(&self) -> WallState {
         self.next

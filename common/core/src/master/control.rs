@@ -221,11 +221,12 @@ impl Master {
                 .queue_change(*change, stamp, now.instant)
                 .map_err(|e| refusal(i, e.to_string()))?;
         }
-        let (id, _) = self.coordinator.state();
+        // The last change may have started a frame already: the reply names the state it made.
+        let (state_id, frame) = self.coordinator.queued_state();
         Ok(ControlReply::Queued {
             changes: changes.len() as u32,
-            state_id: tessera_model::state::StateId(id.0 + 1),
-            frame: self.coordinator.next_frame().0,
+            state_id,
+            frame: frame.0,
         })
     }
 

@@ -1,6 +1,7 @@
 //! The console's side of the master without a network: a still wall snapshots what it shows
 //! and answers once the files are written, a final snapshot waits for the last pass, a series
-//! plays on its own clock, and figures tell rest from rendering.
+//! plays on its own clock, figures tell rest from rendering, and a change's answer names the
+//! state and frame that carry it.
 
 use super::tests::{at, join};
 use super::*;
@@ -310,4 +311,57 @@ fn volume_changes_a_scene_cannot_take_are_refused_naming_why() {
         ControlRequest::Change(vec![StateChange::Volume(volume)]),
     );
     assert!(matches!(fine, ControlReply::Queued { .. }), "{fine:?}");
+}
+
+/// The (frame, state) of every frame start the display was sent.
+fn starts(sent: &[Transmit]) -> Vec<(u64, u64)> {
+    sent.iter()
+        .filter_map(|t| match (&t.msg, t.peer) {
+            (ToNode::FrameStart(s), DISPLAY) => Some((s.frame.0, s.state.0)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_change_names_the_state_and_frame_that_carry_it_even_when_it_starts_one_at_once() {
+    let base = Instant::now();
+    let mut master = still_wall(base, OperatorConfig::default());
+    play(&mut master, base, 10);
+    assert!(master.coordinator.is_converged(), "a resting wall");
+    let (rested, _) = master.coordinator.state();
+    // A converged wall starts a frame with the change inside the request.
+    let first = ask(
+        &mut master,
+        base,
+        20,
+        ControlRequest::Change(vec![StateChange::Spp(2)]),
+    );
+    // With that frame in flight, the next change waits for the next barrier.
+    let second = ask(
+        &mut master,
+        base,
+        20,
+        ControlRequest::Change(vec![StateChange::Spp(3)]),
+    );
+    let sent = play(&mut master, base, 30);
+    let [ControlReply::Queued {
+        state_id: a,
+        frame: fa,
+        ..
+    }, ControlReply::Queued {
+        state_id: b,
+        frame: fb,
+        ..
+    }] = [first.clone(), second.clone()]
+    else {
+        panic!("{first:?} {second:?}")
+    };
+    assert_eq!(a.0, rested.0 + 1, "{first:?}");
+    assert_eq!(b.0, rested.0 + 2, "{second:?}");
+    let starts = starts(&sent);
+    for (frame, state) in [(fa, a.0), (fb, b.0)] {
+        let first_with = starts.iter().find(|&&(_, s)| s == state);
+        assert_eq!(first_with, Some(&(frame, state)), "{starts:?}");
+    }
 }
