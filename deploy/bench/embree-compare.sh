@@ -28,6 +28,9 @@
 #   --no-scaling       skip the 1-thread runs
 #   --no-ao            skip the ambient-occlusion comparison (64 rays per hit: the slowest part)
 #   --reference        also render Tessera's reference image (tessera-master render) per mesh
+#   --embree DIR       Embree's viewer and viewer_stream from DIR rather than Debian's package
+#                      (a machine without apt: copy them, with their libraries on
+#                      LD_LIBRARY_PATH)
 set -euo pipefail
 
 die() { echo "embree-compare: error: $*" >&2; exit 1; }
@@ -73,6 +76,7 @@ while [[ $# -gt 0 ]]; do
         --no-scaling) SCALING=0; shift ;;
         --no-ao) AO=0; shift ;;
         --reference) REFERENCE=1; shift ;;
+        --embree) need_arg "$@"; EMBREE_DIR=$2; shift 2 ;;
         -h|--help) sed -n '2,/^set -euo/{/^set -euo/d;s/^# \{0,1\}//;p}' "$0"; exit 0 ;;
         *) die "unknown argument: $1 (see --help)" ;;
     esac
@@ -117,7 +121,8 @@ run() {
 }
 
 # --- 1. Debian packages ---------------------------------------------------------------------
-PACKAGES=(embree-tools)
+PACKAGES=()
+[[ -n ${EMBREE_DIR:-} ]] || PACKAGES+=(embree-tools)
 for mesh in "${MESHES[@]}"; do
     case $mesh in
         /usr/share/assimp/*) PACKAGES+=(assimp-testmodels) ;;
@@ -125,7 +130,7 @@ for mesh in "${MESHES[@]}"; do
     esac
 done
 MISSING=()
-for pkg in $(printf '%s\n' "${PACKAGES[@]}" | sort -u); do
+for pkg in $(printf '%s\n' "${PACKAGES[@]+"${PACKAGES[@]}"}" | sort -u); do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" \
         || MISSING+=("$pkg")
 done
@@ -137,9 +142,11 @@ if [[ ${#MISSING[@]} -gt 0 ]]; then
     run "$OUT/apt-update.log" 600 apt-get update
     run "$OUT/apt-install.log" 1200 apt-get install -y --no-install-recommends "${MISSING[@]}"
 fi
-VIEWER=/usr/bin/viewer
-STREAM=/usr/bin/viewer_stream
+VIEWER=${EMBREE_DIR:-/usr/bin}/viewer
+STREAM=${EMBREE_DIR:-/usr/bin}/viewer_stream
 [[ -x $VIEWER && -x $STREAM ]] || die "$VIEWER or $STREAM (package embree-tools) not found"
+MISSING_LIBS=$( (ldd "$VIEWER" "$STREAM" 2>&1 || true) | awk '/not found/ { print $1 }' | sort -u | tr '\n' ' ')
+[[ -z $MISSING_LIBS ]] || die "Embree's viewers lack libraries: $MISSING_LIBS(set LD_LIBRARY_PATH)"
 # Embree picks its ISA per run; we measure each one this CPU has and keep the faster.
 ISAS=(avx2)
 grep -qw avx512f /proc/cpuinfo && ISAS+=(avx512)
