@@ -5,6 +5,7 @@
 
 use crate::bvh::coincident::{coincident_groups, flatten_expanding};
 use crate::bvh::collapse::collapse;
+use crate::bvh::layout::depth_first;
 use crate::bvh::node::{BvhNode, LeafTriangle};
 use crate::bvh::tree::Accel;
 use crate::scene::Scene;
@@ -34,8 +35,7 @@ impl Accel {
             max_depth,
             ..
         } = bvh;
-        let (ours, order) = depth_first(nodes.len(), |i| (&nodes[i]).into(), &primitive_indices);
-        drop((nodes, primitive_indices));
+        let (ours, order) = depth_first(nodes, |n| n.into(), primitive_indices);
         Self::from_order(ours, &tris, order, max_depth)
     }
 
@@ -51,7 +51,7 @@ impl Accel {
         Self::from_order(nodes, tris, order, depth)
     }
 
-    /// The accelerator from binary nodes laid out by [`depth_first`] and the scene triangle of
+    /// The accelerator from binary nodes laid out by `layout::depth_first` and the scene triangle of
     /// each leaf slot.
     fn from_order(nodes: Vec<BvhNode>, tris: &[Triangle], order: Vec<u32>, depth: usize) -> Accel {
         // Collapsed before the leaf triangles are made, so the binary tree is gone by then.
@@ -115,7 +115,7 @@ impl Accel {
 }
 
 /// The binary tree over `tris` when `groups` of them share one box, laid out as
-/// [`depth_first`] lays a tree out (the flattening does that itself), with the scene triangle
+/// `layout::depth_first` lays a tree out (the flattening does that itself), with the scene triangle
 /// of each leaf slot and a bound on the depth.
 fn grouped_tree(tris: &[Triangle], groups: &[Vec<u32>]) -> (Vec<BvhNode>, Vec<u32>, usize) {
     let mut grouped = vec![false; tris.len()];
@@ -148,7 +148,7 @@ fn grouped_tree(tris: &[Triangle], groups: &[Vec<u32>]) -> (Vec<BvhNode>, Vec<u3
 
 /// The scene's triangles as obvhs takes them, made on every thread: one thread alone took
 /// 14 ms of the dragon's build, and as much for the leaf triangles.
-fn obvhs_triangles(scene: &Scene) -> Vec<Triangle> {
+pub(super) fn obvhs_triangles(scene: &Scene) -> Vec<Triangle> {
     scene
         .triangles
         .par_iter()
@@ -160,89 +160,12 @@ fn obvhs_triangles(scene: &Scene) -> Vec<Triangle> {
         .collect()
 }
 
-/// The binary tree of `len` nodes (`node_at(i)` is node `i`, the root 0) laid out again
-/// depth first, with the scene triangle of each new leaf slot. Siblings stay side by side and
-/// every inner node's pair of children comes after it: the pair, then the first child's
-/// subtree, then the second's. The collapse then fills its table in backward sweeps of the
-/// array (`collapse::Plan`); walking obvhs' layout, where a node's children lie anywhere, it
-/// missed the cache at every node (140 of the dragon's 560 ms build). Leaf slots are numbered
-/// in the same depth-first order, so every subtree's triangles are one run of slots (obvhs'
-/// order is not: 62 % of the dragon's subtrees were split) and the collapse may make any small
-/// subtree one leaf.
-fn depth_first(
-    len: usize,
-    node_at: impl Fn(usize) -> BvhNode,
-    order: &[u32],
-) -> (Vec<BvhNode>, Vec<u32>) {
-    let mut nodes = Vec::with_capacity(len);
-    let mut renumbered = Vec::with_capacity(order.len());
-    nodes.push(node_at(0));
-    // Nodes of ours still to lay out below, in depth-first order; until then `first` is the
-    // children's index in obvhs' layout (or the leaf's first slot in `order`).
-    let mut stack = vec![0usize];
-    while let Some(at) = stack.pop() {
-        let children_to = nodes.len();
-        let node = &mut nodes[at];
-        if node.count > 0 {
-            let slots = node.first as usize..(node.first + node.count) as usize;
-            node.first = renumbered.len() as u32;
-            renumbered.extend_from_slice(&order[slots]);
-            continue;
-        }
-        let children_from = node.first as usize;
-        node.first = children_to as u32;
-        nodes.extend([node_at(children_from), node_at(children_from + 1)]);
-        // The second child pushed first, so the first is laid out and numbered first.
-        stack.extend([children_to + 1, children_to]);
-    }
-    (nodes, renumbered)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::bvh::node::{EMPTY, WIDTH};
     use crate::geometry::Bounds;
     use crate::scene::knot_scene;
-
-    /// The depth-first layout is the same tree: node for node the same boxes and the same
-    /// triangles under each leaf; every node's children come after it; each subtree's slots
-    /// are one run.
-    #[test]
-    fn the_depth_first_layout_is_the_same_tree_in_order() {
-        let tris = obvhs_triangles(&knot_scene(96, 16));
-        let bvh = build_bvh2_from_tris(&tris, Accel::preset(tris.len()), &mut Duration::default());
-        let old: Vec<BvhNode> = bvh.nodes.iter().map(BvhNode::from).collect();
-        let (new, order) = depth_first(old.len(), |i| old[i], &bvh.primitive_indices);
-        assert_eq!(new.len(), old.len());
-        // (old index, new index); returns the new subtree's slots.
-        fn walk(old: &[BvhNode], new: &[BvhNode], o: usize, n: usize) -> (u32, u32) {
-            let (a, b) = (&old[o], &new[n]);
-            assert_eq!((a.min, a.max, a.count), (b.min, b.max, b.count), "node {n}");
-            if b.count > 0 {
-                return (b.first, b.count);
-            }
-            assert!(b.first as usize > n, "node {n}'s children come after it");
-            let (f, o) = (b.first as usize, a.first as usize);
-            let (first, second) = (walk(old, new, o, f), walk(old, new, o + 1, f + 1));
-            assert_eq!(first.0 + first.1, second.0, "node {n}'s slots are one run");
-            (first.0, first.1 + second.1)
-        }
-        assert_eq!(walk(&old, &new, 0, 0), (0, tris.len() as u32));
-        // Each leaf holds the triangles it held: compare as sets per leaf via the old order.
-        let mut leaves = (Vec::new(), Vec::new());
-        for (nodes, slots, out) in [
-            (&old, &bvh.primitive_indices, &mut leaves.0),
-            (&new, &order, &mut leaves.1),
-        ] {
-            for node in nodes.iter().filter(|n| n.count > 0) {
-                let range = node.first as usize..(node.first + node.count) as usize;
-                out.push((node.min.to_array().map(f32::to_bits), slots[range].to_vec()));
-            }
-            out.sort();
-        }
-        assert_eq!(leaves.0, leaves.1);
-    }
 
     /// The grouped build's flattening already lays the tree out depth first: laying it out
     /// again changes nothing.
@@ -259,7 +182,7 @@ mod tests {
         let groups = coincident_groups(&tris);
         assert_eq!(groups.len(), 1);
         let (nodes, order, _) = grouped_tree(&tris, &groups);
-        let (again, again_order) = depth_first(nodes.len(), |i| nodes[i], &order);
+        let (again, again_order) = depth_first(nodes.clone(), |n| *n, order.clone());
         assert_eq!(
             bytemuck::cast_slice::<_, u8>(&again),
             bytemuck::cast_slice::<_, u8>(&nodes)
@@ -273,8 +196,7 @@ mod tests {
     fn the_collapse_is_the_same_swept_in_halves() {
         let tris = obvhs_triangles(&knot_scene(96, 12));
         let bvh = build_bvh2_from_tris(&tris, Accel::preset(tris.len()), &mut Duration::default());
-        let node_at = |i: usize| (&bvh.nodes[i]).into();
-        let (nodes, _) = depth_first(bvh.nodes.len(), node_at, &bvh.primitive_indices);
+        let (nodes, _) = depth_first(bvh.nodes, |n| n.into(), bvh.primitive_indices);
         let one = crate::bvh::collapse::collapse_with(&nodes, usize::MAX);
         for parallel_from in [4, 64, 1000] {
             let halves = crate::bvh::collapse::collapse_with(&nodes, parallel_from);

@@ -65,7 +65,7 @@ fn area(n: &BvhNode) -> f32 {
 }
 
 /// Collapses a binary BVH (children of inner node `i` at `first` and `first + 1`, laid out
-/// depth first as `build::depth_first` does) into a wide one, the root first and every wide
+/// depth first as `layout::depth_first` does) into a wide one, the root first and every wide
 /// node before its children. Deterministic, linear in the node count.
 pub fn collapse(nodes: &[BvhNode]) -> Vec<WideNode> {
     collapse_with(nodes, PARALLEL_FROM)

@@ -22,6 +22,7 @@ mod build;
 pub mod cache;
 mod coincident;
 pub mod collapse;
+mod layout;
 mod leaf_packet;
 mod leaf_ray;
 pub mod memory;
