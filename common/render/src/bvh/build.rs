@@ -75,20 +75,24 @@ impl Accel {
     /// second on a wall node; bigger scenes trade tree quality for build time.
     pub fn preset(triangles: usize) -> BvhBuildParams {
         match triangles {
-            // Leaves of up to 4 and a cheaper collapse: on the 70k-triangle bunny, against
-            // obvhs' medium or fast presets (leaves of 8), shadow packets 25 % and AO rays
-            // 10 % faster, primary rays 4 % slower, at about twice the bytes per triangle
-            // (which a mesh this size can afford). On multi-million-triangle meshes the larger
-            // tree cost more in cache misses than it saved (primary rays on the 4.2M knot
-            // 17.6 -> 12.1 Mrays/s), so they take larger leaves.
+            // Small leaves: on the 70k-triangle bunny, leaves of up to 4 against obvhs' medium
+            // or fast presets (leaves of 8) made shadow packets 25 % and AO rays 10 % faster,
+            // primary rays 4 % slower, at about twice the bytes per triangle (which a mesh this
+            // size can afford). On multi-million-triangle meshes the larger tree cost more in
+            // cache misses than it saved (primary rays on the 4.2M knot 17.6 -> 12.1 Mrays/s),
+            // so they take larger leaves.
             //
-            // No second reinsertion pass after obvhs' leaf collapse (medium's doubles the
-            // first): on the dragon the build ran 1.56 -> 1.76 Mtris/s (2 threads) and on the
-            // CT bone 1.90 -> 1.99, with AO, shadow, primary and eye-light rays the same within
-            // noise; our own collapse makes the wide tree's leaves anyway.
+            // No leaf collapse in obvhs at all (leaves of 1, so no second reinsertion pass
+            // either): our own collapse makes the wide tree's leaves of up to 8 anyway, from
+            // the binary tree's costs. obvhs' collapse was a fifth of the build; without it
+            // the dragon built at 2.17-2.25 -> 2.55-2.56 Mtris/s and the CT bone at
+            // 2.48-2.58 -> 2.68-2.78 (2 threads), with the same bytes per triangle, the same
+            // peak memory (the mesh's loading sets it), and primary, eye-light, shadow and AO
+            // rays the same within noise on the dragon, the CT bone and the bunny (1 thread).
+            // Before that, dropping the second reinsertion pass ran the dragon's build
+            // 1.56 -> 1.76 Mtris/s.
             0..1_000_000 => BvhBuildParams {
-                max_prims_per_leaf: 4,
-                collapse_traversal_cost: 0.5,
+                max_prims_per_leaf: 1,
                 post_collapse_reinsertion_batch_ratio_multiplier: 0.0,
                 ..BvhBuildParams::medium_build()
             },
@@ -107,7 +111,7 @@ impl Accel {
     /// cache key.
     pub fn preset_name(triangles: usize) -> &'static str {
         match triangles {
-            0..1_000_000 => "medium-leaf4-once",
+            0..1_000_000 => "medium-leaf1",
             1_000_000..8_000_000 => "fast-leaf16",
             _ => "very_fast",
         }
