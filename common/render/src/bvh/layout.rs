@@ -44,14 +44,18 @@ fn split_depth_first<N: Sync>(
     order: Vec<u32>,
     levels: u32,
 ) -> (Vec<BvhNode>, Vec<u32>) {
-    let node_at = |i: usize| node_of(&nodes[i]);
+    let source = Source {
+        nodes: &nodes,
+        node_of,
+    };
+    let node_at = |i: usize| source.at(i);
     let mut root = node_at(0);
     let mut plan = Plan::default();
     plan.place(Placed::Root, root, levels, &node_at);
     let pieces: Vec<Piece> = plan
         .segments
         .par_iter()
-        .map(|segment| segment.lay_out(&node_at, &order))
+        .map(|segment| segment.lay_out(&source, &order))
         .collect();
     drop(nodes);
     drop(order);
@@ -70,6 +74,28 @@ fn split_depth_first<N: Sync>(
     }
     laid[0] = root;
     (laid, slots)
+}
+
+/// obvhs' nodes, read as ours.
+struct Source<'a, N, F> {
+    nodes: &'a [N],
+    node_of: F,
+}
+
+impl<N, F: Fn(&N) -> BvhNode> Source<'_, N, F> {
+    fn at(&self, i: usize) -> BvhNode {
+        (self.node_of)(&self.nodes[i])
+    }
+
+    /// Starts loading the pair of nodes from `i`.
+    fn prefetch_pair(&self, i: usize) {
+        if let Some(pair) = self.nodes.get(i..i + 2) {
+            // Its first and last byte: a pair may straddle two cache lines.
+            let (start, bytes) = (pair.as_ptr() as *const u8, size_of_val(pair));
+            crate::bvh::memory::prefetch(start, 1);
+            crate::bvh::memory::prefetch(start.wrapping_add(bytes - 1), 1);
+        }
+    }
 }
 
 /// Where a node above the split lies: the root, or one of a pair segment's two.
@@ -146,10 +172,10 @@ impl Piece {
 }
 
 impl Segment {
-    fn lay_out(&self, node_at: &(impl Fn(usize) -> BvhNode + Sync), order: &[u32]) -> Piece {
+    fn lay_out<N, F: Fn(&N) -> BvhNode>(&self, source: &Source<N, F>, order: &[u32]) -> Piece {
         match *self {
             Segment::Pair(children) => Piece {
-                nodes: vec![node_at(children), node_at(children + 1)],
+                nodes: vec![source.at(children), source.at(children + 1)],
                 slots: Vec::new(),
                 relative: false,
             },
@@ -159,7 +185,7 @@ impl Segment {
                 relative: false,
             },
             Segment::Below(node) => {
-                let (nodes, slots) = below(node, node_at, order);
+                let (nodes, slots) = below(node, source, order);
                 Piece {
                     nodes,
                     slots,
@@ -172,9 +198,9 @@ impl Segment {
 
 /// `node` at index 0 and everything below it laid out depth first, on this thread; leaf slots
 /// numbered from 0.
-fn below(
+fn below<N, F: Fn(&N) -> BvhNode>(
     node: BvhNode,
-    node_at: &impl Fn(usize) -> BvhNode,
+    source: &Source<N, F>,
     order: &[u32],
 ) -> (Vec<BvhNode>, Vec<u32>) {
     let mut nodes = vec![node];
@@ -193,7 +219,13 @@ fn below(
         }
         let children_from = node.first as usize;
         node.first = children_to as u32;
-        nodes.extend([node_at(children_from), node_at(children_from + 1)]);
+        let pair = [source.at(children_from), source.at(children_from + 1)];
+        // The first child's pair is read next and the second's after the first's subtree:
+        // asked for now, obvhs' scattered nodes are in cache by then.
+        for child in pair.iter().filter(|c| c.count == 0) {
+            source.prefetch_pair(child.first as usize);
+        }
+        nodes.extend(pair);
         // The second child pushed first, so the first is laid out and numbered first.
         stack.extend([children_to + 1, children_to]);
     }

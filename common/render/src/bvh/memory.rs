@@ -97,7 +97,7 @@ const PREFETCH_BYTES: usize = 256;
 /// Prefetches the cache lines of `bytes` bytes from `start` (a hint: it never faults, so
 /// the range need not be valid).
 #[inline(always)]
-fn prefetch(start: *const u8, bytes: usize) {
+pub(crate) fn prefetch(start: *const u8, bytes: usize) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
