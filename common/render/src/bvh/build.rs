@@ -82,19 +82,24 @@ impl Accel {
             // cache misses than it saved (primary rays on the 4.2M knot 17.6 -> 12.1 Mrays/s),
             // so they take larger leaves.
             //
-            // No leaf collapse in obvhs at all (leaves of 1, so no second reinsertion pass
-            // either): our own collapse makes the wide tree's leaves of up to 8 anyway, from
-            // the binary tree's costs. obvhs' collapse was a fifth of the build; without it
-            // the dragon built at 2.17-2.25 -> 2.55-2.56 Mtris/s and the CT bone at
-            // 2.48-2.58 -> 2.68-2.78 (2 threads), with the same bytes per triangle, the same
-            // peak memory (the mesh's loading sets it), and primary, eye-light, shadow and AO
-            // rays the same within noise on the dragon, the CT bone and the bunny (1 thread).
-            // Before that, dropping the second reinsertion pass ran the dragon's build
-            // 1.56 -> 1.76 Mtris/s.
+            // No leaf collapse in obvhs at all (leaves of 1, which also skips the second
+            // reinsertion pass): our own collapse makes the wide tree's leaves of up to 8
+            // anyway, from the binary tree's costs. obvhs' collapse was a fifth of the build;
+            // without it the dragon built at 2.17-2.25 -> 2.55-2.56 Mtris/s and the CT bone at
+            // 2.48-2.58 -> 2.68-2.78 (2 threads), with the same bytes per triangle and peak
+            // memory (the mesh's loading sets it) and rays the same within noise.
+            //
+            // And obvhs' fast search (PLOC distance 6 against medium's 14, reinsertion of 2 %
+            // against 5 %): the wide tree our collapse makes from it is no slower, and faster
+            // for primary rays. 1 thread, 960x540, 2 alternated rounds against medium's
+            // search: primary rays on the bunny 45.2-45.7 -> 53.5 Mrays/s, the CT bone
+            // 25.6-26.2 -> 27.6, the dragon 17.7-17.9 -> 18.0-18.3; eye-light frames 13 %,
+            // 5 % and 2 % faster; AO and single shadow rays the same within 2 %. No
+            // reinsertion at all built faster still but lost 3 % of the bunny's AO; the
+            // minimum search lost 4 % of the dragon's primary rays.
             0..1_000_000 => BvhBuildParams {
                 max_prims_per_leaf: 1,
-                post_collapse_reinsertion_batch_ratio_multiplier: 0.0,
-                ..BvhBuildParams::medium_build()
+                ..BvhBuildParams::fast_build()
             },
             // Leaves of up to 16 (obvhs' fast preset has 8): on the 4.2M knot the build ran
             // 1.97 -> 2.5-2.7 Mtris/s (2 threads) with primary, shadow and AO rays unchanged
@@ -111,7 +116,7 @@ impl Accel {
     /// cache key.
     pub fn preset_name(triangles: usize) -> &'static str {
         match triangles {
-            0..1_000_000 => "medium-leaf1",
+            0..1_000_000 => "fast-leaf1",
             1_000_000..8_000_000 => "fast-leaf16",
             _ => "very_fast",
         }
