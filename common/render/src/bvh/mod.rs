@@ -10,8 +10,11 @@
 //!    to 8-wide), `coincident` (groups of equal boxes), `node_test_ray` (a ray against a node's
 //!    children), `leaf_ray` and `leaf_packet` (a leaf's triangles against a ray, or a packet).
 //! 3. `node_test_packet` (a packet against a box or a node's children, on `node_test_ray`'s
-//!    finite inverses) and `tree` ([`Accel`]: the arrays, on `collapse` and `memory`).
-//! 4. `build` (obvhs' build, with `coincident`) and `traverse_ray` (single rays).
+//!    finite inverses), `tree` ([`Accel`]: the arrays, on `collapse` and `memory`) and
+//!    `layout` (obvhs' binary tree laid out again depth first, split over the threads, with
+//!    `memory`'s prefetch).
+//! 4. `build` (obvhs' build, with `coincident`, `layout` and `collapse`) and `traverse_ray`
+//!    (single rays).
 //! 5. `cache` (the built tree on disk, on `build`) and `traverse_packet` (64-ray packets, which
 //!    fall back to `traverse_ray`).
 //!
