@@ -14,6 +14,7 @@
 //! with them which triangle wins a tie, are the binary tree's: every pixel stays the same.
 
 use crate::bvh::node::{set_child, BvhNode, WideNode, BLANK, WIDTH};
+use rayon::prelude::*;
 
 /// Cost of visiting a wide node, relative to [`TRIANGLE_COST`], per unit of box area.
 const NODE_COST: f32 = 1.0;
@@ -127,8 +128,15 @@ impl<'a> Plan<'a> {
     /// subtrees below a node are two runs of the layout, so large ones are swept on two
     /// threads ([`Table::sweep`]) from `parallel_from` nodes on; the table is the same.
     fn new(nodes: &'a [BvhNode], parallel_from: usize) -> Self {
-        let mut spans = vec![(0, NOT_CONTIGUOUS); nodes.len()];
-        let mut choices = vec![[Choice::Leaf; WIDTH + 1]; nodes.len()];
+        // Filled (and faulted in) on every thread, 26 bytes a binary node: the dragon's build
+        // at 2 threads 2.86 -> 2.92 Mtris/s, medians of 5 alternated.
+        let mut spans = Vec::with_capacity(nodes.len());
+        spans.par_extend(rayon::iter::repeat_n((0, NOT_CONTIGUOUS), nodes.len()));
+        let mut choices = Vec::with_capacity(nodes.len());
+        choices.par_extend(rayon::iter::repeat_n(
+            [Choice::Leaf; WIDTH + 1],
+            nodes.len(),
+        ));
         let mut table = Table {
             nodes,
             parallel_from,
