@@ -45,7 +45,7 @@ pub(crate) const COSTS_KEY: [f32; 4] = [NODE_COST, TRIANGLE_COST, LEAF_COST, LEA
 const NOT_CONTIGUOUS: u32 = u32::MAX;
 
 /// What the programme chose for one binary node and a number of roots.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 enum Choice {
     /// One root: the whole subtree as one leaf.
     Leaf,
@@ -290,6 +290,37 @@ impl Table<'_> {
     }
 }
 
+/// Per number of roots, the cheapest split of them between two children (the cost, and the
+/// first child's share: the smallest of the cheapest), where the children's costs stop falling
+/// at `a` and `b` roots. More roots than `a + b` split no cheaper than `a + b` do, so those
+/// rows are left infinite (the choice for them is `Fewer` either way), and a first child given
+/// more than `a` is never cheaper, nor first, than given `a`: neither is tried (most nodes lie
+/// near the leaves, where `a + b` is 2 or 3), except the 8 roots' split, which a wide node
+/// keeps. The node's costs and choices are the same as from trying every split.
+fn splits(left: &[f32; WIDTH], right: &[f32; WIDTH]) -> [(f32, u8); WIDTH] {
+    let (a, b) = (falls_until(left), falls_until(right));
+    let mut split = [(f32::INFINITY, 0u8); WIDTH];
+    for roots in (2..=WIDTH).filter(|&r| r <= a + b || r == WIDTH) {
+        for k in 1..roots.min(a + 1) {
+            let c = left[k - 1] + right[roots - k - 1];
+            if c < split[roots - 1].0 {
+                split[roots - 1] = (c, k as u8);
+            }
+        }
+    }
+    split
+}
+
+/// The fewest roots at which `costs` (never rising with more roots) reach their last value:
+/// from there on every entry equals it.
+fn falls_until(costs: &[f32; WIDTH]) -> usize {
+    let last = costs[WIDTH - 1];
+    (1..WIDTH)
+        .rev()
+        .find(|&r| costs[r - 1] != last)
+        .map_or(1, |r| r + 1)
+}
+
 /// An inner node's cost as at most 1..=8 roots, and the choices, from its children's.
 fn node_costs(
     area: f32,
@@ -297,18 +328,17 @@ fn node_costs(
     left: &[f32; WIDTH],
     right: &[f32; WIDTH],
 ) -> ([f32; WIDTH], [Choice; WIDTH + 1]) {
+    choose(area, span, &splits(left, right))
+}
+
+/// [`node_costs`] from the cheapest splits of each number of roots.
+fn choose(
+    area: f32,
+    span: Span,
+    split: &[(f32, u8); WIDTH],
+) -> ([f32; WIDTH], [Choice; WIDTH + 1]) {
     let mut cost = [f32::INFINITY; WIDTH];
     let mut choice = [Choice::Fewer; WIDTH + 1];
-    // As `roots` roots of the two children: the best split of the roots between them.
-    let mut split = [(f32::INFINITY, 0u8); WIDTH];
-    for roots in 2..=WIDTH {
-        for k in 1..roots {
-            let c = left[k - 1] + right[roots - k - 1];
-            if c < split[roots - 1].0 {
-                split[roots - 1] = (c, k as u8);
-            }
-        }
-    }
     let inner = area * NODE_COST + split[WIDTH - 1].0;
     choice[WIDTH] = Choice::Split(split[WIDTH - 1].1);
     let leaf = if span.1 != NOT_CONTIGUOUS && span.1 <= LEAF_LIMIT {
@@ -339,5 +369,60 @@ fn join(a: Span, b: Span) -> Span {
         _ if whole && a.0 + a.1 == b.0 => (a.0, a.1 + b.1),
         _ if whole && b.0 + b.1 == a.0 => (b.0, a.1 + b.1),
         _ => (0, NOT_CONTIGUOUS),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every split tried, the reference `splits` must equal.
+    fn every_split(left: &[f32; WIDTH], right: &[f32; WIDTH]) -> [(f32, u8); WIDTH] {
+        let mut split = [(f32::INFINITY, 0u8); WIDTH];
+        for roots in 2..=WIDTH {
+            for k in 1..roots {
+                let c = left[k - 1] + right[roots - k - 1];
+                if c < split[roots - 1].0 {
+                    split[roots - 1] = (c, k as u8);
+                }
+            }
+        }
+        split
+    }
+
+    /// Costs that never rise with more roots, with plateaus and ties as the programme makes
+    /// them (a root more that buys nothing repeats the cost exactly), a leaf's flat ones too.
+    fn costs(seed: &mut u64) -> [f32; WIDTH] {
+        let mut next = || {
+            *seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (*seed >> 33) as u32
+        };
+        let mut c = [(next() % 64) as f32 * 0.25 + 1.0; WIDTH];
+        for r in 1..WIDTH {
+            c[r] = match next() % 3 {
+                0 => c[r - 1],
+                _ => c[r - 1] - (next() % 4) as f32 * 0.25,
+            };
+        }
+        c
+    }
+
+    #[test]
+    fn splits_tried_only_where_they_can_win_choose_as_every_split_does() {
+        let mut seed = 7;
+        for _ in 0..20_000 {
+            let (left, right) = (costs(&mut seed), costs(&mut seed));
+            let area = (seed >> 40) as f32 * 1e-6;
+            for span in [(0, 2), (0, 9), (0, NOT_CONTIGUOUS)] {
+                let fast = node_costs(area, span, &left, &right);
+                let every = choose(area, span, &every_split(&left, &right));
+                assert_eq!(fast.1, every.1, "{left:?} {right:?}");
+                assert_eq!(fast.0.map(f32::to_bits), every.0.map(f32::to_bits));
+            }
+        }
+        let nan = [f32::NAN; WIDTH];
+        assert_eq!(falls_until(&nan), WIDTH, "NaN costs try every split");
     }
 }
