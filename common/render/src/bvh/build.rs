@@ -51,8 +51,8 @@ impl Accel {
         Self::from_order(nodes, tris, order, depth)
     }
 
-    /// The accelerator from binary nodes laid out by `layout::depth_first` and the scene triangle of
-    /// each leaf slot.
+    /// The accelerator from binary nodes laid out by `layout::depth_first` and the scene
+    /// triangle of each leaf slot.
     fn from_order(nodes: Vec<BvhNode>, tris: &[Triangle], order: Vec<u32>, depth: usize) -> Accel {
         // Collapsed before the leaf triangles are made, so the binary tree is gone by then.
         let wide = collapse(&nodes);

@@ -21,23 +21,32 @@ const PARALLEL_FROM: usize = 1 << 16;
 const SPLIT_LEVELS: u32 = 6;
 
 /// `nodes` (obvhs' layout, the root first, `node_of` each one in ours) and the leaf slots'
-/// triangles `order` laid out depth first: the new nodes and each new slot's triangle. Both
-/// inputs are freed before the new arrays are made, so the peak holds one tree's nodes twice,
-/// as a one-thread layout's does.
+/// triangles `order` laid out depth first: the new nodes and each new slot's triangle. The
+/// peak holds the tree's nodes twice either way: obvhs' beside ours on one thread; split, the
+/// pieces beside the array they are copied into, obvhs' freed before.
 pub(super) fn depth_first<N: Sync>(
     nodes: Vec<N>,
     node_of: impl Fn(&N) -> BvhNode + Sync,
     order: Vec<u32>,
 ) -> (Vec<BvhNode>, Vec<u32>) {
-    let levels = if nodes.len() < PARALLEL_FROM {
-        0
+    if nodes.len() < PARALLEL_FROM {
+        one_thread(&nodes, node_of, &order)
     } else {
-        SPLIT_LEVELS
-    };
-    split_depth_first(nodes, node_of, order, levels)
+        split_depth_first(nodes, node_of, order, SPLIT_LEVELS)
+    }
 }
 
-/// [`depth_first`] split `levels` below the root (0: on one thread).
+/// [`depth_first`] on this thread, straight into the array: no plan, no copy.
+fn one_thread<N>(
+    nodes: &[N],
+    node_of: impl Fn(&N) -> BvhNode,
+    order: &[u32],
+) -> (Vec<BvhNode>, Vec<u32>) {
+    let source = Source { nodes, node_of };
+    below(source.at(0), &source, order)
+}
+
+/// [`depth_first`] split `levels` below the root (0: one piece, copied).
 fn split_depth_first<N: Sync>(
     nodes: Vec<N>,
     node_of: impl Fn(&N) -> BvhNode + Sync,
@@ -335,8 +344,8 @@ mod tests {
             let bvh = build_bvh2_from_tris(&tris, preset, &mut Duration::default());
             let old: Vec<BvhNode> = bvh.nodes.iter().map(BvhNode::from).collect();
             let order = bvh.primitive_indices.clone();
-            let serial = split_depth_first(old.clone(), |n| *n, order.clone(), 0);
-            for levels in [1, 2, 5, SPLIT_LEVELS, 40] {
+            let serial = one_thread(&old, |n| *n, &order);
+            for levels in [0, 1, 2, 5, SPLIT_LEVELS, 40] {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(levels as usize % 3 + 1)
                     .build()
