@@ -8,7 +8,7 @@
 use crate::bvh::node::Hit;
 use crate::geometry::Ray;
 use crate::packet::{PacketHit, RayPacket, PACKET_RAYS};
-use crate::sampling::{Hemisphere, SampleStream};
+use crate::sampling::{Hemisphere, PixelSeed};
 use crate::scene::Light;
 use crate::{offset_origin, surface, FrameView, PreparedScene, PACKET};
 use glam::Vec3;
@@ -332,8 +332,9 @@ fn time_ambient_with(
             || scene.tracer(),
             |tracer, (i, s)| {
                 let hemisphere = Hemisphere::around(s.normal);
+                let seed = PixelSeed::new(view.frame, i as u32, 0);
                 let mut directions = (0..ao_samples).map(|k| {
-                    let mut stream = SampleStream::new(view.frame, i as u32, 0, k);
+                    let mut stream = seed.stream(k);
                     hemisphere.cosine_direction(&mut stream)
                 });
                 trace(tracer, s, &mut directions);

@@ -11,7 +11,7 @@ use crate::bvh::node::Hit;
 use crate::geometry::Ray;
 use crate::packet::PacketHit;
 use crate::prepared::{FrameView, PreparedScene, RayCounts};
-use crate::sampling::{Hemisphere, SampleStream};
+use crate::sampling::{Hemisphere, PixelSeed};
 use crate::scene::Material;
 use crate::slot_colors::SlotColors;
 use crate::surface_hit::{
@@ -293,9 +293,9 @@ impl Shader<'_, '_> {
         let reach = self.scene.diagonal * self.view.params.ao_range();
         let mut open = 0;
         let hemisphere = Hemisphere::around(normal);
+        let seed = PixelSeed::new(self.view.frame, self.pixel.0, self.pixel.1);
         for sample in 0..n {
-            let key = self.first_ao_key + sample;
-            let mut stream = SampleStream::new(self.view.frame, self.pixel.0, self.pixel.1, key);
+            let mut stream = seed.stream(self.first_ao_key + sample);
             let d = hemisphere.cosine_direction(&mut stream);
             if !self.blocked(&Ray::new(start, d), reach) {
                 open += 1;
