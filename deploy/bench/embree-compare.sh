@@ -242,6 +242,20 @@ embree_build() {
     echo "${v:-0}"
 }
 
+# embree_sah LOG -> "total nodes leaves" of the tree's SAH as Embree's verbose statistics print
+# it ("n/a n/a n/a" if the log has none).
+embree_sah() {
+    awk '$2 == ":" && $3 == "sah" && !seen[$1]++ { v[$1] = $5 }
+        END { printf "%s %s %s\n", v["total"] ? v["total"] : "n/a",
+              v["getAABBNodes"] ? v["getAABBNodes"] : "n/a", v["leaves"] ? v["leaves"] : "n/a" }' "$1"
+}
+
+# tessera_sah LOG -> "total nodes leaves" from TESSERA_TREE_SAH, the same statistic of ours.
+tessera_sah() {
+    sed -n 's/^TESSERA_TREE_SAH \([0-9.]*\) (inner nodes \([0-9.]*\), leaves \([0-9.]*\) .*/\1 \2 \3/p' "$1" |
+        tail -n 1 | grep . || echo "n/a n/a n/a"
+}
+
 # embree_primary THREADS [ISA...] -> sets E_VIEWER E_STREAM (best over the ISAs, with the ISA in
 # E_VIEWER_ISA / E_STREAM_ISA), E_BEST, E_MODE and E_BUILD (the best Mprim/s of these runs'
 # builds: one build varies by 2x from run to run, 1.7 to 4.7 Mprim/s on the dragon).
@@ -251,6 +265,7 @@ embree_primary() {
     E_VIEWER=0 E_STREAM=0 E_BUILD=
     for isa in "$@"; do
         log=$(embree_run "$VIEWER" "$isa" "$threads")
+        E_TREE_LOG=$log
         v=$(figure BENCHMARK_RENDER_MRAYPS_AVG "$log")
         if awk -v a="$v" -v b="$E_VIEWER" 'BEGIN { exit !(a > b) }'; then E_VIEWER=$v E_VIEWER_ISA=$isa; fi
         E_BUILD=$(max_of "$(embree_build "$log")" "${E_BUILD:-0}")
@@ -279,6 +294,7 @@ tessera_run() {
 ROWS=()
 AO_ROWS=()
 BUILD_ROWS=()
+TREE_ROWS=()
 for MESH in "${MESHES[@]}"; do
     KEY=$(key_of "$MESH")
     LABEL=$MESH
@@ -320,6 +336,10 @@ for MESH in "${MESHES[@]}"; do
     # The build row compares builds at N threads: the 1-thread runs below set E_BUILD again
     # (until 2026-12-04 the row took theirs, Embree's 1-thread build against ours at N).
     E_BUILD_N=$E_BUILD
+    read -r E_SAH E_SAH_NODES E_SAH_LEAVES < <(embree_sah "$E_TREE_LOG")
+    read -r T_SAH T_SAH_NODES T_SAH_LEAVES < <(tessera_sah "$TLOG")
+    TREE_ROWS+=("$(printf '%-22s %12s %12s %12s %12s %12s %12s' "$LABEL" "$E_SAH_NODES" "$T_SAH_NODES" \
+        "$E_SAH_LEAVES" "$T_SAH_LEAVES" "$E_SAH" "$T_SAH")")
     ROWS+=("$(printf '%-22s %9s %7s %16s %16s %16s %9s %9s %9s %9s %9s %9s %9s %9s' "$LABEL" "$TRIS" \
         "$THREADS" "$E_VIEWER/$E_VIEWER_ISA" "$E_STREAM/$E_STREAM_ISA" "$E_MODE" "$T_MAIN" \
         "$(ratio "$T_MAIN" "$E_BEST")" "$T_EYE" "$(ratio "$T_EYE" "$E_BEST")" \
@@ -395,6 +415,13 @@ echo "and the 8-wide collapse), the cache's load time, and the render node's byt
 printf '%-22s %7s %14s %16s %8s %14s %10s %10s\n' mesh threads "embree Mprim/s" "tessera Mtris/s" \
     ratio "cache load s" "B/tri" "array B/tri"
 printf '%s\n' "${BUILD_ROWS[@]}"
+echo
+echo "The trees by the surface area heuristic, as Embree's verbose statistics count it (box areas"
+echo "over the root's: inner nodes each once, leaves times their blocks of 4 triangles; lower is a"
+echo "tree that asks fewer visits of a ray through the root, uniform over directions):"
+printf '%-22s %12s %12s %12s %12s %12s %12s\n' mesh "embree nodes" "ours nodes" "embree leaves" \
+    "ours leaves" "embree total" "ours total"
+printf '%s\n' "${TREE_ROWS[@]}"
 if [[ $AO -eq 1 ]]; then
     echo
     echo "Ambient occlusion, 64 unbounded rays per hit from t = 0.001 (Embree: viewer --shader ao at"

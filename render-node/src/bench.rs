@@ -150,6 +150,15 @@ fn prepare(
     let cache = crate::cache_dir(args.bvh_cache.clone(), args.no_bvh_cache);
     let (accel, source, build) = pool.install(|| load_or_build_timed(&scene, cache.as_deref()));
     let bvh_seconds = t1.elapsed().as_secs_f64();
+    let sah = accel.sah();
+    println!(
+        "TESSERA_TREE_SAH {:.3} (inner nodes {:.3}, leaves {:.3} in blocks of 4; {} leaves of {:.2} triangles; Embree's verbose statistic)",
+        sah.nodes + sah.leaves,
+        sah.nodes,
+        sah.leaves,
+        sah.leaf_count,
+        sah.leaf_size
+    );
     let mut prepared = PreparedScene::from_accel(&scene, accel);
     // As a render node keeps it (`loading::prepare`).
     prepared.slim_for_rendering();

@@ -36,4 +36,4 @@ pub mod traverse_packet;
 pub mod traverse_ray;
 mod tree;
 
-pub use tree::Accel;
+pub use tree::{Accel, TreeSah};
