@@ -52,6 +52,25 @@ fn gather_corners<B: Build>(_: B, tris: &[LeafTriangle]) -> [[[f32; LANES]; 3]; 
     corner
 }
 
+/// Per last lane of a chunk, each lane's triangle's first float: lane `j` reads triangle
+/// `min(j, last)`. A table, since working it out took a tenth of the corners' gathering.
+#[cfg(target_arch = "x86_64")]
+const LANE_FLOATS: [[i32; LANES]; LANES] = {
+    const FLOATS: usize = std::mem::size_of::<LeafTriangle>() / 4;
+    let mut table = [[0; LANES]; LANES];
+    let mut last = 0;
+    while last < LANES {
+        let mut j = 0;
+        while j < LANES {
+            let tri = if j < last { j } else { last };
+            table[last][j] = (tri * FLOATS) as i32;
+            j += 1;
+        }
+        last += 1;
+    }
+    table
+};
+
 /// [`gather_corners`] in AVX2: an 8×8 transpose of the triangles' first eight floats, and a
 /// gather of the ninth.
 ///
@@ -62,12 +81,11 @@ fn gather_corners<B: Build>(_: B, tris: &[LeafTriangle]) -> [[[f32; LANES]; 3]; 
 #[inline]
 unsafe fn gather_corners_avx2(tris: &[LeafTriangle]) -> [[[f32; LANES]; 3]; 3] {
     use std::arch::x86_64::*;
-    const FLOATS: i32 = (std::mem::size_of::<LeafTriangle>() / 4) as i32;
-    let last = tris.len() - 1;
     let base = tris.as_ptr() as *const f32;
-    let index: [i32; LANES] = std::array::from_fn(|j| j.min(last) as i32 * FLOATS);
-    // SAFETY: every index is below `tris.len() * FLOATS`; a triangle is FLOATS = 9 floats,
-    // so eight from its start stay inside it, and its ninth is at offset 8.
+    let index = &LANE_FLOATS[tris.len() - 1];
+    // SAFETY: every index is a triangle's first float, below `tris.len()` (the table's row
+    // for `tris.len()` lanes); a triangle is 9 floats, so eight from its start stay inside
+    // it, and its ninth is at offset 8.
     let (rows, ninth) = unsafe {
         let rows: [__m256; LANES] =
             std::array::from_fn(|j| _mm256_loadu_ps(base.add(index[j] as usize)));
