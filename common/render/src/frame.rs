@@ -362,7 +362,7 @@ fn shade_packet(
                 Some(hit) => {
                     let m = material.unwrap_or_else(|| scene.material_of(hit, view));
                     shader.pixel = (x0 + i as u32 % w, y0 + i as u32 / w);
-                    shader.primary = shadows.and_then(|s| s[i]);
+                    shader.primary = shadows.as_ref().and_then(|s| s[i]);
                     shader.shade(eye, dir, hit, &m, 0)
                 }
             };
